@@ -1,0 +1,1 @@
+"""File I/O of the suite (no rclpy): chamber-test bags in, residual logs (MCAP) out."""

@@ -1,0 +1,1 @@
+"""Offline tools behind the ``gimbal-friction`` command line (argparse layer + commands; no physics here)."""

@@ -1,0 +1,89 @@
+"""Parameter validation (named errors, never NaN) and the tabulated fast path."""
+
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np
+import pytest
+
+from gimbal_friction.core.errors import ConfigError
+from gimbal_friction.core.model import friction_torque
+from gimbal_friction.core.params import AxisParams, parameter_specs
+from gimbal_friction.core.table import FrictionTable
+
+P0 = AxisParams()
+
+
+@pytest.mark.parametrize(('changes', 'name', 'rule'), [
+    ({'ball_diameter_mm': -1.0}, 'ball_diameter_mm', 'must be > 0'),
+    ({'ball_diameter_mm': 2.5}, 'ball_diameter_mm', 'balls do not fit'),
+    ({'inner_groove_curvature': 0.5}, 'inner_groove_curvature', 'must lie in (0.5, 1)'),
+    ({'steel_poisson_ratio': 0.6}, 'steel_poisson_ratio', 'must lie in [0, 0.5)'),
+    ({'bore_diameter_mm': 30.0}, 'bore_diameter_mm', 'smaller than outside_diameter_mm'),
+    ({'ball_count': 40}, 'ball_count', 'pitch circle'),
+    ({'ball_count': 14.5}, 'ball_count', 'whole number'),
+    ({'housing_outside_diameter_mm': 25.0}, 'housing_outside_diameter_mm', 'must exceed'),
+    ({'walther_b': 2.0}, 'walther_b', 'must lie in'),
+    ({'viscosity_model': 'vogel'}, 'viscosity_model', 'must be one of'),
+    ({'palmgren_factor': math.nan}, 'palmgren_factor', 'finite'),
+    ({'gasket_thickness_mm': 'thick'}, 'gasket_thickness_mm', 'must be a number'),
+    ({'scale_bearing_width': 1}, 'scale_bearing_width', 'true or false'),
+    ({'ball_diamter_mm': 2.0}, 'ball_diamter_mm', 'unknown model parameter'),
+    ({'outer_groove_diameter_mm': 27.0}, 'inner_groove_diameter_mm', 'bore < inner groove'),
+])
+def test_bad_values_are_refused_with_the_parameter_named(changes, name, rule):
+    with pytest.raises(ConfigError) as info:
+        AxisParams.from_mapping(changes)
+    assert info.value.parameter == name
+    assert rule in info.value.rule
+    assert name in str(info.value)
+
+
+def test_specs_document_every_parameter():
+    specs = parameter_specs()
+    assert {s['name'] for s in specs} == set(P0.to_mapping())
+    assert all(s['unit'] and s['description'] for s in specs)
+    assert AxisParams.from_mapping(P0.to_mapping()) == P0
+
+
+def test_int_accepted_for_float_parameter():
+    assert AxisParams.from_mapping({'width_mm': 5}).width_mm == 5.0
+
+
+def test_table_build_is_fast_and_interpolation_error_small():
+    t0 = time.perf_counter()
+    table = FrictionTable(P0, -60.0, 120.0, 0.1)
+    build_s = time.perf_counter() - t0
+    assert build_s < 5.0  # measured ~0.06 s; bench/ reports the number (this is only a sanity bound)
+    assert len(table.grid) == 1801
+    rng = np.random.default_rng(1)
+    temps = rng.uniform(-60.0, 120.0, 400)
+    speeds = rng.uniform(0.0, 5.0, 400)
+    exact = friction_torque(P0, temps, speeds).m_total_nmm
+    fast = np.array([table.torque_nmm(t, n) for t, n in zip(temps, speeds)])
+    rel = np.abs(fast / exact - 1)
+    assert rel.max() < 2e-5, rel.max()
+    # against the scalar reference solve too
+    some = temps[:15]
+    direct = friction_torque(P0, some, speeds[:15], direct=True).m_total_nmm
+    np.testing.assert_allclose([table.torque_nmm(t, n) for t, n in zip(some, speeds[:15])], direct, rtol=2e-5)
+    # vectorised evaluate gives the scalar numbers
+    _, _, m = table.evaluate(temps, speeds)
+    np.testing.assert_allclose(m, fast, rtol=1e-12)
+
+
+def test_table_scalar_is_microseconds_and_clamps_outside():
+    table = FrictionTable(P0)
+    n = 20000
+    t0 = time.perf_counter()
+    for i in range(n):
+        table.torque_nmm(-40.0 + (i % 100), 1 / 3)
+    per_call = (time.perf_counter() - t0) / n
+    assert per_call < 1e-4  # measured ~2 us
+    edge = table.components(-80.0, 1 / 3)
+    assert not edge.in_range and edge.m_total_nmm == pytest.approx(table.torque_nmm(-60.0, 1 / 3))
+    assert table.components(20.0, 1 / 3).in_range
+    assert table.torque_nm(-40.0, 2 * math.pi / 180) == pytest.approx(1e-3 * table.torque_nmm(-40.0, 1 / 3),
+                                                                       rel=1e-12)

@@ -1,0 +1,109 @@
+"""``gimbal-friction model`` and ``report`` through their main(): formats, layering, one-line refusals."""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import subprocess
+import sys
+
+import pytest
+
+from gimbal_friction.config import render_parameter_file
+from gimbal_friction.core.model import CONTRACT_FIELDS
+from gimbal_friction.tools.cli import main
+
+
+def test_model_json_has_contract_fields(capsys):
+    assert main(['model', '--temperature', '-40,0,60', '--format', 'json']) == 0
+    out = capsys.readouterr().out
+    rows = json.loads(out)
+    assert [r['temperature_c'] for r in rows] == [-40.0, 0.0, 60.0]
+    assert set(CONTRACT_FIELDS) <= set(rows[0])
+    assert rows[0]['m_total_nmm'] == pytest.approx(3.14, rel=0.01)
+    assert rows[0]['m_viscous_nmm'] == pytest.approx(2.30, rel=0.005)
+
+
+def test_model_range_spec_stop_inclusive_and_csv(capsys):
+    assert main(['model', '-t', '-40:60:20', '--format', 'csv']) == 0
+    rows = list(csv.DictReader(io.StringIO(capsys.readouterr().out)))
+    assert [float(r['temperature_c']) for r in rows] == [-40, -20, 0, 20, 40, 60]
+    assert list(rows[0]) == list(CONTRACT_FIELDS)
+
+
+def test_model_table_default_is_fig11_table(capsys):
+    assert main(['model']) == 0
+    out = capsys.readouterr().out
+    assert 'M [N*mm]' in out and 'loose' in out
+    assert len([line for line in out.splitlines() if line.strip().startswith(('-', '0', '1', '2', '3', '4',
+                                                                              '5', '6'))]) >= 11
+
+
+def test_overrides_and_config_layering(tmp_path, capsys):
+    main(['model', '-t', '60', '--format', 'json'])
+    base = json.loads(capsys.readouterr().out)[0]
+    assert main(['model', '-t', '60', '--format', 'json', '--interference-mm', '0.008']) == 0
+    over = json.loads(capsys.readouterr().out)[0]
+    assert over['axial_force_n'] < base['axial_force_n']  # Fig. 8: more interference, less force when hot
+    cfg = tmp_path / 'lub.yaml'
+    cfg.write_text(render_parameter_file({'walther_a': 8.7}))
+    assert main(['model', '-t', '0', '--format', 'json', '--config', str(cfg)]) == 0
+    layered = json.loads(capsys.readouterr().out)[0]
+    assert layered['viscosity_cst'] > 338.0 * 1.2
+    assert main(['model', '-t', '0', '--format', 'json', '--speed-rpm', '60']) == 0
+    fast = json.loads(capsys.readouterr().out)[0]
+    assert fast['m_viscous_nmm'] > 1.5
+
+
+def test_plot_written(tmp_path, capsys):
+    png = tmp_path / 'fig11.png'
+    assert main(['model', '--plot', str(png), '--format', 'json']) == 0
+    json.loads(capsys.readouterr().out)  # stdout stays pure JSON
+    assert png.stat().st_size > 10000 and png.read_bytes()[:4] == b'\x89PNG'
+
+
+@pytest.mark.parametrize(('argv', 'needle', 'code'), [
+    (['model', '--temperature', 'cold'], 'start:stop:step', 1),
+    (['model', '-t', '60:-40:10'], 'stop >= start', 1),
+    (['model', '--gasket-mm', '-0.1'], "gasket_thickness_mm", 1),
+    (['model', '--axis', 'azimuth'], "'azimuth' is not configured", 1),
+    (['model', '--format', 'xml'], 'invalid choice', 2),
+    (['model', '--config', '/nonexistent.yaml'], 'cannot read', 1),
+])
+def test_bad_input_one_line_reason(capsys, argv, needle, code):
+    with pytest.raises(SystemExit) if code == 2 else _nullcontext() as exc:
+        rc = main(argv)
+    if code == 2:
+        assert exc.value.code == 2
+    else:
+        assert rc == code
+    err = capsys.readouterr().err.strip()
+    assert needle in err and len(err.splitlines()) == 1, err
+
+
+class _nullcontext:
+    def __enter__(self):
+        return None
+
+    def __exit__(self, *exc):
+        return False
+
+
+def test_report_writes_every_figure(tmp_path, capsys):
+    assert main(['report', '--out', str(tmp_path), '--format', 'json']) == 0
+    doc = json.loads(capsys.readouterr().out)
+    names = sorted(p.rsplit('/', 1)[-1] for p in doc['figures'])
+    assert names == ['fig05_free_contact_angle.png', 'fig07_axial_force_gasket.png',
+                     'fig08_axial_force_interference.png', 'fig09_torque_gasket.png',
+                     'fig10_torque_interference.png', 'fig11_components.png']
+    assert all((tmp_path / n).stat().st_size > 10000 for n in names)
+
+
+def test_console_script_runs_and_help(tmp_path):
+    exe = [sys.executable, '-m', 'gimbal_friction.tools.cli']
+    out = subprocess.run(exe + ['--help'], capture_output=True, text=True, timeout=60)
+    assert out.returncode == 0 and 'model' in out.stdout and 'report' in out.stdout
+    out = subprocess.run(exe + ['model', '-t', '-40', '--format', 'json'], capture_output=True, text=True,
+                         timeout=60)
+    assert out.returncode == 0 and json.loads(out.stdout)[0]['temperature_c'] == -40.0
