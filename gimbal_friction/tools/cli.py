@@ -17,11 +17,13 @@ from gimbal_friction.core.errors import GimbalFrictionError
 #: subcommand -> module under gimbal_friction.tools
 SUBCOMMANDS = {
     'model': 'model_cmd',
+    'calibrate-kt': 'calibrate_kt_cmd',
+    'synth-bag': 'synth_bag_cmd',
     'report': 'report_cmd',
 }
 
 #: options whose values may start with '-' (negative temperatures): '--temperature -40,0' is rewritten.
-NEGATIVE_VALUE_OPTIONS = ('--temperature', '-t')
+NEGATIVE_VALUE_OPTIONS = ('--temperature', '-t', '--plateaus')
 
 
 class OneLineParser(argparse.ArgumentParser):

@@ -1,0 +1,252 @@
+"""Machinery shared by the nodes: model/settings parameters with descriptors, diagnostics, and ``main``.
+
+Model parameters (every :class:`AxisParams` field) are declared as ``model.<field>`` with the packaged defaults,
+and per-joint overrides as ``axis.<joint>.<field>`` (unset unless given), exactly the layout of the parameter
+files (config.py). Values are validated by the core on start-up and on every ``set_parameters``: an invalid value
+is refused with the core's reason and the old value stays.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import sys
+import time
+from typing import Any, Callable, Iterable, Mapping, Sequence, TypeVar
+
+import rclpy
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, SetParametersResult
+from rclpy.executors import ExternalShutdownException
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+
+from gimbal_friction.config import axis_names, load_parameters
+from gimbal_friction.core.errors import ConfigError, GimbalFrictionError
+from gimbal_friction.core.params import AxisParams, parameter_specs
+
+T = TypeVar('T')
+OK, WARN, ERROR = DiagnosticStatus.OK, DiagnosticStatus.WARN, DiagnosticStatus.ERROR
+
+
+def _descriptor(name: str, unit: str, description: str, *, bound: Any = None, read_only: bool = False,
+                dynamic: bool = True) -> ParameterDescriptor:
+    unit_txt = '' if unit in ('', '-') else f' [{unit}]'
+    desc = ParameterDescriptor(name=name, description=f'{description}{unit_txt}', read_only=read_only,
+                               dynamic_typing=dynamic)
+    if bound is not None and bound.low is not None and bound.high is not None:
+        if isinstance(bound.low, int) and isinstance(bound.high, int):
+            desc.integer_range = [IntegerRange(from_value=bound.low, to_value=bound.high, step=1)]
+        else:
+            desc.floating_point_range = [FloatingPointRange(from_value=float(bound.low),
+                                                            to_value=float(bound.high), step=0.0)]
+    return desc
+
+
+def _value(param: Parameter) -> Any:
+    if param.type_ == Parameter.Type.NOT_SET:
+        return None
+    value = param.value
+    if isinstance(value, (list, tuple)) or type(value).__name__ == 'array':
+        return list(value)
+    return value
+
+
+class ModelParameters:
+    """Declares the model parameters on ``node`` and turns them into validated :class:`AxisParams`."""
+
+    def __init__(self, node: Node) -> None:
+        self.node = node
+        defaults = load_parameters()  # packaged config/gimbal_friction.yaml
+        default_axes = axis_names(defaults)
+        node.declare_parameter('axes', default_axes, ParameterDescriptor(
+            description='configured gimbal axes = joint names in /joint_states (read-only)', read_only=True))
+        self.axes: list[str] = [str(a) for a in node.get_parameter('axes').value]
+        axis_names({'axes': self.axes})
+        model_defaults = {**AxisParams().to_mapping(), **(defaults.get('model') or {})}
+        default_overrides = defaults.get('axis') or {}
+        self.specs = parameter_specs()
+        for spec in self.specs:
+            name = spec['name']
+            node.declare_parameter(f'model.{name}', model_defaults[name],
+                                   _descriptor(f'model.{name}', spec['unit'], spec['description'],
+                                               bound=spec['bound']))
+        for axis in self.axes:
+            for spec in self.specs:
+                name = spec['name']
+                default = (default_overrides.get(axis) or {}).get(name)
+                node.declare_parameter(f'axis.{axis}.{name}', default,
+                                       _descriptor(f'axis.{axis}.{name}', spec['unit'],
+                                                   f'override of model.{name} for joint {axis}',
+                                                   bound=spec['bound']))
+
+    def current(self, proposed: Mapping[str, Any] | None = None) -> dict[str, AxisParams]:
+        """Validated parameters of every axis, with ``proposed`` (full parameter names) taking precedence.
+
+        Raises:
+            ConfigError: naming ``model.<field>`` or ``axis.<joint>.<field>``.
+        """
+        proposed = proposed or {}
+
+        def get(full: str) -> Any:
+            if full in proposed:
+                return proposed[full]
+            return _value(self.node.get_parameter(full))
+
+        model = {s['name']: get(f'model.{s["name"]}') for s in self.specs}
+        try:
+            base = AxisParams.from_mapping(model)
+        except ConfigError as err:
+            raise ConfigError(f'model.{err.parameter}', err.rule, err.value) from None
+        out = {}
+        for axis in self.axes:
+            override = {s['name']: v for s in self.specs if (v := get(f'axis.{axis}.{s["name"]}')) is not None}
+            try:
+                out[axis] = AxisParams.from_mapping(override, base=base)
+            except ConfigError as err:
+                raise ConfigError(f'axis.{axis}.{err.parameter}', err.rule, err.value) from None
+        return out
+
+    @staticmethod
+    def is_model_parameter(name: str) -> bool:
+        return name.startswith(('model.', 'axis.'))
+
+
+def declare_settings(node: Node, cls: type[T], prefix: str = '') -> T:
+    """Declare every field of the settings dataclass ``cls`` as a parameter and return the validated settings."""
+    values = {}
+    for f in dataclasses.fields(cls):  # type: ignore[arg-type]
+        meta = f.metadata
+        node.declare_parameter(prefix + f.name, f.default,
+                               _descriptor(prefix + f.name, meta.get('unit', ''), meta.get('description', '')))
+        values[f.name] = _value(node.get_parameter(prefix + f.name))
+    return settings_from(cls, values)
+
+
+def settings_from(cls: type[T], values: Mapping[str, Any], base: T | None = None) -> T:
+    """Settings dataclass from parameter values, coerced to the field types and validated.
+
+    Raises:
+        ConfigError: wrong type or a value its ``validate()`` refuses.
+    """
+    kwargs = {}
+    for f in dataclasses.fields(cls):  # type: ignore[arg-type]
+        if f.name not in values:
+            continue
+        value = values[f.name]
+        default = f.default
+        if isinstance(default, bool):
+            if not isinstance(value, bool):
+                raise ConfigError(f.name, 'must be true or false', value)
+        elif isinstance(default, (int, float)):
+            if isinstance(value, bool) or not isinstance(value, (int, float)):
+                raise ConfigError(f.name, 'must be a number', value)
+            value = int(value) if isinstance(default, int) and not isinstance(default, bool) else float(value)
+            if isinstance(value, float) and not math.isfinite(value):
+                raise ConfigError(f.name, 'must be a finite number', value)
+        elif isinstance(default, str):
+            if not isinstance(value, str):
+                raise ConfigError(f.name, 'must be a string', value)
+        elif isinstance(default, (list, tuple)):
+            value = type(default)(value)
+        kwargs[f.name] = value
+    obj = dataclasses.replace(base, **kwargs) if base is not None else cls(**kwargs)  # type: ignore
+    validate = getattr(obj, 'validate', None)
+    if validate is not None:
+        validate()
+    return obj
+
+
+def parameter_guard(node: Node, validate: Callable[[list[Parameter]], None],
+                    apply: Callable[[list[Parameter]], None]) -> None:
+    """Install ``ros2 param set`` semantics: ``validate`` raises ConfigError to refuse (old value stays),
+    ``apply`` runs after a successful set."""
+
+    def on_set(params: list[Parameter]) -> SetParametersResult:
+        try:
+            validate(params)
+        except GimbalFrictionError as err:
+            return SetParametersResult(successful=False, reason=str(err))
+        return SetParametersResult(successful=True)
+
+    def post_set(params: list[Parameter]) -> None:
+        try:
+            apply(params)
+        except GimbalFrictionError as err:  # pragma: no cover - validated before
+            node.get_logger().error(f'could not apply parameters: {err}')
+
+    node.add_on_set_parameters_callback(on_set)
+    node.add_post_set_parameters_callback(post_set)
+
+
+def status(name: str, level: bytes, message: str, hardware_id: str, values: Mapping[str, Any]) -> DiagnosticStatus:
+    """A DiagnosticStatus with ``values`` as KeyValue strings (floats with 6 significant digits)."""
+    kv = []
+    for key, value in values.items():
+        text = f'{value:.6g}' if isinstance(value, float) else str(value)
+        kv.append(KeyValue(key=key, value=text))
+    return DiagnosticStatus(level=level, name=name, message=message, hardware_id=hardware_id, values=kv)
+
+
+def diagnostic_array(node: Node, statuses: Sequence[DiagnosticStatus]) -> DiagnosticArray:
+    msg = DiagnosticArray()
+    msg.header.stamp = node.get_clock().now().to_msg()
+    msg.status = list(statuses)
+    return msg
+
+
+def stamp_to_s(stamp: Any) -> float:
+    """builtin_interfaces/Time to seconds [s]."""
+    return stamp.sec + 1e-9 * stamp.nanosec
+
+
+def monotonic_s() -> float:
+    return time.monotonic()
+
+
+def run_node(exe: str, factory: Callable[[], Node], args: Sequence[str] | None = None) -> int:
+    """Standard ``main``: init, build the node, spin with the EventsExecutor, clean exit on SIGINT/SIGTERM.
+
+    A bad parameter file or value ends the process with exit code 1 and one line on stderr.
+    """
+    argv = list(sys.argv if args is None else args)
+    try:
+        rclpy.init(args=argv)
+    except Exception as err:  # rclpy raises RCLError/RuntimeError on an unreadable or invalid params file
+        first = str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__
+        print(f'{exe}: error: cannot start: {first}', file=sys.stderr)
+        return 1
+    node = None
+    code = 0
+    try:
+        node = factory()
+        from rclpy.experimental import EventsExecutor
+        executor = EventsExecutor()
+        executor.add_node(node)
+        # EventsExecutor.spin() busy-loops and misses SIGINT with these wheels; a spin_once loop does not.
+        while rclpy.ok():
+            executor.spin_once(timeout_sec=0.25)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    except GimbalFrictionError as err:
+        print(f'{exe}: error: {err}', file=sys.stderr)
+        code = 1
+    except Exception as err:  # noqa: BLE001 - parameter exceptions from rclpy during construction
+        if type(err).__module__.startswith('rclpy') and 'Parameter' in type(err).__name__:
+            print(f'{exe}: error: {err}'.splitlines()[0], file=sys.stderr)
+            code = 1
+        else:
+            raise
+    finally:
+        if node is not None:
+            close = getattr(node, 'close', None)
+            if close is not None:
+                close()
+            node.destroy_node()
+        rclpy.try_shutdown()
+    return code
+
+
+def iter_present(names: Iterable[str], wanted: Iterable[str]) -> list[str]:
+    names_set = set(names)
+    return [w for w in wanted if w in names_set]

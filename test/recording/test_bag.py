@@ -1,0 +1,297 @@
+"""Chamber-test bags: write tiny bags in tmp_path (MCAP and sqlite3), read them back, refuse bad ones."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+from rosbags.highlevel import AnyReader
+from rosbags.rosbag2 import StoragePlugin, Writer
+
+from gimbal_friction.core.errors import GimbalFrictionError
+from gimbal_friction.recording.bag import (
+    ChamberArrays,
+    default_typestore,
+    make_float64_multi_array,
+    make_joint_state,
+    make_temperature,
+    open_chamber_bag,
+    write_chamber_bag,
+)
+from gimbal_friction.recording.errors import RecordingError
+from gimbal_friction.recording.topics import (
+    FLOAT64_MULTI_ARRAY_TYPE,
+    JOINT_STATE_TYPE,
+    JOINT_STATES,
+    MOTOR_CURRENT,
+    TEMPERATURE,
+    TEMPERATURE_TYPE,
+)
+
+T0 = 1_700_000_000_000_000_000  # log time of the first message [ns]
+NAN = math.nan
+
+
+def chamber_messages(
+    joint_topic: str = JOINT_STATES, current_topic: str = MOTOR_CURRENT, temperature_topic: str = TEMPERATURE
+) -> list[tuple[str, str, int, object]]:
+    """A small chamber run: 3 temperatures, 6 joint states (2 joints, one without velocity), 4 currents."""
+    out: list[tuple[str, str, int, object]] = []
+    for i, temp in enumerate((-40.0, 20.0, 60.5)):
+        t = T0 + i * 2_000_000
+        out.append((temperature_topic, TEMPERATURE_TYPE, t, make_temperature(t - 5, temp)))
+    for i in range(6):
+        t = T0 + 100 + i * 1_000_000
+        velocity = None if i == 3 else [0.5 + i, -0.25 * i]
+        msg = make_joint_state(t - 7, ['elevation', 'azimuth'], position=[0.1 * i, -0.2 * i], velocity=velocity)
+        out.append((joint_topic, JOINT_STATE_TYPE, t, msg))
+    for i in range(4):
+        t = T0 + 200 + i * 1_500_000
+        out.append((current_topic, JOINT_STATE_TYPE, t, make_joint_state(t, ['elevation'], effort=[1.5 + i])))
+    return sorted(out, key=lambda x: x[2])
+
+
+@pytest.fixture(params=['mcap', 'sqlite3'])
+def chamber_bag(request: pytest.FixtureRequest, tmp_path: Path) -> Path:
+    return write_chamber_bag(tmp_path / f'bag_{request.param}', chamber_messages(), storage=request.param)
+
+
+def test_open_reports_topics_counts_and_times(chamber_bag: Path) -> None:
+    bag = open_chamber_bag(chamber_bag)
+    assert bag.topics[TEMPERATURE] == (TEMPERATURE_TYPE, 3)
+    assert bag.topics[JOINT_STATES] == (JOINT_STATE_TYPE, 6)
+    assert bag.topics[MOTOR_CURRENT] == (JOINT_STATE_TYPE, 4)
+    assert bag.message_count == 13
+    assert bag.start_ns == T0
+    assert bag.duration_ns == 5_000_100  # last joint state at T0 + 100 + 5 ms
+    assert bag.end_ns == T0 + 5_000_100
+
+
+def test_read_arrays_equal_what_was_written(chamber_bag: Path) -> None:
+    arrays = open_chamber_bag(chamber_bag).read_arrays()
+    assert isinstance(arrays, ChamberArrays)
+    temp = arrays.temperature
+    np.testing.assert_array_equal(temp.log_time_ns, [T0, T0 + 2_000_000, T0 + 4_000_000])
+    np.testing.assert_array_equal(temp.stamp_ns, temp.log_time_ns - 5)
+    np.testing.assert_array_equal(temp.temperature_c, [-40.0, 20.0, 60.5])
+    assert temp.log_time_ns.dtype == np.int64
+
+    js = arrays.joint_states
+    assert len(js) == 6
+    assert js.names == ('elevation', 'azimuth')
+    i = np.arange(6)
+    np.testing.assert_array_equal(js.log_time_ns, T0 + 100 + i * 1_000_000)
+    np.testing.assert_array_equal(js.stamp_ns, js.log_time_ns - 7)
+    np.testing.assert_allclose(js.position['elevation'], 0.1 * i)
+    np.testing.assert_allclose(js.position['azimuth'], -0.2 * i)
+    np.testing.assert_allclose(js.velocity['elevation'], [0.5, 1.5, 2.5, NAN, 4.5, 5.5])
+    np.testing.assert_allclose(js.velocity['azimuth'], [0.0, -0.25, -0.5, NAN, -1.0, -1.25])
+    assert np.isnan(js.effort['elevation']).all()
+    assert np.isnan(js.effort['azimuth']).all()
+
+    mc = arrays.motor_current
+    assert mc.names == ('elevation',)
+    np.testing.assert_array_equal(mc.effort['elevation'], [1.5, 2.5, 3.5, 4.5])
+    assert np.isnan(mc.position['elevation']).all()
+
+
+def test_bare_mcap_file_opens(tmp_path: Path) -> None:
+    bag_dir = write_chamber_bag(tmp_path / 'bag', chamber_messages())
+    (mcap_file,) = bag_dir.glob('*.mcap')
+    bag = open_chamber_bag(mcap_file)
+    assert bag.topics[JOINT_STATES] == (JOINT_STATE_TYPE, 6)
+    arrays = bag.read_arrays()
+    np.testing.assert_array_equal(arrays.temperature.temperature_c, [-40.0, 20.0, 60.5])
+
+
+def test_iter_raw_in_log_time_order_and_decodable(chamber_bag: Path) -> None:
+    bag = open_chamber_bag(chamber_bag)
+    raw = list(bag.iter_raw())
+    expected = chamber_messages()
+    assert [(x.topic, x.msgtype, x.log_time_ns) for x in raw] == [(t, m, lt) for t, m, lt, _ in expected]
+    store = default_typestore()
+    for item, (_, msgtype, _, msg) in zip(raw, expected):
+        assert isinstance(item.data, (bytes, memoryview))
+        decoded = store.deserialize_cdr(item.data, msgtype)
+        assert decoded.header.stamp == msg.header.stamp  # type: ignore[attr-defined]
+    only = list(bag.iter_raw([MOTOR_CURRENT]))
+    assert [x.topic for x in only] == [MOTOR_CURRENT] * 4
+
+
+def test_iter_decoded_gives_messages(chamber_bag: Path) -> None:
+    bag = open_chamber_bag(chamber_bag)
+    items = list(bag.iter_decoded([TEMPERATURE, MOTOR_CURRENT]))
+    assert [x.topic for x in items] == [
+        TEMPERATURE, MOTOR_CURRENT, MOTOR_CURRENT, TEMPERATURE, MOTOR_CURRENT, TEMPERATURE, MOTOR_CURRENT
+    ]
+    assert items[0].msg.temperature == -40.0  # type: ignore[attr-defined]
+    assert list(items[1].msg.effort) == [1.5]  # type: ignore[attr-defined]
+    with pytest.raises(RecordingError, match='/no/such/topic'):
+        list(bag.iter_decoded(['/no/such/topic']))
+
+
+def test_reader_closes_when_iteration_stops_early(chamber_bag: Path) -> None:
+    bag = open_chamber_bag(chamber_bag)
+    gen = bag.iter_raw()
+    next(gen)
+    gen.close()  # GeneratorExit closes the AnyReader inside
+    assert len(list(bag.iter_raw())) == 13
+
+
+@pytest.mark.parametrize('missing', [TEMPERATURE, JOINT_STATES, MOTOR_CURRENT])
+def test_missing_topic_is_refused_by_name(tmp_path: Path, missing: str) -> None:
+    path = write_chamber_bag(tmp_path / 'bag', [m for m in chamber_messages() if m[0] != missing])
+    with pytest.raises(RecordingError, match=f'required topic {missing} is missing'):
+        open_chamber_bag(path)
+
+
+def test_wrong_type_is_refused_by_name(tmp_path: Path) -> None:
+    msgs = [m for m in chamber_messages() if m[0] != TEMPERATURE]
+    msgs.append((TEMPERATURE, FLOAT64_MULTI_ARRAY_TYPE, T0, make_float64_multi_array([20.0], 'x')))
+    path = write_chamber_bag(tmp_path / 'bag', msgs)
+    with pytest.raises(RecordingError, match=f'{TEMPERATURE} has type {FLOAT64_MULTI_ARRAY_TYPE}'):
+        open_chamber_bag(path)
+
+
+def test_refusals_are_gimbal_friction_errors(tmp_path: Path) -> None:
+    with pytest.raises(GimbalFrictionError, match='not a rosbag2 bag or MCAP file'):
+        open_chamber_bag(tmp_path / 'nope')
+    (tmp_path / 'empty_dir').mkdir()
+    with pytest.raises(RecordingError, match='not a rosbag2 bag or MCAP file: .*metadata.yaml'):
+        open_chamber_bag(tmp_path / 'empty_dir')
+    (tmp_path / 'notes.txt').write_text('hello')
+    with pytest.raises(RecordingError, match='not a rosbag2 bag or MCAP file'):
+        open_chamber_bag(tmp_path / 'notes.txt')
+    (tmp_path / 'junk.mcap').write_bytes(b'definitely not mcap' * 10)
+    with pytest.raises(RecordingError, match='not a rosbag2 bag or MCAP file'):
+        open_chamber_bag(tmp_path / 'junk.mcap')
+
+
+def test_topic_map_remaps_bag_names(tmp_path: Path) -> None:
+    path = write_chamber_bag(
+        tmp_path / 'bag', chamber_messages(joint_topic='/gimbal/joint_states', current_topic='/drive/current')
+    )
+    with pytest.raises(RecordingError, match='required topic /joint_states is missing'):
+        open_chamber_bag(path)
+    with pytest.raises(RecordingError, match=r'/joint_states \(recorded as /wrong\) is missing'):
+        open_chamber_bag(path, {JOINT_STATES: '/wrong', MOTOR_CURRENT: '/drive/current'})
+    bag = open_chamber_bag(path, {JOINT_STATES: '/gimbal/joint_states', MOTOR_CURRENT: '/drive/current'})
+    assert set(bag.topics) == {TEMPERATURE, JOINT_STATES, MOTOR_CURRENT}  # bag names are not visible twice
+    assert bag.topic_map[JOINT_STATES] == '/gimbal/joint_states'
+    assert {x.topic for x in bag.iter_raw()} == {TEMPERATURE, JOINT_STATES, MOTOR_CURRENT}
+    arrays = bag.read_arrays()
+    assert len(arrays.joint_states) == 6
+    np.testing.assert_array_equal(arrays.motor_current.effort['elevation'], [1.5, 2.5, 3.5, 4.5])
+
+
+def test_one_bag_topic_can_feed_two_inputs(tmp_path: Path) -> None:
+    msgs = [m for m in chamber_messages() if m[0] != MOTOR_CURRENT]
+    path = write_chamber_bag(tmp_path / 'bag', msgs)
+    bag = open_chamber_bag(path, {MOTOR_CURRENT: JOINT_STATES})
+    arrays = bag.read_arrays()
+    assert len(arrays.motor_current) == len(arrays.joint_states) == 6
+    raw = list(bag.iter_raw([JOINT_STATES, MOTOR_CURRENT]))
+    assert len(raw) == 12
+
+
+def test_empty_required_topic_is_refused(tmp_path: Path) -> None:
+    store = default_typestore()
+    path = tmp_path / 'bag'
+    with Writer(path, version=9, storage_plugin=StoragePlugin.MCAP) as writer:
+        conns = {}
+        for topic, msgtype, t, msg in chamber_messages():
+            if topic not in conns:
+                conns[topic] = writer.add_connection(topic, msgtype, typestore=store)
+            if topic != TEMPERATURE:  # the connection exists, its messages do not
+                writer.write(conns[topic], t, store.serialize_cdr(msg, msgtype))
+    with pytest.raises(RecordingError, match=f'{TEMPERATURE} has no messages'):
+        open_chamber_bag(path)
+
+
+def random_joint_states(rng: np.random.Generator, n: int) -> list[tuple[str, str, int, object]]:
+    """JointStates with varied frame ids, name sets and missing or short fields."""
+    name_sets = [['elevation'], ['elevation', 'azimuth'], ['azimuth'], [], ['a' * 7, 'elevation', 'bb']]
+    out = []
+    for i in range(n):
+        names = name_sets[int(rng.integers(len(name_sets)))]
+        k = len(names)
+
+        def field() -> np.ndarray | None:
+            choice = rng.integers(4)
+            if choice == 0:
+                return None
+            if choice == 1 and k:
+                return rng.normal(size=int(rng.integers(0, k + 2)))  # short or long: malformed but seen
+            return rng.normal(size=k)
+
+        frame = 'f' * int(rng.integers(0, 9))
+        msg = make_joint_state(T0 + 3 * i, names, field(), field(), field(), frame_id=frame)
+        out.append((JOINT_STATES, JOINT_STATE_TYPE, T0 + 10 * i, msg))
+    return out
+
+
+def expected_joint_arrays(msgs: list[tuple[str, str, int, object]]) -> dict[str, dict[str, list[float]]]:
+    order: list[str] = []
+    for _, _, _, msg in msgs:
+        for name in msg.name:  # type: ignore[attr-defined]
+            if name not in order:
+                order.append(name)
+    fields = ('position', 'velocity', 'effort')
+    out: dict[str, dict[str, list[float]]] = {f: {n: [] for n in order} for f in fields}
+    for _, _, _, msg in msgs:
+        for field in out:
+            values = getattr(msg, field)
+            for name in order:
+                names = list(msg.name)  # type: ignore[attr-defined]
+                j = names.index(name) if name in names else None
+                out[field][name].append(float(values[j]) if j is not None and j < len(values) else NAN)
+    return out
+
+
+@pytest.mark.parametrize('little_endian', [True, False])
+def test_fast_joint_state_decoder_matches_typestore(tmp_path: Path, little_endian: bool) -> None:
+    rng = np.random.default_rng(7)
+    js = random_joint_states(rng, 300)
+    store = default_typestore()
+    others = [m for m in chamber_messages() if m[0] != JOINT_STATES]
+    path = tmp_path / 'bag'
+    with Writer(path, version=9, storage_plugin=StoragePlugin.MCAP) as writer:
+        conns = {}
+        for topic, msgtype, t, msg in sorted(js + others, key=lambda x: x[2]):
+            if topic not in conns:
+                conns[topic] = writer.add_connection(topic, msgtype, typestore=store)
+            writer.write(conns[topic], t, store.serialize_cdr(msg, msgtype, little_endian=little_endian))
+    arrays = open_chamber_bag(path).read_arrays().joint_states
+    expected = expected_joint_arrays(js)
+    assert list(arrays.names) == list(expected['position'])
+    np.testing.assert_array_equal(arrays.log_time_ns, [m[2] for m in js])
+    np.testing.assert_array_equal(arrays.stamp_ns, [T0 + 3 * i for i in range(300)])
+    for field in ('position', 'velocity', 'effort'):
+        for name in arrays.names:
+            np.testing.assert_array_equal(getattr(arrays, field)[name], expected[field][name], err_msg=field)
+
+
+def test_write_chamber_bag_refusals(tmp_path: Path) -> None:
+    path = write_chamber_bag(tmp_path / 'bag', chamber_messages())
+    with pytest.raises(RecordingError, match='exists'):
+        write_chamber_bag(path, chamber_messages())
+    with pytest.raises(RecordingError, match='unknown bag storage'):
+        write_chamber_bag(tmp_path / 'other', chamber_messages(), storage='rosbag1')
+    with AnyReader([path]) as reader:  # what was written is a plain rosbag2 bag
+        assert reader.message_count == 13
+
+
+def test_message_helpers() -> None:
+    temp = make_temperature(-1, 21.5)
+    assert (temp.header.stamp.sec, temp.header.stamp.nanosec) == (-1, 999_999_999)  # type: ignore[attr-defined]
+    assert temp.header.frame_id == 'gimbal'  # type: ignore[attr-defined]
+    js = make_joint_state(3_000_000_001, ['elevation'], velocity=np.array([2.0]))
+    assert js.position.dtype == np.float64 and js.position.size == 0  # type: ignore[attr-defined]
+    assert (js.header.stamp.sec, js.header.stamp.nanosec) == (3, 1)  # type: ignore[attr-defined]
+    arr = make_float64_multi_array([1, 2, 3], 'azimuth')
+    assert arr.layout.dim[0].label == 'azimuth' and arr.layout.dim[0].size == 3  # type: ignore[attr-defined]
+    store = default_typestore()
+    back = store.deserialize_cdr(store.serialize_cdr(arr, FLOAT64_MULTI_ARRAY_TYPE), FLOAT64_MULTI_ARRAY_TYPE)
+    np.testing.assert_array_equal(back.data, [1.0, 2.0, 3.0])  # type: ignore[attr-defined]

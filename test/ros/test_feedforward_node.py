@@ -1,0 +1,225 @@
+"""friction_feedforward as its own process on an isolated domain: torque, sign, bad inputs, parameters."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+from builtin_interfaces.msg import Time
+from diagnostic_msgs.msg import DiagnosticArray
+from rcl_interfaces.msg import Parameter as ParameterMsg
+from rcl_interfaces.msg import ParameterType, ParameterValue
+from rcl_interfaces.srv import SetParameters
+from sensor_msgs.msg import JointState, Temperature
+from std_msgs.msg import Float64MultiArray
+
+from gimbal_friction.core.model import friction_torque
+from gimbal_friction.core.params import AxisParams
+
+FF = '/gimbal/friction/feedforward'
+CMD = '/gimbal/friction/feedforward_commands'
+V_TH = 0.005
+V_TEST = 2 * math.pi / 180  # 1/3 rpm in rad/s
+RPM = 60 / (2 * math.pi)
+pytestmark = pytest.mark.ros
+
+
+def model_nm(t_c: float, v: float, params: AxisParams | None = None) -> float:
+    """Expected feedforward from the pure model (direct, not the table)."""
+    p = params or AxisParams()
+    m = float(friction_torque(p, t_c, abs(v) * RPM).m_total_nmm) * 1e-3
+    return math.tanh(v / V_TH) * m
+
+
+def setup_probe(probe):
+    probe.subscribe(JointState, FF)
+    probe.subscribe(Float64MultiArray, CMD)
+    probe.subscribe(DiagnosticArray, '/diagnostics')
+    probe.publisher(Temperature, '/gimbal/temperature')
+    probe.publisher(JointState, '/joint_states')
+
+
+def send_temperature(probe, t_c):
+    probe.pubs['/gimbal/temperature'].publish(Temperature(temperature=float(t_c)))
+
+
+def send_joint(probe, names, velocities, sec=1, nanosec=0):
+    msg = JointState(name=list(names), velocity=[float(v) for v in velocities],
+                     position=[0.0] * len(names))
+    msg.header.stamp = Time(sec=sec, nanosec=nanosec)
+    probe.pubs['/joint_states'].publish(msg)
+    return msg
+
+
+def request(probe, names, velocities, sec):
+    """Publish a joint state and wait for the feedforward carrying its stamp."""
+    n0 = len(probe.received[FF])
+    send_joint(probe, names, velocities, sec=sec)
+    probe.spin_until(lambda: any(m.header.stamp.sec == sec for m in probe.received[FF][n0:]),
+                     what=f'feedforward for stamp {sec}')
+    return [m for m in probe.received[FF][n0:] if m.header.stamp.sec == sec][-1]
+
+
+def wait_temperature_used(probe, t_c, sec_start):
+    """Re-send the temperature until a feedforward reflects it (the first sample may be lost to discovery)."""
+    expected = model_nm(t_c, V_TEST)
+    sec = [sec_start]
+
+    def ok():
+        send_temperature(probe, t_c)
+        probe.executor.spin_once(timeout_sec=0.05)
+        sec[0] += 1
+        msg = request(probe, ['elevation'], [V_TEST], sec[0])
+        return abs(msg.effort[0] - expected) < 1e-3 * abs(expected)
+
+    probe.spin_until(ok, what=f'temperature {t_c} in use')
+    return sec[0]
+
+
+def start_node(spawn, *extra):
+    return spawn('friction_feedforward', '--ros-args', '--params-file', 'config/gimbal_friction.yaml', *extra)
+
+
+@pytest.fixture
+def node_and_probe(spawn, probe, monkeypatch):
+    monkeypatch.chdir(__import__('pathlib').Path(__file__).resolve().parents[2])
+    setup_probe(probe)
+    node = start_node(spawn, '-p', 'temperature_timeout_s:=30.0')
+    probe.wait_matched('/joint_states')
+    probe.wait_matched('/gimbal/temperature')
+    probe.wait_publisher(FF)
+    return node, probe
+
+
+def test_torque_sign_and_smooth_zero_crossing(node_and_probe):
+    node, probe = node_and_probe
+    sec = wait_temperature_used(probe, -40.0, 100)
+    pos = request(probe, ['elevation'], [V_TEST], sec + 1)
+    neg = request(probe, ['elevation'], [-V_TEST], sec + 2)
+    assert pos.effort[0] == pytest.approx(model_nm(-40.0, V_TEST), rel=1e-4)
+    assert pos.effort[0] == pytest.approx(3.143e-3, rel=2e-3)  # the paper's M(-40 degC) in N*m
+    assert neg.effort[0] == pytest.approx(-pos.effort[0], rel=1e-9)
+    # smooth through zero: odd, monotonic, 0 at rest, tanh(1) of the torque at v_th
+    vs = [-3 * V_TH, -V_TH, -0.2 * V_TH, 0.0, 0.2 * V_TH, V_TH, 3 * V_TH]
+    out = [request(probe, ['elevation'], [v], sec + 10 + i).effort[0] for i, v in enumerate(vs)]
+    assert out[3] == 0.0
+    assert all(b > a for a, b in zip(out, out[1:]))
+    for v, tau in zip(vs, out):
+        assert tau == pytest.approx(model_nm(-40.0, v), rel=1e-4, abs=1e-12)
+    assert abs(out[4]) < 0.25 * abs(out[6])
+    # the stamp is the joint-state stamp; commands in configured joint order
+    assert pos.header.stamp.sec == sec + 1 and list(pos.name) == ['elevation']
+    probe.spin_until(lambda: len(probe.received[CMD]) >= 3, what='commands')
+    assert len(probe.received[CMD][-1].data) == 1
+    # a warmer bearing gives less friction
+    send_temperature(probe, 20.0)
+    sec2 = wait_temperature_used(probe, 20.0, sec + 40)
+    warm = request(probe, ['elevation'], [V_TEST], sec2 + 1)
+    assert warm.effort[0] == pytest.approx(model_nm(20.0, V_TEST), rel=1e-4)
+    assert node.alive()
+    rc, out_text = node.stop()
+    assert rc == 0, out_text
+    assert 'Traceback' not in out_text
+
+
+def _diag_values(probe, key_contains):
+    for arr in reversed(probe.received['/diagnostics']):
+        for st in arr.status:
+            for kv in st.values:
+                if key_contains in kv.key:
+                    return st, kv
+    return None
+
+
+def test_bad_inputs_never_reach_the_output(node_and_probe):
+    node, probe = node_and_probe
+    sec = wait_temperature_used(probe, 0.0, 200)
+    good = model_nm(0.0, V_TEST)
+    for bad in (math.nan, math.inf, 500.0, -300.0):
+        send_temperature(probe, bad)
+    after = request(probe, ['elevation'], [V_TEST], sec + 1)
+    assert after.effort[0] == pytest.approx(good, rel=1e-4)  # last valid temperature kept
+    # mismatched arrays: no output for that message; unknown names ignored; NaN velocity -> 0, never NaN
+    n0 = len(probe.received[FF])
+    bad = JointState(name=['elevation', 'azimuth'], velocity=[V_TEST])
+    bad.header.stamp = Time(sec=sec + 2)
+    probe.pubs['/joint_states'].publish(bad)
+    mixed = request(probe, ['bogus', 'elevation'], [1.0, -V_TEST], sec + 3)
+    assert list(mixed.name) == ['elevation'] and mixed.effort[0] == pytest.approx(-good, rel=1e-4)
+    nan_msg = request(probe, ['elevation'], [math.nan], sec + 4)
+    assert nan_msg.effort[0] == 0.0
+    assert not any(m.header.stamp.sec == sec + 2 for m in probe.received[FF][n0:])
+    for m in probe.received[FF]:
+        assert all(math.isfinite(e) for e in m.effort)
+    for m in probe.received[CMD]:
+        assert all(math.isfinite(e) for e in m.data)
+    # diagnostics say why (published at 1 Hz)
+    probe.spin_until(lambda: _diag_values(probe, 'rejected_temperature: non-finite') is not None
+                     and _diag_values(probe, 'length mismatch') is not None, what='diagnostics of rejections')
+    st, kv = _diag_values(probe, 'rejected_temperature: non-finite')
+    assert int(kv.value) >= 2 and st.level != b'\x00'
+    assert _diag_values(probe, 'rejected_temperature: temperature out of range') is not None
+    assert node.alive()
+    assert node.stop()[0] == 0
+
+
+def _set(probe, name, value):
+    client = probe.node.create_client(SetParameters, '/friction_feedforward/set_parameters')
+    probe.spin_until(client.service_is_ready, what='set_parameters service')
+    if isinstance(value, float):
+        pv = ParameterValue(type=ParameterType.PARAMETER_DOUBLE, double_value=value)
+    else:
+        pv = ParameterValue(type=ParameterType.PARAMETER_STRING, string_value=value)
+    future = client.call_async(SetParameters.Request(parameters=[ParameterMsg(name=name, value=pv)]))
+    probe.spin_until(future.done, what=f'set {name}')
+    return future.result().results[0]
+
+
+def test_runtime_parameter_change_and_refusal(node_and_probe):
+    node, probe = node_and_probe
+    sec = wait_temperature_used(probe, -40.0, 300)
+    before = request(probe, ['elevation'], [V_TEST], sec + 1).effort[0]
+    refused = _set(probe, 'model.ball_diameter_mm', -1.0)
+    assert not refused.successful and 'ball_diameter_mm' in refused.reason and '> 0' in refused.reason
+    refused2 = _set(probe, 'stale_policy', 'panic')
+    assert not refused2.successful and 'stale_policy' in refused2.reason
+    same = request(probe, ['elevation'], [V_TEST], sec + 2).effort[0]
+    assert same == pytest.approx(before, rel=1e-12)
+    ok = _set(probe, 'model.palmgren_factor', 3.0)
+    assert ok.successful, ok.reason
+    changed = request(probe, ['elevation'], [V_TEST], sec + 3).effort[0]
+    assert changed == pytest.approx(model_nm(-40.0, V_TEST, AxisParams(palmgren_factor=3.0)), rel=1e-4)
+    assert changed > before
+    ok2 = _set(probe, 'axis.elevation.scale_positive', 0.5)
+    assert ok2.successful, ok2.reason
+    half = request(probe, ['elevation'], [V_TEST], sec + 4).effort[0]
+    assert half == pytest.approx(0.5 * changed, rel=1e-9)
+    neg = request(probe, ['elevation'], [-V_TEST], sec + 5).effort[0]
+    assert neg == pytest.approx(-changed, rel=1e-9)  # scale_negative untouched
+    assert node.stop()[0] == 0
+
+
+def test_stale_temperature_policy(spawn, probe, monkeypatch):
+    monkeypatch.chdir(__import__('pathlib').Path(__file__).resolve().parents[2])
+    setup_probe(probe)
+    node = start_node(spawn, '-p', 'temperature_timeout_s:=1.5', '-p', 'stale_policy:=zero')
+    probe.wait_matched('/joint_states')
+    probe.wait_publisher(FF)
+    # never any temperature: zero policy publishes 0 N*m (not NaN, not a guess)
+    first = request(probe, ['elevation'], [V_TEST], 1)
+    assert first.effort[0] == 0.0
+    probe.spin_until(lambda: _diag_values(probe, 'temperature_source') is not None, what='diagnostics')
+    st, kv = _diag_values(probe, 'temperature_source')
+    assert kv.value == 'zero' and st.level == b'\x02'
+    assert node.stop()[0] == 0
+
+
+def test_bad_parameter_file_exits_with_one_line(spawn, tmp_path):
+    bad = tmp_path / 'bad.yaml'
+    bad.write_text('/**:\n  ros__parameters:\n    model:\n      ball_diameter_mm: -2.0\n')
+    node = spawn('friction_feedforward', '--ros-args', '--params-file', str(bad))
+    node.proc.wait(30)
+    rc, out = node.stop()
+    assert rc == 1
+    lines = [line for line in out.splitlines() if 'friction_feedforward: error' in line]
+    assert len(lines) == 1 and 'model.ball_diameter_mm' in lines[0] and 'Traceback' not in out
