@@ -107,3 +107,32 @@ def model_figures(params: AxisParams, out_dir: Path, t_min: float = -40.0, t_max
                             f'$M_S + M_R$ for several interferences, P = {p_now:g} mm (paper Fig. 10)'))
     out.append(plot_components(friction_torque(params, t), out_dir / 'fig11_components.png'))
     return out
+
+
+def plot_model_vs_measured(summary: Sequence[dict[str, Any]], models: dict[str, AxisParams], path: Path, *,
+                           title: str = '') -> Path:
+    """Fig. 13: measured mean friction per plateau by direction (|CCW| shown positive) and model curves.
+
+    ``summary`` holds records of :func:`gimbal_friction.core.residuals.plateau_summary` (signed means [N·mm]);
+    ``models`` maps a label to the parameters of a model curve (e.g. before and after a refit).
+    """
+    plt = _pyplot()
+    fig, ax = plt.subplots(figsize=(7.5, 4.8))
+    temps = [float(r['temperature_c']) for r in summary] or [-40.0, 60.0]
+    t = np.linspace(min(min(temps), -40.0), max(max(temps), 60.0), 301)
+    for (label, params), style in zip(models.items(), ('-', '--', ':', '-.')):
+        ax.plot(t, friction_torque(params, t).m_total_nmm, style, lw=2, label=f'model: {label}')
+    for direction, marker, color in (('cw', 's', 'tab:blue'), ('ccw', '^', 'k')):
+        rows = [r for r in summary if r['direction'] == direction]
+        if rows:
+            ax.errorbar([float(r['temperature_c']) for r in rows], [abs(float(r['measured_mean_nmm'])) for r in rows],
+                        yerr=[float(r.get('measured_std_nmm', 0.0)) for r in rows], fmt=marker, color=color,
+                        capsize=3, label=f'measured mean, {direction.upper()}' + (' (|.|)' if direction == 'ccw' else ''))
+    ax.plot(*zip(*PAPER_TEST_CW), 'x', color='tab:red', label='paper test mean, CW')
+    ax.set_xlabel('temperature [°C]')
+    ax.set_ylabel('friction torque of the axis [N·mm]')
+    ax.set_title(title or 'Model vs measured friction by direction (paper Fig. 13)')
+    ax.grid(True, alpha=0.4)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    return _save(fig, path)

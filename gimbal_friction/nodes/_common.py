@@ -10,7 +10,9 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import signal
 import sys
+import threading
 import time
 from typing import Any, Callable, Iterable, Mapping, Sequence, TypeVar
 
@@ -20,6 +22,7 @@ from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescri
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.parameter import Parameter
+from rclpy.signals import SignalHandlerOptions
 
 from gimbal_friction.config import axis_names, load_parameters
 from gimbal_friction.core.errors import ConfigError, GimbalFrictionError
@@ -207,11 +210,19 @@ def monotonic_s() -> float:
 def run_node(exe: str, factory: Callable[[], Node], args: Sequence[str] | None = None) -> int:
     """Standard ``main``: init, build the node, spin with the EventsExecutor, clean exit on SIGINT/SIGTERM.
 
-    A bad parameter file or value ends the process with exit code 1 and one line on stderr.
+    SIGINT and SIGTERM only *request* shutdown (a flag checked between callbacks): a signal never raises inside
+    a callback, so a file being written (the residual log) is never left half-written. A bad parameter file or
+    value ends the process with exit code 1 and one line on stderr.
     """
     argv = list(sys.argv if args is None else args)
+    stop = threading.Event()
+
+    def request_stop(signum: int, frame: Any) -> None:  # noqa: ARG001
+        stop.set()
+
+    previous = {sig: signal.signal(sig, request_stop) for sig in (signal.SIGINT, signal.SIGTERM)}
     try:
-        rclpy.init(args=argv)
+        rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
     except Exception as err:  # rclpy raises RCLError/RuntimeError on an unreadable or invalid params file
         first = str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__
         print(f'{exe}: error: cannot start: {first}', file=sys.stderr)
@@ -223,9 +234,9 @@ def run_node(exe: str, factory: Callable[[], Node], args: Sequence[str] | None =
         from rclpy.experimental import EventsExecutor
         executor = EventsExecutor()
         executor.add_node(node)
-        # EventsExecutor.spin() busy-loops and misses SIGINT with these wheels; a spin_once loop does not.
-        while rclpy.ok():
-            executor.spin_once(timeout_sec=0.25)
+        # EventsExecutor.spin() busy-loops and misses signals with these wheels; a spin_once loop does not.
+        while rclpy.ok() and not stop.is_set():
+            executor.spin_once(timeout_sec=0.1)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except GimbalFrictionError as err:
@@ -244,6 +255,8 @@ def run_node(exe: str, factory: Callable[[], Node], args: Sequence[str] | None =
                 close()
             node.destroy_node()
         rclpy.try_shutdown()
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
     return code
 
 

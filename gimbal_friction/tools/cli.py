@@ -20,6 +20,7 @@ SUBCOMMANDS = {
     'calibrate-kt': 'calibrate_kt_cmd',
     'synth-bag': 'synth_bag_cmd',
     'report': 'report_cmd',
+    'refit': 'refit_cmd',
 }
 
 #: options whose values may start with '-' (negative temperatures): '--temperature -40,0' is rewritten.

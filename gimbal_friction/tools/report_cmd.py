@@ -6,6 +6,7 @@ import argparse
 from pathlib import Path
 from typing import Any
 
+from gimbal_friction.core.errors import GimbalFrictionError
 from gimbal_friction.core.model import friction_torque
 from gimbal_friction.tools._common import add_common, format_table, load_axis, print_json
 
@@ -20,6 +21,12 @@ def add_parser(sub: Any) -> None:
     parser.add_argument('--axis', metavar='NAME', help='configured axis (default: the first in axes)')
     parser.add_argument('--out', type=Path, default=Path('report'), metavar='DIR',
                         help='output folder for the PNG files (default: ./report)')
+    parser.add_argument('--residuals', nargs='+', type=Path, metavar='LOG_DIR',
+                        help='residual logs (residual_logger or replay): adds Fig. 13, model vs measured by '
+                        'direction, and its table')
+    parser.add_argument('--compare', type=Path, metavar='FILE.yaml',
+                        help='a parameter file (e.g. from refit) layered over --config: drawn as a second model '
+                        'curve in Fig. 13')
     parser.set_defaults(func=run)
 
 
@@ -30,8 +37,15 @@ def run(args: argparse.Namespace) -> int:
     temps = [-40.0, -20.0, 0.0, 20.0, 40.0, 60.0]
     res = friction_torque(params, temps)
     rows = res.records()
+    summary = None
+    if args.residuals:
+        summary, fig13 = _fig13(args, axis, params)
+        files.append(fig13)
     if args.format == 'json':
-        print_json({'axis': axis, 'figures': [str(f) for f in files], 'fig11': rows})
+        doc = {'axis': axis, 'figures': [str(f) for f in files], 'fig11': rows}
+        if summary is not None:
+            doc['fig13'] = summary
+        print_json(doc)
         return 0
     print(f'axis {axis}: figures written to {args.out}/')
     for f in files:
@@ -40,4 +54,35 @@ def run(args: argparse.Namespace) -> int:
     print(format_table([[f'{r["temperature_c"]:.0f}', f'{r["m_viscous_nmm"]:.3f}',
                          f'{r["m_sliding_nmm"] + r["m_rolling_nmm"]:.3f}', f'{r["m_total_nmm"]:.3f}']
                         for r in rows], ['t [degC]', 'M_L [N*mm]', 'M_S+M_R [N*mm]', 'M [N*mm]']))
+    if summary is not None:
+        print()
+        print(summary_table(summary))
     return 0
+
+
+def summary_table(summary: list[dict[str, Any]]) -> str:
+    """Model vs measured by temperature plateau and direction, N*mm."""
+    return format_table([[str(r['joint']), f'{r["temperature_c"]:.1f}', str(r['direction']),
+                          f'{r["measured_mean_nmm"]:+.3f}', f'{r["predicted_nmm"]:+.3f}', f'{r["residual_nmm"]:+.3f}',
+                          str(r['samples'])] for r in summary],
+                        ['joint', 't [degC]', 'dir', 'measured [N*mm]', 'model [N*mm]', 'residual [N*mm]', 'samples'])
+
+
+def _fig13(args: argparse.Namespace, axis: str, params: Any) -> tuple[list[dict[str, Any]], Path]:
+    from gimbal_friction.config import axis_params, load_parameters
+    from gimbal_friction.core.residuals import plateau_summary
+    from gimbal_friction.plots import plot_model_vs_measured
+    from gimbal_friction.recording.residual_log import read_residual_log
+    log = read_residual_log(args.residuals)
+    d = log.detail
+    sel = d.joint == axis
+    if not sel.any():
+        raise GimbalFrictionError(f'the residual logs hold no samples of axis {axis!r}')
+    summary = plateau_summary(d.temperature_c[sel], d.velocity_rad_s[sel], d.measured_nm[sel],
+                              d.predicted_nm[sel], joint=d.joint[sel])
+    models = {'configured': params}
+    if args.compare is not None:
+        models[f'with {args.compare.name}'] = axis_params(load_parameters([*args.config, args.compare]), axis)
+    path = plot_model_vs_measured(summary, models, args.out / 'fig13_model_vs_measured.png',
+                                  title=f'{axis}: model vs measured by direction (paper Fig. 13)')
+    return summary, path

@@ -97,9 +97,9 @@ class Probe:
         self.received.setdefault(topic, [])
         self.node.create_subscription(msg_type, topic, lambda m, t=topic: self.received[t].append(m), qos)
 
-    def publisher(self, msg_type: Any, topic: str) -> Any:
+    def publisher(self, msg_type: Any, topic: str, depth: int = 1000) -> Any:
         if topic not in self.pubs:
-            self.pubs[topic] = self.node.create_publisher(msg_type, topic, 10)
+            self.pubs[topic] = self.node.create_publisher(msg_type, topic, depth)
         return self.pubs[topic]
 
     def spin_until(self, cond: Callable[[], bool], timeout: float = TIMEOUT, what: str = 'condition') -> None:

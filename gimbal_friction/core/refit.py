@@ -1,0 +1,799 @@
+"""Refit of the lubricant (and optionally other) model parameters to measured friction (pure: no I/O).
+
+The model of one sample ``i`` (temperature t_i [°C], speed n_i [rpm], direction d_i = ±1) is
+
+.. math:: |\\tau_i| = k_{d_i} \\, [M_R(t_i) + \\mu \\, S(t_i) + M_L(t_i, n_i; s_0, \\nu(t_i; a_1, b_1, c_1))]
+
+with ``k_+ = scale_positive``, ``k_- = scale_negative``, M_R the hysteresis torque (Eqs. 1–3), ``μ S`` the spin
+torque (Eqs. 5–8: linear in μ, so ``S`` = M_S at μ = 1), M_L Palmgren's viscous torque (Eq. 9) and ν the Walther
+viscosity (Eqs. 20–22). Torques of the whole axis. M_R and S do not depend on the lubricant: they are computed
+once, by the full model :func:`~gimbal_friction.core.model.friction_torque` on a 0.05 °C grid over the data and
+interpolated; M_L and its derivatives are analytic at every iteration.
+
+What the data can determine (MODEL.md §2, Eq. 9): M_L depends on viscosity only where ``ν·n ≥ 2000`` (the upper
+Palmgren branch; at the paper's 1/3 rpm only below about −27 °C). A Walther constant is therefore identifiable
+only from samples in that regime, under the base *and* the fitted parameters, and each such distinct temperature
+bin carries one degree of freedom of the viscosity–temperature curve: with one cold plateau only ``walther_a``
+(the first of ``walther_a, walther_b, viscosity_offset_cst`` requested) can be determined, with two also
+``walther_b``, and so on. Parameters that cannot be determined are reported ``not identifiable: <reason>`` and
+held at their base values, never fitted silently. After a fit, parameters whose jacobian column is (nearly) zero,
+that are collinear with others (SVD of the column-normalised weighted jacobian, condition > 1e3) or whose
+relative standard error exceeds 50 % are flagged the same way, held at base, and the rest refitted.
+
+Weighting (``weights='bin_se'``, the default). Samples are grouped into (temperature bin, direction, speed)
+groups; the fit matches each group's mean measured torque with the group mean of the model (averaged over the
+group's own samples, so the temperature spread inside a bin does not bias it), weighted by ``1/se``. The
+standard error ``se`` of a group mean is the larger of the i.i.d. value ``s/√n`` and a batch-means value (10
+consecutive batches, which accounts for the position ripple and other correlated noise), combined with a floor
+of ``se_floor_rel`` (0.2 %) of the mean that stands for the model's own error. So a long plateau cannot drown a
+short cold one (its weight saturates at the floor), noisy groups count less, and every number is in [N·m].
+``weights='relative'`` instead gives every group the same weight on its relative error. The covariance is
+``(JᵀJ)⁻¹ · max(1, χ²/dof)`` (so misfit widens the intervals) and the 95 % intervals use Student's t with
+``dof = groups − parameters``.
+
+The viscosity constants are fitted in a centred form ``log log(ν + c1) = a' + b1 (x − x_ref)`` with ``x_ref`` the
+mean Walther abscissa of the viscous-regime data (``a1 = a' − b1 x_ref``): a1 and b1 are almost collinear in the
+raw form, not in this one. Bounds keep the fit away from absurd values (``a'`` within ±0.3, i.e. log(ν + c1) at
+most ×2 or ÷2; ``b1`` within ×3 of its base value and < 0; ``c1`` in [−1, 100] cSt; factors within ×20); a fit
+that ends on one of them, raises the cost, makes ν ≤ 0 over the data or does not converge is refused
+(:class:`~gimbal_friction.core.errors.FitError`).
+
+Example: recover a shifted ``walther_a`` from noise-free plateaus at −40, 0 and 40 °C, both directions:
+
+>>> base = AxisParams()
+>>> truth = base.replace(walther_a=base.walther_a + 0.01)
+>>> t = np.repeat([-40.0, 0.0, 40.0], 20).repeat(2)
+>>> d = np.tile([1.0, -1.0], 60)
+>>> tau = friction_torque(truth, t, 1 / 3).m_total_nmm * 1e-3
+>>> res = refit_model(base, t, np.full(t.shape, 1 / 3), tau, d)
+>>> round(res.fitted['walther_a'], 4), res.identifiability['walther_a'].identifiable
+(8.6295, True)
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import Mapping, NamedTuple, Sequence
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from scipy.optimize import least_squares
+from scipy.special import stdtrit
+
+from gimbal_friction.core.errors import ConfigError, FitError, GimbalFrictionError
+from gimbal_friction.core.model import friction_torque
+from gimbal_friction.core.params import AxisParams
+from gimbal_friction.core.thermal import radial_coupling
+from gimbal_friction.core.viscosity import LN10
+
+Array = NDArray[np.float64]
+
+#: Parameters :func:`refit_model` can fit, in priority order (the earlier one is kept when the data can
+#: determine only some of them).
+FIT_PARAMETERS = ('walther_a', 'walther_b', 'viscosity_offset_cst', 'palmgren_factor',
+                  'sliding_friction_coefficient', 'scale_positive', 'scale_negative')
+#: The Walther constants of the lubricant (Eq. 20/21).
+VISCOSITY_PARAMETERS = ('walther_a', 'walther_b', 'viscosity_offset_cst')
+#: Palmgren's branch threshold ν·n of Eq. (9), [cSt·rpm].
+PALMGREN_THRESHOLD = 2000.0
+#: Losses accepted (those of :func:`scipy.optimize.least_squares`).
+LOSSES = ('linear', 'soft_l1', 'huber', 'cauchy', 'arctan')
+WEIGHTS = ('bin_se', 'relative')
+
+#: Refusal thresholds: samples overall, samples per group.
+MIN_SAMPLES = 20
+MIN_BIN_SAMPLES = 5
+#: A parameter whose relative standard error exceeds this is not identifiable [-].
+MAX_RELATIVE_SE = 0.5
+#: Condition number of the column-normalised jacobian above which parameters are collinear [-].
+MAX_CONDITION = 1e3
+#: Grid step of the tabulated M_R and S [°C].
+GRID_STEP_C = 0.05
+#: Speed groups are geometric bins of this ratio [-].
+SPEED_BIN_RATIO = 1.25
+
+
+class Identifiability(NamedTuple):
+    """Whether the data determine a parameter, and if not, why."""
+
+    identifiable: bool
+    reason: str
+
+    def __str__(self) -> str:
+        return 'identifiable' if self.identifiable else f'not identifiable: {self.reason}'
+
+
+class BinStats(NamedTuple):
+    """One (temperature bin, direction, speed) group of samples, before and after the fit. Torques [N·m]."""
+
+    temperature_bin_c: float    #: bin centre [°C]
+    temperature_c: float        #: mean temperature of the group's samples [°C]
+    direction: int              #: +1 (positive motion, the paper's CW) or −1
+    speed_rpm: float            #: mean speed [rpm]
+    n: int                      #: samples [-]
+    used: bool                  #: in the fit (at least ``min_bin_samples`` samples)
+    viscous: bool               #: in Palmgren's upper branch (ν·n ≥ 2000) under base and fitted parameters
+    measured_mean_nm: float     #: mean |τ| measured along the motion [N·m]
+    measured_se_nm: float       #: standard error of that mean used for the weight [N·m]
+    model_before_nm: float      #: group mean of the base model [N·m]
+    model_after_nm: float       #: group mean of the refitted model [N·m]
+    rms_before_nm: float        #: RMS of (measured − base model) over the group's samples [N·m]
+    rms_after_nm: float         #: RMS of (measured − refitted model) [N·m]
+    viscosity_before_cst: float  #: ν at the mean temperature, base [mm²/s]
+    viscosity_after_cst: float  #: ν at the mean temperature, refitted [mm²/s]
+
+
+class ViscosityInterval(NamedTuple):
+    """Refitted viscosity where the data determine it, with its 95 % interval (delta method on ln ν)."""
+
+    temperature_c: float   #: mean temperature of a viscous-regime bin [°C]
+    before_cst: float      #: base ν [mm²/s]
+    after_cst: float       #: refitted ν [mm²/s]
+    low_cst: float         #: 95 % interval [mm²/s]
+    high_cst: float
+
+
+class RefitResult(NamedTuple):
+    """Outcome of :func:`refit_model`. Parameter dicts are keyed by the requested names, in priority order."""
+
+    fitted: dict[str, float]                    #: refitted value, or the base value if not identifiable
+    base: dict[str, float]                      #: value before the fit
+    standard_errors: dict[str, float]           #: 1-sigma (NaN if not identifiable)
+    confidence_intervals: dict[str, tuple[float, float]]  #: 95 % (NaN, NaN) if not identifiable
+    identifiability: dict[str, Identifiability]
+    params: AxisParams                          #: base with the refitted values
+    rms_before_nm: float                        #: RMS residual of the samples used, base model [N·m]
+    rms_after_nm: float                         #: same, refitted model [N·m]
+    bins: tuple[BinStats, ...]                  #: per (temperature bin, direction, speed), sorted
+    viscous_temperatures_c: tuple[float, ...]   #: bins in Palmgren's upper branch (base and fitted) [°C]
+    viscosity: tuple[ViscosityInterval, ...]    #: refitted ν at those bins (empty if no Walther constant fitted)
+    n_samples: int                              #: samples used in the fit
+    n_dropped: int                              #: samples in groups too small to use
+    cost: float                                 #: final least-squares cost (0.5 Σ ρ(r²)) [-]
+    success: bool
+    message: str
+
+    @property
+    def refitted(self) -> dict[str, float]:
+        """Only the parameters that were determined and changed by the fit."""
+        return {k: v for k, v in self.fitted.items() if self.identifiability[k].identifiable}
+
+
+# ------------------------------------------------------------------------------------------------------------
+# the model of the samples
+
+
+class SampleModel:
+    """|τ| of every sample as a function of the fit parameters, with its analytic jacobian, [N·mm].
+
+    M_R and S = M_S/μ come from the full model of ``base`` on a grid (they do not depend on the fit parameters);
+    the pitch diameter d_m(t) likewise (steel expansion). Everything else is evaluated per call.
+
+    Parameters
+    ----------
+    base : AxisParams
+        Parameters held fixed (and the starting values of the fit).
+    temperature_c, speed_rpm, direction : array_like
+        Per sample: temperature [°C], speed magnitude [rpm], direction ±1.
+    """
+
+    def __init__(self, base: AxisParams, temperature_c: ArrayLike, speed_rpm: ArrayLike,
+                 direction: ArrayLike) -> None:
+        self.base = base
+        self.t = np.asarray(temperature_c, dtype=float)
+        self.n = np.abs(np.asarray(speed_rpm, dtype=float))
+        self.positive = np.asarray(direction, dtype=float) > 0.0
+        lo = math.floor(float(self.t.min()) / GRID_STEP_C) * GRID_STEP_C - GRID_STEP_C
+        hi = math.ceil(float(self.t.max()) / GRID_STEP_C) * GRID_STEP_C + GRID_STEP_C
+        grid = lo + GRID_STEP_C * np.arange(int(round((hi - lo) / GRID_STEP_C)) + 1)
+        unit = dataclasses.replace(base, sliding_friction_coefficient=1.0)
+        res = friction_torque(unit, grid, 0.0)
+        self.m_rolling = np.interp(self.t, grid, res.m_rolling_nmm)        # M_R of the axis [N·mm]
+        self.s_unit = np.interp(self.t, grid, res.m_sliding_nmm)           # M_S at μ = 1 [N·mm]
+        d_m = radial_coupling(base, self.t).d_m                            # [mm]
+        self.l_factor = float(base.bearings_per_axis) * 1e-7 * d_m**3      # M_L = this · s0 · g(ν n) [N·mm]
+        T = self.t + base.kelvin_offset_k
+        self.x = np.log10(T) if base.viscosity_model == 'walther' else np.log10(np.log10(T))
+
+    def values(self, changes: Mapping[str, float] | None = None) -> dict[str, float]:
+        """The seven fit parameters of ``base`` with ``changes`` applied."""
+        out = {name: float(getattr(self.base, name)) for name in FIT_PARAMETERS}
+        out.update({k: float(v) for k, v in (changes or {}).items()})
+        return out
+
+    def viscosity_cst(self, v: Mapping[str, float]) -> Array:
+        """ν of every sample, Eq. (20)/(21), [mm²/s]."""
+        return np.power(10.0, np.power(10.0, v['walther_a'] + v['walther_b'] * self.x)) - v['viscosity_offset_cst']
+
+    def upper_branch(self, v: Mapping[str, float]) -> NDArray[np.bool_]:
+        """Samples in Palmgren's upper branch ``ν·n ≥ 2000`` (M_L depends on ν), Eq. (9)."""
+        return self.viscosity_cst(v) * self.n >= PALMGREN_THRESHOLD
+
+    def torque_nmm(self, v: Mapping[str, float]) -> Array:
+        """|τ| of every sample, [N·mm]."""
+        return self._evaluate(v, ())[0]
+
+    def jacobian_nmm(self, v: Mapping[str, float], names: Sequence[str]) -> Array:
+        """d|τ|/dθ of every sample for the parameters ``names`` (raw, as in AxisParams), shape (n, len(names))."""
+        return self._evaluate(v, names)[1]
+
+    def _evaluate(self, v: Mapping[str, float], names: Sequence[str]) -> tuple[Array, Array]:
+        w = np.power(10.0, v['walther_a'] + v['walther_b'] * self.x)
+        nu_c = np.power(10.0, w)
+        vn = (nu_c - v['viscosity_offset_cst']) * self.n
+        upper = vn >= PALMGREN_THRESHOLD
+        g = np.where(upper, np.cbrt(np.abs(vn)) ** 2, 160.0)
+        s0 = v['palmgren_factor']
+        m_l = self.l_factor * s0 * g
+        m = self.m_rolling + v['sliding_friction_coefficient'] * self.s_unit + m_l
+        k = np.where(self.positive, v['scale_positive'], v['scale_negative'])
+        tau = k * m
+        if not names:
+            return tau, np.empty((tau.shape[0], 0))
+        # dτ/dν in the upper branch: k s0 L (2/3) (ν n)^(-1/3) n; zero in the lower branch
+        dtau_dnu = np.where(upper, k * self.l_factor * s0 * (2.0 / 3.0) * self.n
+                            / np.cbrt(np.where(upper, vn, 1.0)), 0.0)
+        dnu_da = LN10 * LN10 * w * nu_c
+        cols = {
+            'walther_a': dtau_dnu * dnu_da,
+            'walther_b': dtau_dnu * dnu_da * self.x,
+            'viscosity_offset_cst': -dtau_dnu,
+            'palmgren_factor': k * self.l_factor * g,
+            'sliding_friction_coefficient': k * self.s_unit,
+            'scale_positive': np.where(self.positive, m, 0.0),
+            'scale_negative': np.where(self.positive, 0.0, m),
+        }
+        return tau, np.column_stack([cols[name] for name in names])
+
+
+# ------------------------------------------------------------------------------------------------------------
+# grouping and weights
+
+
+class _Groups(NamedTuple):
+    index: NDArray[np.intp]      # group of every sample (−1: dropped)
+    count: Array                 # samples per group
+    t_bin: Array                 # bin centre [°C]
+    direction: NDArray[np.int64]
+    speed_bin: NDArray[np.int64]
+    all_index: NDArray[np.intp]  # group of every sample among all groups (used or not)
+    all_count: Array
+    all_keys: list[tuple[float, int, int]]
+    used: NDArray[np.bool_]      # per entry of all_keys
+
+
+def _group(t: Array, n: Array, direction: Array, bin_width_c: float, min_bin_samples: int) -> _Groups:
+    t_bin = np.round(t / bin_width_c) * bin_width_c + 0.0
+    s_bin = np.round(np.log(n) / math.log(SPEED_BIN_RATIO)).astype(np.int64)
+    d = np.where(direction > 0, 1, -1).astype(np.int64)
+    keys = list(zip(t_bin.tolist(), d.tolist(), s_bin.tolist()))
+    uniq = sorted(set(keys))
+    lookup = {key: i for i, key in enumerate(uniq)}
+    all_index = np.fromiter((lookup[key] for key in keys), dtype=np.intp, count=len(keys))
+    all_count = np.bincount(all_index, minlength=len(uniq)).astype(float)
+    used = all_count >= min_bin_samples
+    remap = np.full(len(uniq), -1, dtype=np.intp)
+    remap[used] = np.arange(int(used.sum()))
+    index = remap[all_index]
+    sel = np.flatnonzero(used)
+    return _Groups(index, all_count[used], np.array([uniq[i][0] for i in sel]),
+                   np.array([uniq[i][1] for i in sel], dtype=np.int64),
+                   np.array([uniq[i][2] for i in sel], dtype=np.int64), all_index, all_count, uniq, used)
+
+
+def _group_mean(index: NDArray[np.intp], count: Array, values: Array) -> Array:
+    return np.bincount(index, weights=values, minlength=count.shape[0]) / count
+
+
+def _group_se(index: NDArray[np.intp], count: Array, resid: Array, mean_abs: Array, floor_rel: float) -> Array:
+    """Standard error of each group mean: max(i.i.d., batch means) combined with a relative floor, [N·m]."""
+    se = np.empty(count.shape[0])
+    order = np.argsort(index, kind='stable')  # keeps the samples' own (time) order inside a group
+    starts = np.concatenate([[0], np.cumsum(count).astype(int)])
+    for j in range(count.shape[0]):
+        vals = resid[order[starts[j]:starts[j + 1]]]
+        n = vals.shape[0]
+        s = float(np.std(vals, ddof=1)) if n > 1 else 0.0
+        se_j = s / math.sqrt(n)
+        if n >= 20:
+            means = np.array([b.mean() for b in np.array_split(vals, 10)])
+            se_j = max(se_j, float(np.std(means, ddof=1)) / math.sqrt(means.shape[0]))
+        se[j] = math.hypot(se_j, floor_rel * float(mean_abs[j]))
+    return np.maximum(se, 1e-12)
+
+
+# ------------------------------------------------------------------------------------------------------------
+# the fit
+
+
+def _rho(z: Array, loss: str) -> Array:
+    if loss == 'linear':
+        return z
+    if loss == 'soft_l1':
+        return 2.0 * (np.sqrt(1.0 + z) - 1.0)
+    if loss == 'huber':
+        return np.where(z <= 1.0, z, 2.0 * np.sqrt(z) - 1.0)
+    if loss == 'cauchy':
+        return np.log1p(z)
+    return np.arctan(z)
+
+
+def _cost(r: Array, loss: str, f_scale: float) -> float:
+    return float(0.5 * f_scale**2 * np.sum(_rho((r / f_scale) ** 2, loss)))
+
+
+class _Solution(NamedTuple):
+    values: dict[str, float]       # all seven parameters
+    internal: Array
+    jac_internal: Array            # weighted jacobian of the group residuals, internal parameters
+    to_raw: Array                  # d(raw active)/d(internal active)
+    residuals: Array               # weighted group residuals
+    cost: float
+    nfev: int
+    message: str
+    status: int
+
+
+class _Problem:
+    """Weighted group residuals r_j = (ȳ_j − mean model_j)/se_j as a function of the active parameters."""
+
+    def __init__(self, model: SampleModel, groups: _Groups, y_mean: Array, se: Array, x_ref: float,
+                 loss: str, f_scale: float, max_nfev: int, absolute: bool) -> None:
+        self.model = model
+        self.groups = groups
+        self.y_mean = y_mean
+        self.se = se
+        self.x_ref = x_ref
+        self.loss = loss
+        self.f_scale = f_scale
+        self.max_nfev = max_nfev
+        self.base = model.values()
+        self.used = groups.index >= 0
+        self.absolute = absolute  # weights are 1/standard error (False: relative, scale from the residuals)
+
+    # internal <-> raw: a' = a + b x_ref (centred Walther form), everything else raw
+    def _to_values(self, names: Sequence[str], theta: Array) -> dict[str, float]:
+        v = dict(self.base)
+        v.update({name: float(x) for name, x in zip(names, theta)})
+        if 'walther_a' in names:
+            v['walther_a'] = v['walther_a'] - v['walther_b'] * self.x_ref
+        return v
+
+    def internal0(self, names: Sequence[str]) -> Array:
+        v = self.base
+        return np.array([v['walther_a'] + v['walther_b'] * self.x_ref if name == 'walther_a' else v[name]
+                         for name in names])
+
+    def bounds(self, names: Sequence[str]) -> tuple[Array, Array]:
+        v = self.base
+        lo, hi = [], []
+        for name, x0 in zip(names, self.internal0(names)):
+            if name == 'walther_a':
+                lo.append(x0 - 0.3)
+                hi.append(x0 + 0.3)
+            elif name == 'walther_b':
+                lo.append(3.0 * v[name])
+                hi.append(v[name] / 3.0)
+            elif name == 'viscosity_offset_cst':
+                lo.append(-1.0)
+                hi.append(100.0)
+            else:
+                top = {'palmgren_factor': 100.0, 'sliding_friction_coefficient': 2.0}.get(name, 10.0)
+                lo.append(x0 / 20.0)
+                hi.append(min(top, 20.0 * x0) if x0 > 0.0 else top)
+        return np.array(lo), np.array(hi)
+
+    def residuals(self, names: Sequence[str], theta: Array) -> Array:
+        v = self._to_values(names, theta)
+        tau = self.model.torque_nmm(v)[self.used] * 1e-3
+        g = self.groups
+        return (self.y_mean - _group_mean(g.index[self.used], g.count, tau)) / self.se
+
+    def jacobian(self, names: Sequence[str], theta: Array) -> Array:
+        v = self._to_values(names, theta)
+        raw = self.model.jacobian_nmm(v, names)[self.used] * 1e-3
+        if 'walther_a' in names and 'walther_b' in names:  # d/db at fixed a' = d/db raw − x_ref d/da raw
+            ia, ib = names.index('walther_a'), names.index('walther_b')
+            raw[:, ib] = raw[:, ib] - self.x_ref * raw[:, ia]
+        g = self.groups
+        idx = g.index[self.used]
+        cols = [np.bincount(idx, weights=raw[:, k], minlength=g.count.shape[0]) / g.count
+                for k in range(len(names))]
+        return -np.column_stack(cols) / self.se[:, None]
+
+    def solve(self, names: Sequence[str]) -> _Solution:
+        x0 = self.internal0(names)
+        lo, hi = self.bounds(names)
+        cost0 = _cost(self.residuals(names, x0), self.loss, self.f_scale)
+        with np.errstate(over='ignore', invalid='ignore', divide='ignore'):
+            res = least_squares(lambda th: self.residuals(names, th), x0, jac=lambda th: self.jacobian(names, th),
+                                bounds=(lo, hi), method='trf', x_scale='jac', loss=self.loss,
+                                f_scale=self.f_scale, xtol=1e-12, ftol=1e-12, gtol=1e-12,
+                                max_nfev=self.max_nfev)
+        if res.status <= 0 or not np.all(np.isfinite(res.fun)) or not np.all(np.isfinite(res.x)):
+            msg = (f'the fit of {", ".join(names)} did not converge after {res.nfev} evaluations '
+                   f'({res.message})')
+            raise FitError(msg)
+        if res.cost > cost0 * (1.0 + 1e-9) + 1e-300:
+            msg = f'the fit of {", ".join(names)} diverged: the cost rose from {cost0:.6g} to {res.cost:.6g}'
+            raise FitError(msg)
+        span = hi - lo
+        for name, x, low, high, width in zip(names, res.x, lo, hi, span):
+            if (x - low <= 1e-6 * width and low != 0.0) or high - x <= 1e-6 * width:
+                raw = self._to_values(names, res.x)[name]
+                msg = (f'the fit diverged: {name} ran to the edge of its plausible range ({raw:.6g}); the data do '
+                       'not support a physical value (check the logs, the temperature sensor and the base '
+                       'parameters)')
+                raise FitError(msg)
+        values = self._to_values(names, res.x)
+        nu = self.model.viscosity_cst(values)
+        if not np.all(nu > 0.0):
+            msg = 'the fit diverged: the refitted viscosity is not positive at some data temperatures'
+            raise FitError(msg)
+        to_raw = np.eye(len(names))
+        if 'walther_a' in names and 'walther_b' in names:
+            to_raw[names.index('walther_a'), names.index('walther_b')] = -self.x_ref
+        return _Solution(values, res.x, self.jacobian(names, res.x), to_raw, res.fun, float(res.cost),
+                         int(res.nfev), str(res.message), int(res.status))
+
+
+def _covariance(sol: _Solution, absolute: bool) -> tuple[Array, int]:
+    """Covariance of the internal parameters and the degrees of freedom.
+
+    With absolute weights (1/se) it is scaled by max(1, χ²/dof); with relative weights (no absolute scale) by
+    χ²/dof, and infinite without degrees of freedom.
+    """
+    J = sol.jac_internal
+    m, p = J.shape
+    dof = m - p
+    chi2 = float(sol.residuals @ sol.residuals)
+    if absolute:
+        s2 = max(1.0, chi2 / dof) if dof > 0 else 1.0
+    else:
+        s2 = chi2 / dof if dof > 0 else math.inf
+    try:
+        cov = np.linalg.inv(J.T @ J) * s2
+    except np.linalg.LinAlgError:
+        cov = np.full((p, p), np.inf)
+    return cov, dof
+
+
+def _distinct_viscous_temperatures(groups: _Groups, upper: NDArray[np.bool_], min_bin_samples: int) -> list[float]:
+    """Temperature bins of used groups with at least half (and ``min_bin_samples``) of their samples in the upper
+    Palmgren branch."""
+    g = groups
+    used = g.index >= 0
+    n_upper = np.bincount(g.index[used], weights=upper[used].astype(float), minlength=g.count.shape[0])
+    ok = (n_upper >= min_bin_samples) & (n_upper >= 0.5 * g.count)
+    return sorted({float(x) for x in g.t_bin[ok]})
+
+
+def palmgren_threshold_temperature(base: AxisParams, speed_rpm: float) -> float:
+    """Temperature [°C] below which ν·n ≥ 2000 at ``speed_rpm`` [rpm] (inverse Walther, Eq. 20/21); NaN if none.
+
+    >>> round(palmgren_threshold_temperature(AxisParams(), 1 / 3), 1)
+    -27.1
+    """
+    nu = PALMGREN_THRESHOLD / speed_rpm
+    try:
+        x = (math.log10(math.log10(nu + base.viscosity_offset_cst)) - base.walther_a) / base.walther_b
+        T = 10.0**x if base.viscosity_model == 'walther' else 10.0 ** (10.0**x)
+    except (ValueError, OverflowError, ZeroDivisionError):
+        return math.nan
+    return T - base.kelvin_offset_k
+
+
+def _check_inputs(base: AxisParams, t: Array, n: Array, y: Array, d: Array, fit: Sequence[str], weights: str,
+                  loss: str, bin_width_c: float) -> None:
+    if not fit:
+        raise FitError('nothing to fit: give at least one parameter')
+    unknown = [name for name in fit if name not in FIT_PARAMETERS]
+    if unknown:
+        msg = f'cannot fit {", ".join(unknown)}: choose from {", ".join(FIT_PARAMETERS)}'
+        raise FitError(msg)
+    if len(set(fit)) != len(fit):
+        raise FitError('a parameter is listed twice in fit')
+    if weights not in WEIGHTS:
+        msg = f'weights {weights!r}: choose from {", ".join(WEIGHTS)}'
+        raise FitError(msg)
+    if loss not in LOSSES:
+        msg = f'loss {loss!r}: choose from {", ".join(LOSSES)}'
+        raise FitError(msg)
+    if not (math.isfinite(bin_width_c) and bin_width_c > 0.0):
+        raise FitError('the temperature bin width must be > 0 degC')
+    if not (t.ndim == n.ndim == y.ndim == d.ndim == 1 and t.shape == n.shape == y.shape == d.shape):
+        raise FitError('temperature, speed, measured torque and direction must be 1-D arrays of equal length')
+    if t.shape[0] < MIN_SAMPLES:
+        msg = f'too few samples: {t.shape[0]} (need at least {MIN_SAMPLES})'
+        raise FitError(msg)
+    for label, arr in (('temperature', t), ('speed', n), ('measured torque', y), ('direction', d)):
+        bad = int(np.count_nonzero(~np.isfinite(arr)))
+        if bad:
+            msg = f'non-finite data: {bad} sample(s) have a NaN or infinite {label}'
+            raise FitError(msg)
+    if np.any(n <= 0.0):
+        msg = f'{int(np.count_nonzero(n <= 0.0))} sample(s) have zero speed: the direction of friction is undefined'
+        raise FitError(msg)
+    if not np.all(np.abs(d) == 1.0):
+        raise FitError('direction must be +1 or -1 for every sample')
+    if np.any(t < -200.0) or np.any(t > 400.0):
+        raise FitError('temperatures must lie in [-200, 400] degC for this model')
+    if base.walther_b >= 0.0:
+        raise FitError('the base walther_b must be < 0')
+
+
+def refit_model(base: AxisParams, temperature_c: ArrayLike, speed_rpm: ArrayLike, measured_abs_nm: ArrayLike,
+                direction: ArrayLike, *, fit: Sequence[str] = ('walther_a',), weights: str = 'bin_se',
+                loss: str = 'linear', f_scale: float | None = None, bin_width_c: float = 5.0,
+                min_bin_samples: int = MIN_BIN_SAMPLES, se_floor_rel: float = 0.002,
+                max_nfev: int = 200) -> RefitResult:
+    """Refit lubricant (and other) parameters of ``base`` to measured friction by weighted least squares.
+
+    Parameters
+    ----------
+    base : AxisParams
+        Model parameters of the axis; the starting point, and the value of everything not fitted.
+    temperature_c : array_like
+        Bearing temperature of every sample, [°C].
+    speed_rpm : array_like
+        Speed magnitude |v| of every sample, [rpm] (> 0).
+    measured_abs_nm : array_like
+        Measured friction along the motion (signed friction × direction, so noise may make it negative), [N·m].
+    direction : array_like
+        +1 (positive motion, the paper's clockwise) or −1 per sample.
+    fit : sequence of str
+        Parameters to fit, any of :data:`FIT_PARAMETERS`.
+    weights : str
+        ``'bin_se'`` (group means weighted by 1/standard error, see the module notes) or ``'relative'``.
+    loss : str
+        ``'linear'`` or a robust loss of :func:`scipy.optimize.least_squares` (``'soft_l1'`` ...), applied to the
+        weighted group residuals.
+    f_scale : float, optional
+        Soft margin of a robust loss (default 3 standard errors, or 3 % with ``weights='relative'``).
+    bin_width_c : float
+        Width of the temperature bins, [°C]; bins are centred on multiples of it.
+    min_bin_samples : int
+        Groups with fewer samples are left out of the fit.
+    se_floor_rel : float
+        Floor of a group's standard error as a fraction of its mean, [-].
+    max_nfev : int
+        Most model evaluations per least-squares solve.
+
+    Returns
+    -------
+    RefitResult
+
+    Raises
+    ------
+    FitError
+        Too few samples (< 20, or no group with ``min_bin_samples``), non-finite data, unknown parameters, a fit
+        that does not converge or diverges, or data that determine none of the requested parameters.
+    """
+    t = np.asarray(temperature_c, dtype=float)
+    n = np.abs(np.asarray(speed_rpm, dtype=float))
+    y = np.asarray(measured_abs_nm, dtype=float)
+    d = np.asarray(direction, dtype=float)
+    fit = tuple(fit)
+    _check_inputs(base, t, n, y, d, fit, weights, loss, bin_width_c)
+    groups = _group(t, n, d, bin_width_c, max(int(min_bin_samples), 2))
+    if groups.count.shape[0] == 0:
+        msg = (f'too few samples per temperature bin: no ({bin_width_c:g} degC bin, direction, speed) group has '
+               f'{min_bin_samples} samples or more ({t.shape[0]} samples in {len(groups.all_keys)} groups)')
+        raise FitError(msg)
+    used = groups.index >= 0
+    try:
+        model = SampleModel(base, t, n, d)
+    except GimbalFrictionError as err:
+        msg = f'the base model cannot be evaluated at the data: {err}'
+        raise FitError(msg) from None
+    v0 = model.values()
+    tau0 = model.torque_nmm(v0) * 1e-3
+    idx = groups.index[used]
+    y_mean = _group_mean(idx, groups.count, y[used])
+    if weights == 'bin_se':
+        se = _group_se(idx, groups.count, (y - tau0)[used], np.abs(y_mean), se_floor_rel)
+        f_default = 3.0
+    else:
+        se = np.maximum(np.abs(y_mean), 1e-12)
+        f_default = 0.03
+    scale = f_default if f_scale is None else float(f_scale)
+    if not (math.isfinite(scale) and scale > 0.0):
+        raise FitError('f_scale must be > 0')
+
+    upper0 = model.upper_branch(v0)
+    visc_temps0 = _distinct_viscous_temperatures(groups, upper0, min_bin_samples)
+    x_ref = float(np.mean(model.x[used & upper0])) if np.any(used & upper0) else float(np.mean(model.x[used]))
+    problem = _Problem(model, groups, y_mean, se, x_ref, loss, scale, max_nfev, weights == 'bin_se')
+
+    requested = [name for name in FIT_PARAMETERS if name in fit]
+    reasons: dict[str, str] = {}
+    n_pos = int(np.count_nonzero(used & (d > 0)))
+    if 'scale_positive' in requested and n_pos == 0:
+        reasons['scale_positive'] = 'no samples moving in the positive direction'
+    if 'scale_negative' in requested and n_pos == int(used.sum()):
+        reasons['scale_negative'] = 'no samples moving in the negative direction'
+    visc = [name for name in requested if name in VISCOSITY_PARAMETERS]
+    n_max = float(n[used].max())
+    if not visc_temps0:
+        t_thr = palmgren_threshold_temperature(base, n_max)
+        where = f'; at {n_max:.3g} rpm that needs t <= {t_thr:.0f} degC' if math.isfinite(t_thr) else ''
+        for name in visc:
+            reasons[name] = (f'no samples in Palmgren\'s upper branch (nu*n >= {PALMGREN_THRESHOLD:g}{where}), '
+                             'where the viscous torque depends on viscosity')
+    else:
+        temps = ', '.join(f'{x:g}' for x in visc_temps0)
+        for i, name in enumerate(visc):
+            if i >= len(visc_temps0):
+                reasons[name] = (f'needs samples at {i + 1} distinct temperatures in Palmgren\'s upper branch '
+                                 f'(nu*n >= {PALMGREN_THRESHOLD:g}), the data have {len(visc_temps0)} ({temps} '
+                                 f'degC), taken by {", ".join(visc[:i])}; add a colder plateau or faster runs')
+    active = [name for name in requested if name not in reasons]
+
+    sol: _Solution | None = None
+    visc_temps = visc_temps0
+    while active:
+        # sensitivity checks at the start (an exactly degenerate problem would not converge) and at the solution
+        drop_reasons = _degenerate(active, problem.jacobian(active, problem.internal0(active)))
+        if drop_reasons:
+            reasons.update(drop_reasons)
+            active = [name for name in active if name not in drop_reasons]
+            continue
+        sol = problem.solve(active)
+        drop_reasons = _degenerate(active, sol.jac_internal)
+        if drop_reasons:
+            reasons.update(drop_reasons)
+            active = [name for name in active if name not in drop_reasons]
+            continue
+        rel = _relative_se(problem, active, sol)
+        worst = max(range(len(active)), key=lambda k: rel[k])
+        if rel[worst] > MAX_RELATIVE_SE:
+            what = 'effect on the viscosity' if active[worst] in VISCOSITY_PARAMETERS[:2] else 'value'
+            reasons[active[worst]] = (
+                f'standard error {100 * rel[worst]:.0f} % of its {what} (> {100 * MAX_RELATIVE_SE:.0f} %)'
+                if math.isfinite(rel[worst]) else
+                'its standard error cannot be estimated (no more temperature groups than parameters)')
+            active.pop(worst)
+            continue
+        upper1 = model.upper_branch(sol.values)
+        visc_temps = _distinct_viscous_temperatures(groups, upper0 & upper1, min_bin_samples)
+        visc_active = [name for name in active if name in VISCOSITY_PARAMETERS]
+        if len(visc_active) > len(visc_temps):
+            drop = visc_active[-1]
+            reasons[drop] = (f'under the refitted viscosity only {len(visc_temps)} distinct temperature(s) remain in '
+                             f'Palmgren\'s upper branch (nu*n >= {PALMGREN_THRESHOLD:g})')
+            active.remove(drop)
+            continue
+        break
+    if not active or sol is None:
+        why = '; '.join(f'{name}: not identifiable: {reasons[name]}' for name in requested)
+        msg = f'the data determine none of the requested parameters ({why})'
+        raise FitError(msg)
+    return _result(base, problem, groups, model, y, tau0, upper0, visc_temps, requested, active, reasons, sol)
+
+
+def _degenerate(active: Sequence[str], J: Array) -> dict[str, str]:
+    """Parameters to hold: every one with a (nearly) zero jacobian column, else the lowest-priority one of a
+    collinear set (SVD of the column-normalised weighted jacobian)."""
+    norms = np.linalg.norm(J, axis=0)
+    top = float(norms.max()) if norms.size else 0.0
+    zero = {name: 'the data do not depend on it (zero sensitivity)'
+            for name, nk in zip(active, norms) if not (top > 0.0 and nk > 1e-9 * top)}
+    if zero or len(active) < 2:
+        return zero
+    _, s, vt = np.linalg.svd(J / norms, full_matrices=False)
+    cond = float(s[0] / s[-1]) if s[-1] > 0.0 else math.inf
+    if cond <= MAX_CONDITION:
+        return {}
+    involved = [name for name, c in zip(active, vt[-1]) if abs(c) > 0.1]
+    drop = involved[-1]
+    others = ', '.join(name for name in involved if name != drop)
+    return {drop: f'collinear with {others}: the data determine only a combination (condition number {cond:.3g})'}
+
+
+def _relative_se(problem: _Problem, active: Sequence[str], sol: _Solution) -> list[float]:
+    """Relative standard error of each active parameter: SE/|value|; for a Walther constant the relative
+    viscosity error it causes over the viscous-regime data (centred form); for c1 SE/max(|c1|, 1 cSt)."""
+    cov, _ = _covariance(sol, problem.absolute)
+    se_int = np.sqrt(np.abs(np.diag(cov)))
+    model = problem.model
+    v = sol.values
+    upper = model.upper_branch(v) & problem.used
+    sel = upper if np.any(upper) else problem.used
+    w = np.power(10.0, v['walther_a'] + v['walther_b'] * model.x[sel])
+    nu_c = np.power(10.0, w)
+    dlnnu_da = LN10 * LN10 * w * nu_c / np.maximum(nu_c - v['viscosity_offset_cst'], 1e-300)
+    out = []
+    for k, name in enumerate(active):
+        if name == 'walther_a':
+            out.append(float(se_int[k] * np.max(np.abs(dlnnu_da))))
+        elif name == 'walther_b':
+            out.append(float(se_int[k] * np.max(np.abs(dlnnu_da * (model.x[sel] - problem.x_ref)))))
+        elif name == 'viscosity_offset_cst':
+            out.append(float(se_int[k] / max(abs(v[name]), 1.0)))
+        else:
+            out.append(float(se_int[k] / abs(v[name])) if v[name] != 0.0 else math.inf)
+    return [x if math.isfinite(x) else math.inf for x in out]
+
+
+def _result(base: AxisParams, problem: _Problem, groups: _Groups, model: SampleModel, y: Array, tau0: Array,
+            upper0: NDArray[np.bool_], visc_temps: list[float], requested: list[str],
+            active: list[str], reasons: dict[str, str], sol: _Solution) -> RefitResult:
+    cov_int, dof = _covariance(sol, problem.absolute)
+    cov = sol.to_raw @ cov_int @ sol.to_raw.T
+    se_active = dict(zip(active, np.sqrt(np.abs(np.diag(cov))).tolist()))
+    q = float(stdtrit(dof, 0.975)) if dof > 0 else 1.959963984540054
+    v0 = model.values()
+    fitted, ses, cis, ident = {}, {}, {}, {}
+    for name in requested:
+        if name in se_active:
+            value, s = sol.values[name], se_active[name]
+            fitted[name], ses[name] = value, s
+            cis[name] = (value - q * s, value + q * s)
+            ident[name] = Identifiability(True, '')
+        else:
+            fitted[name], ses[name] = v0[name], math.nan
+            cis[name] = (math.nan, math.nan)
+            ident[name] = Identifiability(False, reasons[name])
+    try:
+        params = base.replace(**{name: fitted[name] for name in active})
+    except ConfigError as err:
+        msg = f'the refitted parameters are not valid: {err}'
+        raise FitError(msg) from None
+    tau1 = model.torque_nmm(sol.values) * 1e-3
+    upper1 = model.upper_branch(sol.values)
+    nu0 = model.viscosity_cst(v0)
+    nu1 = model.viscosity_cst(sol.values)
+    used = groups.index >= 0
+    bins = []
+    se_by_group = dict(zip(np.flatnonzero(groups.used).tolist(), problem.se.tolist()))
+    for j, key in enumerate(groups.all_keys):
+        sel = groups.all_index == j
+        cnt = int(sel.sum())
+        t_mean = float(model.t[sel].mean())
+        n_up = int(np.count_nonzero(upper0[sel] & upper1[sel]))
+        bins.append(BinStats(
+            temperature_bin_c=key[0], temperature_c=t_mean, direction=int(key[1]),
+            speed_rpm=float(model.n[sel].mean()), n=cnt, used=bool(groups.used[j]),
+            viscous=n_up >= 0.5 * cnt and n_up >= 1,
+            measured_mean_nm=float(y[sel].mean()), measured_se_nm=float(se_by_group.get(j, math.nan)),
+            model_before_nm=float(tau0[sel].mean()), model_after_nm=float(tau1[sel].mean()),
+            rms_before_nm=float(np.sqrt(np.mean((y[sel] - tau0[sel]) ** 2))),
+            rms_after_nm=float(np.sqrt(np.mean((y[sel] - tau1[sel]) ** 2))),
+            viscosity_before_cst=float(nu0[sel].mean()), viscosity_after_cst=float(nu1[sel].mean())))
+    viscosity = _viscosity_intervals(model, groups, upper0 & upper1, visc_temps, v0, sol.values, active, cov, q)
+    message = (f'fitted {", ".join(active)} from {int(used.sum())} samples in {groups.count.shape[0]} groups '
+               f'({sol.nfev} evaluations: {sol.message})')
+    return RefitResult(
+        fitted=fitted, base={name: v0[name] for name in requested}, standard_errors=ses, confidence_intervals=cis,
+        identifiability=ident, params=params,
+        rms_before_nm=float(np.sqrt(np.mean((y[used] - tau0[used]) ** 2))),
+        rms_after_nm=float(np.sqrt(np.mean((y[used] - tau1[used]) ** 2))),
+        bins=tuple(bins), viscous_temperatures_c=tuple(visc_temps), viscosity=viscosity, n_samples=int(used.sum()),
+        n_dropped=int((~used).sum()), cost=sol.cost, success=sol.status > 0, message=message)
+
+
+def _viscosity_intervals(model: SampleModel, groups: _Groups, upper: NDArray[np.bool_], visc_temps: list[float],
+                         v0: Mapping[str, float], v1: Mapping[str, float], active: Sequence[str], cov: Array,
+                         q: float) -> tuple[ViscosityInterval, ...]:
+    names = [name for name in active if name in VISCOSITY_PARAMETERS]
+    if not names:
+        return ()
+    k = [list(active).index(name) for name in names]
+    c = cov[np.ix_(k, k)]
+    out = []
+    used = groups.index >= 0
+    for t_bin in visc_temps:
+        sel = used & upper & np.isin(groups.index, np.flatnonzero(groups.t_bin == t_bin))
+        t_c = float(model.t[sel].mean())
+        x = float(model.x[sel].mean())
+        nu0 = float(np.power(10.0, np.power(10.0, v0['walther_a'] + v0['walther_b'] * x)) - v0['viscosity_offset_cst'])
+        w = float(np.power(10.0, v1['walther_a'] + v1['walther_b'] * x))
+        nu_c = 10.0**w
+        nu1 = nu_c - v1['viscosity_offset_cst']
+        dnu = {'walther_a': LN10 * LN10 * w * nu_c, 'walther_b': LN10 * LN10 * w * nu_c * x,
+               'viscosity_offset_cst': -1.0}
+        g = np.array([dnu[name] for name in names]) / nu1          # d ln ν / dθ
+        half = q * math.sqrt(max(float(g @ c @ g), 0.0))
+        out.append(ViscosityInterval(t_c, nu0, nu1, nu1 * math.exp(-half), nu1 * math.exp(half)))
+    return tuple(out)

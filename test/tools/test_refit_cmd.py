@@ -1,0 +1,277 @@
+"""``gimbal-friction refit`` through main(): residual logs in, a layerable parameter file out, refusals.
+
+The logs are written with ResidualLogWriter on /gimbal/friction/residual_detail from a synthetic truth: the
+package model with ``walther_a`` + 0.02 (ν(−40 °C) 44.7k -> 74k cSt), plateaus −40…60 °C every 20 °C, both
+directions at 1/3 rpm, ±5 % position ripple and 0.1 mN*m white noise.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from gimbal_friction.config import axis_params, load_parameters, render_parameter_file
+from gimbal_friction.core.model import friction_torque, viscosity_cst
+from gimbal_friction.core.params import AxisParams
+from gimbal_friction.recording.bag import make_float64_multi_array, make_temperature, write_chamber_bag
+from gimbal_friction.recording.residual_log import ResidualLogWriter
+from gimbal_friction.recording.topics import (
+    FLOAT64_MULTI_ARRAY_TYPE,
+    RESIDUAL_DETAIL,
+    RESIDUAL_FIELDS,
+    TEMPERATURE,
+    TEMPERATURE_TYPE,
+)
+from gimbal_friction.tools.cli import main
+
+T0 = 1_700_000_000_000_000_000  # [ns]
+SPEED_RAD_S = 2.0 * math.pi / 180.0  # 1/3 rpm
+PLATEAUS = (-40.0, -20.0, 0.0, 20.0, 40.0, 60.0)
+
+
+def truth_params(shift: float = 0.02) -> AxisParams:
+    base = AxisParams()
+    return base.replace(walther_a=base.walther_a + shift)
+
+
+def detail_rows(truth: AxisParams, plateaus=PLATEAUS, n_per: int = 120, seed: int = 0, speed_rad_s=SPEED_RAD_S):
+    """RESIDUAL_FIELDS rows of the truth, predicted with the package defaults: (rows, stamps [ns])."""
+    rng = np.random.default_rng(seed)
+    base = AxisParams()
+    rows, stamps = [], []
+    k = 0
+    for plateau in plateaus:
+        for sign in (1.0, -1.0):
+            t = plateau + rng.normal(0.0, 0.05, n_per)
+            v = sign * speed_rad_s * (1.0 + rng.normal(0.0, 3e-3, n_per))
+            pos = np.linspace(-0.1, 0.19, n_per)[::int(sign)]
+            n_rpm = np.abs(v) * 60.0 / (2.0 * math.pi)
+            true = friction_torque(truth, t, n_rpm).m_total_nmm * 1e-3
+            true = true * (1.0 + 0.05 * np.sin(2.0 * np.pi * pos / math.radians(3.4)))
+            measured = sign * (true + rng.normal(0.0, 1e-4, n_per))
+            model = friction_torque(base, t, n_rpm)
+            predicted = sign * model.m_total_nmm * 1e-3
+            for i in range(n_per):
+                stamp = T0 + k * 10_000_000
+                k += 1
+                rows.append([stamp * 1e-9, t[i], pos[i], v[i], measured[i] / 0.05, measured[i], predicted[i],
+                             model.m_rolling_nmm[i] * 1e-3, model.m_sliding_nmm[i] * 1e-3,
+                             model.m_viscous_nmm[i] * 1e-3, measured[i] - predicted[i]])
+                stamps.append(stamp)
+    return rows, stamps
+
+
+def write_log(folder: Path, truth: AxisParams | None = None, joints=('elevation',), **kwargs) -> Path:
+    truth = truth or truth_params()
+    with ResidualLogWriter(folder) as writer:
+        for j, joint in enumerate(joints):
+            rows, stamps = detail_rows(truth, seed=j, **kwargs)
+            for row, stamp in zip(rows, stamps):
+                assert len(row) == len(RESIDUAL_FIELDS)
+                writer.write(RESIDUAL_DETAIL, FLOAT64_MULTI_ARRAY_TYPE, stamp + j,
+                             make_float64_multi_array(row, joint))
+    return folder
+
+
+@pytest.fixture(scope='module')
+def log_dir(tmp_path_factory) -> Path:
+    return write_log(tmp_path_factory.mktemp('refit') / 'residuals')
+
+
+def test_refit_writes_a_loadable_file_with_the_truth_viscosity(log_dir, tmp_path, capsys):
+    out = tmp_path / 'refit.yaml'
+    assert main(['refit', str(log_dir), '--out', str(out)]) == 0
+    shown = capsys.readouterr().out
+    truth = truth_params()
+    params = axis_params(load_parameters([out]), 'elevation')
+    defaults = axis_params(load_parameters([]), 'elevation')
+    assert params.walther_a != defaults.walther_a
+    assert abs(params.walther_a - truth.walther_a) < 2e-3
+    # only the refitted parameter changed
+    assert params.replace(walther_a=defaults.walther_a) == defaults
+    doc = yaml.safe_load(out.read_text())
+    assert doc == {'/**': {'ros__parameters': {'axis': {'elevation': {'walther_a': params.walther_a}}}}}
+    # the model with the refitted file reproduces the truth's viscosity where the data determine it
+    nu_fit = friction_torque(params, [-40.0]).viscosity_cst[0]
+    assert nu_fit == pytest.approx(float(viscosity_cst(truth, -40.0)), rel=0.03)
+    m_fit = friction_torque(params, [-40.0]).m_total_nmm[0]
+    assert m_fit == pytest.approx(friction_torque(truth, [-40.0]).m_total_nmm[0], rel=0.01)
+    text = out.read_text()
+    assert text.startswith('# gimbal-friction refit')
+    assert str(log_dir.resolve()) in text and '1440 samples' in text and 'RMS residual' in text
+    assert 'walther_a' in shown and 'identifiable' in shown and f'wrote {out}' in shown
+    assert 'viscosity determined by the data at -40 degC only' in shown
+
+
+def test_model_command_shows_the_refitted_viscosity(log_dir, tmp_path, capsys):
+    out = tmp_path / 'refit.yaml'
+    assert main(['refit', str(log_dir), '--out', str(out), '--format', 'json']) == 0
+    capsys.readouterr()
+    assert main(['model', '--config', str(out), '--format', 'json', '-t', '-40,20']) == 0
+    rec = json.loads(capsys.readouterr().out)
+    truth = truth_params()
+    assert rec[0]['viscosity_cst'] == pytest.approx(float(viscosity_cst(truth, -40.0)), rel=0.03)
+    assert rec[0]['viscosity_cst'] > 1.5 * float(viscosity_cst(AxisParams(), -40.0))
+
+
+def test_json_reports_values_intervals_identifiability_and_rms(log_dir, tmp_path, capsys):
+    out = tmp_path / 'refit.yaml'
+    assert main(['refit', str(log_dir), '--out', str(out), '--format', 'json',
+                 '--fit', 'walther_a,walther_b,viscosity_offset_cst']) == 0
+    captured = capsys.readouterr()
+    doc = json.loads(captured.out)
+    assert f'wrote {out}' in captured.err
+    rec = doc['axes']['elevation']
+    truth = truth_params()
+    lo, hi = rec['confidence_intervals_95']['walther_a']
+    assert lo <= truth.walther_a <= hi
+    assert rec['identifiability']['walther_a'] == {'identifiable': True, 'reason': ''}
+    for name in ('walther_b', 'viscosity_offset_cst'):
+        assert rec['identifiability'][name]['identifiable'] is False
+        assert 'distinct temperature' in rec['identifiability'][name]['reason']
+        assert rec['standard_errors'][name] is None
+        assert rec['fitted'][name] == rec['base'][name]
+    assert set(rec['written']) == {'walther_a'}
+    assert rec['rms_after_nmm'] < 0.5 * rec['rms_before_nmm']
+    assert rec['samples'] == 1440
+    assert {(b['temperature_bin_c'], b['direction']) for b in rec['bins']} == \
+        {(t, d) for t in PLATEAUS for d in ('cw', 'ccw')}
+    cold = [b for b in rec['bins'] if b['temperature_bin_c'] == -40.0]
+    assert all(b['viscous'] and b['rms_after_nmm'] < b['rms_before_nmm'] for b in cold)
+    # walther_b and c1 were not identifiable: they are not in the file
+    params = load_parameters([out], include_defaults=False)['axis']['elevation']
+    assert set(params) == {'walther_a'}
+
+
+def test_table_names_the_parameters_it_cannot_determine(log_dir, tmp_path, capsys):
+    out = tmp_path / 'refit.yaml'
+    assert main(['refit', str(log_dir), '--out', str(out), '--fit', 'walther_a,walther_b']) == 0
+    shown = capsys.readouterr().out
+    assert 'walther_b: not identifiable: needs samples at 2 distinct temperatures' in shown
+    assert 'NO (held)' in shown
+
+
+def test_second_cold_plateau_determines_two_constants(tmp_path, capsys):
+    logs = write_log(tmp_path / 'log', plateaus=(-40.0, -35.0, -20.0, 0.0, 20.0, 40.0, 60.0))
+    out = tmp_path / 'refit.yaml'
+    assert main(['refit', str(logs), '--out', str(out), '--format', 'json', '--fit', 'walther_a,walther_b']) == 0
+    rec = json.loads(capsys.readouterr().out)['axes']['elevation']
+    assert set(rec['written']) == {'walther_a', 'walther_b'}
+    params = axis_params(load_parameters([out]), 'elevation')
+    np.testing.assert_allclose(viscosity_cst(params, [-40.0, -35.0]), viscosity_cst(truth_params(), [-40.0, -35.0]),
+                               rtol=0.03)
+
+
+def test_two_axes_and_several_logs(tmp_path, capsys):
+    first = write_log(tmp_path / 'a', joints=('elevation', 'azimuth'))
+    second = write_log(tmp_path / 'b', joints=('azimuth',), plateaus=(-40.0, 20.0))
+    cfg = tmp_path / 'two_axes.yaml'
+    cfg.write_text(render_parameter_file(axes=['elevation', 'azimuth']))
+    out = tmp_path / 'refit.yaml'
+    plot = tmp_path / 'fig13.png'
+    assert main(['refit', str(first), str(second), '--config', str(cfg), '--out', str(out), '--plot', str(plot),
+                 '--format', 'json']) == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert set(doc['axes']) == {'elevation', 'azimuth'}
+    assert doc['axes']['azimuth']['samples'] == 1440 + 480
+    merged = load_parameters([cfg, out])
+    for axis in ('elevation', 'azimuth'):
+        nu = friction_torque(axis_params(merged, axis), [-40.0]).viscosity_cst[0]
+        assert nu == pytest.approx(float(viscosity_cst(truth_params(), -40.0)), rel=0.03)
+    assert plot.stat().st_size > 10_000
+    # without the two-axis config only elevation is configured: azimuth is ignored, with a note
+    out2 = tmp_path / 'refit2.yaml'
+    assert main(['refit', str(first), '--out', str(out2)]) == 0
+    shown = capsys.readouterr().out
+    assert 'joints not configured, ignored: azimuth' in shown
+    assert set(load_parameters([out2], include_defaults=False)['axis']) == {'elevation'}
+
+
+def test_plot_is_drawn(log_dir, tmp_path, capsys):
+    out, plot = tmp_path / 'refit.yaml', tmp_path / 'fig' / 'fig13.png'
+    assert main(['refit', str(log_dir), '--out', str(out), '--plot', str(plot), '--loss', 'soft_l1',
+                 '--bin-width', '2']) == 0
+    assert plot.read_bytes()[:8] == b'\x89PNG\r\n\x1a\n'
+    assert f'plot: {plot}' in capsys.readouterr().out
+
+
+# ---------------------------------------------------------------------------------------------- refusals
+def _refused(argv: list[str], capsys, out: Path, match: str) -> str:
+    assert main(argv) == 1
+    captured = capsys.readouterr()
+    err = captured.err.strip()
+    assert len(err.splitlines()) == 1, err
+    assert err.startswith('gimbal-friction refit: error: ')
+    assert match in err, err
+    assert captured.out == ''
+    assert not out.exists() or out.read_text() == 'keep me\n'
+    return err
+
+
+def test_refuses_an_empty_folder(tmp_path, capsys):
+    empty = tmp_path / 'empty'
+    empty.mkdir()
+    out = tmp_path / 'refit.yaml'
+    _refused(['refit', str(empty), '--out', str(out)], capsys, out, 'not a residual log')
+    assert not out.exists()
+
+
+def test_refuses_a_foreign_bag_and_keeps_an_existing_output(tmp_path, capsys):
+    messages = [(TEMPERATURE, TEMPERATURE_TYPE, T0 + i, make_temperature(T0 + i, 20.0)) for i in range(5)]
+    bag = write_chamber_bag(tmp_path / 'chamber', messages)
+    out = tmp_path / 'refit.yaml'
+    out.write_text('keep me\n')
+    _refused(['refit', str(bag), '--out', str(out)], capsys, out, 'not a residual log')
+    not_mcap = tmp_path / 'foreign'
+    not_mcap.mkdir()
+    (not_mcap / 'x.mcap').write_bytes(b'this is not mcap at all')
+    _refused(['refit', str(not_mcap), '--out', str(out)], capsys, out, 'not an MCAP file')
+    assert out.read_text() == 'keep me\n'
+
+
+def test_refuses_a_log_without_residual_samples(tmp_path, capsys):
+    folder = tmp_path / 'quiet'
+    with ResidualLogWriter(folder) as writer:
+        writer.write(TEMPERATURE, TEMPERATURE_TYPE, T0, make_temperature(T0, 20.0))
+        writer.write('/gimbal/friction/residual', 'sensor_msgs/msg/Temperature', T0, make_temperature(T0, 1.0))
+    out = tmp_path / 'refit.yaml'
+    _refused(['refit', str(folder), '--out', str(out)], capsys, out, 'holds no /gimbal/friction/residual_detail')
+
+
+def test_refuses_too_few_samples(tmp_path, capsys):
+    logs = write_log(tmp_path / 'short', plateaus=(-40.0,), n_per=8)
+    out = tmp_path / 'refit.yaml'
+    _refused(['refit', str(logs), '--out', str(out)], capsys, out, 'axis elevation: too few samples: 16')
+
+
+def test_refuses_data_that_cannot_determine_the_viscosity(tmp_path, capsys):
+    logs = write_log(tmp_path / 'warm', plateaus=(0.0, 20.0, 40.0))
+    out = tmp_path / 'refit.yaml'
+    _refused(['refit', str(logs), '--out', str(out)], capsys, out, "no samples in Palmgren's upper branch")
+
+
+def test_refuses_bad_options(log_dir, tmp_path, capsys):
+    out = tmp_path / 'refit.yaml'
+    _refused(['refit', str(log_dir), '--out', str(out), '--fit', 'walther_a,bogus'], capsys, out, 'unknown bogus')
+    _refused(['refit', str(log_dir), '--out', str(out), '--axis', 'azimuth'], capsys, out, 'not configured')
+    _refused(['refit', str(log_dir), '--out', str(tmp_path)], capsys, out, 'is a directory')
+
+
+def test_rows_without_a_value_or_at_standstill_are_skipped(tmp_path, capsys):
+    rows, stamps = detail_rows(truth_params())
+    rows[0][1] = math.nan                      # no temperature
+    rows[1][5] = math.nan                      # no measurement
+    rows[2][3] = 0.0                           # standstill: direction unknown
+    folder = tmp_path / 'gaps'
+    with ResidualLogWriter(folder) as writer:
+        for row, stamp in zip(rows, stamps):
+            writer.write(RESIDUAL_DETAIL, FLOAT64_MULTI_ARRAY_TYPE, stamp, make_float64_multi_array(row, 'elevation'))
+    out = tmp_path / 'refit.yaml'
+    assert main(['refit', str(folder), '--out', str(out), '--format', 'json']) == 0
+    rec = json.loads(capsys.readouterr().out)['axes']['elevation']
+    assert (rec['rows'], rec['skipped_nonfinite'], rec['skipped_standstill'], rec['samples']) == (1440, 2, 1, 1437)
