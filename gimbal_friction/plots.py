@@ -127,7 +127,7 @@ def plot_model_vs_measured(summary: Sequence[dict[str, Any]], models: dict[str, 
         if rows:
             ax.errorbar([float(r['temperature_c']) for r in rows], [abs(float(r['measured_mean_nmm'])) for r in rows],
                         yerr=[float(r.get('measured_std_nmm', 0.0)) for r in rows], fmt=marker, color=color,
-                        capsize=3, label=f'measured mean, {direction.upper()}' + (' (|.|)' if direction == 'ccw' else ''))
+                        capsize=3, label=f'measured mean ± std, {direction.upper()}' + (' (|.|)' if direction == 'ccw' else ''))
     ax.plot(*zip(*PAPER_TEST_CW), 'x', color='tab:red', label='paper test mean, CW')
     ax.set_xlabel('temperature [°C]')
     ax.set_ylabel('friction torque of the axis [N·mm]')

@@ -18,14 +18,10 @@ from typing import Mapping, NamedTuple, Sequence
 
 from gimbal_friction.core.errors import ConfigError
 from gimbal_friction.core.params import AxisParams
+from gimbal_friction.core.settings import setting
 from gimbal_friction.core.table import RPM_PER_RAD_S, FrictionTable
 
 STALE_POLICIES = ('hold_last', 'fallback_temperature', 'zero')
-
-
-def setting(default: object, unit: str, description: str) -> object:
-    """A settings field with its unit and description (turned into ROS parameter descriptors by the nodes)."""
-    return field(default=default, metadata={'unit': unit, 'description': description})
 
 
 @dataclass(frozen=True)

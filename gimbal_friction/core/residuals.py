@@ -153,13 +153,36 @@ def temperature_bin(t_c: float, bin_c: float) -> float:
     return round(t_c / bin_c) * bin_c + 0.0
 
 
+def steady_temperature(stamp_s: ArrayLike, temperature_c: ArrayLike, joint: ArrayLike | None = None, *,
+                       window_s: float = 30.0, max_rate_c_per_min: float = 1.0) -> np.ndarray:
+    """True where the temperature changed by at most ``max_rate_c_per_min`` [°C/min] over the last ``window_s``
+    [s] of samples (of the same joint): a temperature plateau, not a ramp between plateaus."""
+    st = np.asarray(stamp_s, dtype=float)
+    t = np.asarray(temperature_c, dtype=float)
+    joints = np.asarray(joint) if joint is not None else np.zeros(len(t), dtype=int)
+    out = np.zeros(len(t), dtype=bool)
+    for j in np.unique(joints):
+        idx = np.flatnonzero((joints == j) & np.isfinite(st) & np.isfinite(t))
+        if len(idx) < 2:
+            continue
+        idx = idx[np.argsort(st[idx], kind='stable')]
+        s_j, t_j = st[idx], t[idx]
+        back = s_j - window_s
+        earlier = np.interp(back, s_j, t_j)
+        rate = np.abs(t_j - earlier) / window_s * 60.0
+        out[idx] = (back >= s_j[0]) & (rate <= max_rate_c_per_min)
+    return out
+
+
 def plateau_summary(temperature_c: ArrayLike, velocity_rad_s: ArrayLike, measured_nm: ArrayLike,
                     predicted_nm: ArrayLike, *, bin_c: float = 5.0, min_samples: int = 10,
-                    joint: Iterable[str] | None = None) -> list[dict[str, object]]:
+                    joint: Iterable[str] | None = None, stamp_s: ArrayLike | None = None) -> list[dict[str, object]]:
     """One record per temperature plateau and direction: the paper's per-temperature means (Fig. 13).
 
-    Plateaus are temperature bins of width ``bin_c`` [°C] holding at least ``min_samples`` samples per direction.
-    Direction ``cw`` is positive motion (the paper's clockwise), ``ccw`` negative; means are signed [N·mm].
+    Plateaus are temperature bins of width ``bin_c`` [°C] holding at least ``min_samples`` samples per direction;
+    with ``stamp_s`` [s] only samples at a steady temperature count (:func:`steady_temperature`), so the ramps
+    between the chamber's set points do not make plateaus of their own. Direction ``cw`` is positive motion (the
+    paper's clockwise), ``ccw`` negative; means are signed [N·mm].
     """
     t = np.asarray(temperature_c, dtype=float)
     v = np.asarray(velocity_rad_s, dtype=float)
@@ -167,6 +190,8 @@ def plateau_summary(temperature_c: ArrayLike, velocity_rad_s: ArrayLike, measure
     pred = np.asarray(predicted_nm, dtype=float)
     joints = np.asarray(list(joint) if joint is not None else ['axis'] * len(t))
     ok = np.isfinite(t) & np.isfinite(v) & np.isfinite(meas) & np.isfinite(pred)
+    if stamp_s is not None:
+        ok &= steady_temperature(stamp_s, t, joints)
     bins = np.full(t.shape, np.nan)
     bins[ok] = np.round(t[ok] / bin_c) * bin_c + 0.0
     out: list[dict[str, object]] = []

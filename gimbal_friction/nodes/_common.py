@@ -27,6 +27,7 @@ from rclpy.signals import SignalHandlerOptions
 from gimbal_friction.config import axis_names, load_parameters
 from gimbal_friction.core.errors import ConfigError, GimbalFrictionError
 from gimbal_friction.core.params import AxisParams, parameter_specs
+from gimbal_friction.core.settings import settings_from
 
 T = TypeVar('T')
 OK, WARN, ERROR = DiagnosticStatus.OK, DiagnosticStatus.WARN, DiagnosticStatus.ERROR
@@ -124,40 +125,6 @@ def declare_settings(node: Node, cls: type[T], prefix: str = '') -> T:
                                _descriptor(prefix + f.name, meta.get('unit', ''), meta.get('description', '')))
         values[f.name] = _value(node.get_parameter(prefix + f.name))
     return settings_from(cls, values)
-
-
-def settings_from(cls: type[T], values: Mapping[str, Any], base: T | None = None) -> T:
-    """Settings dataclass from parameter values, coerced to the field types and validated.
-
-    Raises:
-        ConfigError: wrong type or a value its ``validate()`` refuses.
-    """
-    kwargs = {}
-    for f in dataclasses.fields(cls):  # type: ignore[arg-type]
-        if f.name not in values:
-            continue
-        value = values[f.name]
-        default = f.default
-        if isinstance(default, bool):
-            if not isinstance(value, bool):
-                raise ConfigError(f.name, 'must be true or false', value)
-        elif isinstance(default, (int, float)):
-            if isinstance(value, bool) or not isinstance(value, (int, float)):
-                raise ConfigError(f.name, 'must be a number', value)
-            value = int(value) if isinstance(default, int) and not isinstance(default, bool) else float(value)
-            if isinstance(value, float) and not math.isfinite(value):
-                raise ConfigError(f.name, 'must be a finite number', value)
-        elif isinstance(default, str):
-            if not isinstance(value, str):
-                raise ConfigError(f.name, 'must be a string', value)
-        elif isinstance(default, (list, tuple)):
-            value = type(default)(value)
-        kwargs[f.name] = value
-    obj = dataclasses.replace(base, **kwargs) if base is not None else cls(**kwargs)  # type: ignore
-    validate = getattr(obj, 'validate', None)
-    if validate is not None:
-        validate()
-    return obj
 
 
 def parameter_guard(node: Node, validate: Callable[[list[Parameter]], None],

@@ -19,6 +19,7 @@ SUBCOMMANDS = {
     'model': 'model_cmd',
     'calibrate-kt': 'calibrate_kt_cmd',
     'synth-bag': 'synth_bag_cmd',
+    'replay': 'replay_cmd',
     'report': 'report_cmd',
     'refit': 'refit_cmd',
 }

@@ -84,6 +84,9 @@ def add_parser(sub: Any) -> None:
                         help='least-squares loss on the weighted plateau means (soft_l1: robust to outlier bins)')
     parser.add_argument('--bin-width', type=float, default=5.0, metavar='DEGC',
                         help='temperature bin width [degC] (default 5)')
+    parser.add_argument('--direction', choices=['both', 'cw', 'ccw'], default='both',
+                        help='use samples of one direction only: the paper found CW and CCW alike at 20 degC but '
+                        'apart in the cold (grease distribution, not viscosity); cw = positive motion')
     parser.add_argument('--plot', type=Path, metavar='PNG',
                         help='draw measured vs model before/after by direction over temperature (paper Fig. 13)')
     parser.set_defaults(func=run)
@@ -106,10 +109,13 @@ def parse_fit(text: str) -> tuple[str, ...]:
     return names
 
 
-def axis_samples(detail: Any, axis: str) -> AxisData:
+def axis_samples(detail: Any, axis: str, direction: str = 'both') -> AxisData:
     """Samples of ``axis`` from the residual-detail arrays: temperature, speed [rpm], |friction| along the motion
-    [N*m] and direction, with rows having a non-finite value or zero velocity skipped."""
+    [N*m] and direction, with rows having a non-finite value or zero velocity skipped; ``direction`` 'cw' or
+    'ccw' keeps positive or negative motion only."""
     sel = detail.joint == axis
+    if direction != 'both':
+        sel = sel & ((detail.velocity_rad_s > 0.0) if direction == 'cw' else (detail.velocity_rad_s < 0.0))
     t = detail.temperature_c[sel]
     v = detail.velocity_rad_s[sel]
     m = detail.measured_nm[sel]
@@ -335,7 +341,7 @@ def run(args: argparse.Namespace) -> int:
     fits: list[AxisRefit] = []
     for axis in axes:
         base = axis_params(cfg, axis)
-        data = axis_samples(detail, axis)
+        data = axis_samples(detail, axis, args.direction)
         try:
             result = refit_model(base, data.temperature_c, data.speed_rpm, data.measured_abs_nm, data.direction,
                                  fit=fit, loss=args.loss, bin_width_c=args.bin_width)

@@ -61,11 +61,19 @@ def run(args: argparse.Namespace) -> int:
 
 
 def summary_table(summary: list[dict[str, Any]]) -> str:
-    """Model vs measured by temperature plateau and direction, N*mm."""
-    return format_table([[str(r['joint']), f'{r["temperature_c"]:.1f}', str(r['direction']),
-                          f'{r["measured_mean_nmm"]:+.3f}', f'{r["predicted_nmm"]:+.3f}', f'{r["residual_nmm"]:+.3f}',
-                          str(r['samples'])] for r in summary],
-                        ['joint', 't [degC]', 'dir', 'measured [N*mm]', 'model [N*mm]', 'residual [N*mm]', 'samples'])
+    """Model vs measured by temperature plateau and direction, N*mm (with the compared model when present)."""
+    extra = any('compare_nmm' in r for r in summary)
+    header = ['joint', 't [degC]', 'dir', 'measured [N*mm]', 'model [N*mm]', 'residual [N*mm]', 'samples']
+    if extra:
+        header[5:5] = ['refit model [N*mm]']
+    rows = []
+    for r in summary:
+        row = [str(r['joint']), f'{r["temperature_c"]:.1f}', str(r['direction']), f'{r["measured_mean_nmm"]:+.3f}',
+               f'{r["predicted_nmm"]:+.3f}', f'{r["residual_nmm"]:+.3f}', str(r['samples'])]
+        if extra:
+            row[5:5] = [f'{r["compare_nmm"]:+.3f}']
+        rows.append(row)
+    return format_table(rows, header)
 
 
 def _fig13(args: argparse.Namespace, axis: str, params: Any) -> tuple[list[dict[str, Any]], Path]:
@@ -79,10 +87,15 @@ def _fig13(args: argparse.Namespace, axis: str, params: Any) -> tuple[list[dict[
     if not sel.any():
         raise GimbalFrictionError(f'the residual logs hold no samples of axis {axis!r}')
     summary = plateau_summary(d.temperature_c[sel], d.velocity_rad_s[sel], d.measured_nm[sel],
-                              d.predicted_nm[sel], joint=d.joint[sel])
+                              d.predicted_nm[sel], joint=d.joint[sel], stamp_s=d.stamp_s[sel])
     models = {'configured': params}
     if args.compare is not None:
-        models[f'with {args.compare.name}'] = axis_params(load_parameters([*args.config, args.compare]), axis)
+        compared = axis_params(load_parameters([*args.config, args.compare]), axis)
+        models[f'with {args.compare.name}'] = compared
+        for r in summary:  # the compared model at each plateau, signed like the measurement, at the model speed
+            m = float(friction_torque(compared, float(r['temperature_c'])).m_total_nmm)
+            k = compared.scale_positive if r['sign'] > 0 else compared.scale_negative
+            r['compare_nmm'] = float(r['sign']) * k * m
     path = plot_model_vs_measured(summary, models, args.out / 'fig13_model_vs_measured.png',
                                   title=f'{axis}: model vs measured by direction (paper Fig. 13)')
     return summary, path

@@ -1,0 +1,83 @@
+"""``gimbal-friction replay``: the three nodes' logic over a chamber-test bag, offline, in log-time order."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+from typing import Any
+
+from gimbal_friction.core.errors import ConfigError
+from gimbal_friction.recording.topics import CHAMBER_TOPICS
+from gimbal_friction.tools._common import add_common, print_json, progress
+
+SUMMARY_FIELDS = ('temperature_c', 'direction', 'measured_mean_nmm', 'predicted_nmm', 'residual_nmm', 'samples')
+
+
+def add_parser(sub: Any) -> None:
+    parser = sub.add_parser('replay', help='run the three nodes\' logic over a bag offline (same code, same numbers '
+                            'as the live nodes)',
+                            description='Replay a chamber-test bag (rosbag2 MCAP or sqlite3, or a bare .mcap) '
+                            'through the feedforward, estimator and residual-logger logic in log-time order. '
+                            'Writes OUT/residuals/ (the residual log) and OUT/summary.json (per temperature '
+                            'plateau and direction).')
+    parser.add_argument('bag', type=Path, metavar='BAG', help='chamber-test bag directory or .mcap file')
+    parser.add_argument('--out', type=Path, required=True, metavar='DIR', help='output folder')
+    add_common(parser)
+    parser.add_argument('--topic', action='append', default=[], metavar='CONTRACT=BAG',
+                        help='remap a contract topic to the name recorded in the bag, e.g. '
+                        '/joint_states=/gimbal/joint_states (repeatable)')
+    parser.add_argument('--no-inputs', action='store_true',
+                        help='do not copy the input topics into the residual log (smaller, faster)')
+    parser.set_defaults(func=run)
+
+
+def parse_topic_options(items: list[str]) -> dict[str, str]:
+    out = {}
+    for item in items:
+        if '=' not in item:
+            raise ConfigError('--topic', "expected CONTRACT=BAG, e.g. /joint_states=/gimbal/joint_states", item)
+        key, value = (x.strip() for x in item.split('=', 1))
+        if key not in CHAMBER_TOPICS:
+            raise ConfigError('--topic', f'{key} is not a chamber-test topic ({", ".join(CHAMBER_TOPICS)})', item)
+        out[key] = value
+    return out
+
+
+def run(args: argparse.Namespace) -> int:
+    from gimbal_friction.replay import replay_bag
+    from gimbal_friction.tools.report_cmd import summary_table
+    topic_map = parse_topic_options(args.topic)
+    out: Path = args.out
+    if (out / 'residuals').exists() and any((out / 'residuals').iterdir()):
+        raise ConfigError('--out', f'{out / "residuals"} already holds a log; choose another --out '
+                          '(nothing is overwritten)')
+    t0 = time.perf_counter()
+    stages: dict[str, int] = {}
+
+    def show(stage: str, frac: float) -> None:
+        stages.setdefault(stage, len(stages))
+        progress(int(frac * 1000), 1000, f'{stage:<22}')
+
+    result = replay_bag(args.bag, out, config_paths=args.config, topic_map=topic_map or None,
+                        log_inputs=not args.no_inputs, progress=show)
+    elapsed = time.perf_counter() - t0
+    summary = [{k: r[k] for k in ('joint', *SUMMARY_FIELDS, 'sign', 'measured_std_nmm')} for r in result.summary]
+    (out / 'summary.json').write_text(json.dumps(summary, indent=1) + '\n', encoding='utf-8')
+    est = result.estimate
+    info = {
+        'bag': str(args.bag), 'residuals': str(result.residual_dir), 'summary': str(out / 'summary.json'),
+        'messages_in': result.messages_in, 'messages_logged': result.messages_out,
+        'feedforward_outputs': int(len(result.feedforward.torque_nm)), 'accepted_samples': int(len(est)),
+        'rejected': est.counters.as_dict().get('rejected', {}), 'seconds': round(elapsed, 3),
+        'messages_per_s': round(result.messages_in / elapsed, 1) if elapsed > 0 else None,
+    }
+    if args.format == 'json':
+        print_json({**info, 'plateaus': summary})
+        return 0
+    print(f'replayed {args.bag}: {result.messages_in} messages in {elapsed:.2f} s '
+          f'({info["messages_per_s"]:.0f} msg/s); {len(est)} steady-state samples accepted')
+    print(summary_table(result.summary))
+    print(f'residual log: {result.residual_dir}/   summary: {out / "summary.json"}')
+    return 0

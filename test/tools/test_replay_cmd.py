@@ -1,0 +1,159 @@
+"""``gimbal-friction replay``: summary, residual log, same numbers as the nodes' per-message code, refusals."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+from rosbags.highlevel import AnyReader
+
+from gimbal_friction.config import axis_params, load_parameters
+from gimbal_friction.core.feedforward import FeedforwardLogic
+from gimbal_friction.core.model import friction_torque
+from gimbal_friction.core.residuals import make_record
+from gimbal_friction.recording import topics
+from gimbal_friction.recording.bag import default_typestore, make_joint_state, make_temperature, \
+    open_chamber_bag, write_chamber_bag
+from gimbal_friction.recording.residual_log import read_residual_log
+from gimbal_friction.replay import feedforward_arrays, node_settings, replay_bag
+from gimbal_friction.tools.cli import main
+
+ROOT = Path(__file__).resolve().parents[2]
+SAMPLE = ROOT / 'bags' / 'chamber_sample'
+TRUTH = ROOT / 'bags' / 'chamber_sample.truth.yaml'
+
+
+@pytest.fixture(scope='module')
+def sample_replay(tmp_path_factory):
+    out = tmp_path_factory.mktemp('replay')
+    assert main(['replay', str(SAMPLE), '--out', str(out), '--format', 'json']) == 0
+    return out
+
+
+def test_summary_per_plateau_and_direction(sample_replay):
+    summary = json.loads((sample_replay / 'summary.json').read_text())
+    fields = {'temperature_c', 'direction', 'measured_mean_nmm', 'predicted_nmm', 'residual_nmm', 'samples'}
+    assert all(fields <= set(r) for r in summary)
+    plateaus = sorted({round(r['temperature_c'] / 20) * 20 for r in summary})
+    assert plateaus == [-40, -20, 0, 20, 40, 60]
+    assert len(summary) == 12 and {r['direction'] for r in summary} == {'cw', 'ccw'}
+    truth = axis_params(load_parameters([TRUTH], include_defaults=True), 'elevation')
+    for r in summary:
+        sign = 1 if r['direction'] == 'cw' else -1
+        assert np.sign(r['measured_mean_nmm']) == sign and np.sign(r['predicted_nmm']) == sign
+        assert r['residual_nmm'] == pytest.approx(r['measured_mean_nmm'] - r['predicted_nmm'])
+        assert r['samples'] >= 100
+        if r['direction'] == 'cw':  # CW carries no asymmetry in the synthetic truth
+            expected = float(friction_torque(truth, r['temperature_c']).m_total_nmm)
+            assert r['measured_mean_nmm'] == pytest.approx(expected, rel=0.03)
+    cold = {r['direction']: r['measured_mean_nmm'] for r in summary if r['temperature_c'] < -30}
+    assert abs(cold['ccw']) / cold['cw'] == pytest.approx(0.77, abs=0.05)  # the paper's 2.45/3.19
+
+
+def test_residual_log_is_a_readable_rosbag2_folder(sample_replay):
+    folder = sample_replay / 'residuals'
+    log = read_residual_log([folder])
+    assert len(log.detail) > 20000 and not log.truncated_files
+    for topic in (topics.TEMPERATURE, topics.JOINT_STATES, topics.MOTOR_CURRENT, topics.FEEDFORWARD,
+                  topics.MEASURED, topics.RESIDUAL, topics.RESIDUAL_DETAIL):
+        assert log.topic_counts.get(topic, 0) > 0, topic
+    d = log.detail
+    np.testing.assert_allclose(d.residual_nm, d.measured_nm - d.predicted_nm, rtol=0, atol=1e-15)
+    with AnyReader([folder], default_typestore=default_typestore()) as reader:
+        assert {c.topic for c in reader.connections} >= {topics.RESIDUAL, topics.RESIDUAL_DETAIL}
+
+
+def test_replay_numbers_equal_the_nodes_per_message_code():
+    """The vectorised replay equals FeedforwardLogic.compute / make_record fed message by message."""
+    axes, ff_settings, est_settings = node_settings([])
+    arrays = open_chamber_bag(SAMPLE).read_arrays()
+    fast = feedforward_arrays(FeedforwardLogic(axes, ff_settings), arrays)
+    slow_logic = FeedforwardLogic(axes, ff_settings)
+    temp, js = arrays.temperature, arrays.joint_states
+    events = sorted([(int(t), 0, i) for i, t in enumerate(temp.log_time_ns)]
+                    + [(int(t), 1, i) for i, t in enumerate(js.log_time_ns)])
+    slow = []
+    for log_ns, kind, i in events:
+        now = log_ns * 1e-9
+        if kind == 0:
+            slow_logic.update_temperature(float(temp.temperature_c[i]), now)
+        else:
+            out = slow_logic.compute(['elevation'], [float(js.velocity['elevation'][i])], now)
+            slow.append((out.joints[0].torque_nm, out.temperature_c, out.joints[0].m_viscous_nm))
+    slow_arr = np.array(slow)
+    assert len(slow_arr) == len(fast.torque_nm)
+    np.testing.assert_allclose(fast.torque_nm, slow_arr[:, 0], rtol=1e-12, atol=1e-18)
+    np.testing.assert_array_equal(fast.temperature_c, slow_arr[:, 1])
+    np.testing.assert_allclose(fast.m_viscous_nm, slow_arr[:, 2], rtol=1e-12)
+    # residual records: the replay's equal the logger's make_record for the same sample
+    res = replay_bag(SAMPLE, None, config_paths=[])
+    logic = FeedforwardLogic(axes, ff_settings)
+    for k in range(0, len(res.estimate), 997):
+        e = res.estimate
+        rec = make_record(logic, str(e.joint[k]), int(e.stamp_ns[k]), float(res.prediction_temperature_c[k]),
+                          float(e.position_rad[k]), float(e.velocity_rad_s[k]), float(e.friction_nm[k]),
+                          float(res.predicted_nm[k]))
+        assert rec.m_viscous_nm == pytest.approx(res.m_components_nm[k, 2], rel=1e-12)
+        assert rec.m_rolling_nm + rec.m_sliding_nm == pytest.approx(res.m_components_nm[k, :2].sum(), rel=1e-12)
+        assert rec.current_a == pytest.approx(float(e.current_a[k]), rel=1e-9)
+
+
+def _tiny_bag(path: Path, *, joint_type: str = topics.JOINT_STATE_TYPE, drop: str | None = None,
+              storage: str = 'mcap', rename: dict[str, str] | None = None) -> Path:
+    msgs = []
+    for i in range(200):
+        t = 1_000_000_000 + i * 20_000_000
+        v = 2 * math.pi / 180 * (1 if (i // 100) % 2 == 0 else -1)
+        msgs.append((topics.TEMPERATURE, topics.TEMPERATURE_TYPE, t, make_temperature(t, -40.0)))
+        msgs.append((topics.JOINT_STATES, topics.JOINT_STATE_TYPE, t,
+                     make_joint_state(t, ['elevation'], [0.01 * (i % 50) / 50], [v])))
+        msgs.append((topics.MOTOR_CURRENT, topics.JOINT_STATE_TYPE, t + 1,
+                     make_joint_state(t, ['elevation'], effort=[0.06 * np.sign(v)])))
+    rename = rename or {}
+    msgs = [(rename.get(tp, tp), ty, t, m) for tp, ty, t, m in msgs if tp != drop]
+    if joint_type != topics.JOINT_STATE_TYPE:
+        msgs = [(tp, ty, t, m) if tp != topics.MOTOR_CURRENT else (tp, joint_type, t,
+                                                                    make_temperature(t, 1.0)) for tp, ty, t, m in msgs]
+    return write_chamber_bag(path, msgs, storage=storage)
+
+
+@pytest.mark.parametrize(('kwargs', 'needle'), [
+    ({'drop': topics.MOTOR_CURRENT}, '/gimbal/motor_current'),
+    ({'joint_type': topics.TEMPERATURE_TYPE}, 'sensor_msgs/msg/Temperature'),
+])
+def test_bag_lacking_a_topic_or_with_a_wrong_type_is_refused(tmp_path, capsys, kwargs, needle):
+    bag = _tiny_bag(tmp_path / 'bag', **kwargs)
+    assert main(['replay', str(bag), '--out', str(tmp_path / 'out')]) == 1
+    err = capsys.readouterr().err
+    assert needle in err and len(err.strip().splitlines()) == 1
+    assert not (tmp_path / 'out' / 'residuals').exists()
+
+
+def test_sqlite3_bag_and_topic_remap(tmp_path, capsys):
+    bag = _tiny_bag(tmp_path / 'bag', storage='sqlite3', rename={topics.JOINT_STATES: '/gimbal/joint_states'})
+    assert main(['replay', str(bag), '--out', str(tmp_path / 'o1')]) == 1
+    assert '/joint_states' in capsys.readouterr().err
+    assert main(['replay', str(bag), '--out', str(tmp_path / 'o2'), '--topic', '/joint_states=/gimbal/joint_states',
+                 '--format', 'json']) == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert doc['messages_in'] == 600 and doc['feedforward_outputs'] == 200
+    assert (tmp_path / 'o2' / 'summary.json').exists()
+    # an existing log is never overwritten
+    assert main(['replay', str(bag), '--out', str(tmp_path / 'o2'), '--topic',
+                 '/joint_states=/gimbal/joint_states']) == 1
+    assert 'already holds a log' in capsys.readouterr().err
+
+
+def test_refit_of_the_replayed_log_moves_viscosity_toward_the_truth(sample_replay, tmp_path, capsys):
+    out = tmp_path / 'refit.yaml'
+    assert main(['refit', str(sample_replay / 'residuals'), '--out', str(out), '--direction', 'cw',
+                 '--fit', 'walther_a,palmgren_factor', '--format', 'json']) == 0
+    capsys.readouterr()
+    refit = axis_params(load_parameters([out]), 'elevation')
+    truth = axis_params(load_parameters([TRUTH]), 'elevation')
+    base = axis_params(load_parameters(), 'elevation')
+    assert abs(refit.walther_a - truth.walther_a) < 0.2 * abs(base.walther_a - truth.walther_a)
+    assert abs(refit.palmgren_factor - truth.palmgren_factor) < 0.3 * abs(base.palmgren_factor - truth.palmgren_factor)
