@@ -30,7 +30,7 @@ class FeedforwardSettings:
 
     velocity_threshold_rad_s: float = setting(0.005, 'rad/s', 'v_th of the smooth sign tanh(v/v_th); the '
                                               "paper's test speed 1/3 rpm is 0.0349 rad/s")
-    max_torque_nm: float = setting(0.02, 'N*m', "output clamp on |torque| (the paper's largest friction is "
+    max_torque_nm: float = setting(0.02, 'N*m', "output clamp on the torque magnitude (the paper's largest friction is "
                                    '3.2e-3 N*m)')
     temperature_timeout_s: float = setting(5.0, 's', 'a temperature older than this is stale')
     stale_policy: str = setting('fallback_temperature', '-', 'with no fresh valid temperature: hold_last (keep '

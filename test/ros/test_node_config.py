@@ -1,0 +1,33 @@
+"""The node sections of config/gimbal_friction.yaml list every node setting with its default."""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import pytest
+import yaml
+
+from gimbal_friction.core.estimator import EstimatorSettings
+from gimbal_friction.core.feedforward import FeedforwardSettings
+from gimbal_friction.nodes.estimator import NodeSettings as EstimatorNode
+from gimbal_friction.nodes.feedforward import NodeSettings as FeedforwardNode
+from gimbal_friction.nodes.residual_logger import LoggerSettings
+
+ROOT = Path(__file__).resolve().parents[2]
+NODES = {'friction_feedforward': (FeedforwardSettings, FeedforwardNode),
+         'friction_estimator': (EstimatorSettings, EstimatorNode),
+         'residual_logger': (LoggerSettings,)}
+
+
+@pytest.mark.parametrize('node', list(NODES))
+def test_node_section_documents_every_setting_with_its_default(node):
+    doc = yaml.safe_load((ROOT / 'config' / 'gimbal_friction.yaml').read_text())
+    params = doc[node]['ros__parameters']
+    fields = {f.name: f.default for cls in NODES[node] for f in dataclasses.fields(cls)}
+    assert set(params) == set(fields)
+    for name, default in fields.items():
+        assert params[name] == pytest.approx(default) if isinstance(default, float) else params[name] == default
+    readme = (ROOT / 'README.md').read_text()
+    missing = [n for n in fields if f'`{n}`' not in readme]
+    assert missing == []
