@@ -223,3 +223,39 @@ def test_bad_parameter_file_exits_with_one_line(spawn, tmp_path):
     assert rc == 1
     lines = [line for line in out.splitlines() if 'friction_feedforward: error' in line]
     assert len(lines) == 1 and 'model.ball_diameter_mm' in lines[0] and 'Traceback' not in out
+
+
+def test_refitted_parameter_file_changes_the_output(spawn, probe, tmp_path, monkeypatch):
+    """A refit output (values under axis.<joint>) layered as a second --params-file changes the feedforward."""
+    from gimbal_friction.config import render_parameter_file
+    monkeypatch.chdir(__import__('pathlib').Path(__file__).resolve().parents[2])
+    refit = tmp_path / 'refit.yaml'
+    refit.write_text(render_parameter_file(axes_overrides={'elevation': {'walther_a': 8.6345,
+                                                                          'palmgren_factor': 2.0}}))
+    setup_probe(probe)
+    node = start_node(spawn, '--params-file', str(refit), '-p', 'temperature_timeout_s:=30.0')
+    probe.wait_matched('/joint_states')
+    probe.wait_matched('/gimbal/temperature')
+    probe.wait_publisher(FF)
+    refitted = AxisParams(walther_a=8.6345, palmgren_factor=2.0)
+    expected_cold = model_nm(-40.0, V_TEST, refitted)
+
+    def cold_in_use(sec=[500]):  # noqa: B006 - a counter across calls
+        send_temperature(probe, -40.0)
+        probe.executor.spin_once(timeout_sec=0.05)
+        sec[0] += 1
+        return request(probe, ['elevation'], [V_TEST], sec[0]).effort[0] == pytest.approx(expected_cold, rel=1e-4)
+
+    probe.spin_until(cold_in_use, what='refitted model in use')
+    assert expected_cold > 1.2 * model_nm(-40.0, V_TEST)  # more viscous lubricant: more cold friction
+    assert node.stop()[0] == 0
+
+
+def test_chamber_replay_refuses_a_bag_without_the_contract_topics(spawn, tmp_path):
+    from gimbal_friction.recording.bag import make_temperature, write_chamber_bag
+    bag = write_chamber_bag(tmp_path / 'bag', [('/gimbal/temperature', 'sensor_msgs/msg/Temperature', 1,
+                                                make_temperature(1, 20.0))])
+    node = spawn('chamber_replay', '--ros-args', '-p', f'bag:={bag}')
+    node.proc.wait(30)
+    rc, out = node.stop()
+    assert rc == 1 and '/joint_states' in out and 'Traceback' not in out
