@@ -24,7 +24,9 @@ def _pyplot() -> Any:
     return plt
 
 
-def _save(fig: Any, path: Path) -> Path:
+def save_figure(fig: Any, path: Path) -> Path:
+    """Save ``fig`` as PNG at ``path`` (folders created) and close it; an unwritable path is a
+    GimbalFrictionError with the reason."""
     path.parent.mkdir(parents=True, exist_ok=True)
     try:
         fig.savefig(path, dpi=110)
@@ -53,7 +55,7 @@ def plot_components(result: FrictionResult, path: Path, *, title: str = '', pape
     ax.grid(True, alpha=0.4)
     ax.legend()
     fig.tight_layout()
-    return _save(fig, path)
+    return save_figure(fig, path)
 
 
 def _family(params: AxisParams, t: np.ndarray, field: str, values: Sequence[float]) -> list[FrictionResult]:
@@ -73,7 +75,7 @@ def _family_plot(path: Path, t: np.ndarray, results: list[FrictionResult], label
     ax.grid(True, alpha=0.4)
     ax.legend()
     fig.tight_layout()
-    return _save(fig, path)
+    return save_figure(fig, path)
 
 
 def model_figures(params: AxisParams, out_dir: Path, t_min: float = -40.0, t_max: float = 60.0) -> list[Path]:
@@ -135,4 +137,4 @@ def plot_model_vs_measured(summary: Sequence[dict[str, Any]], models: dict[str, 
     ax.grid(True, alpha=0.4)
     ax.legend(fontsize=8)
     fig.tight_layout()
-    return _save(fig, path)
+    return save_figure(fig, path)

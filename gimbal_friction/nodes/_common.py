@@ -116,6 +116,22 @@ class ModelParameters:
         return name.startswith(('model.', 'axis.'))
 
 
+def split_parameters(params: Iterable[Parameter], *groups: Iterable[str]) -> list[dict[str, Any]]:
+    """Values of ``params`` by group: first the model parameters (``model.*``, ``axis.*``), then one dict per
+    group of setting names, in the order given; other names are left out."""
+    sets = [set(g) for g in groups]
+    out: list[dict[str, Any]] = [{} for _ in range(len(sets) + 1)]
+    for p in params:
+        if ModelParameters.is_model_parameter(p.name):
+            out[0][p.name] = _value(p)
+            continue
+        for k, names in enumerate(sets, start=1):
+            if p.name in names:
+                out[k][p.name] = _value(p)
+                break
+    return out
+
+
 def declare_settings(node: Node, cls: type[T], prefix: str = '') -> T:
     """Declare every field of the settings dataclass ``cls`` as a parameter and return the validated settings."""
     values = {}

@@ -63,8 +63,8 @@ from gimbal_friction.core.errors import ConfigError
 from gimbal_friction.core.estimator import INPUT_REASONS, UNKNOWN_JOINT, EstimatorLogic, EstimatorSettings, \
     Measurement
 from gimbal_friction.core.feedforward import setting
-from gimbal_friction.nodes._common import OK, WARN, ModelParameters, _value, declare_settings, diagnostic_array, \
-    monotonic_s, parameter_guard, run_node, settings_from, status
+from gimbal_friction.nodes._common import OK, WARN, declare_settings, diagnostic_array, ModelParameters, monotonic_s, \
+    parameter_guard, run_node, settings_from, split_parameters, status
 from gimbal_friction.recording import topics
 
 #: summary topic of the running statistics (diagnostic_msgs/DiagnosticArray, layout in the module docstring)
@@ -127,15 +127,8 @@ class FrictionEstimator(Node):
 
     # ------------------------------------------------------------------ parameters
     def _split(self, params: Sequence[Parameter]) -> tuple[dict[str, Any], dict[str, Any], dict[str, Any]]:
-        model, est, node = {}, {}, {}
-        for p in params:
-            if ModelParameters.is_model_parameter(p.name):
-                model[p.name] = _value(p)
-            elif p.name in _EST_FIELDS:
-                est[p.name] = _value(p)
-            elif p.name in _NODE_FIELDS:
-                node[p.name] = _value(p)
-        return model, est, node
+        model, first, second = split_parameters(params, _EST_FIELDS, _NODE_FIELDS)
+        return model, first, second
 
     def _validate_params(self, params: list[Parameter]) -> None:
         model, est, node = self._split(params)

@@ -28,8 +28,8 @@ from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 
 from gimbal_friction.core.errors import ConfigError
 from gimbal_friction.core.feedforward import FeedforwardLogic, FeedforwardSettings, setting
-from gimbal_friction.nodes._common import ERROR, OK, WARN, ModelParameters, _value, declare_settings, \
-    diagnostic_array, monotonic_s, parameter_guard, run_node, settings_from, stamp_to_s, status
+from gimbal_friction.nodes._common import ERROR, OK, WARN, declare_settings, diagnostic_array, ModelParameters, \
+    monotonic_s, parameter_guard, run_node, settings_from, split_parameters, status
 from gimbal_friction.recording import topics
 
 VELOCITY_SOURCES = ('measured', 'reference')
@@ -88,15 +88,8 @@ class FrictionFeedforward(Node):
 
     # ------------------------------------------------------------------ parameters
     def _split(self, params: Sequence[Parameter]) -> tuple[dict[str, Any], dict[str, Any], dict[str, Any]]:
-        model, ff, node = {}, {}, {}
-        for p in params:
-            if ModelParameters.is_model_parameter(p.name):
-                model[p.name] = _value(p)
-            elif p.name in _FF_FIELDS:
-                ff[p.name] = _value(p)
-            elif p.name in _NODE_FIELDS:
-                node[p.name] = _value(p)
-        return model, ff, node
+        model, first, second = split_parameters(params, _FF_FIELDS, _NODE_FIELDS)
+        return model, first, second
 
     def _validate_params(self, params: list[Parameter]) -> None:
         model, ff, node = self._split(params)

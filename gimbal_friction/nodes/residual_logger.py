@@ -39,8 +39,8 @@ from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 from gimbal_friction.core.errors import ConfigError, GimbalFrictionError
 from gimbal_friction.core.feedforward import FeedforwardLogic, FeedforwardSettings, setting
 from gimbal_friction.core.residuals import ResidualPairing, ResidualRecord, ResidualStats
-from gimbal_friction.nodes._common import ERROR, OK, WARN, ModelParameters, _value, declare_settings, \
-    diagnostic_array, monotonic_s, parameter_guard, run_node, settings_from, status
+from gimbal_friction.nodes._common import ERROR, OK, WARN, declare_settings, diagnostic_array, ModelParameters, \
+    monotonic_s, parameter_guard, run_node, settings_from, split_parameters, status
 from gimbal_friction.recording import topics
 from gimbal_friction.recording.residual_log import ResidualLogWriter, residual_log_files
 
@@ -78,6 +78,7 @@ class LoggerSettings:
 
 
 _SETTINGS = {f.name for f in dataclasses.fields(LoggerSettings)}
+_FF_SETTINGS = {f.name for f in dataclasses.fields(FeedforwardSettings)}
 _LIVE = {'pairing_timeout_s', 'residual_bin_c', 'diagnostics_period_s', 'flush_period_s', 'retry_period_s'}
 
 
@@ -227,16 +228,8 @@ class ResidualLogger(Node):
 
     # ------------------------------------------------------------------ parameters
     def _split(self, params: Sequence[Parameter]) -> tuple[dict[str, Any], dict[str, Any], dict[str, Any]]:
-        model, own, ff = {}, {}, {}
-        ff_fields = {f.name for f in dataclasses.fields(FeedforwardSettings)}
-        for p in params:
-            if ModelParameters.is_model_parameter(p.name):
-                model[p.name] = _value(p)
-            elif p.name in _SETTINGS:
-                own[p.name] = _value(p)
-            elif p.name in ff_fields:
-                ff[p.name] = _value(p)
-        return model, own, ff
+        model, first, second = split_parameters(params, _SETTINGS, _FF_SETTINGS)
+        return model, first, second
 
     def _validate_params(self, params: list[Parameter]) -> None:
         model, own, ff = self._split(params)

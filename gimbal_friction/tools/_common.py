@@ -7,13 +7,16 @@ import csv
 import io
 import json
 import math
+import os
 import sys
+import tempfile
+from pathlib import Path
 from typing import Any, Iterable, Mapping
 
 import numpy as np
 
 from gimbal_friction.config import axis_names, axis_params, load_parameters
-from gimbal_friction.core.errors import ConfigError
+from gimbal_friction.core.errors import ConfigError, GimbalFrictionError
 from gimbal_friction.core.params import AxisParams
 
 
@@ -113,3 +116,28 @@ def progress(done: int, total: int, label: str, *, stream: Any = None) -> None:
     if done >= total:
         out.write('\n')
     out.flush()
+
+
+def write_text_atomic(path: Path, text: str) -> None:
+    """Write ``text`` to ``path`` through a temporary file and a rename: an existing file is replaced whole or
+    not at all (nothing half-written, nothing lost on a refused or failed run).
+
+    Raises:
+        GimbalFrictionError: ``path`` is a directory or cannot be written.
+    """
+    if path.is_dir():
+        msg = f'--out {path} is a directory; give a file name such as params.yaml'
+        raise GimbalFrictionError(msg)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(prefix=f'.{path.name}.', suffix='.tmp', dir=path.parent)
+        try:
+            with os.fdopen(fd, 'w', encoding='utf-8') as f:
+                f.write(text)
+            os.replace(tmp, path)
+        except BaseException:
+            Path(tmp).unlink(missing_ok=True)
+            raise
+    except OSError as err:
+        msg = f'cannot write {path}: {err.strerror}'
+        raise GimbalFrictionError(msg) from None

@@ -15,9 +15,7 @@ import argparse
 import csv
 import datetime as dt
 import hashlib
-import os
 import sys
-import tempfile
 from pathlib import Path
 from typing import Any, NamedTuple
 
@@ -28,7 +26,7 @@ from gimbal_friction.config import axis_names, axis_params, load_parameters, ren
 from gimbal_friction.core.errors import ConfigError, FitError, GimbalFrictionError
 from gimbal_friction.core.kt import OUTLIER_THRESHOLD, KtFit, fit_kt
 from gimbal_friction.core.params import AxisParams
-from gimbal_friction.tools._common import add_common, format_table, print_json
+from gimbal_friction.tools._common import add_common, format_table, print_json, write_text_atomic
 
 CURRENT_COLUMN = 'current_a'
 TORQUE_COLUMN = 'torque_nm'
@@ -249,25 +247,6 @@ def provenance_header(fit: KtFit, axis: str, source: Path, data: CalibrationData
     ])
 
 
-def _write_atomic(path: Path, text: str) -> None:
-    if path.is_dir():
-        msg = f'--out {path} is a directory; give a file name such as kt.yaml'
-        raise GimbalFrictionError(msg)
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(prefix=f'.{path.name}.', suffix='.tmp', dir=path.parent)
-        try:
-            with os.fdopen(fd, 'w', encoding='utf-8') as f:
-                f.write(text)
-            os.replace(tmp, path)
-        except BaseException:
-            Path(tmp).unlink(missing_ok=True)
-            raise
-    except OSError as err:
-        msg = f'cannot write {path}: {err.strerror}'
-        raise GimbalFrictionError(msg) from None
-
-
 def plot_fit(fit: KtFit, data: CalibrationData, path: Path, *, title: str = '') -> Path:
     """Data, fit line(s) per direction and residuals [mN*m] with outliers marked, as a PNG (matplotlib Agg)."""
     import matplotlib
@@ -307,15 +286,8 @@ def plot_fit(fit: KtFit, data: CalibrationData, path: Path, *, title: str = '') 
     axr.grid(True, alpha=0.4)
     axr.legend(fontsize=8, loc='upper right')
     fig.tight_layout()
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        fig.savefig(path, dpi=110)
-    except OSError as err:
-        msg = f'cannot write {path}: {err.strerror}'
-        raise GimbalFrictionError(msg) from None
-    finally:
-        plt.close(fig)
-    return path
+    from gimbal_friction.plots import save_figure
+    return save_figure(fig, path)
 
 
 def _record(fit: KtFit, axis: str, args: argparse.Namespace, data: CalibrationData) -> dict[str, Any]:
@@ -374,7 +346,7 @@ def run(args: argparse.Namespace) -> int:
         plot_fit(fit, data, args.plot, title=f"{axis}: K_T calibration (paper Eq. 23), {source.name}")
     text = render_parameter_file(axes_overrides={axis: values},
                                  header=provenance_header(fit, axis, source, data))
-    _write_atomic(out, text)
+    write_text_atomic(out, text)
 
     if args.format == 'json':
         print_json(_record(fit, axis, args, data))

@@ -20,9 +20,7 @@ from __future__ import annotations
 import argparse
 import datetime as dt
 import math
-import os
 import sys
-import tempfile
 from pathlib import Path
 from typing import Any, NamedTuple
 
@@ -36,9 +34,9 @@ from gimbal_friction.core.refit import FIT_PARAMETERS, PALMGREN_THRESHOLD, Refit
     palmgren_threshold_temperature, refit_model
 from gimbal_friction.recording.residual_log import read_residual_log
 from gimbal_friction.recording.topics import RESIDUAL_DETAIL
-from gimbal_friction.tools._common import add_common, format_table, print_json
+from gimbal_friction.core.table import RPM_PER_RAD_S
+from gimbal_friction.tools._common import add_common, format_table, print_json, write_text_atomic
 
-RPM_PER_RAD_S = 60.0 / (2.0 * math.pi)
 DEFAULT_FIT = 'walther_a'
 
 
@@ -180,22 +178,6 @@ def provenance_header(fits: list[AxisRefit], logs: list[Path], files: int, fit: 
     return '\n'.join(lines)
 
 
-def _write_atomic(path: Path, text: str) -> None:
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(prefix=f'.{path.name}.', suffix='.tmp', dir=path.parent)
-        try:
-            with os.fdopen(fd, 'w', encoding='utf-8') as f:
-                f.write(text)
-            os.replace(tmp, path)
-        except BaseException:
-            Path(tmp).unlink(missing_ok=True)
-            raise
-    except OSError as err:
-        msg = f'cannot write {path}: {err.strerror}'
-        raise GimbalFrictionError(msg) from None
-
-
 def plot_refit(fits: list[AxisRefit], path: Path) -> Path:
     """Paper Fig. 13 per axis: measured plateau means by direction (CW positive, CCW as |.|) with error bars and
     the model before (dashed) and after (solid) the refit over temperature, [N*mm]; PNG via matplotlib Agg."""
@@ -237,15 +219,8 @@ def plot_refit(fits: list[AxisRefit], path: Path) -> Path:
         ax.grid(True, alpha=0.4)
         ax.legend(fontsize=7)
     fig.tight_layout()
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        fig.savefig(path, dpi=110)
-    except OSError as err:
-        msg = f'cannot write {path}: {err.strerror}'
-        raise GimbalFrictionError(msg) from None
-    finally:
-        plt.close(fig)
-    return path
+    from gimbal_friction.plots import save_figure
+    return save_figure(fig, path)
 
 
 def _axis_record(f: AxisRefit) -> dict[str, Any]:
@@ -355,7 +330,7 @@ def run(args: argparse.Namespace) -> int:
     text = render_parameter_file(axes_overrides={f.axis: f.result.refitted for f in fits},
                                  header=provenance_header(fits, list(args.logs), len(log.files), fit,
                                                           list(args.config)))
-    _write_atomic(out, text)
+    write_text_atomic(out, text)
 
     if args.format == 'json':
         print_json({'logs': [str(p) for p in args.logs], 'files': [str(p) for p in log.files],
