@@ -18,6 +18,7 @@ Run from the repository root:  ``.venv/bin/python bench/profile_callback.py [--n
 from __future__ import annotations
 
 import argparse
+import gc
 import os
 import subprocess
 import sys
@@ -160,7 +161,26 @@ def profile(node, relay_pub, msgs, n: int, rate_hz: float) -> list[tuple[str, li
         out.append((name, ns))
 
     run('relay: publish(received msg)', lambda i: relay_pub.publish(msgs[i & 1]))
-    run('feedforward: on_joint_state (total)', lambda i: node.on_joint_state(msgs[i & 1]))
+    gc_log: list[tuple[int, int]] = []   # (generation, duration [ns]) of collections during the next run
+    gc_start = [0]
+
+    def on_gc(phase: str, info: dict) -> None:  # noqa: ANN001
+        if phase == 'start':
+            gc_start[0] = pc()
+        else:
+            gc_log.append((info['generation'], pc() - gc_start[0]))
+
+    gc.callbacks.append(on_gc)
+    try:
+        run('feedforward: on_joint_state (total)', lambda i: node.on_joint_state(msgs[i & 1]))
+    finally:
+        gc.callbacks.remove(on_gc)
+    for gen in (0, 1, 2):
+        durations = [d for g, d in gc_log if g == gen]
+        if durations:
+            out.append((f'  gc gen {gen}: {len(durations)} collections in that run', durations))
+    if not gc_log:
+        print('gc: no collection during the on_joint_state run (objects die by refcount; GC is not a factor)')
 
     parts: dict[str, list[int]] = {k: [] for k in (
         '  _velocities', '  FeedforwardLogic.compute', '    of which FrictionTable.components',

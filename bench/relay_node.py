@@ -1,10 +1,11 @@
 """Bare rclpy relay: the baseline of ``bench/feedforward_latency.py``.
 
 Subscribes ``/joint_states`` (sensor_msgs/JointState) and republishes the received message unchanged (same
-header stamp) on ``/gimbal/friction/feedforward``. Everything else is set up exactly like
-``friction_feedforward`` (``gimbal_friction.nodes._common.run_node``): reliable keep-last depth-10 QoS on both
-topics, an ``EventsExecutor`` driven by a ``spin_once(timeout_sec=0.25)`` loop, clean exit on SIGINT/SIGTERM.
-The difference between the two nodes' latency is therefore the feedforward node's own work.
+header stamp) on ``/gimbal/friction/feedforward``. Everything else is exactly what ``friction_feedforward`` uses:
+reliable keep-last depth-10 QoS on both topics, and the node is run by the same
+``gimbal_friction.nodes._common.run_node`` (EventsExecutor driven by a ``spin_once`` loop, the same signal
+handling), so the relay follows any change made there. The difference between the two nodes' latency is
+therefore the feedforward node's own work.
 
 Run: ``.venv/bin/python bench/relay_node.py [--ros-args ...]``
 """
@@ -12,12 +13,13 @@ Run: ``.venv/bin/python bench/relay_node.py [--ros-args ...]``
 from __future__ import annotations
 
 import sys
+from typing import Sequence
 
-import rclpy
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import QoSProfile
 from sensor_msgs.msg import JointState
+
+from gimbal_friction.nodes._common import run_node
 
 JOINT_STATES = '/joint_states'
 FEEDFORWARD = '/gimbal/friction/feedforward'
@@ -36,24 +38,8 @@ class Relay(Node):
         self.pub.publish(msg)
 
 
-def main(args: list[str] | None = None) -> int:
-    rclpy.init(args=list(sys.argv if args is None else args))
-    node = None
-    try:
-        node = Relay()
-        from rclpy.experimental import EventsExecutor
-        executor = EventsExecutor()
-        executor.add_node(node)
-        # Same loop as run_node: EventsExecutor.spin() busy-loops with these wheels.
-        while rclpy.ok():
-            executor.spin_once(timeout_sec=0.25)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
-    return 0
+def main(args: Sequence[str] | None = None) -> int:
+    return run_node('friction_relay', Relay, args)
 
 
 if __name__ == '__main__':

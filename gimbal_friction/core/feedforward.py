@@ -194,6 +194,35 @@ class FeedforwardLogic:
         return JointTorque(name, torque, magnitude, 1e-3 * comp.m_rolling_nmm, 1e-3 * comp.m_sliding_nmm,
                            1e-3 * comp.m_viscous_nmm, saturated, True)
 
+    def torques_in_order(self, names: Sequence[str], velocities: Sequence[float],
+                         now_s: float) -> list[float] | None:
+        """Fast path of :meth:`compute` for the common message: exactly the configured joints, in configured order,
+        finite velocities. Returns the torques [N·m] (same numbers and counters as :meth:`compute`), or None when
+        the message is not of that kind (then call :meth:`compute`)."""
+        axes = self.axes
+        if len(names) != len(axes) or len(velocities) != len(names) or list(names) != list(axes):
+            return None
+        temperature, _ = self.effective_temperature(now_s)
+        out = []
+        limit = self.settings.max_torque_nm
+        v_th = self.settings.velocity_threshold_rad_s
+        for name, v in zip(names, velocities):
+            if not math.isfinite(v):
+                return None
+            if temperature is None:
+                out.append(0.0)
+                continue
+            params = axes[name]
+            magnitude = 1e-3 * self.tables[name].components(temperature, v * RPM_PER_RAD_S).m_total_nmm
+            k_dir = params.scale_positive if v >= 0.0 else params.scale_negative
+            torque = math.tanh(v / v_th) * k_dir * magnitude
+            if abs(torque) > limit:
+                torque = math.copysign(limit, torque)
+                self.counters.saturated[name] = self.counters.saturated.get(name, 0) + 1
+            out.append(torque)
+        self.counters.published += 1
+        return out
+
     def compute(self, names: Sequence[str], velocities: Sequence[float], now_s: float) -> FeedforwardOutput | None:
         """Feedforward for one joint-state message (``names``, ``velocities`` [rad/s]) at ``now_s`` [s].
 

@@ -74,6 +74,11 @@ class FrictionFeedforward(Node):
         self._last_publish = -math.inf
         self._rate_limited = 0
         self._last_warn: dict[str, float] = {}
+        self._axis_names = list(self.logic.axes)
+        self._ff_msg = JointState()
+        self._cmd_msg = Float64MultiArray()
+        n_axes = len(self._axis_names)
+        self._cmd_msg.layout.dim = [MultiArrayDimension(label='joints', size=n_axes, stride=n_axes)]
         qos = QoSProfile(depth=10)
         self.pub_ff = self.create_publisher(JointState, topics.FEEDFORWARD, qos)
         self.pub_cmd = self.create_publisher(Float64MultiArray, topics.FEEDFORWARD_COMMANDS, qos)
@@ -157,19 +162,25 @@ class FrictionFeedforward(Node):
                 return
             self._last_publish = now
         names, velocities = self._velocities(msg)
-        out = self.logic.compute(names, velocities, monotonic_s())
-        if out is None:
-            self._warn('joint_state', f'joint_states message rejected: {self.logic.last_rejection}')
-            return
-        ff = JointState()
-        ff.header.stamp = msg.header.stamp
-        ff.header.frame_id = msg.header.frame_id
-        ff.name = [j.name for j in out.joints]
-        ff.effort = [j.torque_nm for j in out.joints]
-        self.pub_ff.publish(ff)
-        cmd = Float64MultiArray()
-        cmd.layout.dim = [MultiArrayDimension(label='joints', size=len(self.logic.axes), stride=len(self.logic.axes))]
-        cmd.data = self.logic.command_vector(out)
+        now = monotonic_s()
+        # common case (exactly the configured joints, finite velocities): no intermediate records
+        torques = self.logic.torques_in_order(names, velocities, now)
+        ff, cmd = self._ff_msg, self._cmd_msg
+        if torques is not None:
+            ff.name = self._axis_names
+            commands = torques
+        else:
+            out = self.logic.compute(names, velocities, now)
+            if out is None:
+                self._warn('joint_state', f'joint_states message rejected: {self.logic.last_rejection}')
+                return
+            ff.name = [j.name for j in out.joints]
+            torques = [j.torque_nm for j in out.joints]
+            commands = self.logic.command_vector(out)
+        ff.header = msg.header  # the stamp of the joint state that produced it
+        ff.effort = torques
+        self.pub_ff.publish(ff)  # messages are serialized on publish, so both are reused
+        cmd.data = commands
         self.pub_cmd.publish(cmd)
 
     # ------------------------------------------------------------------ diagnostics
