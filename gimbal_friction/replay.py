@@ -5,14 +5,20 @@ and clamp), estimator (:func:`~gimbal_friction.core.estimator.estimate_arrays`, 
 logic of ``friction_estimator``) and the residual records of ``residual_logger`` are computed per bag, vectorised
 with numpy where that keeps the numbers equal to the per-message code of the live nodes. Timing: the nodes judge
 temperature staleness by arrival time, the replay by log time (the arrival time of a recording).
+
+The residual log is built in bulk: the generated messages are serialized per joint with
+:mod:`~gimbal_friction.recording.cdr`, put in log-time order with a stable sort (the order ``heapq.merge`` of the
+per-message streams gives) and written with ``ResidualLogWriter.write_raw_many``, so the files are byte for byte
+those of writing message by message (``test/tools/test_replay_log.py``); throughput: ``bench/REPLAY.md``.
 """
 
 from __future__ import annotations
 
 import heapq
-import math
+import itertools
+import operator
 from pathlib import Path
-from typing import Any, Callable, Iterator, Mapping, NamedTuple
+from typing import Any, Callable, Iterator, Mapping, NamedTuple, Sequence
 
 import numpy as np
 from numpy.typing import NDArray
@@ -25,8 +31,8 @@ from gimbal_friction.core.residuals import plateau_summary
 from gimbal_friction.core.settings import settings_from_parameters
 from gimbal_friction.core.table import RPM_PER_RAD_S
 from gimbal_friction.recording import topics
-from gimbal_friction.recording.bag import ChamberArrays, default_typestore, make_float64_multi_array, \
-    make_joint_state, open_chamber_bag
+from gimbal_friction.recording.bag import ChamberArrays, ChamberBag, default_typestore, open_chamber_bag
+from gimbal_friction.recording.cdr import float64_multi_array_cdr_rows, joint_state_cdr_rows, split_rows
 from gimbal_friction.recording.residual_log import ResidualLogWriter
 
 Progress = Callable[[str, float], None]
@@ -178,29 +184,128 @@ def pair_predictions(ff: FeedforwardArrays, est: EstimateResult) -> tuple[NDArra
     return pred, temp, comps, where
 
 
-def _generated_messages(ff: FeedforwardArrays, est: EstimateResult, pred: NDArray[np.float64],
-                        temp: NDArray[np.float64], comps: NDArray[np.float64], est_log_ns: NDArray[np.int64],
-                        ) -> Iterator[tuple[int, str, str, object]]:
-    """Feedforward, measured, residual and residual_detail messages, each at the log time of its input."""
-    js_type, fa_type = topics.JOINT_STATE_TYPE, topics.FLOAT64_MULTI_ARRAY_TYPE
-    ff_iter = ((int(ff.log_time_ns[i]), topics.FEEDFORWARD, js_type,
-                make_joint_state(int(ff.stamp_ns[i]), [str(ff.joint[i])], effort=[float(ff.torque_nm[i])]))
-               for i in range(len(ff.torque_nm)))
+class _Stream(NamedTuple):
+    """Messages to log, in the order they are produced: topic (index into a topic list), log time, CDR bytes."""
 
-    def measured_iter() -> Iterator[tuple[int, str, str, object]]:
-        for i in range(len(est)):
-            if not math.isfinite(pred[i]):
-                continue
-            j, stamp, log = str(est.joint[i]), int(est.stamp_ns[i]), int(est_log_ns[i])
-            pos, vel, meas = float(est.position_rad[i]), float(est.velocity_rad_s[i]), float(est.friction_nm[i])
-            yield log, topics.MEASURED, js_type, make_joint_state(stamp, [j], [pos], [vel], [meas])
-            res = meas - float(pred[i])
-            yield log, topics.RESIDUAL, js_type, make_joint_state(stamp, [j], [pos], [vel], [res])
-            detail = [stamp * 1e-9, float(temp[i]), pos, vel, float(est.current_a[i]), meas, float(pred[i]),
-                      float(comps[i, 0]), float(comps[i, 1]), float(comps[i, 2]), res]
-            yield log, topics.RESIDUAL_DETAIL, fa_type, make_float64_multi_array(detail, j)
+    topic_ids: NDArray[np.int64]
+    log_time_ns: NDArray[np.int64]
+    datas: list[bytes]
 
-    return heapq.merge(ff_iter, measured_iter(), key=lambda m: m[0])
+
+#: topics of the generated messages, in the order of the ids of :func:`_generated_streams`
+_GENERATED_TOPICS = [(topics.FEEDFORWARD, topics.JOINT_STATE_TYPE), (topics.MEASURED, topics.JOINT_STATE_TYPE),
+                     (topics.RESIDUAL, topics.JOINT_STATE_TYPE),
+                     (topics.RESIDUAL_DETAIL, topics.FLOAT64_MULTI_ARRAY_TYPE)]
+_LOG_BATCH = 20000  # messages per write_raw_many call (one progress report each)
+
+
+def _by_joint(joints: NDArray[np.str_], serialize: Callable[[NDArray[np.int64], str], list[bytes]]
+              ) -> list[bytes]:
+    """``serialize(rows, joint)`` per joint (one CDR layout each), put back in the order of ``joints``."""
+    if len(joints) == 0:
+        return []
+    names = np.unique(joints)
+    if len(names) == 1:
+        return serialize(np.arange(len(joints)), str(names[0]))
+    out: list[bytes] = [b''] * len(joints)
+    for name in names.tolist():
+        rows = np.flatnonzero(joints == name)
+        for k, data in zip(rows.tolist(), serialize(rows, name)):
+            out[k] = data
+    return out
+
+
+def _generated_streams(ff: FeedforwardArrays, est: EstimateResult, pred: NDArray[np.float64],
+                       temp: NDArray[np.float64], comps: NDArray[np.float64], est_log_ns: NDArray[np.int64],
+                       ) -> tuple[_Stream, _Stream]:
+    """The feedforward stream, and the measured / residual / residual_detail stream, each at its input's log time.
+
+    Per joint state: a feedforward JointState (the joint, ``effort`` = feedforward). Per accepted measurement with
+    a paired feedforward, in estimator order: measured and residual JointStates (position, velocity and the
+    measured friction or the residual as ``effort``) and the residual_detail row of :data:`~.topics.RESIDUAL_FIELDS`
+    labelled with the joint. The messages of a joint share one CDR layout and are serialized in bulk.
+    """
+    ff_datas = _by_joint(ff.joint, lambda r, j: split_rows(joint_state_cdr_rows(ff.stamp_ns[r], [j],
+                                                                                effort=ff.torque_nm[r])))
+    ff_stream = _Stream(np.zeros(len(ff_datas), dtype=np.int64), np.asarray(ff.log_time_ns, dtype=np.int64),
+                        ff_datas)
+    ok = np.flatnonzero(np.isfinite(pred))
+    stamp = np.asarray(est.stamp_ns, dtype=np.int64)[ok]
+    pos, vel = est.position_rad[ok], est.velocity_rad_s[ok]
+    meas, pre = est.friction_nm[ok], pred[ok]
+    res = meas - pre
+    detail = np.column_stack([stamp * 1e-9, temp[ok], pos, vel, est.current_a[ok], meas, pre, comps[ok, 0],
+                              comps[ok, 1], comps[ok, 2], res])
+
+    def measured(r: NDArray[np.int64], j: str) -> list[bytes]:
+        out: list[bytes] = [b''] * (3 * len(r))
+        out[0::3] = split_rows(joint_state_cdr_rows(stamp[r], [j], pos[r], vel[r], meas[r]))
+        out[1::3] = split_rows(joint_state_cdr_rows(stamp[r], [j], pos[r], vel[r], res[r]))
+        out[2::3] = split_rows(float64_multi_array_cdr_rows(detail[r], j))
+        return out
+
+    joints = est.joint[ok]
+    names = np.unique(joints).tolist()
+    if len(names) <= 1:
+        m_datas = measured(np.arange(len(ok)), str(names[0]) if names else '')
+    else:  # serialized per joint, put back in measurement order
+        m_datas = [b''] * (3 * len(ok))
+        for name in names:
+            rows = np.flatnonzero(joints == name)
+            datas = measured(rows, str(name))
+            for q, k in enumerate(rows.tolist()):
+                m_datas[3 * k: 3 * k + 3] = datas[3 * q: 3 * q + 3]
+    m_stream = _Stream(np.tile(np.arange(1, 4, dtype=np.int64), len(ok)), np.repeat(est_log_ns[ok], 3), m_datas)
+    return ff_stream, m_stream
+
+
+def _merge_order(keys: Sequence[NDArray[np.int64]]) -> NDArray[np.int64]:
+    """The order in which ``heapq.merge`` (key = log time, ties: earlier stream first) yields the streams.
+
+    Returns indexes into the concatenated streams. Streams sorted by log time (the usual case): a stable sort.
+    Otherwise ``heapq.merge`` itself is run on the keys, so the order is the same as that of the per-message code
+    for any input.
+    """
+    offsets = np.cumsum([0] + [len(k) for k in keys])
+    flat = np.concatenate([np.asarray(k, dtype=np.int64) for k in keys]) if keys else np.zeros(0, np.int64)
+    if all(len(k) < 2 or bool(np.all(np.diff(k) >= 0)) for k in keys):
+        return np.argsort(flat, kind='stable')
+    streams = [zip(k.tolist(), range(int(o), int(o) + len(k))) for k, o in zip(keys, offsets)]
+    return np.fromiter(map(operator.itemgetter(1), heapq.merge(*streams, key=operator.itemgetter(0))),
+                       dtype=np.int64, count=len(flat))
+
+
+class _RawInputs(NamedTuple):
+    """The bag's messages as ``iter_raw`` yields them: topics, and a stream of ids into them."""
+
+    topics: list[tuple[str, str]]
+    stream: _Stream
+
+
+def _read_inputs(bag: ChamberBag, log_inputs: bool) -> tuple[ChamberArrays, _RawInputs | None]:
+    """``bag.read_arrays()`` and, for ``log_inputs``, every raw message (as ``bag.iter_raw()``) in the same pass."""
+    if not log_inputs:
+        return bag.read_arrays(), None
+    # three flat lists (not a tuple per message): nothing new for the garbage collector to traverse
+    ids: list[int] = []
+    logs: list[int] = []
+    datas: list[bytes] = []
+    pairs: dict[tuple[str, str], int] = {}
+    keys: dict[tuple[tuple[str, ...], str], list[int]] = {}
+
+    def sink(contract_topics: Sequence[str], msgtype: str, log_time_ns: int, data: bytes) -> None:
+        key = (tuple(contract_topics), msgtype)
+        topic_ids = keys.get(key)
+        if topic_ids is None:
+            topic_ids = keys[key] = [pairs.setdefault((t, msgtype), len(pairs)) for t in contract_topics]
+        for topic_id in topic_ids:  # a bag topic feeding several contract topics: once per contract topic
+            ids.append(topic_id)
+            logs.append(log_time_ns)
+            datas.append(data)
+
+    arrays = bag.read_arrays(raw_sink=sink)
+    return arrays, _RawInputs(list(pairs), _Stream(np.asarray(ids, dtype=np.int64), np.asarray(logs, dtype=np.int64),
+                                                   datas))
 
 
 def replay_bag(bag_path: str | Path, out_dir: str | Path | None, *, config_paths: list[Path] | tuple[Path, ...] = (),
@@ -219,11 +324,16 @@ def replay_bag(bag_path: str | Path, out_dir: str | Path | None, *, config_paths
     axes, ff_settings, est_settings = node_settings(list(config_paths))
     bag = open_chamber_bag(bag_path, topic_map)
     report('reading bag', 0.0)
-    arrays = bag.read_arrays()
+    arrays, raw = _read_inputs(bag, log_inputs and out_dir is not None)
     report('reading bag', 1.0)
+    report('feedforward', 0.0)
     logic = FeedforwardLogic(axes, ff_settings)
     ff = feedforward_arrays(logic, arrays)
+    report('feedforward', 1.0)
+    report('estimator', 0.0)
     est = estimate_arrays(axes, est_settings, arrays)
+    report('estimator', 1.0)
+    report('pairing', 0.0)
     pred, temp, comps, where = pair_predictions(ff, est)
     # a measurement is logged when both its joint state and its current have arrived (log time)
     js_log = dict(zip(np.asarray(arrays.joint_states.stamp_ns).tolist(), arrays.joint_states.log_time_ns.tolist()))
@@ -232,25 +342,53 @@ def replay_bag(bag_path: str | Path, out_dir: str | Path | None, *, config_paths
     summary = plateau_summary(est.temperature_c[ok], est.velocity_rad_s[ok], est.friction_nm[ok], pred[ok],
                               joint=est.joint[ok].tolist(), bin_c=est_settings.temperature_bin_c,
                               stamp_s=est.stamp_ns[ok] * 1e-9)
+    report('pairing', 1.0)
     messages_out = 0
     residual_dir = None
     if out_dir is not None:
         residual_dir = Path(out_dir) / 'residuals'
-        total = len(ff.torque_nm) + 3 * int(ok.sum()) + (bag.message_count if log_inputs else 0)
         ts = default_typestore()
         with ResidualLogWriter(residual_dir, flush_interval_s=None, chunk_size=1 << 20, typestore=ts) as writer:
-            generated = _generated_messages(ff, est, pred, temp, comps, est_log)
-            streams: list[Iterator[tuple[int, str, str, object]]] = [generated]
-            if log_inputs:
-                streams.append((r.log_time_ns, r.topic, r.msgtype, r.data) for r in bag.iter_raw())
-            for log_ns, topic, msgtype, msg in heapq.merge(*streams, key=lambda m: m[0]):
-                if isinstance(msg, (bytes, bytearray, memoryview)):
-                    writer.write_raw(topic, msgtype, log_ns, msg)
-                else:
-                    writer.write(topic, msgtype, log_ns, msg)
-                messages_out += 1
-                if messages_out % 20000 == 0:
-                    report('writing residual log', messages_out / max(total, 1))
+            report('writing residual log', 0.0)
+            ids, logs, datas, log_topics = _log_stream(ff, est, pred, temp, comps, est_log, raw)
+            total = len(datas)
+            for a in range(0, total, _LOG_BATCH):
+                b = min(a + _LOG_BATCH, total)
+                writer.write_raw_many(log_topics, ids[a:b], logs[a:b], datas[a:b])
+                messages_out = b
+                if b < total:
+                    report('writing residual log', b / total)
         report('writing residual log', 1.0)
     del where
     return ReplayResult(ff, est, pred, temp, comps, summary, residual_dir, bag.message_count, messages_out)
+
+
+def _log_stream(ff: FeedforwardArrays, est: EstimateResult, pred: NDArray[np.float64], temp: NDArray[np.float64],
+                comps: NDArray[np.float64], est_log: NDArray[np.int64], raw: _RawInputs | None,
+                ) -> tuple[NDArray[np.int64], NDArray[np.int64], list[bytes], list[tuple[str, str]]]:
+    """Every message of the residual log in write order: topic ids, log times [ns], CDR bytes, topics.
+
+    The order is that of ``heapq.merge(heapq.merge(feedforward, measured), inputs)`` keyed on log time (ties:
+    feedforward, then measured/residual/detail, then inputs), as the live residual logger sees them arrive.
+    """
+    ff_stream, m_stream = _generated_streams(ff, est, pred, temp, comps, est_log)
+    log_topics = list(_GENERATED_TOPICS)
+    streams = [ff_stream, m_stream]
+    if raw is not None:
+        shift = len(log_topics)
+        log_topics += raw.topics
+        streams.append(raw.stream._replace(topic_ids=raw.stream.topic_ids + shift))
+    ids = np.concatenate([x.topic_ids for x in streams])
+    logs = np.concatenate([x.log_time_ns for x in streams])
+    datas = list(itertools.chain.from_iterable(x.datas for x in streams))
+    keys = [x.log_time_ns for x in streams]
+    if all(len(k) < 2 or bool(np.all(np.diff(k) >= 0)) for k in keys):
+        order = np.argsort(logs, kind='stable')
+    else:  # as the nested merges would, even for streams out of log-time order
+        inner = _merge_order(keys[:2])
+        order = inner
+        if len(keys) > 2:
+            outer = _merge_order([logs[inner], keys[2]])
+            order = np.concatenate([inner, np.arange(len(inner), len(logs))])[outer]
+    order_list = order.tolist()
+    return ids[order], logs[order], list(map(datas.__getitem__, order_list)), log_topics

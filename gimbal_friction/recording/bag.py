@@ -37,7 +37,7 @@ from gimbal_friction.recording.topics import (
 
 if TYPE_CHECKING:
     import os
-    from collections.abc import Iterable, Iterator, Mapping, Sequence
+    from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 
     from numpy.typing import ArrayLike, NDArray
     from rosbags.interfaces import Connection
@@ -91,6 +91,10 @@ class TopicInfo(NamedTuple):
     """Message type, e.g. ``sensor_msgs/msg/JointState``."""
     count: int
     """Number of messages [-]."""
+
+
+#: ``read_arrays`` raw-message callback: (contract topics, msgtype, log time [ns], CDR bytes)
+RawSink = 'Callable[[Sequence[str], str, int, bytes], None]'
 
 
 class RawMessage(NamedTuple):
@@ -474,11 +478,16 @@ class ChamberBag:
 
     # -- arrays ----------------------------------------------------------------------------------------------
 
-    def read_arrays(self) -> ChamberArrays:
+    def read_arrays(self, raw_sink: RawSink | None = None) -> ChamberArrays:
         """Decode the three input topics into numpy arrays (one pass over the bag).
 
         JointState messages are parsed directly from their CDR bytes (little-endian, the usual case) and fall
         back to the type store for anything else; temperatures go through the type store.
+
+        Args:
+            raw_sink: called as ``raw_sink(contract_topics, msgtype, log_time_ns, cdr_bytes)`` for every visible
+                message of the bag, in log-time order, during the same pass (what :meth:`iter_raw` yields,
+                without reading the bag twice); ``contract_topics`` lists the contract names the bag topic feeds.
         """
         bag_temperature = self.topic_map[TEMPERATURE]
         # one collector per bag topic: a bag topic may feed both joint-state inputs
@@ -489,8 +498,10 @@ class ChamberBag:
         t_log: list[int] = []
         t_stamp: list[int] = []
         t_value: list[float] = []
-        selected = self._select([TEMPERATURE, JOINT_STATES, MOTOR_CURRENT])
+        selected = self._select(None if raw_sink is not None else [TEMPERATURE, JOINT_STATES, MOTOR_CURRENT])
         for conn, log_time, data, store in self._messages(selected):
+            if raw_sink is not None:
+                raw_sink(selected[conn.topic], conn.msgtype, log_time, data)
             collector = joint_collectors.get(conn.topic)
             if collector is not None:
                 if not collector.add_cdr(log_time, data):

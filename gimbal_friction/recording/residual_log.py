@@ -12,7 +12,10 @@ Times: ``log_time_ns`` is the log (receive, or for ``replay`` the bag's) time [n
 from __future__ import annotations
 
 import contextlib
+import io
+import itertools
 import math
+import operator
 import os
 import re
 import struct
@@ -24,7 +27,8 @@ from typing import TYPE_CHECKING, BinaryIO, NamedTuple
 import numpy as np
 import yaml
 from mcap.exceptions import EndOfFile, InvalidMagic, McapError, RecordLengthLimitExceeded
-from mcap.records import Channel, Header, Message, Schema
+from mcap.opcode import Opcode
+from mcap.records import Channel, Header, Message, MessageIndex, Schema
 from mcap.stream_reader import StreamReader
 from mcap.writer import CompressionType
 from mcap.writer import Writer as McapWriter
@@ -35,16 +39,23 @@ from gimbal_friction.recording.bag import DEFAULT_STORE, default_typestore
 from gimbal_friction.recording.errors import RecordingError
 from gimbal_friction.recording.topics import FLOAT64_MULTI_ARRAY_TYPE, RESIDUAL, RESIDUAL_DETAIL, RESIDUAL_FIELDS
 
+try:  # the chunk builder of mcap's writer (internal; see _BulkChunk)
+    from mcap._chunk_builder import ChunkBuilder
+except ImportError:  # pragma: no cover - another mcap layout: write_raw_many uses add_message
+    ChunkBuilder = None  # type: ignore[assignment,misc]
+
 try:  # chunk decompression errors of a torn last chunk
     from zstandard import ZstdError as _ZstdError
 except ImportError:  # pragma: no cover - zstandard is a dependency of mcap's zstd support
     _ZstdError = RuntimeError  # type: ignore[assignment,misc]
 
 if TYPE_CHECKING:
-    from collections.abc import Callable, Iterable, Iterator
+    from collections.abc import Callable, Iterable, Iterator, Sequence
     from types import TracebackType
 
-    from numpy.typing import NDArray
+    from mcap.data_stream import RecordBuilder
+
+    from numpy.typing import ArrayLike, NDArray
     from rosbags.typesys.store import Typestore
 
 __all__ = [
@@ -222,9 +233,9 @@ class _OpenFile:
 class ResidualLogWriter:
     """Writes a residual-log folder of MCAP files ``<prefix>_<index>.mcap`` (index from 0).
 
-    Lifecycle: construct (creates the folder and the first file), :meth:`write` / :meth:`write_raw`,
-    :meth:`flush` from a timer, :meth:`close` from the shutdown path (SIGINT/SIGTERM, ``destroy_node``,
-    ``finally:``). Also a context manager. Thread-safe (one lock).
+    Lifecycle: construct (creates the folder and the first file), :meth:`write` / :meth:`write_raw` /
+    :meth:`write_raw_many`, :meth:`flush` from a timer, :meth:`close` from the shutdown path (SIGINT/SIGTERM,
+    ``destroy_node``, ``finally:``). Also a context manager. Thread-safe (one lock).
 
     Args:
         folder: folder to write; created if missing; must not already hold a log with this prefix.
@@ -357,6 +368,87 @@ class ResidualLogWriter:
             msg = f'residual log: {topic} message is not plain CDR (encapsulation header {data[:4]!r})'
             raise RecordingError(msg)
         self._add(topic, msgtype, int(log_time_ns), data)
+
+    def write_raw_many(
+        self,
+        topics: Sequence[tuple[str, str]],
+        topic_ids: ArrayLike,
+        log_times_ns: ArrayLike,
+        datas: Sequence[bytes | bytearray | memoryview],
+    ) -> None:
+        """Log many already-serialized CDR messages, in the given order, with little overhead per message.
+
+        Message ``k`` is ``datas[k]`` on ``topics[topic_ids[k]]`` (a ``(topic, msgtype)`` pair) at
+        ``log_times_ns[k]``. The files written are the same, byte for byte, as from calling :meth:`write_raw` for
+        each message in turn (rotation, chunking, channel ids, sequence numbers, statistics and indexes
+        included), except that every message is checked before the first is written: on a bad one, nothing of the
+        batch is logged. With a ``flush_interval_s`` (a clock read per message) the messages go through
+        :meth:`write_raw` one by one; otherwise whole runs of messages are appended to the open MCAP chunk at once.
+
+        Args:
+            topics: ``(topic, msgtype)`` pairs.
+            topic_ids: (n,) index into ``topics`` of each message.
+            log_times_ns: (n,) log times [ns], 0 <= t < 2**63.
+            datas: n serialized messages (encapsulation header included).
+
+        Raises:
+            RecordingError: a bad batch (lengths, indexes, log times, not plain CDR, a topic with two types, an
+                unknown type) before anything is written; I/O failed (the writer then refuses further writes).
+        """
+        pairs = [(str(topic), str(msgtype)) for topic, msgtype in topics]
+        ids = np.asarray(topic_ids, dtype=np.int64).reshape(-1)
+        try:
+            logs = np.asarray(log_times_ns, dtype=np.int64).reshape(-1)
+        except (OverflowError, ValueError, TypeError) as err:
+            msg = f'residual log: log times must be integers in [0, 2**63) [ns]: {err}'
+            raise RecordingError(msg) from err
+        n = len(datas)
+        if ids.shape[0] != n or logs.shape[0] != n:
+            msg = f'residual log: {n} messages but {ids.shape[0]} topic ids and {logs.shape[0]} log times'
+            raise RecordingError(msg)
+        if n == 0:
+            return
+        if ids.min() < 0 or ids.max() >= len(pairs):
+            msg = f'residual log: topic ids must index the {len(pairs)} topics given'
+            raise RecordingError(msg)
+        if logs.min() < 0:
+            msg = f'residual log: log time {int(logs.min())} ns is negative'
+            raise RecordingError(msg)
+        if set(map(type, datas)) != {bytes}:
+            datas = [d if isinstance(d, bytes) else bytes(d) for d in datas]
+        heads = set(map(_CDR_HEAD, datas))
+        if not heads <= _CDR_HEADS:
+            k = next(k for k, d in enumerate(datas) if d[:2] not in _CDR_HEADS or len(d) < 4)
+            msg = f'residual log: {pairs[ids[k]][0]} message is not plain CDR (encapsulation header {datas[k][:4]!r})'
+            raise RecordingError(msg)
+        lengths = np.fromiter(map(len, datas), dtype=np.int64, count=n)
+        if lengths.min() < 4:
+            k = int(np.argmax(lengths < 4))
+            msg = f'residual log: {pairs[ids[k]][0]} message is not plain CDR (encapsulation header {datas[k][:4]!r})'
+            raise RecordingError(msg)
+        canonical: dict[tuple[str, str], int] = {}
+        remap = np.array([canonical.setdefault(pair, k) for k, pair in enumerate(pairs)], dtype=np.int64)
+        if len(canonical) != len(pairs):  # one id per (topic, msgtype)
+            ids = remap[ids]
+        used = np.unique(ids).tolist()
+        with self._lock:
+            self._check_usable()
+            types: dict[str, str] = {}
+            for t in used:
+                topic, msgtype = pairs[t]
+                known = self._topic_types.get(topic, types.get(topic))
+                if known is not None and known != msgtype:
+                    msg = f'residual log: topic {topic} was logged as {known}, not {msgtype}'
+                    raise RecordingError(msg)
+                types[topic] = msgtype
+                self._msgdef(msgtype)  # refuse unknown types before touching the file
+            current = self._file
+            assert current is not None
+            if self.flush_interval_s is not None or _BulkChunk.of(current.writer) is None:
+                for k, t, log_ns in zip(range(n), ids.tolist(), logs.tolist()):
+                    self._add(pairs[t][0], pairs[t][1], log_ns, datas[k])
+                return
+            self._add_many(pairs, ids, logs, datas, lengths, used)
 
     def flush(self) -> None:
         """Write the open chunk out and flush the file (``os.fsync`` too with ``fsync=True``).
@@ -573,6 +665,135 @@ class ResidualLogWriter:
             if self.flush_interval_s is not None and self._clock() - self._last_flush >= self.flush_interval_s:
                 self.flush()
 
+    def _add_many(
+        self,
+        pairs: list[tuple[str, str]],
+        ids: NDArray[np.int64],
+        logs: NDArray[np.int64],
+        datas: Sequence[bytes],
+        lengths: NDArray[np.int64],
+        used: list[int],
+    ) -> None:
+        """:meth:`write_raw_many` without a flush interval: runs of messages appended to the chunk at once.
+
+        A run starts at message ``i`` (rotation check and channel registration as :meth:`_add` does them) and
+        ends before the first later message that needs one of these steps: a topic without a channel in this
+        file, a rotation, or the message after the one that fills the chunk (which mcap then writes out).
+        """
+        n = ids.shape[0]
+        record = lengths + _MESSAGE_OVERHEAD  # message record size [B]: what _add adds to `pending`
+        csum = np.zeros(n + 1, dtype=np.int64)
+        np.cumsum(record, out=csum[1:])
+        where = {t: np.flatnonzero(ids == t) for t in used}
+        id_list = ids.tolist()
+        i = 0
+        while i < n:
+            current = self._file
+            assert current is not None
+            log_i = int(logs[i])
+            if current.messages and (
+                (self.max_bytes is not None and current.size() >= self.max_bytes)
+                or (self.max_duration_ns is not None and log_i - current.first_ns >= self.max_duration_ns)
+            ):
+                current = self._rotate(current)
+            topic, msgtype = pairs[id_list[i]]
+            try:
+                self._channel(current, topic, msgtype)
+                tell = current.stream.tell()
+            except OSError as err:
+                self._fail(current.path, 'writing', err)
+            bulk = _BulkChunk.of(current.writer)
+            assert bulk is not None
+            # end of the run: the message that fills the chunk (included) ...
+            room = self.chunk_size - bulk.count()
+            stop = min(n, i + max(room, 0) // _MESSAGE_OVERHEAD + 2)
+            over = np.flatnonzero(csum[i + 1 : stop + 1] - csum[i] > room)
+            j = i + int(over[0]) + 1 if over.shape[0] else stop
+            # ... a topic without a channel in this file ...
+            for t in used:
+                if pairs[t][0] not in current.channel_ids:
+                    pos = where[t]
+                    q = int(np.searchsorted(pos, i + 1))
+                    if q < pos.shape[0]:
+                        j = min(j, int(pos[q]))
+            # ... a rotation (checked before each message, as in _add; no chunk goes out inside the run)
+            flushed_at_i = tell != current.last_tell  # registering the channel wrote a chunk out
+            pending_i = 0 if flushed_at_i else current.pending + int(record[i])
+            first_ns = current.first_ns if current.messages else log_i
+            if j > i + 1 and self.max_duration_ns is not None:
+                late = np.flatnonzero(logs[i + 1 : j] - first_ns >= self.max_duration_ns)
+                if late.shape[0]:
+                    j = i + 1 + int(late[0])
+            if j > i + 1 and self.max_bytes is not None:
+                size = tell + pending_i + (csum[i + 1 : j] - csum[i + 1])
+                big = np.flatnonzero(size >= self.max_bytes)
+                if big.shape[0]:
+                    j = i + 1 + int(big[0])
+            self._append_run(current, bulk, pairs, ids[i:j], logs[i:j], datas[i:j], csum[i : j + 1] - csum[i])
+            try:
+                bulk.maybe_finalize()
+                tell_after = current.stream.tell()
+            except OSError as err:
+                self._fail(current.path, 'writing', err)
+            if tell_after != tell:  # the chunk went out with the run's last message
+                current.last_tell = tell_after
+                current.pending = 0
+            elif flushed_at_i:
+                current.last_tell = tell
+                current.pending = int(csum[j] - csum[i + 1])
+            else:
+                current.pending += int(csum[j] - csum[i])
+            i = j
+
+    def _append_run(
+        self,
+        current: _OpenFile,
+        bulk: _BulkChunk,
+        pairs: list[tuple[str, str]],
+        ids: NDArray[np.int64],
+        logs: NDArray[np.int64],
+        datas: Sequence[bytes],
+        offsets: NDArray[np.int64],
+    ) -> None:
+        """Append messages whose channels exist to the open chunk; update sequences and counts."""
+        m = ids.shape[0]
+        channel = np.zeros(m, dtype=np.int64)
+        sequence = np.zeros(m, dtype=np.int64)
+        runs = []  # (channel id, mask), in order of first appearance (as add_message meets them)
+        present, first = np.unique(ids, return_index=True)
+        for t in present[np.argsort(first)].tolist():
+            topic, msgtype = pairs[t]
+            channel_id = current.channel_ids[topic]
+            mask = ids == t
+            count = int(mask.sum())
+            base = current.sequence[channel_id]
+            channel[mask] = channel_id
+            sequence[mask] = (base + np.arange(1, count + 1, dtype=np.int64)) & 0xFFFFFFFF
+            current.sequence[channel_id] = (base + count) & 0xFFFFFFFF
+            runs.append((channel_id, mask))
+            self._topic_types[topic] = msgtype
+            self._topic_counts[topic] = self._topic_counts.get(topic, 0) + count
+        header = np.empty(m, dtype=_MESSAGE_HEADER)
+        header['opcode'] = _OPCODE_MESSAGE
+        header['length'] = offsets[1:] - offsets[:-1] - 9  # record length after opcode and length
+        header['channel'] = channel
+        header['sequence'] = sequence
+        header['log_time'] = logs
+        header['publish_time'] = logs
+        try:
+            bulk.append(header, datas, logs, runs, offsets[:-1])
+        except OSError as err:
+            self._fail(current.path, 'writing', err)
+        log_min, log_max = int(logs.min()), int(logs.max())
+        self._messages += m
+        if current.messages == 0:
+            current.first_ns = int(logs[0])
+            current.min_ns, current.max_ns = log_min, log_max
+        else:
+            current.min_ns = min(current.min_ns, log_min)
+            current.max_ns = max(current.max_ns, log_max)
+        current.messages += m
+
     def _write_metadata(self) -> None:
         """Write ``metadata.yaml`` (rosbag2 version 9, storage mcap) atomically; OSError propagates."""
         files = self._finished
@@ -622,6 +843,138 @@ class ResidualLogWriter:
             if self.fsync:
                 os.fsync(out.fileno())
         tmp.replace(path)
+
+
+#: bytes of a message record besides its data: opcode, length, channel id, sequence, log and publish time
+_MESSAGE_OVERHEAD = 31
+_OPCODE_MESSAGE = 0x05
+_MESSAGE_HEADER = np.dtype([('opcode', 'u1'), ('length', '<u8'), ('channel', '<u2'), ('sequence', '<u4'),
+                            ('log_time', '<u8'), ('publish_time', '<u8')])
+assert _MESSAGE_HEADER.itemsize == _MESSAGE_OVERHEAD
+_MESSAGE_RECORD_HEAD = np.dtype(f'V{_MESSAGE_OVERHEAD}')
+_CDR_HEADS = frozenset({b'\x00\x00', b'\x00\x01'})  # CDR big or little endian (what write_raw accepts)
+_CDR_HEAD = operator.itemgetter(slice(0, 2))  # the first two bytes of a message
+
+
+class _PackedMessageIndex(MessageIndex):
+    """A ``MessageIndex`` whose (log time, offset) entries are kept packed (``<u8`` pairs), as it writes them.
+
+    :meth:`add_packed` appends a block of entries; tuples that ``ChunkBuilder.add_message`` appends to
+    ``records`` meanwhile are packed first, so the entries stay in order. Writes the bytes of ``MessageIndex``.
+    """
+
+    def __init__(self, channel_id: int, records: list[tuple[int, int]]) -> None:
+        super().__init__(channel_id=channel_id, records=records)
+        self.packed: list[bytes] = []
+
+    def _pack_records(self) -> None:
+        records = self.records
+        if records:
+            self.packed.append(struct.pack(f'<{2 * len(records)}Q', *itertools.chain.from_iterable(records)))
+            records.clear()
+
+    def add_packed(self, entries: bytes) -> None:
+        self._pack_records()
+        self.packed.append(entries)
+
+    def write(self, stream: RecordBuilder) -> None:
+        self._pack_records()
+        entries = b''.join(self.packed)
+        stream.start_record(Opcode.MESSAGE_INDEX)
+        stream.write2(self.channel_id)
+        stream.write4(len(entries))
+        stream.write(entries)
+        stream.finish_record()
+
+
+class _BulkChunk:
+    """Appends message records to the open chunk of an ``mcap`` writer, as ``Writer.add_message`` would.
+
+    Goes below mcap's public API (pinned mcap 1.6.0: ``Writer`` keeps a ``ChunkBuilder`` whose ``RecordBuilder``
+    writes to a ``BytesIO``, per-channel ``MessageIndex`` records and a ``Statistics`` record). :meth:`of` checks
+    that structure and returns None for a writer that does not have it (another mcap version, no chunking);
+    callers then use ``add_message``. The result is the file ``add_message`` would have written, byte for byte
+    (``test/recording/test_residual_log_bulk.py``).
+    """
+
+    def __init__(self, writer: McapWriter, builder: ChunkBuilder, stats: object) -> None:
+        self._writer = writer
+        self._builder = builder
+        self._stats = stats
+
+    @staticmethod
+    def of(writer: McapWriter) -> _BulkChunk | None:
+        builder = getattr(writer, '_Writer__chunk_builder', None)
+        stats = getattr(writer, '_Writer__statistics', None)
+        finalize = getattr(writer, '_Writer__maybe_finalize_chunk', None)
+        if ChunkBuilder is None or not isinstance(builder, ChunkBuilder) or not callable(finalize):
+            return None
+        record_writer = getattr(builder, 'record_writer', None)
+        if not isinstance(getattr(record_writer, '_buffer', None), io.BytesIO):
+            return None
+        if not isinstance(getattr(builder, 'message_indices', None), dict) or not all(
+            isinstance(getattr(builder, name, None), int)
+            for name in ('num_messages', 'message_start_time', 'message_end_time')
+        ):
+            return None
+        if not isinstance(getattr(stats, 'channel_message_counts', None), dict) or not all(
+            isinstance(getattr(stats, name, None), int)
+            for name in ('message_count', 'message_start_time', 'message_end_time')
+        ):
+            return None
+        return _BulkChunk(writer, builder, stats)
+
+    def count(self) -> int:
+        """Bytes in the open chunk [B]."""
+        return int(self._builder.count)
+
+    def append(
+        self,
+        header: np.ndarray,
+        datas: Sequence[bytes],
+        logs: NDArray[np.int64],
+        channels: list[tuple[int, NDArray[np.bool_]]],
+        offsets: NDArray[np.int64],
+    ) -> None:
+        """Append message records (``header[k]`` + ``datas[k]``); ``channels`` in order of first appearance."""
+        builder = self._builder
+        stats = self._stats
+        buffer = builder.record_writer._buffer  # noqa: SLF001
+        start = buffer.tell()
+        m = header.shape[0]
+        parts: list[bytes] = [b''] * (2 * m)
+        parts[0::2] = header.view(_MESSAGE_RECORD_HEAD).tolist()  # bytes objects (a void dtype keeps NULs)
+        parts[1::2] = datas
+        buffer.write(b''.join(parts))
+        positions = offsets + start
+        indices = builder.message_indices
+        for channel_id, mask in channels:
+            index = indices.get(channel_id)
+            if not isinstance(index, _PackedMessageIndex):  # new, or begun by add_message (same place in the dict)
+                index = indices[channel_id] = _PackedMessageIndex(channel_id, [] if index is None else index.records)
+            entries = np.empty((int(mask.sum()), 2), dtype='<u8')
+            entries[:, 0] = logs[mask]
+            entries[:, 1] = positions[mask]
+            index.add_packed(entries.tobytes())
+            counts = stats.channel_message_counts  # type: ignore[attr-defined]
+            counts[channel_id] = counts.get(channel_id, 0) + int(mask.sum())
+        log_min, log_max = int(logs.min()), int(logs.max())
+        if builder.num_messages == 0:
+            builder.message_start_time = log_min
+        else:
+            builder.message_start_time = min(builder.message_start_time, log_min)
+        builder.message_end_time = max(builder.message_end_time, log_max)
+        builder.num_messages += m
+        if stats.message_count == 0:  # type: ignore[attr-defined]
+            stats.message_start_time = log_min  # type: ignore[attr-defined]
+        else:
+            stats.message_start_time = min(stats.message_start_time, log_min)  # type: ignore[attr-defined]
+        stats.message_end_time = max(stats.message_end_time, log_max)  # type: ignore[attr-defined]
+        stats.message_count += m  # type: ignore[attr-defined]
+
+    def maybe_finalize(self) -> None:
+        """Write the chunk out if it is full (as ``add_message`` does after each message)."""
+        self._writer._Writer__maybe_finalize_chunk()  # type: ignore[attr-defined]  # noqa: SLF001
 
 
 def _flush_writer(writer: McapWriter) -> None:

@@ -1,0 +1,148 @@
+"""Fast CDR serializers: byte-identical to the rosbags type store, one message or a batch."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from gimbal_friction.recording.bag import default_typestore, make_float64_multi_array, make_joint_state
+from gimbal_friction.recording.cdr import (
+    float64_multi_array_cdr,
+    float64_multi_array_cdr_rows,
+    joint_state_cdr,
+    joint_state_cdr_rows,
+    split_rows,
+)
+from gimbal_friction.recording.topics import FLOAT64_MULTI_ARRAY_TYPE, JOINT_STATE_TYPE
+
+NAMES = ['elevation', 'azimuth', 'roll', 'a', 'ab', 'abc', 'abcd', 'joint_with_a_long_name', 'ü-ß', '']
+FRAMES = ['', 'g', 'gi', 'gimbal', 'gimbal_base_link', 'bâse']
+
+
+def ref_joint_state(stamp_ns, names, position=None, velocity=None, effort=None, frame_id=''):
+    msg = make_joint_state(stamp_ns, names, position, velocity, effort, frame_id)
+    return bytes(default_typestore().serialize_cdr(msg, JOINT_STATE_TYPE))
+
+
+def ref_multi_array(values, label):
+    msg = make_float64_multi_array(values, label)
+    return bytes(default_typestore().serialize_cdr(msg, FLOAT64_MULTI_ARRAY_TYPE))
+
+
+def random_values(rng, k):
+    values = rng.normal(size=k) * 10.0 ** rng.integers(-12, 12, size=k)
+    specials = np.array([np.nan, np.inf, -np.inf, 0.0, -0.0, 5e-324])
+    mask = rng.random(k) < 0.1
+    values[mask] = rng.choice(specials, size=int(mask.sum()))
+    return values
+
+
+def random_stamp(rng):
+    return int(rng.integers(-(2**31) * 10**9, (2**31 - 1) * 10**9))
+
+
+def test_joint_state_equals_type_store_on_random_messages():
+    rng = np.random.default_rng(1)
+    for _ in range(400):
+        n_names = int(rng.integers(0, 5))
+        names = [str(x) for x in rng.choice(NAMES, size=n_names)]
+        fields = [None if rng.random() < 0.3 else random_values(rng, int(rng.integers(0, 5))) for _ in range(3)]
+        frame = str(rng.choice(FRAMES))
+        stamp = random_stamp(rng)
+        assert joint_state_cdr(stamp, names, *fields, frame_id=frame) == ref_joint_state(stamp, names, *fields,
+                                                                                         frame_id=frame)
+
+
+@pytest.mark.parametrize('stamp', [0, 1, 999_999_999, 1_000_000_000, -1, -1_000_000_001,
+                                   (2**31 - 1) * 10**9 + 999_999_999, -(2**31) * 10**9])
+def test_joint_state_stamp_edges(stamp):
+    assert joint_state_cdr(stamp, ['elevation'], effort=[1.5]) == ref_joint_state(stamp, ['elevation'], effort=[1.5])
+
+
+def test_empty_joint_state():
+    assert joint_state_cdr(0, []) == ref_joint_state(0, [])
+    assert joint_state_cdr(5, [], [], [], [], frame_id='x') == ref_joint_state(5, [], [], [], [], frame_id='x')
+
+
+def test_stamp_out_of_int32_range_is_refused():
+    with pytest.raises(ValueError, match='int32'):
+        joint_state_cdr(2**31 * 10**9, ['a'])
+    with pytest.raises(ValueError, match='int32'):
+        joint_state_cdr_rows([0, 2**31 * 10**9], ['a'])
+
+
+def test_multi_array_equals_type_store_on_random_messages():
+    rng = np.random.default_rng(2)
+    for _ in range(300):
+        values = random_values(rng, int(rng.integers(0, 16)))
+        label = str(rng.choice(NAMES))
+        assert float64_multi_array_cdr(values, label) == ref_multi_array(values, label)
+
+
+def test_multi_array_with_several_dims_and_offset():
+    store = default_typestore()
+    types = store.types
+    rng = np.random.default_rng(3)
+    for n_dims in range(4):
+        dims = [(str(rng.choice(NAMES)), int(rng.integers(0, 9)), int(rng.integers(0, 99))) for _ in range(n_dims)]
+        values = random_values(rng, int(rng.integers(0, 7)))
+        layout = types['std_msgs/msg/MultiArrayLayout'](
+            dim=[types['std_msgs/msg/MultiArrayDimension'](label=a, size=b, stride=c) for a, b, c in dims],
+            data_offset=7)
+        msg = types[FLOAT64_MULTI_ARRAY_TYPE](layout=layout, data=values)
+        expected = bytes(store.serialize_cdr(msg, FLOAT64_MULTI_ARRAY_TYPE))
+        assert float64_multi_array_cdr(values, dims=dims, data_offset=7) == expected
+        rows = float64_multi_array_cdr_rows(values.reshape(1, -1), dims=dims, data_offset=7)
+        assert split_rows(rows) == [expected]
+
+
+def test_joint_state_rows_equal_one_by_one():
+    rng = np.random.default_rng(4)
+    for trial in range(60):
+        n = int(rng.integers(0, 30))
+        names = [str(x) for x in rng.choice(NAMES, size=int(rng.integers(0, 4)))]
+        ks = [None if rng.random() < 0.3 else int(rng.integers(0, 4)) for _ in range(3)]
+        if trial % 5 == 0:  # the (n,) form: one value per message
+            ks = [None, None, -1]
+        fields = []
+        for k in ks:
+            if k is None:
+                fields.append(None)
+            elif k == -1:
+                fields.append(random_values(rng, n))
+            else:
+                fields.append(random_values(rng, n * k).reshape(n, k))
+        frame = str(rng.choice(FRAMES))
+        stamps = np.array([random_stamp(rng) for _ in range(n)], dtype=np.int64)
+        rows = joint_state_cdr_rows(stamps, names, *fields, frame_id=frame)
+        got = split_rows(rows)
+        assert len(got) == n
+        for i in range(n):
+            per = [None if f is None else np.atleast_1d(f[i]) for f in fields]
+            assert got[i] == ref_joint_state(int(stamps[i]), names, *per, frame_id=frame)
+
+
+def test_multi_array_rows_equal_one_by_one():
+    rng = np.random.default_rng(5)
+    for k in (0, 1, 2, 11):
+        data = random_values(rng, 20 * k).reshape(20, k)
+        got = split_rows(float64_multi_array_cdr_rows(data, 'elevation'))
+        assert got == [ref_multi_array(row, 'elevation') for row in data]
+
+
+def test_rows_keep_nan_payloads_bit_for_bit():
+    nan_bits = np.array([0x7FF8000000000001, 0xFFF0000000000123], dtype=np.uint64).view(np.float64)
+    rows = joint_state_cdr_rows([1, 2], ['a'], effort=nan_bits)
+    for i, raw in enumerate(split_rows(rows)):
+        assert raw == ref_joint_state(i + 1, ['a'], effort=nan_bits[i : i + 1])
+        assert raw[-8:] == nan_bits[i : i + 1].tobytes()
+
+
+def test_empty_batches():
+    assert split_rows(joint_state_cdr_rows([], ['a'], effort=np.zeros((0, 1)))) == []
+    assert split_rows(float64_multi_array_cdr_rows(np.zeros((0, 11)), 'a')) == []
+
+
+def test_shape_mismatch_is_refused():
+    with pytest.raises(ValueError, match='shape'):
+        joint_state_cdr_rows([1, 2], ['a'], effort=[1.0, 2.0, 3.0])
