@@ -132,6 +132,38 @@ def split_parameters(params: Iterable[Parameter], *groups: Iterable[str]) -> lis
     return out
 
 
+def field_names(cls: type) -> frozenset[str]:
+    """Names of the fields of a settings dataclass (= its parameter names)."""
+    return frozenset(f.name for f in dataclasses.fields(cls))  # type: ignore[arg-type]
+
+
+def check_changes(params: Iterable[Parameter], model: ModelParameters,
+                  *groups: tuple[type, Any]) -> list[dict[str, Any]]:
+    """Validate a ``set_parameters`` request: model parameters against every axis, and each group of settings
+    (``(settings class, current settings)``) against its current values. Returns the values split like
+    :func:`split_parameters`.
+
+    Raises:
+        ConfigError: the first invalid value, naming the parameter and the rule it breaks.
+    """
+    split = split_parameters(params, *(field_names(cls) for cls, _ in groups))
+    if split[0]:
+        model.current(split[0])
+    for values, (cls, current) in zip(split[1:], groups):
+        if values:
+            settings_from(cls, values, current)
+    return split
+
+
+def retime(node: Node, timer: Any, old_period_s: float, new_period_s: float, callback: Callable[[], None]) -> Any:
+    """The timer to use after a period parameter changed: ``timer`` itself if the period is the same, else a
+    new one (the old one cancelled)."""
+    if new_period_s == old_period_s:
+        return timer
+    timer.cancel()
+    return node.create_timer(new_period_s, callback)
+
+
 def declare_settings(node: Node, cls: type[T], prefix: str = '') -> T:
     """Declare every field of the settings dataclass ``cls`` as a parameter and return the validated settings."""
     values = {}

@@ -63,8 +63,8 @@ from gimbal_friction.core.errors import ConfigError
 from gimbal_friction.core.estimator import INPUT_REASONS, UNKNOWN_JOINT, EstimatorLogic, EstimatorSettings, \
     Measurement
 from gimbal_friction.core.feedforward import setting
-from gimbal_friction.nodes._common import OK, WARN, declare_settings, diagnostic_array, ModelParameters, monotonic_s, \
-    parameter_guard, run_node, settings_from, split_parameters, status
+from gimbal_friction.nodes._common import OK, WARN, check_changes, declare_settings, diagnostic_array, field_names, \
+    ModelParameters, monotonic_s, parameter_guard, retime, run_node, settings_from, split_parameters, status
 from gimbal_friction.recording import topics
 
 #: summary topic of the running statistics (diagnostic_msgs/DiagnosticArray, layout in the module docstring)
@@ -87,8 +87,8 @@ class NodeSettings:
                 raise ConfigError(name, 'must lie in [0.05, 3600] [s]', value)
 
 
-_EST_FIELDS = {f.name for f in dataclasses.fields(EstimatorSettings)}
-_NODE_FIELDS = {f.name for f in dataclasses.fields(NodeSettings)}
+_EST_FIELDS = field_names(EstimatorSettings)
+_NODE_FIELDS = field_names(NodeSettings)
 
 
 def _num(value: float) -> str:
@@ -126,33 +126,21 @@ class FrictionEstimator(Node):
                                f'{math.degrees(est_settings.position_max_rad):g} deg')
 
     # ------------------------------------------------------------------ parameters
-    def _split(self, params: Sequence[Parameter]) -> tuple[dict[str, Any], dict[str, Any], dict[str, Any]]:
-        model, first, second = split_parameters(params, _EST_FIELDS, _NODE_FIELDS)
-        return model, first, second
-
     def _validate_params(self, params: list[Parameter]) -> None:
-        model, est, node = self._split(params)
-        if model:
-            self.model.current(model)
-        if est:
-            settings_from(EstimatorSettings, est, self.logic.settings)
-        if node:
-            settings_from(NodeSettings, node, self.settings)
+        check_changes(params, self.model, (EstimatorSettings, self.logic.settings), (NodeSettings, self.settings))
 
     def _apply_params(self, params: list[Parameter]) -> None:
-        model, est, node = self._split(params)
+        model, est, node = split_parameters(params, _EST_FIELDS, _NODE_FIELDS)
         if est:
             self.logic.update_settings(settings_from(EstimatorSettings, est, self.logic.settings))
             self.get_logger().info('estimator settings changed: steady-state detection restarted')
         if node:
             old = self.settings
-            self.settings = settings_from(NodeSettings, node, self.settings)
-            if self.settings.diagnostics_period_s != old.diagnostics_period_s:
-                self._diag_timer.cancel()
-                self._diag_timer = self.create_timer(self.settings.diagnostics_period_s, self.publish_diagnostics)
-            if self.settings.statistics_period_s != old.statistics_period_s:
-                self._stats_timer.cancel()
-                self._stats_timer = self.create_timer(self.settings.statistics_period_s, self.publish_statistics)
+            self.settings = settings_from(NodeSettings, node, old)
+            self._diag_timer = retime(self, self._diag_timer, old.diagnostics_period_s,
+                                      self.settings.diagnostics_period_s, self.publish_diagnostics)
+            self._stats_timer = retime(self, self._stats_timer, old.statistics_period_s,
+                                       self.settings.statistics_period_s, self.publish_statistics)
         if model:
             for axis, p in self.model.current().items():
                 old_p = self.logic.axes[axis]

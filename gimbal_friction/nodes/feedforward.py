@@ -28,8 +28,9 @@ from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 
 from gimbal_friction.core.errors import ConfigError
 from gimbal_friction.core.feedforward import FeedforwardLogic, FeedforwardSettings, setting
-from gimbal_friction.nodes._common import ERROR, OK, WARN, declare_settings, diagnostic_array, ModelParameters, \
-    monotonic_s, parameter_guard, run_node, settings_from, split_parameters, status
+from gimbal_friction.nodes._common import ERROR, OK, WARN, check_changes, declare_settings, diagnostic_array, \
+    field_names, ModelParameters, monotonic_s, parameter_guard, retime, run_node, settings_from, split_parameters, \
+    status
 from gimbal_friction.recording import topics
 
 VELOCITY_SOURCES = ('measured', 'reference')
@@ -57,8 +58,8 @@ class NodeSettings:
             raise ConfigError('diagnostics_period_s', 'must lie in [0.05, 60] [s]', self.diagnostics_period_s)
 
 
-_FF_FIELDS = {f.name for f in dataclasses.fields(FeedforwardSettings)}
-_NODE_FIELDS = {f.name for f in dataclasses.fields(NodeSettings)}
+_FF_FIELDS = field_names(FeedforwardSettings)
+_NODE_FIELDS = field_names(NodeSettings)
 
 
 class FrictionFeedforward(Node):
@@ -92,29 +93,18 @@ class FrictionFeedforward(Node):
                                f'{ff_settings.temperature_min_c:g}..{ff_settings.temperature_max_c:g} degC')
 
     # ------------------------------------------------------------------ parameters
-    def _split(self, params: Sequence[Parameter]) -> tuple[dict[str, Any], dict[str, Any], dict[str, Any]]:
-        model, first, second = split_parameters(params, _FF_FIELDS, _NODE_FIELDS)
-        return model, first, second
-
     def _validate_params(self, params: list[Parameter]) -> None:
-        model, ff, node = self._split(params)
-        if model:
-            self.model.current(model)
-        if ff:
-            settings_from(FeedforwardSettings, ff, self.logic.settings)
-        if node:
-            settings_from(NodeSettings, node, self.settings)
+        check_changes(params, self.model, (FeedforwardSettings, self.logic.settings), (NodeSettings, self.settings))
 
     def _apply_params(self, params: list[Parameter]) -> None:
-        model, ff, node = self._split(params)
+        model, ff, node = split_parameters(params, _FF_FIELDS, _NODE_FIELDS)
         if ff:
             self.logic.update_settings(settings_from(FeedforwardSettings, ff, self.logic.settings))
         if node:
-            old_period = self.settings.diagnostics_period_s
-            self.settings = settings_from(NodeSettings, node, self.settings)
-            if self.settings.diagnostics_period_s != old_period:
-                self._diag_timer.cancel()
-                self._diag_timer = self.create_timer(self.settings.diagnostics_period_s, self.publish_diagnostics)
+            old = self.settings
+            self.settings = settings_from(NodeSettings, node, old)
+            self._diag_timer = retime(self, self._diag_timer, old.diagnostics_period_s,
+                                      self.settings.diagnostics_period_s, self.publish_diagnostics)
         if model:
             current = self.model.current()
             for axis, p in current.items():

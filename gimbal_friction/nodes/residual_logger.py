@@ -39,8 +39,8 @@ from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 from gimbal_friction.core.errors import ConfigError, GimbalFrictionError
 from gimbal_friction.core.feedforward import FeedforwardLogic, FeedforwardSettings, setting
 from gimbal_friction.core.residuals import ResidualPairing, ResidualRecord, ResidualStats
-from gimbal_friction.nodes._common import ERROR, OK, WARN, declare_settings, diagnostic_array, ModelParameters, \
-    monotonic_s, parameter_guard, run_node, settings_from, split_parameters, status
+from gimbal_friction.nodes._common import ERROR, OK, WARN, check_changes, declare_settings, diagnostic_array, \
+    field_names, ModelParameters, monotonic_s, parameter_guard, run_node, settings_from, split_parameters, status
 from gimbal_friction.recording import topics
 from gimbal_friction.recording.residual_log import ResidualLogWriter, residual_log_files
 
@@ -77,8 +77,8 @@ class LoggerSettings:
                 raise ConfigError(name, 'must be >= 0 (0 = never)', getattr(self, name))
 
 
-_SETTINGS = {f.name for f in dataclasses.fields(LoggerSettings)}
-_FF_SETTINGS = {f.name for f in dataclasses.fields(FeedforwardSettings)}
+_SETTINGS = field_names(LoggerSettings)
+_FF_SETTINGS = field_names(FeedforwardSettings)
 _LIVE = {'pairing_timeout_s', 'residual_bin_c', 'diagnostics_period_s', 'flush_period_s', 'retry_period_s'}
 
 
@@ -227,24 +227,15 @@ class ResidualLogger(Node):
         self._write('flush')
 
     # ------------------------------------------------------------------ parameters
-    def _split(self, params: Sequence[Parameter]) -> tuple[dict[str, Any], dict[str, Any], dict[str, Any]]:
-        model, first, second = split_parameters(params, _SETTINGS, _FF_SETTINGS)
-        return model, first, second
-
     def _validate_params(self, params: list[Parameter]) -> None:
-        model, own, ff = self._split(params)
-        if model:
-            self.model.current(model)
-        if own:
-            fixed = set(own) - _LIVE
-            if fixed:
-                raise ConfigError(sorted(fixed)[0], 'takes effect only at start-up (restart the node)')
-            settings_from(LoggerSettings, own, self.settings)
-        if ff:
-            settings_from(FeedforwardSettings, ff, self.ff.settings)
+        _, own, _ = check_changes(params, self.model, (LoggerSettings, self.settings),
+                                  (FeedforwardSettings, self.ff.settings))
+        fixed = set(own) - _LIVE
+        if fixed:
+            raise ConfigError(sorted(fixed)[0], 'takes effect only at start-up (restart the node)')
 
     def _apply_params(self, params: list[Parameter]) -> None:
-        model, own, ff = self._split(params)
+        model, own, ff = split_parameters(params, _SETTINGS, _FF_SETTINGS)
         if own:
             self.settings = settings_from(LoggerSettings, own, self.settings)
             self.pairing.timeout_s = self.settings.pairing_timeout_s
