@@ -39,7 +39,7 @@ from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 from gimbal_friction.core.errors import ConfigError, GimbalFrictionError
 from gimbal_friction.core.feedforward import FeedforwardLogic, FeedforwardSettings, setting
 from gimbal_friction.core.residuals import ResidualPairing, ResidualRecord, ResidualStats
-from gimbal_friction.nodes._common import ERROR, OK, WARN, check_changes, declare_settings, diagnostic_array, \
+from gimbal_friction.nodes._common import retime, ERROR, OK, WARN, check_changes, declare_settings, diagnostic_array, \
     field_names, ModelParameters, monotonic_s, parameter_guard, run_node, settings_from, split_parameters, status
 from gimbal_friction.recording import topics
 from gimbal_friction.recording.residual_log import ResidualLogWriter, residual_log_files
@@ -237,9 +237,16 @@ class ResidualLogger(Node):
     def _apply_params(self, params: list[Parameter]) -> None:
         model, own, ff = split_parameters(params, _SETTINGS, _FF_SETTINGS)
         if own:
-            self.settings = settings_from(LoggerSettings, own, self.settings)
-            self.pairing.timeout_s = self.settings.pairing_timeout_s
-            self.stats.bin_c = self.settings.residual_bin_c
+            old = self.settings
+            self.settings = new = settings_from(LoggerSettings, own, old)
+            self.pairing.timeout_s = new.pairing_timeout_s
+            self.stats.bin_c = new.residual_bin_c
+            if self.writer is not None:
+                self.writer.flush_interval_s = new.flush_period_s
+            self._flush_timer = retime(self, self._flush_timer, old.flush_period_s, new.flush_period_s,
+                                       self.on_flush_timer)
+            self._diag_timer = retime(self, self._diag_timer, old.diagnostics_period_s, new.diagnostics_period_s,
+                                      self.publish_diagnostics)
         if ff:
             self.ff.update_settings(settings_from(FeedforwardSettings, ff, self.ff.settings))
         if model:

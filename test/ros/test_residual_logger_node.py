@@ -162,3 +162,33 @@ def test_unwritable_folder_reported_node_stays_up(spawn, probe, tmp_path):
     assert node.alive()
     rc, out = node.stop()
     assert rc == 0 and 'Traceback' not in out
+
+
+def test_runtime_period_change_takes_effect_and_start_up_only_setting_is_refused(spawn, probe, tmp_path):
+    from rcl_interfaces.msg import Parameter as ParameterMsg
+    from rcl_interfaces.msg import ParameterType, ParameterValue
+    from rcl_interfaces.srv import SetParameters
+    import time
+    _setup(probe)
+    node = spawn('residual_logger', '--ros-args', '-p', f'output_dir:={tmp_path / "p"}',
+                 '-p', 'diagnostics_period_s:=10.0')
+    client = probe.node.create_client(SetParameters, '/residual_logger/set_parameters')
+    probe.spin_until(client.service_is_ready, what='set_parameters service')
+
+    def set_double(name, value):
+        req = SetParameters.Request(parameters=[ParameterMsg(name=name, value=ParameterValue(
+            type=ParameterType.PARAMETER_DOUBLE, double_value=value))])
+        future = client.call_async(req)
+        probe.spin_until(future.done, what=f'set {name}')
+        return future.result().results[0]
+
+    refused = set_double('max_file_mb', 1.0)
+    assert not refused.successful and 'start-up' in refused.reason
+    assert set_double('diagnostics_period_s', 0.2).successful
+    n0 = len(probe.received['/diagnostics'])
+    t0 = time.monotonic()
+    # with the old 10 s timer kept, five diagnostics would take 50 s
+    probe.spin_until(lambda: len(probe.received['/diagnostics']) >= n0 + 5, timeout=8.0,
+                     what='diagnostics at the new 0.2 s period')
+    assert time.monotonic() - t0 < 8.0
+    assert node.stop()[0] == 0
