@@ -31,7 +31,8 @@ from gimbal_friction.core.residuals import plateau_summary
 from gimbal_friction.core.settings import settings_from_parameters
 from gimbal_friction.core.table import RPM_PER_RAD_S
 from gimbal_friction.recording import topics
-from gimbal_friction.recording.bag import ChamberArrays, ChamberBag, default_typestore, open_chamber_bag
+from gimbal_friction.core.arrays import ChamberArrays
+from gimbal_friction.recording.bag import ChamberBag, default_typestore, open_chamber_bag
 from gimbal_friction.recording.cdr import float64_multi_array_cdr_rows, joint_state_cdr_rows, split_rows
 from gimbal_friction.recording.residual_log import ResidualLogWriter
 

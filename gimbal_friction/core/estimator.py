@@ -87,8 +87,9 @@ import dataclasses
 import heapq
 import math
 from collections import deque
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any, Mapping, NamedTuple, Sequence
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 import numpy as np
 
@@ -100,7 +101,7 @@ from gimbal_friction.core.params import AxisParams
 if TYPE_CHECKING:
     from numpy.typing import NDArray
 
-    from gimbal_friction.recording.bag import ChamberArrays
+    from gimbal_friction.core.arrays import ChamberArrays
 
 #: accepted joint states kept per joint for pairing [-]
 HISTORY_LENGTH = 64
@@ -235,7 +236,7 @@ def _direction_sort(record: Mapping[str, Any]) -> tuple[int, float]:
 
 
 class _Stat:
-    __slots__ = ('n', 'mean', 'm2', 'min_pos', 'max_pos', 'bin_sum', 'bin_n')
+    __slots__ = ('bin_n', 'bin_sum', 'm2', 'max_pos', 'mean', 'min_pos', 'n')
 
     def __init__(self, bins: int) -> None:
         self.n = 0
@@ -271,7 +272,7 @@ def _record(joint: str, direction: int, plateau: float | None, count: int, mean:
 class _Joint:
     """Streaming state of one configured joint."""
 
-    __slots__ = ('kt', 'i0', 'history', 'waiting', 'run_sign', 'run_start', 'last')
+    __slots__ = ('history', 'i0', 'kt', 'last', 'run_sign', 'run_start', 'waiting')
 
     def __init__(self, params: AxisParams) -> None:
         self.kt = float(params.torque_constant_nm_per_a)
@@ -306,7 +307,7 @@ class EstimatorLogic:
         self.axes = dict(axes)
         self.order = list(self.axes)
         self.joints = {name: _Joint(p) for name, p in self.axes.items()}
-        self.counters = EstimatorCounters(accepted={name: 0 for name in self.axes})
+        self.counters = EstimatorCounters(accepted=dict.fromkeys(self.axes, 0))
         self.settings = settings
         self._derive()
         self.clock_ns: int | None = None
@@ -794,7 +795,7 @@ class _Vectorized:
             M = np.empty(0, dtype=np.int64)
         nS = S.size
         # ---- steady-state verdicts
-        in_win = (P >= s.position_min_rad) & (P <= s.position_max_rad)
+        in_win = (s.position_min_rad <= P) & (s.position_max_rad >= P)
         speed_ok = np.abs(np.abs(V) - s.commanded_speed_rad_s) <= ref._band
         acc_bad = np.zeros(nS, dtype=bool)
         if nS > 1:

@@ -13,8 +13,9 @@ velocity) never reach the output: the logic substitutes the documented fallback 
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Mapping, NamedTuple, Sequence
+from typing import NamedTuple
 
 from gimbal_friction.core.errors import ConfigError
 from gimbal_friction.core.params import AxisParams

@@ -23,8 +23,7 @@ from gimbal_friction.core.friction import (
 )
 from gimbal_friction.core.hertz import hertz_contact, reduced_modulus
 from gimbal_friction.core.params import AxisParams
-from gimbal_friction.core.thermal import AxialState, RadialState, axial_coupling, axial_coupling_direct, \
-    radial_coupling
+from gimbal_friction.core.thermal import AxialState, RadialState, axial_coupling, axial_coupling_direct, radial_coupling
 from gimbal_friction.core.viscosity import nu_Walther
 
 Array = NDArray[np.float64]

@@ -8,8 +8,9 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Mapping
 from dataclasses import field
-from typing import Any, Mapping, TypeVar
+from typing import Any, TypeVar
 
 from gimbal_friction.core.errors import ConfigError
 

@@ -24,6 +24,7 @@ from rosbags.rosbag2 import StoragePlugin, Writer, WriterError
 from rosbags.serde import SerdeError
 from rosbags.typesys import Stores, TypesysError, get_typestore
 
+from gimbal_friction.core.arrays import ChamberArrays, JointStateArrays, TemperatureArrays
 from gimbal_friction.recording.errors import RecordingError
 from gimbal_friction.recording.topics import (
     CHAMBER_TOPICS,
@@ -37,7 +38,7 @@ from gimbal_friction.recording.topics import (
 
 if TYPE_CHECKING:
     import os
-    from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
+    from collections.abc import Iterable, Iterator, Mapping, Sequence
 
     from numpy.typing import ArrayLike, NDArray
     from rosbags.interfaces import Connection
@@ -119,53 +120,6 @@ class DecodedMessage(NamedTuple):
     """Log (receive) time [ns]."""
     msg: object
     """rosbags message dataclass (``msg.header.stamp.sec`` ...)."""
-
-
-class TemperatureArrays(NamedTuple):
-    """All ``sensor_msgs/Temperature`` samples of a bag, in log-time order."""
-
-    log_time_ns: NDArray[np.int64]
-    """Log time [ns]."""
-    stamp_ns: NDArray[np.int64]
-    """``header.stamp`` [ns]."""
-    temperature_c: NDArray[np.float64]
-    """Temperature [degC]."""
-
-
-class JointStateArrays(NamedTuple):
-    """All ``sensor_msgs/JointState`` samples of one topic, in log-time order.
-
-    ``position``, ``velocity`` and ``effort`` map each joint name to an array with one value per message (same
-    length as ``log_time_ns``); a value is NaN where that message did not carry the joint or the field.
-    """
-
-    log_time_ns: NDArray[np.int64]
-    """Log time [ns]."""
-    stamp_ns: NDArray[np.int64]
-    """``header.stamp`` [ns]."""
-    names: tuple[str, ...]
-    """Joint names in the order they were first seen."""
-    position: dict[str, NDArray[np.float64]]
-    """Joint position per joint name [rad]."""
-    velocity: dict[str, NDArray[np.float64]]
-    """Joint velocity per joint name [rad/s]."""
-    effort: dict[str, NDArray[np.float64]]
-    """Effort per joint name [N*m], or motor current [A] on ``/gimbal/motor_current``."""
-
-    def __len__(self) -> int:  # type: ignore[override]
-        """Number of messages [-] (not the number of fields)."""
-        return int(self.log_time_ns.shape[0])
-
-
-class ChamberArrays(NamedTuple):
-    """The three input streams of a chamber-test bag as numpy arrays."""
-
-    temperature: TemperatureArrays
-    """``/gimbal/temperature``."""
-    joint_states: JointStateArrays
-    """``/joint_states`` (position [rad], velocity [rad/s])."""
-    motor_current: JointStateArrays
-    """``/gimbal/motor_current`` (effort = motor current [A])."""
 
 
 # ----------------------------------------------------------------------------------------------------------------
