@@ -1,315 +1,109 @@
 """Offline replay of a chamber-test bag through the three nodes' logic (no rclpy), in log-time order.
 
-Feedforward (:class:`~gimbal_friction.core.feedforward.FeedforwardLogic`'s table, smooth sign, direction factor
-and clamp), estimator (:func:`~gimbal_friction.core.estimator.estimate_arrays`, bit-identical to the streaming
-logic of ``friction_estimator``) and the residual records of ``residual_logger`` are computed per bag, vectorised
-with numpy where that keeps the numbers equal to the per-message code of the live nodes. Timing: the nodes judge
-temperature staleness by arrival time, the replay by log time (the arrival time of a recording).
+The same objects and functions the live nodes run, fed with the whole bag at once instead of a message at a time:
 
-The residual log is built in bulk: the generated messages are serialized per joint with
-:mod:`~gimbal_friction.recording.cdr`, put in log-time order with a stable sort (the order ``heapq.merge`` of the
-per-message streams gives) and written with ``ResidualLogWriter.write_raw_many``, so the files are byte for byte
-those of writing message by message (``test/tools/test_replay_log.py``); throughput: ``bench/REPLAY.md``.
+- ``friction_feedforward``: :meth:`~gimbal_friction.core.feedforward.Feedforward.bag_torques` (the rules of
+  :meth:`~gimbal_friction.core.feedforward.Feedforward.message`, evaluated on arrays);
+- ``friction_estimator``: :meth:`~gimbal_friction.core.estimator.EstimatorLogic.feed` (the node feeds the messages of
+  each timer tick; the result does not depend on the batching);
+- ``residual_logger``: :func:`~gimbal_friction.core.residuals.match_predictions` and
+  :func:`~gimbal_friction.core.residual_row.residual_rows`.
+
+Times follow the one rule of :mod:`gimbal_friction.core.inputs`: message stamps, with the log time where a stamp is
+zero. The residual log has the topics and layouts the live ``residual_logger`` writes (the feedforward as one
+JointState per joint-state message with every configured joint present, the measurement, its detail, the residual
+and its detail, and the three input topics as recorded); the generated messages are serialized in bulk
+(:mod:`~gimbal_friction.recording.cdr`). Throughput: ``bench/REPLAY.md``.
 """
 
 from __future__ import annotations
 
-import heapq
-import itertools
-import operator
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
-from typing import Any, Callable, Iterator, Mapping, NamedTuple, Sequence
+from typing import Any, NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
 
 from gimbal_friction.config import all_axis_params, load_parameters
-from gimbal_friction.core.estimator import EstimateResult, EstimatorSettings, estimate_arrays
-from gimbal_friction.core.feedforward import FeedforwardLogic, FeedforwardSettings
-from gimbal_friction.core.params import AxisParams
-from gimbal_friction.core.residuals import plateau_summary
-from gimbal_friction.core.settings import settings_from_parameters
-from gimbal_friction.core.table import RPM_PER_RAD_S
-from gimbal_friction.recording import topics
 from gimbal_friction.core.arrays import ChamberArrays
+from gimbal_friction.core.estimator import EstimatorCounters, EstimatorLogic, EstimatorSettings
+from gimbal_friction.core.feedforward import BagTorques, Feedforward, FeedforwardCounters, FeedforwardSettings
+from gimbal_friction.core.inputs import effective_time
+from gimbal_friction.core.measurement import MEASUREMENT_FIELDS, MeasurementArrays, detail_matrix
+from gimbal_friction.core.params import AxisParams
+from gimbal_friction.core.residual_row import RESIDUAL_FIELDS, ResidualRows, residual_rows
+from gimbal_friction.core.residuals import match_predictions, plateau_summary, steady_temperature
+from gimbal_friction.core.settings import settings_from_parameters
+from gimbal_friction.core.units import NS_PER_S
+from gimbal_friction.recording import topics
 from gimbal_friction.recording.bag import ChamberBag, default_typestore, open_chamber_bag
 from gimbal_friction.recording.cdr import float64_multi_array_cdr_rows, joint_state_cdr_rows, split_rows
 from gimbal_friction.recording.residual_log import ResidualLogWriter
 
 Progress = Callable[[str, float], None]
 
-
-class FeedforwardArrays(NamedTuple):
-    """Feedforward of every (joint-state message, configured joint present in it), in message order."""
-
-    msg_index: NDArray[np.int64]      #: index of the joint-state message
-    joint: NDArray[np.str_]
-    stamp_ns: NDArray[np.int64]
-    log_time_ns: NDArray[np.int64]
-    temperature_c: NDArray[np.float64]  #: temperature used (NaN: zero policy)
-    velocity_rad_s: NDArray[np.float64]
-    torque_nm: NDArray[np.float64]      #: signed feedforward [N·m]
-    m_rolling_nm: NDArray[np.float64]
-    m_sliding_nm: NDArray[np.float64]
-    m_viscous_nm: NDArray[np.float64]
-    saturated: NDArray[np.bool_]
-
-
-class ReplayResult(NamedTuple):
-    """What :func:`replay_bag` computed and wrote."""
-
-    feedforward: FeedforwardArrays
-    estimate: EstimateResult
-    predicted_nm: NDArray[np.float64]   #: feedforward paired with each accepted measurement [N·m]
-    prediction_temperature_c: NDArray[np.float64]
-    m_components_nm: NDArray[np.float64]  #: (n, 3): M_R, M_S, M_L of each measurement [N·m]
-    summary: list[dict[str, Any]]
-    residual_dir: Path | None
-    messages_in: int
-    messages_out: int
-
-
-def node_settings(config_paths: list[Path] | tuple[Path, ...] = ()) -> tuple[dict[str, AxisParams],
-                                                                             FeedforwardSettings, EstimatorSettings]:
-    """The axes and the settings the three nodes would load from the same parameter files."""
-    axes = all_axis_params(load_parameters(config_paths))
-    ff = settings_from_parameters(FeedforwardSettings, load_parameters(config_paths, node_name='friction_feedforward'))
-    est = settings_from_parameters(EstimatorSettings, load_parameters(config_paths, node_name='friction_estimator'))
-    return axes, ff, est
-
-
-def feedforward_arrays(logic: FeedforwardLogic, arrays: ChamberArrays) -> FeedforwardArrays:
-    """The feedforward node's output for every joint-state message of ``arrays`` (vectorised; same numbers)."""
-    s = logic.settings
-    temp = arrays.temperature
-    t_val = np.asarray(temp.temperature_c, dtype=float)
-    valid = np.isfinite(t_val) & (t_val >= s.temperature_min_c) & (t_val <= s.temperature_max_c)
-    for reason, mask in (('non-finite temperature', ~np.isfinite(t_val)),
-                         ('temperature out of range', np.isfinite(t_val) & ~valid)):
-        if mask.any():
-            logic.counters.temperature_rejected[reason] = logic.counters.temperature_rejected.get(reason, 0) + \
-                int(mask.sum())
-    t_log = np.asarray(temp.log_time_ns, dtype=np.int64)[valid]
-    t_val = t_val[valid]
-    js = arrays.joint_states
-    js_log = np.asarray(js.log_time_ns, dtype=np.int64)
-    # last valid temperature received at or before each joint state (ties: temperature first, as recorded)
-    idx = np.searchsorted(t_log, js_log, side='right') - 1
-    have = idx >= 0
-    age_s = np.where(have, (js_log - t_log[np.maximum(idx, 0)]) * 1e-9, np.inf)
-    t_last = np.where(have, t_val[np.maximum(idx, 0)], np.nan)
-    fresh = age_s <= s.temperature_timeout_s
-    if s.stale_policy == 'hold_last':
-        t_used = np.where(fresh | have, t_last, s.fallback_temperature_c)
-    elif s.stale_policy == 'zero':
-        t_used = np.where(fresh, t_last, np.nan)
-    else:
-        t_used = np.where(fresh, t_last, s.fallback_temperature_c)
-    parts = []
-    unknown = [n for n in js.names if n not in logic.axes]
-    if unknown:
-        present_unknown = np.zeros(len(js), dtype=bool)
-        for n in unknown:
-            present_unknown |= ~np.isnan(js.velocity[n]) | ~np.isnan(js.position[n])
-        logic.counters.joint_state_rejected['unknown joint name'] = \
-            logic.counters.joint_state_rejected.get('unknown joint name', 0) + int(present_unknown.sum())
-    for name, params in logic.axes.items():
-        if name not in js.velocity:
-            continue
-        v = np.asarray(js.velocity[name], dtype=float)
-        sel = ~np.isnan(v) | ~np.isnan(np.asarray(js.position.get(name, v), dtype=float))
-        sel &= np.isfinite(v)
-        rows = np.flatnonzero(sel)
-        vv = v[rows]
-        tt = t_used[rows]
-        table = logic.tables[name]
-        zero = np.isnan(tt)
-        m_rs, m_l, _ = table.evaluate(np.where(zero, 20.0, tt), vv * RPM_PER_RAD_S)
-        m_r = np.interp(np.clip(np.where(zero, 20.0, tt), table.t_min, table.t_max), table.grid, table._m_r)
-        m_s = m_rs - m_r
-        magnitude = 1e-3 * (m_rs + m_l)
-        k_dir = np.where(vv >= 0.0, params.scale_positive, params.scale_negative)
-        torque = np.tanh(vv / s.velocity_threshold_rad_s) * k_dir * magnitude
-        sat = np.abs(torque) > s.max_torque_nm
-        torque = np.where(sat, np.copysign(s.max_torque_nm, torque), torque)
-        torque = np.where(zero, 0.0, torque)
-        comps = [np.where(zero, 0.0, 1e-3 * x) for x in (m_r, m_s, m_l)]
-        parts.append((rows, np.full(len(rows), name), vv, tt, torque, *comps, sat & ~zero))
-    if not parts:
-        empty = np.zeros(0)
-        return FeedforwardArrays(np.zeros(0, np.int64), np.zeros(0, str), np.zeros(0, np.int64),
-                                 np.zeros(0, np.int64), empty, empty, empty, empty, empty, empty,
-                                 np.zeros(0, bool))
-    cols = [np.concatenate(c) for c in zip(*parts)]
-    order = np.lexsort((np.concatenate([np.full(len(p[0]), k) for k, p in enumerate(parts)]), cols[0]))
-    rows, joint, vv, tt, torque, m_r, m_s, m_l, sat = (c[order] for c in cols)
-    for name in logic.axes:
-        n_sat = int(sat[joint == name].sum())
-        if n_sat:
-            logic.counters.saturated[name] = logic.counters.saturated.get(name, 0) + n_sat
-    logic.counters.published += int(len(np.unique(rows)))
-    stamps = np.asarray(js.stamp_ns, dtype=np.int64)
-    return FeedforwardArrays(rows.astype(np.int64), joint, stamps[rows], js_log[rows], tt, vv, torque, m_r, m_s,
-                             m_l, sat)
-
-
-def pair_predictions(ff: FeedforwardArrays, est: EstimateResult) -> tuple[NDArray[np.float64], NDArray[np.float64],
-                                                                           NDArray[np.float64], NDArray[np.int64]]:
-    """For each accepted measurement: the feedforward with the same joint and stamp (its joint state).
-
-    Returns predicted torque [N·m], the temperature it used [°C], components (n, 3) [N·m] and the index into
-    ``ff`` (−1 where no feedforward exists; then NaN).
-    """
-    n = len(est)
-    pred = np.full(n, np.nan)
-    temp = np.full(n, np.nan)
-    comps = np.full((n, 3), np.nan)
-    where = np.full(n, -1, dtype=np.int64)
-    for name in np.unique(est.joint):
-        m_sel = np.flatnonzero(est.joint == name)
-        f_sel = np.flatnonzero(ff.joint == name)
-        if not len(f_sel):
-            continue
-        f_stamps = ff.stamp_ns[f_sel]
-        order = np.argsort(f_stamps, kind='stable')
-        sorted_stamps = f_stamps[order]
-        pos = np.searchsorted(sorted_stamps, est.stamp_ns[m_sel])
-        pos = np.clip(pos, 0, len(sorted_stamps) - 1)
-        hit = sorted_stamps[pos] == est.stamp_ns[m_sel]
-        k = f_sel[order[pos[hit]]]
-        rows = m_sel[hit]
-        where[rows] = k
-        pred[rows] = ff.torque_nm[k]
-        temp[rows] = ff.temperature_c[k]
-        comps[rows] = np.column_stack([ff.m_rolling_nm[k], ff.m_sliding_nm[k], ff.m_viscous_nm[k]])
-    return pred, temp, comps, where
-
-
-class _Stream(NamedTuple):
-    """Messages to log, in the order they are produced: topic (index into a topic list), log time, CDR bytes."""
-
-    topic_ids: NDArray[np.int64]
-    log_time_ns: NDArray[np.int64]
-    datas: list[bytes]
-
-
-#: topics of the generated messages, in the order of the ids of :func:`_generated_streams`
+#: the generated topics of the residual log, in id order
 _GENERATED_TOPICS = [(topics.FEEDFORWARD, topics.JOINT_STATE_TYPE), (topics.MEASURED, topics.JOINT_STATE_TYPE),
+                     (topics.MEASURED_DETAIL, topics.FLOAT64_MULTI_ARRAY_TYPE),
                      (topics.RESIDUAL, topics.JOINT_STATE_TYPE),
                      (topics.RESIDUAL_DETAIL, topics.FLOAT64_MULTI_ARRAY_TYPE)]
 _LOG_BATCH = 20000  # messages per write_raw_many call (one progress report each)
 
 
-def _by_joint(joints: NDArray[np.str_], serialize: Callable[[NDArray[np.int64], str], list[bytes]]
-              ) -> list[bytes]:
-    """``serialize(rows, joint)`` per joint (one CDR layout each), put back in the order of ``joints``."""
-    if len(joints) == 0:
-        return []
-    names = np.unique(joints)
-    if len(names) == 1:
-        return serialize(np.arange(len(joints)), str(names[0]))
-    out: list[bytes] = [b''] * len(joints)
-    for name in names.tolist():
-        rows = np.flatnonzero(joints == name)
-        for k, data in zip(rows.tolist(), serialize(rows, name)):
-            out[k] = data
-    return out
+class ReplayResult(NamedTuple):
+    """What :func:`replay_bag` computed and wrote."""
+
+    feedforward: BagTorques            #: what friction_feedforward would have published
+    measurements: MeasurementArrays    #: what friction_estimator would have published
+    rows: ResidualRows                 #: what residual_logger would have logged
+    feedforward_counters: FeedforwardCounters
+    estimator_counters: EstimatorCounters
+    summary: list[dict[str, Any]]      #: per plateau and direction (:func:`plateau_summary`)
+    residual_dir: Path | None
+    messages_in: int
+    messages_out: int
+
+    @property
+    def estimate(self) -> MeasurementArrays:
+        """The accepted samples (old name of :attr:`measurements`)."""
+        return self.measurements
 
 
-def _generated_streams(ff: FeedforwardArrays, est: EstimateResult, pred: NDArray[np.float64],
-                       temp: NDArray[np.float64], comps: NDArray[np.float64], est_log_ns: NDArray[np.int64],
-                       ) -> tuple[_Stream, _Stream]:
-    """The feedforward stream, and the measured / residual / residual_detail stream, each at its input's log time.
-
-    Per joint state: a feedforward JointState (the joint, ``effort`` = feedforward). Per accepted measurement with
-    a paired feedforward, in estimator order: measured and residual JointStates (position, velocity and the
-    measured friction or the residual as ``effort``) and the residual_detail row of :data:`~.topics.RESIDUAL_FIELDS`
-    labelled with the joint. The messages of a joint share one CDR layout and are serialized in bulk.
-    """
-    ff_datas = _by_joint(ff.joint, lambda r, j: split_rows(joint_state_cdr_rows(ff.stamp_ns[r], [j],
-                                                                                effort=ff.torque_nm[r])))
-    ff_stream = _Stream(np.zeros(len(ff_datas), dtype=np.int64), np.asarray(ff.log_time_ns, dtype=np.int64),
-                        ff_datas)
-    ok = np.flatnonzero(np.isfinite(pred))
-    stamp = np.asarray(est.stamp_ns, dtype=np.int64)[ok]
-    pos, vel = est.position_rad[ok], est.velocity_rad_s[ok]
-    meas, pre = est.friction_nm[ok], pred[ok]
-    res = meas - pre
-    detail = np.column_stack([stamp * 1e-9, temp[ok], pos, vel, est.current_a[ok], meas, pre, comps[ok, 0],
-                              comps[ok, 1], comps[ok, 2], res])
-
-    def measured(r: NDArray[np.int64], j: str) -> list[bytes]:
-        out: list[bytes] = [b''] * (3 * len(r))
-        out[0::3] = split_rows(joint_state_cdr_rows(stamp[r], [j], pos[r], vel[r], meas[r]))
-        out[1::3] = split_rows(joint_state_cdr_rows(stamp[r], [j], pos[r], vel[r], res[r]))
-        out[2::3] = split_rows(float64_multi_array_cdr_rows(detail[r], j))
-        return out
-
-    joints = est.joint[ok]
-    names = np.unique(joints).tolist()
-    if len(names) <= 1:
-        m_datas = measured(np.arange(len(ok)), str(names[0]) if names else '')
-    else:  # serialized per joint, put back in measurement order
-        m_datas = [b''] * (3 * len(ok))
-        for name in names:
-            rows = np.flatnonzero(joints == name)
-            datas = measured(rows, str(name))
-            for q, k in enumerate(rows.tolist()):
-                m_datas[3 * k: 3 * k + 3] = datas[3 * q: 3 * q + 3]
-    m_stream = _Stream(np.tile(np.arange(1, 4, dtype=np.int64), len(ok)), np.repeat(est_log_ns[ok], 3), m_datas)
-    return ff_stream, m_stream
+def node_settings(config_paths: Sequence[Path] = ()) -> tuple[dict[str, AxisParams], FeedforwardSettings,
+                                                               EstimatorSettings]:
+    """The axes and the settings the three nodes would load from the same parameter files."""
+    paths = list(config_paths)
+    axes = all_axis_params(load_parameters(paths))
+    ff = settings_from_parameters(FeedforwardSettings, load_parameters(paths, node_name='friction_feedforward'))
+    est = settings_from_parameters(EstimatorSettings, load_parameters(paths, node_name='friction_estimator'))
+    return axes, ff, est
 
 
-def _merge_order(keys: Sequence[NDArray[np.int64]]) -> NDArray[np.int64]:
-    """The order in which ``heapq.merge`` (key = log time, ties: earlier stream first) yields the streams.
-
-    Returns indexes into the concatenated streams. Streams sorted by log time (the usual case): a stable sort.
-    Otherwise ``heapq.merge`` itself is run on the keys, so the order is the same as that of the per-message code
-    for any input.
-    """
-    offsets = np.cumsum([0] + [len(k) for k in keys])
-    flat = np.concatenate([np.asarray(k, dtype=np.int64) for k in keys]) if keys else np.zeros(0, np.int64)
-    if all(len(k) < 2 or bool(np.all(np.diff(k) >= 0)) for k in keys):
-        return np.argsort(flat, kind='stable')
-    streams = [zip(k.tolist(), range(int(o), int(o) + len(k))) for k, o in zip(keys, offsets)]
-    return np.fromiter(map(operator.itemgetter(1), heapq.merge(*streams, key=operator.itemgetter(0))),
-                       dtype=np.int64, count=len(flat))
+def replay_arrays(arrays: ChamberArrays, axes: dict[str, AxisParams], ff_settings: FeedforwardSettings,
+                  est_settings: EstimatorSettings) -> tuple[BagTorques, Feedforward, MeasurementArrays,
+                                                            NDArray[np.int64], EstimatorLogic, ResidualRows]:
+    """The three nodes' logic over a bag's arrays: the feedforward, the measurements with the log time that
+    completed each, and the residual rows."""
+    ff_logic = Feedforward(axes, ff_settings)
+    ff = ff_logic.bag_torques(arrays)
+    est_logic = EstimatorLogic(axes, est_settings)
+    measured, measured_log = est_logic.feed_timed(arrays)
+    ff_joint, ff_stamp, ff_torque = _flat_feedforward(ff)
+    predicted = match_predictions(measured.joint, measured.stamp_ns, ff_joint, ff_stamp, ff_torque)
+    return ff, ff_logic, measured, measured_log, est_logic, residual_rows(measured, predicted)
 
 
-class _RawInputs(NamedTuple):
-    """The bag's messages as ``iter_raw`` yields them: topics, and a stream of ids into them."""
-
-    topics: list[tuple[str, str]]
-    stream: _Stream
-
-
-def _read_inputs(bag: ChamberBag, log_inputs: bool) -> tuple[ChamberArrays, _RawInputs | None]:
-    """``bag.read_arrays()`` and, for ``log_inputs``, every raw message (as ``bag.iter_raw()``) in the same pass."""
-    if not log_inputs:
-        return bag.read_arrays(), None
-    # three flat lists (not a tuple per message): nothing new for the garbage collector to traverse
-    ids: list[int] = []
-    logs: list[int] = []
-    datas: list[bytes] = []
-    pairs: dict[tuple[str, str], int] = {}
-    keys: dict[tuple[tuple[str, ...], str], list[int]] = {}
-
-    def sink(contract_topics: Sequence[str], msgtype: str, log_time_ns: int, data: bytes) -> None:
-        key = (tuple(contract_topics), msgtype)
-        topic_ids = keys.get(key)
-        if topic_ids is None:
-            topic_ids = keys[key] = [pairs.setdefault((t, msgtype), len(pairs)) for t in contract_topics]
-        for topic_id in topic_ids:  # a bag topic feeding several contract topics: once per contract topic
-            ids.append(topic_id)
-            logs.append(log_time_ns)
-            datas.append(data)
-
-    arrays = bag.read_arrays(raw_sink=sink)
-    return arrays, _RawInputs(list(pairs), _Stream(np.asarray(ids, dtype=np.int64), np.asarray(logs, dtype=np.int64),
-                                                   datas))
+def _flat_feedforward(ff: BagTorques) -> tuple[NDArray[np.str_], NDArray[np.int64], NDArray[np.float64]]:
+    """(joint, effective stamp, torque) of every joint of every feedforward message."""
+    counts = np.array([len(n) for n in ff.names], dtype=np.int64)
+    joint = np.array([j for names in ff.names for j in names], dtype=str)
+    stamp = np.repeat(effective_time(ff.stamp_ns, ff.log_time_ns), counts)
+    torque = np.concatenate(ff.torques_nm) if ff.torques_nm else np.empty(0)
+    return joint, stamp, torque
 
 
-def replay_bag(bag_path: str | Path, out_dir: str | Path | None, *, config_paths: list[Path] | tuple[Path, ...] = (),
+def replay_bag(bag_path: str | Path, out_dir: str | Path | None, *, config_paths: Sequence[Path] = (),
                topic_map: Mapping[str, str] | None = None, log_inputs: bool = True,
                progress: Progress | None = None) -> ReplayResult:
     """Run the three nodes' logic over a chamber-test bag; write ``out_dir/residuals/`` (if given).
@@ -323,73 +117,125 @@ def replay_bag(bag_path: str | Path, out_dir: str | Path | None, *, config_paths
             progress(stage, frac)
 
     axes, ff_settings, est_settings = node_settings(list(config_paths))
-    bag = open_chamber_bag(bag_path, topic_map)
+    bag = open_chamber_bag(bag_path, dict(topic_map) if topic_map else None)
     report('reading bag', 0.0)
     arrays, raw = _read_inputs(bag, log_inputs and out_dir is not None)
     report('reading bag', 1.0)
-    report('feedforward', 0.0)
-    logic = FeedforwardLogic(axes, ff_settings)
-    ff = feedforward_arrays(logic, arrays)
-    report('feedforward', 1.0)
-    report('estimator', 0.0)
-    est = estimate_arrays(axes, est_settings, arrays)
-    report('estimator', 1.0)
-    report('pairing', 0.0)
-    pred, temp, comps, where = pair_predictions(ff, est)
-    # a measurement is logged when both its joint state and its current have arrived (log time)
-    js_log = dict(zip(np.asarray(arrays.joint_states.stamp_ns).tolist(), arrays.joint_states.log_time_ns.tolist()))
-    est_log = np.array([js_log.get(int(s), 0) for s in est.stamp_ns.tolist()], dtype=np.int64)
-    ok = np.isfinite(pred)
-    summary = plateau_summary(est.temperature_c[ok], est.velocity_rad_s[ok], est.friction_nm[ok], pred[ok],
-                              joint=est.joint[ok].tolist(), bin_c=est_settings.temperature_bin_c,
-                              stamp_s=est.stamp_ns[ok] * 1e-9)
-    report('pairing', 1.0)
+    report('nodes', 0.0)
+    ff, ff_logic, measured, measured_log, est_logic, rows = replay_arrays(arrays, axes, ff_settings, est_settings)
+    report('nodes', 1.0)
+    report('summary', 0.0)
+    t = arrays.temperature
+    t_time = effective_time(np.asarray(t.stamp_ns, dtype=np.int64), np.asarray(t.log_time_ns, dtype=np.int64))
+    steady = steady_temperature(rows.stamp_s, t_time / NS_PER_S, t.temperature_c)
+    summary = plateau_summary(rows.temperature_c, rows.velocity_rad_s, rows.measured_nm, rows.predicted_nm,
+                              joint=rows.joint.tolist(), bin_c=est_settings.temperature_bin_c, steady=steady)
+    report('summary', 1.0)
     messages_out = 0
     residual_dir = None
     if out_dir is not None:
         residual_dir = Path(out_dir) / 'residuals'
-        ts = default_typestore()
-        with ResidualLogWriter(residual_dir, flush_interval_s=None, chunk_size=1 << 20, typestore=ts) as writer:
+        with ResidualLogWriter(residual_dir, flush_interval_s=None, chunk_size=1 << 20,
+                               typestore=default_typestore()) as writer:
             report('writing residual log', 0.0)
-            ids, logs, datas, log_topics = _log_stream(ff, est, pred, temp, comps, est_log, raw)
+            log_topics, ids, logs, datas = _log_stream(ff, measured, measured_log, rows, raw)
             total = len(datas)
             for a in range(0, total, _LOG_BATCH):
                 b = min(a + _LOG_BATCH, total)
                 writer.write_raw_many(log_topics, ids[a:b], logs[a:b], datas[a:b])
                 messages_out = b
-                if b < total:
-                    report('writing residual log', b / total)
+                report('writing residual log', b / total)
         report('writing residual log', 1.0)
-    del where
-    return ReplayResult(ff, est, pred, temp, comps, summary, residual_dir, bag.message_count, messages_out)
+    return ReplayResult(ff, measured, rows, ff_logic.counters, est_logic.counters, summary, residual_dir,
+                        bag.message_count, messages_out)
 
 
-def _log_stream(ff: FeedforwardArrays, est: EstimateResult, pred: NDArray[np.float64], temp: NDArray[np.float64],
-                comps: NDArray[np.float64], est_log: NDArray[np.int64], raw: _RawInputs | None,
-                ) -> tuple[NDArray[np.int64], NDArray[np.int64], list[bytes], list[tuple[str, str]]]:
-    """Every message of the residual log in write order: topic ids, log times [ns], CDR bytes, topics.
+class _RawInputs(NamedTuple):
+    """The bag's input messages as recorded: (topic, msgtype) list, and per message its id, log time, bytes."""
 
-    The order is that of ``heapq.merge(heapq.merge(feedforward, measured), inputs)`` keyed on log time (ties:
-    feedforward, then measured/residual/detail, then inputs), as the live residual logger sees them arrive.
-    """
-    ff_stream, m_stream = _generated_streams(ff, est, pred, temp, comps, est_log)
+    topics: list[tuple[str, str]]
+    ids: NDArray[np.int64]
+    log_time_ns: NDArray[np.int64]
+    datas: list[bytes]
+
+
+def _read_inputs(bag: ChamberBag, log_inputs: bool) -> tuple[ChamberArrays, _RawInputs | None]:
+    """``bag.read_arrays()`` and, for ``log_inputs``, the raw messages of the three input topics (only those: the
+    live logger subscribes to nothing else) in the same pass."""
+    if not log_inputs:
+        return bag.read_arrays(), None
+    ids: list[int] = []
+    logs: list[int] = []
+    datas: list[bytes] = []
+    pairs: dict[tuple[str, str], int] = {}
+
+    def sink(contract_topics: Sequence[str], msgtype: str, log_time_ns: int, data: bytes) -> None:
+        for topic in contract_topics:
+            if topic in topics.CHAMBER_TOPICS:
+                ids.append(pairs.setdefault((topic, msgtype), len(pairs)))
+                logs.append(log_time_ns)
+                datas.append(data)
+
+    arrays = bag.read_arrays(raw_sink=sink)
+    return arrays, _RawInputs(list(pairs), np.asarray(ids, dtype=np.int64), np.asarray(logs, dtype=np.int64),
+                              datas)
+
+
+def _by_layout(keys: list[Any], serialize: Callable[[NDArray[np.int64], Any], list[bytes]]) -> list[bytes]:
+    """``serialize(rows, key)`` per distinct key (one CDR layout each), put back in the order of ``keys``."""
+    out: list[bytes] = [b''] * len(keys)
+    groups: dict[Any, list[int]] = {}
+    for i, key in enumerate(keys):
+        groups.setdefault(key, []).append(i)
+    for key, rows in groups.items():
+        for k, data in zip(rows, serialize(np.asarray(rows, dtype=np.int64), key), strict=True):
+            out[k] = data
+    return out
+
+
+def _log_stream(ff: BagTorques, measured: MeasurementArrays, measured_log: NDArray[np.int64], rows: ResidualRows,
+                raw: _RawInputs | None) -> tuple[list[tuple[str, str]], NDArray[np.int64], NDArray[np.int64],
+                                                 list[bytes]]:
+    """Every message of the residual log in log-time order (ties: feedforward, measurement, its detail, residual,
+    its detail, then inputs): topics, topic ids, log times [ns], CDR bytes."""
+    ff_datas = _by_layout(list(ff.names), lambda r, names: split_rows(joint_state_cdr_rows(
+        ff.stamp_ns[r], list(names), effort=np.vstack([ff.torques_nm[i] for i in r.tolist()]))))
+    n = len(measured)
+    joints = measured.joint.tolist()
+    stamps = np.asarray(measured.stamp_ns, dtype=np.int64)
+    m_detail = detail_matrix(measured)
+    r_detail = rows.matrix()
+
+    def measured_rows(r: NDArray[np.int64], joint: str) -> list[bytes]:
+        out: list[bytes] = [b''] * (4 * r.shape[0])
+        pos, vel = measured.position_rad[r], measured.velocity_rad_s[r]
+        out[0::4] = split_rows(joint_state_cdr_rows(stamps[r], [joint], pos, vel, measured.friction_nm[r]))
+        out[1::4] = split_rows(float64_multi_array_cdr_rows(m_detail[r], joint))
+        out[2::4] = split_rows(joint_state_cdr_rows(stamps[r], [joint], pos, vel, rows.residual_nm[r]))
+        out[3::4] = split_rows(float64_multi_array_cdr_rows(r_detail[r], joint))
+        return out
+
+    m_datas: list[bytes] = [b''] * (4 * n)
+    for joint in sorted(set(joints)):
+        sel = np.flatnonzero(measured.joint == joint)
+        datas = measured_rows(sel, joint)
+        for q, k in enumerate(sel.tolist()):
+            m_datas[4 * k: 4 * k + 4] = datas[4 * q: 4 * q + 4]
     log_topics = list(_GENERATED_TOPICS)
-    streams = [ff_stream, m_stream]
+    ids = [np.zeros(len(ff_datas), dtype=np.int64), np.tile(np.arange(1, 5, dtype=np.int64), n)]
+    logs = [np.asarray(ff.log_time_ns, dtype=np.int64), np.repeat(measured_log, 4)]
+    datas = ff_datas + m_datas
     if raw is not None:
         shift = len(log_topics)
         log_topics += raw.topics
-        streams.append(raw.stream._replace(topic_ids=raw.stream.topic_ids + shift))
-    ids = np.concatenate([x.topic_ids for x in streams])
-    logs = np.concatenate([x.log_time_ns for x in streams])
-    datas = list(itertools.chain.from_iterable(x.datas for x in streams))
-    keys = [x.log_time_ns for x in streams]
-    if all(len(k) < 2 or bool(np.all(np.diff(k) >= 0)) for k in keys):
-        order = np.argsort(logs, kind='stable')
-    else:  # as the nested merges would, even for streams out of log-time order
-        inner = _merge_order(keys[:2])
-        order = inner
-        if len(keys) > 2:
-            outer = _merge_order([logs[inner], keys[2]])
-            order = np.concatenate([inner, np.arange(len(inner), len(logs))])[outer]
-    order_list = order.tolist()
-    return ids[order], logs[order], list(map(datas.__getitem__, order_list)), log_topics
+        ids.append(raw.ids + shift)
+        logs.append(raw.log_time_ns)
+        datas += raw.datas
+    all_ids = np.concatenate(ids)
+    all_logs = np.concatenate(logs)
+    order = np.argsort(all_logs, kind='stable')
+    return log_topics, all_ids[order], all_logs[order], [datas[i] for i in order.tolist()]
+
+
+#: the measured_detail / residual_detail layouts, for readers of this module
+__all__ = ['MEASUREMENT_FIELDS', 'RESIDUAL_FIELDS', 'ReplayResult', 'node_settings', 'replay_arrays', 'replay_bag']

@@ -6,12 +6,15 @@ study. Times are int64 nanoseconds: ``log_time_ns`` is the receive/log time, ``s
 
 from __future__ import annotations
 
+import math
+from collections.abc import Sequence
 from typing import NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ['ChamberArrays', 'JointStateArrays', 'TemperatureArrays']
+__all__ = ['ChamberArrays', 'JointStateArrays', 'MessageCounts', 'TemperatureArrays', 'chamber_arrays',
+           'joint_state_arrays', 'single_message_arrays', 'temperature_arrays']
 
 
 class TemperatureArrays(NamedTuple):
@@ -45,7 +48,7 @@ class JointStateArrays(NamedTuple):
     effort: dict[str, NDArray[np.float64]]
     """Effort per joint name [N*m], or motor current [A] on ``/gimbal/motor_current``."""
 
-    def __len__(self) -> int:
+    def __len__(self) -> int:  # type: ignore[override]
         """Number of messages [-] (not the number of fields)."""
         return int(self.log_time_ns.shape[0])
 
@@ -59,3 +62,109 @@ class ChamberArrays(NamedTuple):
     """``/joint_states`` (position [rad], velocity [rad/s])."""
     motor_current: JointStateArrays
     """``/gimbal/motor_current`` (effort = motor current [A])."""
+
+
+class MessageCounts(NamedTuple):
+    """What :func:`joint_state_arrays` found odd in the messages it was given (the rules of
+    :func:`~gimbal_friction.core.inputs.index_joints`), per configured joint (``'*'``: none named)."""
+
+    mismatch: dict[str, int]    #: messages whose value arrays are not as long as the name array (dropped)
+    duplicate: dict[str, int]   #: repeated entries of a joint (the first one is used)
+
+
+def joint_state_arrays(messages: Sequence[tuple[int, int, Sequence[str], Sequence[float], Sequence[float],
+                                                Sequence[float]]],
+                       fields: tuple[bool, bool, bool] = (True, True, False),
+                       configured: Sequence[str] | None = None) -> tuple[JointStateArrays, MessageCounts]:
+    """JointState messages ``(log_time_ns, stamp_ns, names, position, velocity, effort)`` as arrays.
+
+    ``fields`` says which of position, velocity, effort the reader needs: a message whose needed arrays are not
+    as long as its names is dropped (counted). A joint named twice keeps its first entry (counted). A joint
+    whose needed values are all NaN is "absent" in the arrays.
+    """
+    from gimbal_friction.core.inputs import index_joints
+
+    names: list[str] = []
+    cols: dict[str, list[list[float]]] = {}
+    logs: list[int] = []
+    stamps: list[int] = []
+    mismatch: dict[str, int] = {}
+    duplicate: dict[str, int] = {}
+    kept = 0
+    for log_ns, stamp_ns, msg_names, pos, vel, eff in messages:
+        values = [v for v, need in zip((pos, vel, eff), fields) if need]
+        wanted = list(msg_names) if configured is None else list(configured)
+        idx = index_joints(msg_names, [len(v) for v in values], wanted)
+        if idx.mismatch:
+            named = [j for j in wanted if j in set(msg_names)] or ['*']
+            for j in named:
+                mismatch[j] = mismatch.get(j, 0) + 1
+            continue
+        seen: set[str] = set()
+        for name in msg_names:
+            if name in seen:
+                duplicate[name] = duplicate.get(name, 0) + 1
+            seen.add(name)
+        for name in msg_names:
+            if name not in cols:
+                names.append(name)
+                cols[name] = [[math.nan] * kept, [math.nan] * kept, [math.nan] * kept]
+        first = {name: i for i, name in reversed(list(enumerate(msg_names)))}
+        for name, col in cols.items():
+            i = first.get(name)
+            for f, (field_values, need) in enumerate(zip((pos, vel, eff), fields)):
+                col[f].append(float(field_values[i]) if (i is not None and need and i < len(field_values))
+                              else math.nan)
+        logs.append(int(log_ns))
+        stamps.append(int(stamp_ns))
+        kept += 1
+    arrays = JointStateArrays(
+        np.asarray(logs, dtype=np.int64), np.asarray(stamps, dtype=np.int64), tuple(names),
+        {n: np.asarray(c[0], dtype=np.float64) for n, c in cols.items()},
+        {n: np.asarray(c[1], dtype=np.float64) for n, c in cols.items()},
+        {n: np.asarray(c[2], dtype=np.float64) for n, c in cols.items()})
+    return arrays, MessageCounts(mismatch, duplicate)
+
+
+def temperature_arrays(messages: Sequence[tuple[int, int, float]]) -> TemperatureArrays:
+    """Temperature messages ``(log_time_ns, stamp_ns, temperature_c)`` as arrays."""
+    if not messages:
+        return TemperatureArrays(np.empty(0, np.int64), np.empty(0, np.int64), np.empty(0, np.float64))
+    logs, stamps, values = zip(*messages)
+    return TemperatureArrays(np.asarray(logs, dtype=np.int64), np.asarray(stamps, dtype=np.int64),
+                             np.asarray(values, dtype=np.float64))
+
+
+def chamber_arrays(temperatures: Sequence[tuple[int, int, float]] = (),
+                   joint_states: Sequence[tuple[int, int, Sequence[str], Sequence[float], Sequence[float],
+                                                Sequence[float]]] = (),
+                   currents: Sequence[tuple[int, int, Sequence[str], Sequence[float], Sequence[float],
+                                             Sequence[float]]] = (),
+                   configured: Sequence[str] | None = None) -> tuple[ChamberArrays, MessageCounts, MessageCounts]:
+    """A batch of messages (as a node buffers them) as :class:`ChamberArrays`, with the odd-message counts of the
+    joint states and of the currents (a dropped message is counted for each ``configured`` joint it names, or
+    under ``'*'`` if none)."""
+    js, js_counts = joint_state_arrays(joint_states, (True, True, False), configured)
+    cur, cur_counts = joint_state_arrays(currents, (False, False, True), configured)
+    return ChamberArrays(temperature_arrays(temperatures), js, cur), js_counts, cur_counts
+
+
+def single_message_arrays(kind: str, log_time_ns: int, stamp_ns: int, names: Sequence[str] = (),
+                          position: Sequence[float] = (), velocity: Sequence[float] = (),
+                          effort: Sequence[float] = (), temperature_c: float = math.nan) -> ChamberArrays:
+    """One message as :class:`ChamberArrays` (``kind``: ``temperature``, ``joint_states`` or ``motor_current``);
+    handy in examples and tests.
+
+    >>> a = single_message_arrays('joint_states', 5, 4, ['elevation'], [0.1], [0.2])
+    >>> a.joint_states.velocity['elevation'].tolist(), len(a.motor_current)
+    ([0.2], 0)
+    """
+    msg = (log_time_ns, stamp_ns, list(names), list(position), list(velocity), list(effort))
+    if kind == 'temperature':
+        return chamber_arrays(temperatures=[(log_time_ns, stamp_ns, temperature_c)])[0]
+    if kind == 'joint_states':
+        return chamber_arrays(joint_states=[msg])[0]
+    if kind == 'motor_current':
+        return chamber_arrays(currents=[msg])[0]
+    msg_text = f'unknown message kind {kind!r}'
+    raise ValueError(msg_text)

@@ -1,28 +1,68 @@
-"""Feedforward logic of ``friction_feedforward`` (pure: no rclpy), shared by the node and the offline replay.
+r"""The feedforward of ``friction_feedforward`` as one object: the node, the offline replay, the closed-loop study
+and a controller in the same process all use :class:`Feedforward` (pure: no rclpy, no I/O).
 
-Torque of a joint = model friction magnitude at the current bearing temperature and speed (the tabulated fast
-path) × a smooth sign of velocity × the direction factor of the joint, clamped to ``max_torque_nm``:
+Torque of a joint = model friction magnitude at the bearing temperature and speed (the tabulated fast path,
+:class:`~gimbal_friction.core.table.FrictionTable`) × a smooth sign of the velocity × the direction factor of the
+joint, clamped to ``max_torque_nm`` (:func:`feedforward_torque_nm`):
 
-    τ = clamp( s(v) · k_dir · M(t, |v|), ±τ_max ),   s(v) = tanh(v / v_th)
+.. math:: \tau = \operatorname{clamp}\left(\tanh(v / v_{th})\; k_{dir}\; M(t, |v|),\ \pm\tau_{max}\right)
 
-``s`` reaches 0.995 at |v| = 3 v_th, so the output does not chatter around zero speed. Inputs that cannot be trusted
-(non-finite or out-of-range temperature, stale temperature, unknown joints, mismatched arrays, non-finite
-velocity) never reach the output: the logic substitutes the documented fallback and counts the reason.
+``tanh`` reaches 0.995 at |v| = 3 v_th, so the output does not chatter around zero speed.
+
+Temperature (the rules of :mod:`gimbal_friction.core.inputs`): the latest valid temperature received is used
+while it is fresh, i.e. while the time of the sample (joint-state stamp; arrival time if the stamp is zero) and the
+time of the temperature differ by at most ``temperature_timeout_s``; otherwise the stale policy decides
+(:func:`temperature_used`): ``hold_last`` keeps the last valid temperature (the fallback temperature before any),
+``fallback_temperature`` uses ``fallback_temperature_c``, ``zero`` outputs 0 N·m. Inputs that cannot be trusted
+(non-finite or out-of-range temperature, unknown or repeated joint names, mismatched arrays, non-finite velocity)
+never reach the output; the reason is counted (:attr:`Feedforward.counters`).
+
+Every rule is written once against the namespace ``xp`` (:mod:`gimbal_friction.core.xp`): on Python floats for a
+message or a controller tick (:meth:`Feedforward.torque_nm`, :meth:`Feedforward.message`, about 2 µs per joint) and
+on numpy arrays for a whole bag (:meth:`Feedforward.bag_torques`).
+
+>>> ff = Feedforward({'elevation': AxisParams()}, FeedforwardSettings())
+>>> ff.update_temperature(-40.0, time_s=0.0) is None
+True
+>>> round(ff.torque_nm('elevation', 0.0349066, time_s=0.01) * 1e3, 3)   # N*mm at 1/3 rpm, -40 degC
+3.143
+>>> round(ff.torque_nm('elevation', -0.0349066, time_s=10.0) * 1e3, 3)  # stale: fallback 20 degC
+-1.046
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
+import numpy as np
+from numpy.typing import NDArray
+
+from gimbal_friction.core.arrays import ChamberArrays
 from gimbal_friction.core.errors import ConfigError
+from gimbal_friction.core.inputs import (
+    J_DUPLICATE,
+    J_MISMATCH,
+    J_NONE,
+    J_UNKNOWN,
+    effective_time,
+    index_joints,
+    is_fresh,
+    temperature_rejection,
+    temperature_valid,
+)
 from gimbal_friction.core.params import AxisParams
 from gimbal_friction.core.settings import setting
-from gimbal_friction.core.table import RPM_PER_RAD_S, FrictionTable
+from gimbal_friction.core.table import FrictionTable
+from gimbal_friction.core.units import NS_PER_S
+from gimbal_friction.core.xp import ARRAY, SCALAR
 
 STALE_POLICIES = ('hold_last', 'fallback_temperature', 'zero')
+#: where the temperature of an output came from (codes of :func:`temperature_used`)
+SOURCE_MEASURED, SOURCE_HOLD_LAST, SOURCE_FALLBACK, SOURCE_ZERO = 0, 1, 2, 3
+SOURCE_NAMES = ('measured', 'hold_last', 'fallback_temperature', 'zero')
+NON_FINITE_VELOCITY = 'non-finite velocity'
 
 
 @dataclass(frozen=True)
@@ -33,7 +73,8 @@ class FeedforwardSettings:
                                               "paper's test speed 1/3 rpm is 0.0349 rad/s")
     max_torque_nm: float = setting(0.02, 'N*m', "output clamp on the torque magnitude (the paper's largest friction is "
                                    '3.2e-3 N*m)')
-    temperature_timeout_s: float = setting(5.0, 's', 'a temperature older than this is stale')
+    temperature_timeout_s: float = setting(5.0, 's', 'a temperature whose stamp differs from the joint-state stamp '
+                                           'by more than this is stale')
     stale_policy: str = setting('fallback_temperature', '-', 'with no fresh valid temperature: hold_last (keep '
                                 'the last valid one), fallback_temperature (use fallback_temperature_c) or zero '
                                 '(publish 0 N*m)')
@@ -46,14 +87,15 @@ class FeedforwardSettings:
     def validate(self) -> None:
         """Raises ConfigError naming the setting and the rule it breaks."""
         checks = [
-            ('velocity_threshold_rad_s', self.velocity_threshold_rad_s > 0.0, 'must be > 0 [rad/s]'),
-            ('max_torque_nm', self.max_torque_nm > 0.0, 'must be > 0 [N*m]'),
-            ('temperature_timeout_s', self.temperature_timeout_s > 0.0, 'must be > 0 [s]'),
+            ('velocity_threshold_rad_s', 1e-6 <= self.velocity_threshold_rad_s <= 10.0,
+             'must lie in [1e-6, 10] [rad/s]'),
+            ('max_torque_nm', 0.0 < self.max_torque_nm <= 100.0, 'must lie in (0, 100] [N*m]'),
+            ('temperature_timeout_s', 0.0 < self.temperature_timeout_s <= 86400.0, 'must lie in (0, 86400] [s]'),
             ('stale_policy', self.stale_policy in STALE_POLICIES, f'must be one of {", ".join(STALE_POLICIES)}'),
-            ('temperature_max_c', self.temperature_max_c > self.temperature_min_c,
-             'must exceed temperature_min_c [degC]'),
             ('temperature_min_c', self.temperature_min_c >= -200.0, 'must be >= -200 [degC]'),
             ('temperature_max_c', self.temperature_max_c <= 400.0, 'must be <= 400 [degC]'),
+            ('temperature_max_c', self.temperature_max_c > self.temperature_min_c,
+             'must exceed temperature_min_c [degC]'),
             ('fallback_temperature_c', self.temperature_min_c <= self.fallback_temperature_c
              <= self.temperature_max_c, 'must lie within [temperature_min_c, temperature_max_c] [degC]'),
             ('table_step_c', 0.001 <= self.table_step_c <= 5.0, 'must lie in [0.001, 5] [degC]'),
@@ -66,191 +108,262 @@ class FeedforwardSettings:
                 raise ConfigError(name, rule, value)
 
 
-class JointTorque(NamedTuple):
-    """Feedforward of one joint."""
-
-    name: str
-    torque_nm: float       #: signed feedforward torque [N·m]
-    magnitude_nm: float    #: model magnitude before sign, direction factor and clamp [N·m]
-    m_rolling_nm: float    #: M_R [N·m]
-    m_sliding_nm: float    #: M_S [N·m]
-    m_viscous_nm: float    #: M_L [N·m]
-    saturated: bool        #: clamped to max_torque_nm
-    valid_velocity: bool   #: False when the velocity was not finite (torque 0)
+# ---------------------------------------------------------------------------------------------------- the rules
+def smooth_sign(velocity_rad_s: Any, v_th: float, xp: Any) -> Any:
+    """``tanh(v / v_th)`` [-], the sign of motion without a discontinuity at zero speed."""
+    return xp.tanh(velocity_rad_s / v_th)
 
 
-class FeedforwardOutput(NamedTuple):
-    """Result of one joint-state message."""
-
-    joints: list[JointTorque]     #: configured joints present in the message, in configured order
-    temperature_c: float | None   #: temperature used (None: zero policy, torque 0)
-    temperature_source: str       #: 'measured', 'hold_last', 'fallback_temperature' or 'zero'
-    in_model_range: bool          #: temperature inside the model table
+def direction_factor(params: AxisParams, velocity_rad_s: Any, xp: Any) -> Any:
+    """Factor on the model magnitude for the direction of motion: ``scale_positive`` for v ≥ 0, else
+    ``scale_negative`` [-]."""
+    return xp.where(velocity_rad_s >= 0.0, params.scale_positive, params.scale_negative)
 
 
+def feedforward_torque_nm(magnitude_nm: Any, velocity_rad_s: Any, k_dir: Any, v_th: float, max_torque_nm: float,
+                          xp: Any) -> Any:
+    """``clamp(tanh(v/v_th) · k_dir · M, ±τ_max)``: the feedforward torque [N·m] from the model magnitude
+    ``magnitude_nm`` [N·m] at velocity ``velocity_rad_s`` [rad/s]."""
+    return xp.clip(smooth_sign(velocity_rad_s, v_th, xp) * k_dir * magnitude_nm, -max_torque_nm, max_torque_nm)
+
+
+def temperature_used(last_c: Any, fresh: Any, settings: FeedforwardSettings, xp: Any) -> tuple[Any, Any]:
+    """The temperature [°C] to use and its source code (``SOURCE_*``), from the latest valid temperature
+    ``last_c`` (NaN: none yet) and whether it is ``fresh``. The ``zero`` policy gives NaN (output 0 N·m)."""
+    s = settings
+    have = last_c == last_c  # not NaN
+    if s.stale_policy == 'hold_last':
+        stale_c = xp.where(have, last_c, s.fallback_temperature_c)
+        stale_source = xp.where(have, SOURCE_HOLD_LAST, SOURCE_FALLBACK)
+    elif s.stale_policy == 'zero':
+        stale_c, stale_source = math.nan, SOURCE_ZERO
+    else:
+        stale_c, stale_source = s.fallback_temperature_c, SOURCE_FALLBACK
+    return xp.where(fresh, last_c, stale_c), xp.where(fresh, SOURCE_MEASURED, stale_source)
+
+
+# ---------------------------------------------------------------------------------------------------- the object
 @dataclass
-class _Counters:
+class FeedforwardCounters:
+    """What happened to the inputs (for ``/diagnostics``)."""
+
     temperature_rejected: dict[str, int] = field(default_factory=dict)
     joint_state_rejected: dict[str, int] = field(default_factory=dict)
     saturated: dict[str, int] = field(default_factory=dict)
     published: int = 0
 
+    def add(self, bucket: dict[str, int], reason: str, n: int = 1) -> None:
+        if n:
+            bucket[reason] = bucket.get(reason, 0) + n
 
-class FeedforwardLogic:
-    """Turns temperature and joint-state inputs into feedforward torques (one instance per node/replay).
+
+class MessageTorques(NamedTuple):
+    """The feedforward of one joint-state message."""
+
+    names: list[str]          #: configured joints present in the message, in configured order
+    torques_nm: list[float]   #: signed feedforward torque of each [N·m]
+    commands_nm: list[float]  #: torque of every configured joint in configured order (0 where absent) [N·m]
+    temperature_c: float      #: temperature used [°C] (NaN: zero policy)
+    source: int               #: SOURCE_* code
+
+
+class BagTorques(NamedTuple):
+    """The feedforward of every joint-state message of a bag (what the node would have published)."""
+
+    msg_index: NDArray[np.int64]      #: joint-state message of each output message
+    names: list[tuple[str, ...]]      #: joints of each output message (configured order)
+    stamp_ns: NDArray[np.int64]       #: header stamp, as received [ns]
+    log_time_ns: NDArray[np.int64]    #: arrival (log) time of the joint state [ns]
+    torques_nm: list[NDArray[np.float64]]  #: per output message, torques of its joints [N·m]
+    commands_nm: NDArray[np.float64]  #: (messages, configured joints) in configured order [N·m]
+    temperature_c: NDArray[np.float64]  #: temperature used per message [°C] (NaN: zero policy)
+    source: NDArray[np.int8]          #: SOURCE_* per message
+
+    def __len__(self) -> int:
+        """Number of output messages [-]."""
+        return int(self.msg_index.shape[0])
+
+
+class Feedforward:
+    """Model-based friction feedforward of the configured joints (the object ``friction_feedforward`` runs).
 
     Parameters
     ----------
     axes : Mapping[str, AxisParams]
-        Configured joints (in order) and their model parameters.
+        Configured joints, in order, and their model parameters.
     settings : FeedforwardSettings
         Validated settings.
+
+    Raises
+    ------
+    ConfigError
+        Invalid settings.
+    ModelDomainError
+        Parameters for which the model cannot be tabulated over the temperature range (the whole model is built
+        and checked here, so a broken model is refused before it is used).
     """
 
-    def __init__(self, axes: Mapping[str, AxisParams], settings: FeedforwardSettings) -> None:
+    def __init__(self, axes: dict[str, AxisParams], settings: FeedforwardSettings) -> None:
         settings.validate()
+        if not axes:
+            raise ConfigError('axes', 'must name at least one joint')
         self.settings = settings
         self.axes = dict(axes)
-        self.tables = {name: self._table(p) for name, p in self.axes.items()}
-        self.counters = _Counters()
-        self.last_temperature_c: float | None = None
-        self.last_temperature_time_s: float | None = None
-        self.last_rejection = ''
+        self.order = tuple(self.axes)
+        s = settings
+        self.tables = {name: FrictionTable(p, s.temperature_min_c, s.temperature_max_c, s.table_step_c)
+                       for name, p in self.axes.items()}
+        self.counters = FeedforwardCounters()
+        self.last_temperature_c = math.nan   #: latest valid temperature [°C] (NaN: none)
+        self.last_temperature_time_s = math.nan  #: its time [s]
 
-    def _table(self, params: AxisParams) -> FrictionTable:
+    def take_state(self, old: Feedforward) -> None:
+        """Continue from ``old`` after a parameter change: its counters and its latest valid temperature (if that
+        is still inside this object's credible range)."""
+        self.counters = old.counters
         s = self.settings
-        return FrictionTable(params, s.temperature_min_c, s.temperature_max_c, s.table_step_c)
+        if s.temperature_min_c <= old.last_temperature_c <= s.temperature_max_c:
+            self.last_temperature_c, self.last_temperature_time_s = old.last_temperature_c, old.last_temperature_time_s
 
-    def update_settings(self, settings: FeedforwardSettings) -> None:
-        """Replace the settings (validated); the tables are rebuilt only if their range or step changed."""
-        settings.validate()
-        old = self.settings
-        self.settings = settings
-        if (old.temperature_min_c, old.temperature_max_c, old.table_step_c) != \
-                (settings.temperature_min_c, settings.temperature_max_c, settings.table_step_c):
-            self.tables = {name: self._table(p) for name, p in self.axes.items()}
-
-    def set_axis_params(self, name: str, params: AxisParams) -> None:
-        """Replace the model of one joint and rebuild its table."""
-        self.axes[name] = params
-        self.tables[name] = self._table(params)
-
-    def _count(self, bucket: dict[str, int], reason: str) -> None:
-        bucket[reason] = bucket.get(reason, 0) + 1
-        self.last_rejection = reason
-
-    # ------------------------------------------------------------------ inputs
-    def update_temperature(self, temperature_c: float, now_s: float) -> str | None:
-        """Accept a bearing temperature [°C] received at ``now_s`` [s]; returns the rejection reason or None."""
+    # ------------------------------------------------------------------ temperature
+    def update_temperature(self, temperature_c: float, time_s: float) -> str | None:
+        """A bearing temperature [°C] of time ``time_s`` [s] (its stamp; the arrival time if the stamp is zero).
+        Returns the rejection reason (counted) or None."""
         s = self.settings
-        reason = None
-        if not math.isfinite(temperature_c):
-            reason = 'non-finite temperature'
-        elif not s.temperature_min_c <= temperature_c <= s.temperature_max_c:
-            reason = 'temperature out of range'
+        reason = temperature_rejection(temperature_c, s.temperature_min_c, s.temperature_max_c)
         if reason is not None:
-            self._count(self.counters.temperature_rejected, reason)
+            self.counters.add(self.counters.temperature_rejected, reason)
             return reason
         self.last_temperature_c = float(temperature_c)
-        self.last_temperature_time_s = now_s
+        self.last_temperature_time_s = float(time_s)
         return None
 
-    def temperature_age_s(self, now_s: float) -> float:
-        """Age of the last valid temperature [s] (inf if none)."""
-        if self.last_temperature_time_s is None:
-            return math.inf
-        return max(now_s - self.last_temperature_time_s, 0.0)
+    def temperature(self, time_s: float) -> tuple[float, int]:
+        """Temperature [°C] to use for a sample of time ``time_s`` [s] (NaN: zero policy) and its source code."""
+        fresh = is_fresh(time_s, self.last_temperature_time_s, self.settings.temperature_timeout_s, SCALAR)
+        t, source = temperature_used(self.last_temperature_c, fresh, self.settings, SCALAR)
+        return float(t), int(source)
 
-    def effective_temperature(self, now_s: float) -> tuple[float | None, str]:
-        """Temperature to use now and where it comes from (measured while fresh, else the stale policy)."""
-        if self.temperature_age_s(now_s) <= self.settings.temperature_timeout_s:
-            return self.last_temperature_c, 'measured'
-        policy = self.settings.stale_policy
-        if policy == 'hold_last' and self.last_temperature_c is not None:
-            return self.last_temperature_c, 'hold_last'
-        if policy == 'zero':
-            return None, 'zero'
-        return self.settings.fallback_temperature_c, 'fallback_temperature'
+    def temperature_age_s(self, time_s: float) -> float:
+        """``time_s`` minus the time of the latest valid temperature [s] (NaN if none)."""
+        return time_s - self.last_temperature_time_s
 
-    def smooth_sign(self, velocity_rad_s: float) -> float:
-        """tanh(v / v_th) [-]."""
-        return math.tanh(velocity_rad_s / self.settings.velocity_threshold_rad_s)
-
-    def joint_torque(self, name: str, velocity_rad_s: float, temperature_c: float | None) -> JointTorque:
-        """Feedforward of one configured joint at ``velocity_rad_s`` [rad/s] and ``temperature_c`` [°C]."""
-        if not math.isfinite(velocity_rad_s):
-            return JointTorque(name, 0.0, 0.0, 0.0, 0.0, 0.0, False, False)
-        if temperature_c is None:
-            return JointTorque(name, 0.0, 0.0, 0.0, 0.0, 0.0, False, True)
-        comp = self.tables[name].components(temperature_c, velocity_rad_s * RPM_PER_RAD_S)
-        magnitude = 1e-3 * comp.m_total_nmm
-        params = self.axes[name]
-        k_dir = params.scale_positive if velocity_rad_s >= 0.0 else params.scale_negative
-        torque = self.smooth_sign(velocity_rad_s) * k_dir * magnitude
-        limit = self.settings.max_torque_nm
-        saturated = abs(torque) > limit
-        if saturated:
-            torque = math.copysign(limit, torque)
-            self.counters.saturated[name] = self.counters.saturated.get(name, 0) + 1
-        return JointTorque(name, torque, magnitude, 1e-3 * comp.m_rolling_nmm, 1e-3 * comp.m_sliding_nmm,
-                           1e-3 * comp.m_viscous_nmm, saturated, True)
-
-    def torques_in_order(self, names: Sequence[str], velocities: Sequence[float],
-                         now_s: float) -> list[float] | None:
-        """Fast path of :meth:`compute` for the common message: exactly the configured joints, in configured order,
-        finite velocities. Returns the torques [N·m] (same numbers and counters as :meth:`compute`), or None when
-        the message is not of that kind (then call :meth:`compute`)."""
-        axes = self.axes
-        if len(names) != len(axes) or len(velocities) != len(names) or list(names) != list(axes):
-            return None
-        temperature, _ = self.effective_temperature(now_s)
-        out = []
-        limit = self.settings.max_torque_nm
-        v_th = self.settings.velocity_threshold_rad_s
-        for name, v in zip(names, velocities):
-            if not math.isfinite(v):
-                return None
-            if temperature is None:
-                out.append(0.0)
-                continue
-            params = axes[name]
-            magnitude = 1e-3 * self.tables[name].components(temperature, v * RPM_PER_RAD_S).m_total_nmm
-            k_dir = params.scale_positive if v >= 0.0 else params.scale_negative
-            torque = math.tanh(v / v_th) * k_dir * magnitude
-            if abs(torque) > limit:
-                torque = math.copysign(limit, torque)
-                self.counters.saturated[name] = self.counters.saturated.get(name, 0) + 1
-            out.append(torque)
-        self.counters.published += 1
-        return out
-
-    def compute(self, names: Sequence[str], velocities: Sequence[float], now_s: float) -> FeedforwardOutput | None:
-        """Feedforward for one joint-state message (``names``, ``velocities`` [rad/s]) at ``now_s`` [s].
-
-        Returns None (and counts the reason) when the message cannot be used: arrays of different length, or
-        none of the configured joints present. Unknown joint names are ignored (counted).
-        """
-        if len(velocities) != len(names):
-            self._count(self.counters.joint_state_rejected, 'velocity/name length mismatch')
-            return None
-        index = {n: i for i, n in enumerate(names)}
-        if any(n not in self.axes for n in names):
-            self._count(self.counters.joint_state_rejected, 'unknown joint name')
-        present = [n for n in self.axes if n in index]
-        if not present:
-            self._count(self.counters.joint_state_rejected, 'no configured joint')
-            return None
-        temperature, source = self.effective_temperature(now_s)
-        joints = [self.joint_torque(n, float(velocities[index[n]]), temperature) for n in present]
-        for j in joints:
-            if not j.valid_velocity:
-                self._count(self.counters.joint_state_rejected, 'non-finite velocity')
+    # ------------------------------------------------------------------ one joint (a controller tick)
+    def torque_at(self, joint: str, velocity_rad_s: float, temperature_c: float) -> float:
+        """Feedforward torque [N·m] of ``joint`` at ``velocity_rad_s`` [rad/s] and ``temperature_c`` [°C] (NaN:
+        zero policy, 0 N·m). Non-finite velocity gives 0 N·m. Counts saturation."""
+        if not (math.isfinite(velocity_rad_s) and temperature_c == temperature_c):
+            return 0.0
         s = self.settings
-        in_range = temperature is not None and s.temperature_min_c <= temperature <= s.temperature_max_c
-        self.counters.published += 1
-        return FeedforwardOutput(joints, temperature, source, in_range)
+        magnitude = self.tables[joint].magnitude_nm(temperature_c, velocity_rad_s, SCALAR)
+        k_dir = direction_factor(self.axes[joint], velocity_rad_s, SCALAR)
+        torque: float = feedforward_torque_nm(magnitude, velocity_rad_s, k_dir, s.velocity_threshold_rad_s,
+                                              s.max_torque_nm, SCALAR)
+        if abs(torque) >= s.max_torque_nm:
+            self.counters.add(self.counters.saturated, joint)
+        return torque
 
-    def command_vector(self, output: FeedforwardOutput) -> list[float]:
-        """Torques [N·m] in configured joint order (0.0 for joints absent from the message)."""
-        by_name = {j.name: j.torque_nm for j in output.joints}
-        return [by_name.get(n, 0.0) for n in self.axes]
+    def torque_nm(self, joint: str, velocity_rad_s: float, time_s: float) -> float:
+        """Feedforward torque [N·m] of ``joint`` for a velocity [rad/s] relative to the base at time ``time_s``
+        [s], with the temperature rules. The in-process controller call (about 2 µs).
+
+        Raises:
+            KeyError: ``joint`` is not configured.
+        """
+        return self.torque_at(joint, velocity_rad_s, self.temperature(time_s)[0])
+
+    # ------------------------------------------------------------------ one message (the node)
+    def message(self, names: list[str], velocities: list[float], time_s: float) -> MessageTorques | None:
+        """The feedforward of one joint-state message (``names``, ``velocities`` [rad/s]) of time ``time_s`` [s]
+        (stamp, or arrival if the stamp is zero). None (reason counted) when the message is unusable."""
+        c = self.counters
+        bucket = c.joint_state_rejected
+        idx = index_joints(names, (len(velocities),), self.order)
+        if idx.mismatch:
+            c.add(bucket, J_MISMATCH)
+            return None
+        c.add(bucket, J_UNKNOWN, idx.unknown)
+        c.add(bucket, J_DUPLICATE, idx.duplicate)
+        temperature, source = self.temperature(time_s)
+        out_names: list[str] = []
+        torques: list[float] = []
+        commands: list[float] = []
+        for joint in self.order:
+            i = idx.position.get(joint)
+            v = float(velocities[i]) if i is not None else math.nan
+            if i is not None and not math.isfinite(v):
+                c.add(bucket, NON_FINITE_VELOCITY)
+            if math.isfinite(v):
+                torque = self.torque_at(joint, v, temperature)
+                out_names.append(joint)
+                torques.append(torque)
+                commands.append(torque)
+            else:
+                commands.append(0.0)
+        if not out_names:
+            c.add(bucket, J_NONE)
+            return None
+        c.published += 1
+        return MessageTorques(out_names, torques, commands, temperature, source)
+
+    # ------------------------------------------------------------------ a whole bag (the offline replay)
+    def bag_torques(self, arrays: ChamberArrays) -> BagTorques:
+        """What the node would publish for every joint-state message of ``arrays`` (messages in log-time order;
+        a temperature logged at the same time as a joint state arrived before it). The same rules as
+        :meth:`message`, evaluated on arrays; counters are updated the same way (a NaN position and velocity
+        means the joint is absent from that message)."""
+        s = self.settings
+        c = self.counters
+        temp, js = arrays.temperature, arrays.joint_states
+        valid, rejected = temperature_valid(temp.temperature_c, s.temperature_min_c, s.temperature_max_c)
+        for reason, n in rejected.items():
+            c.add(c.temperature_rejected, reason, n)
+        t_log = np.asarray(temp.log_time_ns, dtype=np.int64)[valid]
+        t_val = np.asarray(temp.temperature_c, dtype=np.float64)[valid]
+        t_time = effective_time(np.asarray(temp.stamp_ns, dtype=np.int64)[valid], t_log) / NS_PER_S
+        js_log = np.asarray(js.log_time_ns, dtype=np.int64)
+        js_stamp = np.asarray(js.stamp_ns, dtype=np.int64)
+        js_time = effective_time(js_stamp, js_log) / NS_PER_S
+        k = np.searchsorted(t_log, js_log, side='right') - 1
+        have = k >= 0
+        last_c = np.where(have, t_val[np.maximum(k, 0)] if t_val.size else np.nan, np.nan)
+        last_time = np.where(have, t_time[np.maximum(k, 0)] if t_val.size else np.nan, np.nan)
+        fresh = is_fresh(js_time, last_time, s.temperature_timeout_s, ARRAY)
+        t_used, source = temperature_used(last_c, fresh, s, ARRAY)
+        t_used = np.broadcast_to(np.asarray(t_used, dtype=np.float64), js_log.shape)
+        source = np.broadcast_to(np.asarray(source, dtype=np.int8), js_log.shape)
+
+        n_msg = js_log.shape[0]
+        commands = np.zeros((n_msg, len(self.order)))
+        present = np.zeros((n_msg, len(self.order)), dtype=bool)
+        unknown = np.zeros(n_msg, dtype=np.int64)
+        for name in js.names:
+            if name not in self.axes:
+                unknown += ~(np.isnan(js.position[name]) & np.isnan(js.velocity[name]))
+        c.add(c.joint_state_rejected, J_UNKNOWN, int(unknown.sum()))
+        for j, joint in enumerate(self.order):
+            if joint not in js.velocity:
+                continue
+            v = np.asarray(js.velocity[joint], dtype=np.float64)
+            p = np.asarray(js.position[joint], dtype=np.float64)
+            finite = np.isfinite(v)
+            c.add(c.joint_state_rejected, NON_FINITE_VELOCITY, int(np.count_nonzero(~finite & ~np.isnan(p))))
+            rows = np.flatnonzero(finite)
+            vv = v[rows]
+            tt = t_used[rows]
+            zero = np.isnan(tt)
+            magnitude = self.tables[joint].magnitude_nm(np.where(zero, s.fallback_temperature_c, tt), vv, ARRAY)
+            k_dir = direction_factor(self.axes[joint], vv, ARRAY)
+            torque = feedforward_torque_nm(magnitude, vv, k_dir, s.velocity_threshold_rad_s, s.max_torque_nm, ARRAY)
+            torque = np.where(zero, 0.0, torque)
+            c.add(c.saturated, joint, int(np.count_nonzero(np.abs(torque) >= s.max_torque_nm)))
+            commands[rows, j] = torque
+            present[rows, j] = True
+        out = np.flatnonzero(present.any(axis=1))
+        c.add(c.joint_state_rejected, J_NONE, int(n_msg - out.size))
+        c.published += int(out.size)
+        order = np.asarray(self.order)
+        names = [tuple(order[row].tolist()) for row in present[out]]
+        torques = [commands[i][present[i]] for i in out.tolist()]
+        return BagTorques(out.astype(np.int64), names, js_stamp[out], js_log[out], torques, commands[out],
+                          t_used[out], source[out])

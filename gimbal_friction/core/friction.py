@@ -6,9 +6,13 @@ over numpy arrays.
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.integrate import dblquad
+
+from gimbal_friction.core.xp import ARRAY
 
 Array = NDArray[np.float64]
 
@@ -96,7 +100,7 @@ def spin_torque_axial_Eq8(Z: int, M_SI: ArrayLike, M_SO: ArrayLike, alpha: Array
     return Z * np.maximum(np.asarray(M_SI), np.asarray(M_SO)) * np.sin(alpha)
 
 
-def viscous_torque_Palmgren_1959(s0: float, nu0: ArrayLike, n: ArrayLike, d_m: ArrayLike) -> Array:
+def viscous_torque_Palmgren_1959(s0: float, nu0: Any, n: Any, d_m: Any, xp: Any = ARRAY) -> Any:
     """Load-independent viscous friction torque of one bearing, Eq. (9) (Palmgren 1959), [N·mm].
 
     ``M_L = 1e-7 s0 (ν0 n)^(2/3) d_m³`` if ``ν0 n ≥ 2000``, else ``160e-7 s0 d_m³``.
@@ -111,6 +115,13 @@ def viscous_torque_Palmgren_1959(s0: float, nu0: ArrayLike, n: ArrayLike, d_m: A
         Speed, [rpm] (its magnitude is used).
     d_m : array_like
         Pitch diameter, [mm].
+    xp : namespace
+        :data:`~gimbal_friction.core.xp.ARRAY` (default) or :data:`~gimbal_friction.core.xp.SCALAR` (floats).
+
+    Returns
+    -------
+    M_L : ndarray or float
+        Viscous torque of one bearing, [N·mm].
 
     Notes
     -----
@@ -120,9 +131,11 @@ def viscous_torque_Palmgren_1959(s0: float, nu0: ArrayLike, n: ArrayLike, d_m: A
     >>> round(float(viscous_torque_Palmgren_1959(1.917, 44702.0, 1/3, 21.5)), 4)
     1.1536
     """
-    vn = np.asarray(nu0, dtype=float) * np.abs(np.asarray(n, dtype=float))
-    dm3 = np.asarray(d_m, dtype=float) ** 3
-    return np.where(vn >= 2000.0, 1e-7 * s0 * np.cbrt(vn) ** 2 * dm3, 160e-7 * s0 * dm3)
+    if xp is ARRAY:
+        nu0, n, d_m = (np.asarray(x, dtype=float) for x in (nu0, n, d_m))
+    vn = nu0 * xp.abs(n)
+    dm3 = d_m * d_m * d_m
+    return xp.where(vn >= 2000.0, 1e-7 * s0 * xp.cbrt(vn) ** 2 * dm3, 160e-7 * s0 * dm3)
 
 
 def total_torque_Eq10(M_R: ArrayLike, M_S: ArrayLike, M_L: ArrayLike) -> Array:

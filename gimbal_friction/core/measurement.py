@@ -13,7 +13,7 @@ nothing is reconstructed downstream (data travel once). The stamp travels as two
 
 from __future__ import annotations
 
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
@@ -45,6 +45,29 @@ MEASUREMENT_FIELDS = (
 )
 
 
+class Measurement(NamedTuple):
+    """One accepted friction sample (a row of :class:`MeasurementArrays`)."""
+
+    joint: str
+    stamp_ns: int            #: joint-state stamp of the sample [ns]
+    position_rad: float
+    velocity_rad_s: float
+    acceleration_rad_s2: float
+    current_a: float
+    temperature_c: float
+    temperature_fresh: bool
+    friction_nm: float
+    torque_constant_nm_per_a: float
+    no_load_current_a: float
+    inertia_kg_m2: float
+    method: int
+
+    @property
+    def direction(self) -> int:
+        """+1 (positive motion, the paper's CW) or −1."""
+        return 1 if self.velocity_rad_s > 0.0 else -1
+
+
 class MeasurementArrays(NamedTuple):
     """Accepted friction samples as arrays (one entry per sample, in the order they were accepted)."""
 
@@ -62,7 +85,7 @@ class MeasurementArrays(NamedTuple):
     inertia_kg_m2: NDArray[np.float64]     #: J applied [kg·m²] (0: steady state)
     method: NDArray[np.int8]               #: METHOD_STEADY_STATE or METHOD_OBSERVER
 
-    def __len__(self) -> int:
+    def __len__(self) -> int:  # type: ignore[override]
         """Number of samples [-] (not the number of fields)."""
         return int(self.stamp_ns.shape[0])
 
@@ -71,9 +94,15 @@ class MeasurementArrays(NamedTuple):
         """Direction of motion of each sample: +1 (positive, the paper's CW) or −1."""
         return np.where(self.velocity_rad_s > 0.0, 1, -1).astype(np.int8)
 
+    def records(self) -> list[Measurement]:
+        """The samples as :class:`Measurement` records (plain Python values)."""
+        cols = [np.asarray(c).tolist() for c in self]
+        return [Measurement(*row) for row in zip(*cols, strict=True)] if len(self) else []
+
     def select(self, index: NDArray[np.intp] | NDArray[np.bool_]) -> MeasurementArrays:
         """The samples at ``index`` (an index or a boolean mask)."""
-        return MeasurementArrays._make(np.asarray(column)[index] for column in self)
+        cols: list[Any] = [np.asarray(column)[index] for column in self]
+        return MeasurementArrays(*cols)
 
     @staticmethod
     def empty() -> MeasurementArrays:
@@ -90,7 +119,8 @@ class MeasurementArrays(NamedTuple):
             return MeasurementArrays.empty()
         if len(parts) == 1:
             return parts[0]
-        return MeasurementArrays._make(np.concatenate(cols) for cols in zip(*parts, strict=True))
+        joined: list[Any] = [np.concatenate(c) for c in zip(*parts, strict=True)]
+        return MeasurementArrays(*joined)
 
 
 def detail_matrix(m: MeasurementArrays) -> NDArray[np.float64]:

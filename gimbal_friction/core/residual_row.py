@@ -21,7 +21,7 @@ components were never used and are dropped.
 
 from __future__ import annotations
 
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
@@ -66,7 +66,7 @@ class ResidualRows(NamedTuple):
     no_load_current_a: NDArray[np.float64]
     method: NDArray[np.int8]
 
-    def __len__(self) -> int:
+    def __len__(self) -> int:  # type: ignore[override]
         """Number of rows [-] (not the number of fields)."""
         return int(self.stamp_s.shape[0])
 
@@ -77,7 +77,8 @@ class ResidualRows(NamedTuple):
 
     def select(self, index: NDArray[np.intp] | NDArray[np.bool_]) -> ResidualRows:
         """The rows at ``index`` (an index or a boolean mask)."""
-        return ResidualRows._make(np.asarray(column)[index] for column in self)
+        cols: list[Any] = [np.asarray(column)[index] for column in self]
+        return ResidualRows(*cols)
 
     @staticmethod
     def concatenate(parts: list[ResidualRows]) -> ResidualRows:
@@ -86,7 +87,8 @@ class ResidualRows(NamedTuple):
             return rows_from_detail(np.empty(0, dtype=str), np.empty((0, len(RESIDUAL_FIELDS))))
         if len(parts) == 1:
             return parts[0]
-        return ResidualRows._make(np.concatenate(cols) for cols in zip(*parts, strict=True))
+        joined: list[Any] = [np.concatenate(c) for c in zip(*parts, strict=True)]
+        return ResidualRows(*joined)
 
 
 def residual_rows(measured: MeasurementArrays, predicted_nm: NDArray[np.float64]) -> ResidualRows:
@@ -121,8 +123,8 @@ def rows_from_detail(joints: NDArray[np.str_] | list[str], data: NDArray[np.floa
         msg = f'{j.shape[0]} joint labels for {d.shape[0]} rows'
         raise ValueError(msg)
     if d.shape[1] == len(RESIDUAL_FIELDS):
-        cols: list[object] = [j, *(d[:, i] for i in range(d.shape[1] - 1)), d[:, -1].astype(np.int8)]
-        return ResidualRows._make(cols)
+        cols: list[Any] = [j, *(d[:, i] for i in range(d.shape[1] - 1)), d[:, -1].astype(np.int8)]
+        return ResidualRows(*cols)
     v1 = {name: d[:, i] for i, name in enumerate(RESIDUAL_FIELDS_V1)}
     n = d.shape[0]
     return ResidualRows(j, v1['stamp_s'], v1['temperature_c'], v1['position_rad'], v1['velocity_rad_s'],

@@ -17,7 +17,7 @@ from gimbal_friction.core.errors import ConfigError
 T = TypeVar('T')
 
 
-def setting(default: object, unit: str, description: str) -> object:
+def setting(default: Any, unit: str, description: str) -> Any:
     """A settings field with its unit and description (turned into ROS parameter descriptors by the nodes)."""
     return field(default=default, metadata={'unit': unit, 'description': description})
 

@@ -1,53 +1,70 @@
-"""Tabulated fast path of the model for the nodes: build once (vectorised), evaluate in microseconds.
+"""Tabulated fast path of the model: build once (vectorised), evaluate in about a microsecond.
 
-The contact torques M_R and M_S depend on temperature only (not on speed), so they are tabulated on a uniform
-temperature grid and linearly interpolated. The viscous torque M_L is evaluated exactly at every call from the
-Walther viscosity and Palmgren's Eq. (9), because it is the part that depends on speed.
+The contact torques M_R + M_S depend on temperature only (not on speed), so they are tabulated on a uniform
+temperature grid and linearly interpolated (:func:`interp_uniform`). The viscous torque M_L is evaluated exactly
+at every call from the Walther viscosity (Eq. 20/21) and Palmgren's Eq. (9), because it is the part that depends
+on speed. One method, :meth:`FrictionTable.magnitude_nm`, does it for a Python float (``xp`` = SCALAR: the nodes and
+the in-process controller API) or for numpy arrays (``xp`` = ARRAY: the offline replay and the loop study).
 
 >>> table = FrictionTable(AxisParams())
 >>> round(table.torque_nmm(-40.0, 1.0 / 3.0), 3)
 3.143
+>>> table.magnitude_nm(np.array([-40.0, 20.0]), np.full(2, 0.0349066), ARRAY).round(7).tolist()
+[0.003143, 0.0010457]
 """
 
 from __future__ import annotations
 
 import math
-from typing import NamedTuple
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from gimbal_friction.core.errors import ModelDomainError
 from gimbal_friction.core.friction import viscous_torque_Palmgren_1959
-from gimbal_friction.core.model import friction_torque, viscosity_cst
+from gimbal_friction.core.model import friction_torque
 from gimbal_friction.core.params import AxisParams
+from gimbal_friction.core.thermal import thermal_expansion_Eq11
+from gimbal_friction.core.units import NM_PER_NMM, NMM_PER_NM, RAD_S_PER_RPM, RPM_PER_RAD_S
+from gimbal_friction.core.viscosity import nu_Walther
+from gimbal_friction.core.xp import ARRAY, SCALAR
 
-RPM_PER_RAD_S = 60.0 / (2.0 * math.pi)
+__all__ = ['FrictionTable', 'interp_uniform']
 
 
-class TableComponents(NamedTuple):
-    """Axis torque components [N·mm] and viscosity [cSt] at one (temperature, speed)."""
+def interp_uniform(values: Any, x: Any, x0: float, step: float, n: int, xp: Any) -> Any:
+    """Linear interpolation in ``values`` (``n`` samples at ``x0 + k·step``), ``x`` clamped to the grid.
 
-    m_rolling_nmm: float
-    m_sliding_nmm: float
-    m_viscous_nmm: float
-    m_total_nmm: float
-    viscosity_cst: float
-    in_range: bool
+    ``values`` is a list for ``xp`` = SCALAR, an array for ARRAY.
+
+    >>> interp_uniform([0.0, 10.0, 30.0], 1.5, 0.0, 1.0, 3, SCALAR)
+    20.0
+    """
+    pos = xp.clip((x - x0) / step, 0.0, n - 1.0)
+    i = xp.floor_index(pos, n - 2)
+    w = pos - i
+    lo = xp.take(values, i)
+    return lo + w * (xp.take(values, i + 1) - lo)
 
 
 class FrictionTable:
-    """The model tabulated over ``[t_min, t_max]`` °C at ``step`` °C for one axis.
+    """The model of one axis tabulated over ``[t_min, t_max]`` °C at ``step`` °C.
 
     Parameters
     ----------
     params : AxisParams
         Model parameters of the axis.
     t_min, t_max : float
-        Temperature range of the table, [°C]. Outside it the torque is clamped to the edge value and
-        ``in_range`` is False.
+        Temperature range of the table, [°C]. Outside it the temperature is clamped to the edge.
     step : float
         Grid step, [°C].
+
+    Raises
+    ------
+    ModelDomainError
+        A bad range or step, or parameters for which the model cannot be evaluated over the range (the table is
+        built here, so a model that breaks is refused before it is used).
     """
 
     def __init__(self, params: AxisParams, t_min: float = -60.0, t_max: float = 120.0, step: float = 0.1) -> None:
@@ -55,78 +72,61 @@ class FrictionTable:
             raise ModelDomainError('table range must be finite with t_max > t_min')
         if not (math.isfinite(step) and step > 0.0):
             raise ModelDomainError('table step must be > 0 degC')
+        n = int(round((t_max - t_min) / step)) + 1
+        if n > 1_000_000:
+            raise ModelDomainError(f'table of {n} points is too large; use a coarser step')
         self.params = params
         self.t_min = float(t_min)
         self.step = float(step)
-        n = int(round((t_max - t_min) / step)) + 1
-        self.t_max = self.t_min + (n - 1) * self.step
-        grid = self.t_min + self.step * np.arange(n)
-        result = friction_torque(params, grid, 0.0)
-        self.grid = grid
-        self._m_r: list[float] = result.m_rolling_nmm.tolist()
-        self._m_s: list[float] = result.m_sliding_nmm.tolist()
-        self._n = n
-        # Exact viscosity and Palmgren terms (scalar, pure Python for speed).
-        p = params
-        self._a, self._b, self._c = p.walther_a, p.walther_b, p.viscosity_offset_cst
-        self._kelvin = p.kelvin_offset_k
-        self._improved = p.viscosity_model == 'walther_improved'
-        self._dm0 = p.pitch_diameter_mm
-        self._phi_s = p.steel_cte_per_c
-        self._t_ref = p.reference_temperature_c
-        self._k_l = float(p.bearings_per_axis) * p.palmgren_factor
+        self.n = max(n, 2)
+        self.t_max = self.t_min + (self.n - 1) * self.step
+        self.grid = self.t_min + self.step * np.arange(self.n)
+        contact = friction_torque(params, self.grid, 0.0)
+        m_rs = contact.m_rolling_nmm + contact.m_sliding_nmm
+        self._m_rs = {ARRAY: m_rs, SCALAR: m_rs.tolist()}
+        # the viscous part must be finite over the whole range too (e.g. a Walther constant gone wrong)
+        check = self.magnitude_nm(self.grid, np.full(self.n, 1.0), ARRAY)
+        if not np.all(np.isfinite(check)) or np.any(check < 0.0):
+            raise ModelDomainError('the model gives a non-finite or negative torque in '
+                                   f'[{self.t_min:g}, {self.t_max:g}] degC; check the parameters')
 
-    # ------------------------------------------------------------------ scalar fast path
+    def magnitude_nm(self, t_c: Any, omega_rad_s: Any, xp: Any = SCALAR) -> Any:
+        """Friction torque magnitude of the axis [N·m] at temperature ``t_c`` [°C] (clamped to the table) and
+        angular velocity ``omega_rad_s`` [rad/s] (magnitude used): interpolated M_R + M_S, exact M_L (Eq. 9)."""
+        p = self.params
+        t = xp.clip(t_c, self.t_min, self.t_max)
+        m_rs = interp_uniform(self._m_rs[xp], t, self.t_min, self.step, self.n, xp)
+        nu = nu_Walther(t + p.kelvin_offset_k, p.walther_a, p.walther_b, p.viscosity_offset_cst, p.viscosity_model,
+                        xp)
+        d_m = thermal_expansion_Eq11(p.pitch_diameter_mm, p.steel_cte_per_c, t - p.reference_temperature_c, xp)
+        m_l = p.bearings_per_axis * viscous_torque_Palmgren_1959(p.palmgren_factor, nu, omega_rad_s * RPM_PER_RAD_S,
+                                                                  d_m, xp)
+        return (m_rs + m_l) * NM_PER_NMM
+
     def viscosity_cst(self, t_c: float) -> float:
-        """Kinematic viscosity at ``t_c`` [°C] (exact, Eq. 20/21), [mm²/s]."""
-        x = math.log10(t_c + self._kelvin)
-        if self._improved:
-            x = math.log10(x)
-        return 10.0 ** (10.0 ** (self._a + self._b * x)) - self._c
+        """Kinematic viscosity of the lubricant at ``t_c`` [°C] (Eq. 20/21, exact), [mm²/s]."""
+        p = self.params
+        return float(nu_Walther(t_c + p.kelvin_offset_k, p.walther_a, p.walther_b, p.viscosity_offset_cst,
+                                p.viscosity_model, SCALAR))
 
-    def components(self, t_c: float, speed_rpm: float) -> TableComponents:
-        """Axis torque components at temperature ``t_c`` [°C] and speed ``speed_rpm`` [rpm] (magnitude used)."""
-        pos = (t_c - self.t_min) / self.step
-        in_range = 0.0 <= pos <= self._n - 1
-        if pos <= 0.0:
-            m_r, m_s = self._m_r[0], self._m_s[0]
-            t_eval = self.t_min
-        elif pos >= self._n - 1:
-            m_r, m_s = self._m_r[-1], self._m_s[-1]
-            t_eval = self.t_max
-        else:
-            i = int(pos)
-            w = pos - i
-            m_r = self._m_r[i] + w * (self._m_r[i + 1] - self._m_r[i])
-            m_s = self._m_s[i] + w * (self._m_s[i + 1] - self._m_s[i])
-            t_eval = t_c
-        nu = self.viscosity_cst(t_eval)
-        vn = nu * abs(speed_rpm)
-        dm = self._dm0 * (1.0 + self._phi_s * (t_eval - self._t_ref))
-        factor = vn ** (2.0 / 3.0) if vn >= 2000.0 else 160.0
-        m_l = 1e-7 * self._k_l * factor * dm * dm * dm
-        return TableComponents(m_r, m_s, m_l, m_r + m_s + m_l, nu, in_range)
+    def in_range(self, t_c: float) -> bool:
+        """``t_c`` [°C] lies inside the table."""
+        return self.t_min <= t_c <= self.t_max
 
+    # ------------------------------------------------------------------ conveniences in the paper's units
     def torque_nmm(self, t_c: float, speed_rpm: float) -> float:
-        """Friction torque magnitude of the axis, [N·mm]."""
-        return self.components(t_c, speed_rpm).m_total_nmm
+        """Friction torque magnitude of the axis at ``t_c`` [°C] and ``speed_rpm`` [rpm], [N·mm]."""
+        return float(self.magnitude_nm(t_c, speed_rpm * RAD_S_PER_RPM, SCALAR)) * NMM_PER_NM
 
     def torque_nm(self, t_c: float, omega_rad_s: float) -> float:
-        """Friction torque magnitude of the axis at angular velocity ``omega_rad_s`` [rad/s], [N·m]."""
-        return 1e-3 * self.components(t_c, omega_rad_s * RPM_PER_RAD_S).m_total_nmm
+        """Friction torque magnitude of the axis at ``t_c`` [°C] and ``omega_rad_s`` [rad/s], [N·m]."""
+        return float(self.magnitude_nm(t_c, omega_rad_s, SCALAR))
 
-    # ------------------------------------------------------------------ vectorised
     def evaluate(self, t_c: ArrayLike, speed_rpm: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64],
                                                                         NDArray[np.float64]]:
-        """Vectorised (M_R + M_S, M_L, M) of the axis for arrays of temperature [°C] and speed [rpm], [N·mm].
-
-        Same numbers as :meth:`components` (clamped outside the table).
-        """
+        """Arrays of (M_R + M_S, M_L, M) of the axis [N·mm] at temperatures [°C] and speeds [rpm]."""
         t = np.clip(np.asarray(t_c, dtype=float), self.t_min, self.t_max)
-        n = np.abs(np.asarray(speed_rpm, dtype=float))
-        m_rs = np.interp(t, self.grid, np.add(self._m_r, self._m_s))
-        p = self.params
-        nu = viscosity_cst(p, t)
-        dm = self._dm0 * (1.0 + self._phi_s * (t - self._t_ref))
-        m_l = float(p.bearings_per_axis) * viscous_torque_Palmgren_1959(p.palmgren_factor, nu, n, dm)
-        return m_rs, m_l, m_rs + m_l
+        n = np.asarray(speed_rpm, dtype=float)
+        total = self.magnitude_nm(t, n * RAD_S_PER_RPM, ARRAY) * NMM_PER_NM
+        m_rs = interp_uniform(self._m_rs[ARRAY], t, self.t_min, self.step, self.n, ARRAY)
+        return m_rs, total - m_rs, total

@@ -13,7 +13,7 @@ All functions broadcast over numpy arrays of temperature.
 from __future__ import annotations
 
 import math
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -22,14 +22,24 @@ from scipy.optimize import brentq
 from gimbal_friction.core.errors import ModelDomainError
 from gimbal_friction.core.hertz import load_deflection_constant, reduced_modulus
 from gimbal_friction.core.params import AxisParams
+from gimbal_friction.core.xp import ARRAY
 
 Array = NDArray[np.float64]
 ALPHA_MAX = math.radians(80.0)
 
 
-def thermal_expansion_Eq11(D: ArrayLike, phi: float, dT: ArrayLike) -> Array:
-    """Free thermal expansion of a diameter, Eq. (11): ``D_1 = D (1 + φ ΔT)``, [mm]."""
-    return np.asarray(D, dtype=float) * (1.0 + phi * np.asarray(dT, dtype=float))
+def thermal_expansion_Eq11(D: Any, phi: float, dT: Any, xp: Any = ARRAY) -> Any:
+    """Free thermal expansion of a diameter, Eq. (11): ``D_1 = D (1 + φ ΔT)``, [mm].
+
+    ``D`` [mm], ``phi`` [1/°C], ``dT`` [°C]; arrays (``xp`` = ARRAY, default) or floats (``xp`` = SCALAR).
+
+    >>> from gimbal_friction.core.xp import SCALAR
+    >>> round(thermal_expansion_Eq11(21.5, 11.7e-6, -60.0, SCALAR), 6)
+    21.484907
+    """
+    if xp is ARRAY:
+        return np.asarray(D, dtype=float) * (1.0 + phi * np.asarray(dT, dtype=float))
+    return D * (1.0 + phi * dT)
 
 
 def press_fit_Lame_Eq14(D_m1: ArrayLike, d_O1: ArrayLike, D_I1: ArrayLike, D_L1: ArrayLike, E_S: float,

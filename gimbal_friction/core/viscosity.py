@@ -14,13 +14,14 @@ Worked example, Table 2 of Yu & Shang (2017), Krytox 143AA at 38 °C (experiment
 from __future__ import annotations
 
 import math
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.optimize import least_squares
 
 from gimbal_friction.core.errors import FitError, ModelDomainError
+from gimbal_friction.core.xp import ARRAY
 
 LN10 = math.log(10.0)
 
@@ -39,21 +40,26 @@ TABLE2_FIT2_CST = (11983.82, 337.73, 85.78, 34.65, 31.78, 5.354, 5.240, 1.094)
 TABLE2_ERR2_PCT = (-0.135, -0.668, 0.918, -0.993, -0.688, 1.014, 0.768, -0.540)
 
 
-def _abscissa(T: ArrayLike, model: str) -> NDArray[np.float64]:
+def _abscissa(T: Any, model: str, xp: Any = ARRAY) -> Any:
     """x of the linear Walther relation: log T (Eq. 20) or log log T (Eq. 21)."""
-    T_arr = np.asarray(T, dtype=float)
-    if np.any(~np.isfinite(T_arr)) or np.any(T_arr <= 10.0):
+    if xp is ARRAY:
+        T = np.asarray(T, dtype=float)
+        if np.any(~np.isfinite(T)) or np.any(T <= 10.0):
+            msg = 'viscosity needs a finite absolute temperature above 10 K'
+            raise ModelDomainError(msg)
+    elif not T > 10.0:  # also refuses NaN
         msg = 'viscosity needs a finite absolute temperature above 10 K'
         raise ModelDomainError(msg)
     if model == 'walther':
-        return np.log10(T_arr)
+        return xp.log10(T)
     if model == 'walther_improved':
-        return np.log10(np.log10(T_arr))
+        return xp.log10(xp.log10(T))
     msg = f'unknown viscosity model {model!r}'
     raise ModelDomainError(msg)
 
 
-def nu_Walther(T: ArrayLike, a1: float, b1: float, c1: float, model: str = 'walther_improved') -> NDArray[np.float64]:
+def nu_Walther(T: Any, a1: float, b1: float, c1: float, model: str = 'walther_improved',
+               xp: Any = ARRAY) -> Any:
     r"""Kinematic viscosity from either Walther form, Eq. (20) or Eq. (21) of Yu & Shang (2017).
 
     .. math:: \log\log(\nu + c_1) = a_1 + b_1 x,\quad x = \log T \text{ (Eq. 20)},\ \log\log T \text{ (Eq. 21)}
@@ -68,10 +74,13 @@ def nu_Walther(T: ArrayLike, a1: float, b1: float, c1: float, model: str = 'walt
         Walther offset added to ν, [mm²/s].
     model : str
         ``'walther'`` (Eq. 20) or ``'walther_improved'`` (Eq. 21).
+    xp : namespace
+        :data:`~gimbal_friction.core.xp.ARRAY` (default: arrays in, array out) or
+        :data:`~gimbal_friction.core.xp.SCALAR` (a Python float in and out, the nodes' fast path).
 
     Returns
     -------
-    nu : ndarray
+    nu : ndarray or float
         Kinematic viscosity, [mm²/s] (= cSt).
 
     Notes
@@ -79,8 +88,8 @@ def nu_Walther(T: ArrayLike, a1: float, b1: float, c1: float, model: str = 'walt
     The Krytox 143AA fits of Eq. (22) were made on data from −32 to 204 °C (Table 2); below −32 °C they are
     extrapolations.
     """
-    x = _abscissa(T, model)
-    return np.power(10.0, np.power(10.0, a1 + b1 * x)) - c1
+    x = _abscissa(T, model, xp)
+    return 10.0 ** (10.0 ** (a1 + b1 * x)) - c1
 
 
 def nu_Walther_1931(T: float, a1: float, b1: float, c1: float) -> float:

@@ -9,12 +9,11 @@ is refused with the core's reason and the old value stays.
 from __future__ import annotations
 
 import dataclasses
-import math
 import signal
 import sys
 import threading
-import time
-from typing import Any, Callable, Iterable, Mapping, Sequence, TypeVar
+from collections.abc import Callable, Iterable, Mapping, Sequence
+from typing import Any, TypeVar
 
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
@@ -137,19 +136,16 @@ def field_names(cls: type) -> frozenset[str]:
     return frozenset(f.name for f in dataclasses.fields(cls))  # type: ignore[arg-type]
 
 
-def check_changes(params: Iterable[Parameter], model: ModelParameters,
-                  *groups: tuple[type, Any]) -> list[dict[str, Any]]:
-    """Validate a ``set_parameters`` request: model parameters against every axis, and each group of settings
-    (``(settings class, current settings)``) against its current values. Returns the values split like
-    :func:`split_parameters`.
+def check_changes(params: Iterable[Parameter], *groups: tuple[type, Any]) -> list[dict[str, Any]]:
+    """Validate the settings of a ``set_parameters`` request: each group (``(settings class, current
+    settings)``) against its current values. Returns the values of each group (model parameters are the node's
+    business: it builds and checks the whole new model).
 
     Raises:
         ConfigError: the first invalid value, naming the parameter and the rule it breaks.
     """
-    split = split_parameters(params, *(field_names(cls) for cls, _ in groups))
-    if split[0]:
-        model.current(split[0])
-    for values, (cls, current) in zip(split[1:], groups):
+    split = split_parameters(params, *(field_names(cls) for cls, _ in groups))[1:]
+    for values, (cls, current) in zip(split, groups, strict=True):
         if values:
             settings_from(cls, values, current)
     return split
@@ -218,10 +214,6 @@ def stamp_to_s(stamp: Any) -> float:
     return stamp.sec + 1e-9 * stamp.nanosec
 
 
-def monotonic_s() -> float:
-    return time.monotonic()
-
-
 def run_node(exe: str, factory: Callable[[], Node], args: Sequence[str] | None = None) -> int:
     """Standard ``main``: init, build the node, spin with the EventsExecutor, clean exit on SIGINT/SIGTERM.
 
@@ -232,7 +224,7 @@ def run_node(exe: str, factory: Callable[[], Node], args: Sequence[str] | None =
     argv = list(sys.argv if args is None else args)
     stop = threading.Event()
 
-    def request_stop(signum: int, frame: Any) -> None:  # noqa: ARG001
+    def request_stop(signum: int, frame: Any) -> None:
         stop.set()
 
     previous = {sig: signal.signal(sig, request_stop) for sig in (signal.SIGINT, signal.SIGTERM)}
@@ -257,7 +249,7 @@ def run_node(exe: str, factory: Callable[[], Node], args: Sequence[str] | None =
     except GimbalFrictionError as err:
         print(f'{exe}: error: {err}', file=sys.stderr)
         code = 1
-    except Exception as err:  # noqa: BLE001 - parameter exceptions from rclpy during construction
+    except Exception as err:
         if type(err).__module__.startswith('rclpy') and 'Parameter' in type(err).__name__:
             print(f'{exe}: error: {err}'.splitlines()[0], file=sys.stderr)
             code = 1
@@ -273,8 +265,3 @@ def run_node(exe: str, factory: Callable[[], Node], args: Sequence[str] | None =
         for sig, handler in previous.items():
             signal.signal(sig, handler)
     return code
-
-
-def iter_present(names: Iterable[str], wanted: Iterable[str]) -> list[str]:
-    names_set = set(names)
-    return [w for w in wanted if w in names_set]

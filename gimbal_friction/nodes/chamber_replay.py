@@ -16,7 +16,8 @@ import importlib
 import math
 import sys
 import time
-from typing import Any, Sequence
+from collections.abc import Sequence
+from typing import Any
 
 import rclpy
 from rcl_interfaces.msg import ParameterDescriptor
@@ -115,7 +116,7 @@ def main(args: Sequence[str] | None = None) -> None:
     argv = list(sys.argv if args is None else args)
     try:
         rclpy.init(args=argv)
-    except Exception as err:  # noqa: BLE001 - invalid --ros-args / params file
+    except Exception as err:
         print(f'chamber_replay: error: cannot start: {str(err).splitlines()[0]}', file=sys.stderr)
         sys.exit(1)
     node = None

@@ -1,48 +1,41 @@
-"""``friction_estimator``: measured friction torque from motor current in steady state (paper Eq. 23).
+"""``friction_estimator``: measured friction torque from motor current (paper Eq. 23), in steady state or while
+the gimbal works (observer).
 
 Subscribes ``/gimbal/motor_current`` (sensor_msgs/JointState, effort = armature current [A] per joint),
-``/joint_states`` (position [rad], velocity [rad/s]) and ``/gimbal/temperature`` (sensor_msgs/Temperature, °C,
-``qos_profile_sensor_data``). Each current sample is paired with a joint state by stamp and accepted only in steady
-state (commanded constant speed for a minimum dwell, inside the position window, low acceleration); the rules,
-the rejection reasons and the statistics are those of :mod:`gimbal_friction.core.estimator`, the same code the
-offline ``replay`` runs (``estimate_arrays``), so live and offline give the same numbers.
+``/joint_states`` (position [rad], velocity [rad/s] relative to the base) and ``/gimbal/temperature``
+(sensor_msgs/Temperature, °C, ``qos_profile_sensor_data``). The messages received are handed every
+``batch_period_s`` to :class:`gimbal_friction.core.estimator.EstimatorLogic` — the same code the offline ``replay``
+runs over a whole bag; its result does not depend on the batching, so live and offline give the same numbers. The
+rules (pairing, steady-state and observer acceptance, stamps, rejections, statistics) are in that module.
 
 Publishes:
 
-- ``/gimbal/friction/measured`` (sensor_msgs/JointState), one message per accepted sample:
-  ``header.stamp`` = stamp of the joint state of the pair (so it lines up with the feedforward of that joint
-  state), ``name = [joint]``, ``position = [rad]``, ``velocity = [rad/s]``,
-  ``effort = [friction N·m]``, signed like the motion: ``K_T (I − sign(v) I_0)``. Never NaN.
-- ``/diagnostics`` (diagnostic_msgs/DiagnosticArray, every ``diagnostics_period_s``): one status per joint,
-  ``gimbal_friction/estimator/<joint>`` (hardware_id = joint) with the keys ``accepted``, ``rejected: <reason>``
-  (one key per reason seen, e.g. ``rejected: outside position window``, ``rejected: non-finite``), ``pending``
-  (currents waiting for their joint state), ``last_friction_nm``, ``last_stamp_s``, ``torque_constant_nm_per_a``,
-  ``no_load_current_a``; and one status ``gimbal_friction/estimator`` for the inputs that belong to no joint
-  (``rejected: unknown joint``, ``rejected: length mismatch``, ``rejected_temperature: <reason>``) and the last
-  temperature (``temperature_c``). Level WARN while no sample was accepted or when bad inputs were rejected
-  (reasons other than the steady-state ones), else OK.
+- ``/gimbal/friction/measured`` (sensor_msgs/JointState), one message per accepted sample: ``header.stamp`` =
+  stamp of the joint state of the pair (so it lines up with the feedforward of that joint state), ``name =
+  [joint]``, ``position = [rad]``, ``velocity = [rad/s]``, ``effort = [friction N·m]`` signed like the motion. Never
+  NaN.
+- ``/gimbal/friction/measured_detail`` (std_msgs/Float64MultiArray), one message per accepted sample:
+  ``layout.dim[0].label`` = joint, ``data`` = :data:`gimbal_friction.core.measurement.MEASUREMENT_FIELDS` (stamp sec
+  and nanosec, position, velocity, acceleration, current, temperature used and whether it was fresh, friction, the
+  K_T, I_0 and J applied, and the method: 0 steady state, 1 observer). What the residual logger logs.
+- ``/diagnostics`` (every ``diagnostics_period_s``): one status per joint, ``gimbal_friction/estimator/<joint>``
+  (hardware_id = joint) with ``accepted``, ``rejected: <reason>`` per reason seen, ``pending`` (currents waiting
+  for their joint state), ``last_friction_nm``, ``last_stamp_s``, ``last_method``, ``torque_constant_nm_per_a``,
+  ``no_load_current_a``, ``inertia_kg_m2``; and ``gimbal_friction/estimator`` for inputs that belong to no joint
+  and the temperature. WARN while no sample was accepted or when bad inputs were rejected (not the
+  steady-state/observer verdicts), with the reasons in the message; back to OK once the cause has gone for a
+  diagnostics period.
 - ``/gimbal/friction/statistics`` (diagnostic_msgs/DiagnosticArray, every ``statistics_period_s``): the running
-  statistics, one DiagnosticStatus per (joint, direction, temperature plateau), in joint order, direction −1
-  first, plateau ascending with ``unknown`` last:
+  statistics of the steady-state samples, one DiagnosticStatus per (joint, direction, temperature plateau) named
+  ``gimbal_friction/estimator/statistics/<joint>/<+1|-1>/<plateau_c|unknown>`` with the values ``joint``,
+  ``direction``, ``plateau_c``, ``count``, ``mean_nm``, ``std_nm``, ``ripple_nm``, ``min_position_rad``,
+  ``max_position_rad`` (round-trip decimal strings).
 
-  ==================  ==========================================================================================
-  ``name``            ``gimbal_friction/estimator/statistics/<joint>/<+1|-1>/<plateau_c|unknown>``
-  ``hardware_id``     joint
-  ``level``           OK
-  ``message``         e.g. ``mean 3.93 N*mm, 120 samples``
-  ``values``          ``joint``, ``direction`` (``+1``/``-1``), ``plateau_c`` (°C or ``unknown``: no fresh
-                      temperature), ``count``, ``mean_nm``, ``std_nm`` (sample std), ``ripple_nm`` (peak-to-peak of
-                      the position-binned means), ``min_position_rad``, ``max_position_rad``; numbers as
-                      round-trip decimal strings (``float(value)`` restores them exactly)
-  ==================  ==========================================================================================
-
-  An empty array is published while there is no accepted sample.
-
-Parameters: the model parameters (K_T = ``torque_constant_nm_per_a``, I_0 = ``no_load_current_a``, per joint via
-``axis.<joint>.*``), every field of :class:`~gimbal_friction.core.estimator.EstimatorSettings` and the node's
-``statistics_period_s`` / ``diagnostics_period_s``. ``ros2 param set`` is validated: an invalid value is refused
-with the reason and nothing changes. A change of the estimator settings restarts steady-state detection; a
-change of a joint's K_T or I_0 restarts that joint's statistics.
+Parameters: the model parameters (K_T = ``torque_constant_nm_per_a``, I_0 = ``no_load_current_a``, J =
+``inertia_kg_m2``, per joint via ``axis.<joint>.*``), every field of
+:class:`~gimbal_friction.core.estimator.EstimatorSettings` and the node's periods. ``ros2 param set`` is validated as
+a whole before it succeeds; a change of the estimator settings restarts steady-state detection, a change of a
+joint's K_T or I_0 restarts that joint's statistics.
 """
 
 from __future__ import annotations
@@ -50,7 +43,8 @@ from __future__ import annotations
 import dataclasses
 import math
 import sys
-from typing import Any, Sequence
+from collections.abc import Sequence
+from typing import Any
 
 from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
@@ -58,29 +52,52 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import QoSProfile, qos_profile_sensor_data
 from sensor_msgs.msg import JointState, Temperature
+from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 
+from gimbal_friction.core.arrays import chamber_arrays
 from gimbal_friction.core.errors import ConfigError
-from gimbal_friction.core.estimator import INPUT_REASONS, UNKNOWN_JOINT, EstimatorLogic, EstimatorSettings, \
-    Measurement
-from gimbal_friction.core.feedforward import setting
-from gimbal_friction.nodes._common import OK, WARN, check_changes, declare_settings, diagnostic_array, field_names, \
-    ModelParameters, monotonic_s, parameter_guard, retime, run_node, settings_from, split_parameters, status
+from gimbal_friction.core.estimator import (
+    INPUT_REASONS,
+    UNKNOWN_JOINT,
+    EstimatorLogic,
+    EstimatorSettings,
+)
+from gimbal_friction.core.measurement import MEASUREMENT_FIELDS, METHOD_NAMES, MeasurementArrays, detail_matrix
+from gimbal_friction.core.settings import setting, settings_from
+from gimbal_friction.core.units import NS_PER_S, join_stamp, split_stamp
+from gimbal_friction.nodes._common import (
+    OK,
+    WARN,
+    ModelParameters,
+    declare_settings,
+    diagnostic_array,
+    field_names,
+    parameter_guard,
+    retime,
+    run_node,
+    split_parameters,
+    status,
+)
 from gimbal_friction.recording import topics
 
-#: summary topic of the running statistics (diagnostic_msgs/DiagnosticArray, layout in the module docstring)
-STATISTICS = '/gimbal/friction/statistics'
-_NS = 1_000_000_000
+#: subscription depth: a burst of this many messages is buffered, not dropped
+DEPTH = 1000
+_Msg = tuple[int, int, list[str], list[float], list[float], list[float]]
 
 
 @dataclasses.dataclass(frozen=True)
 class NodeSettings:
     """Node-level parameters of friction_estimator (besides EstimatorSettings and the model)."""
 
+    batch_period_s: float = setting(0.02, 's', 'the messages received are processed together this often (the '
+                                    'result does not depend on it; measurements are published this much later)')
     statistics_period_s: float = setting(2.0, 's', 'period of the statistics summary on '
                                          '/gimbal/friction/statistics')
     diagnostics_period_s: float = setting(1.0, 's', 'period of /diagnostics')
 
     def validate(self) -> None:
+        if not 0.001 <= self.batch_period_s <= 1.0:
+            raise ConfigError('batch_period_s', 'must lie in [0.001, 1] [s]', self.batch_period_s)
         for name in ('statistics_period_s', 'diagnostics_period_s'):
             value = getattr(self, name)
             if not 0.05 <= value <= 3600.0:
@@ -95,12 +112,8 @@ def _num(value: float) -> str:
     return repr(float(value))
 
 
-def _stamp_ns(stamp: Any) -> int:
-    return int(stamp.sec) * _NS + int(stamp.nanosec)
-
-
 class FrictionEstimator(Node):
-    """The estimator node (thin adapter around EstimatorLogic)."""
+    """The estimator node (thin adapter around :class:`EstimatorLogic`)."""
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__('friction_estimator', **kwargs)
@@ -108,119 +121,155 @@ class FrictionEstimator(Node):
         est_settings = declare_settings(self, EstimatorSettings)
         self.settings = declare_settings(self, NodeSettings)
         self.logic = EstimatorLogic(self.model.current(), est_settings)
+        self._candidate: tuple[Any, EstimatorSettings | None, NodeSettings] | None = None
+        self._temps: list[tuple[int, int, float]] = []
+        self._joint_states: list[_Msg] = []
+        self._currents: list[_Msg] = []
+        self._arrival = 0
+        self._bad_since_report: dict[str, int] = {}
+        self._last_counts: dict[str, dict[str, int]] = {}
         self._last_warn: dict[str, float] = {}
-        self.pub_measured = self.create_publisher(JointState, topics.MEASURED, QoSProfile(depth=100))
+        self.pub_measured = self.create_publisher(JointState, topics.MEASURED, QoSProfile(depth=DEPTH))
+        self.pub_detail = self.create_publisher(Float64MultiArray, topics.MEASURED_DETAIL, QoSProfile(depth=DEPTH))
         self.pub_diag = self.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, 10)
-        self.pub_stats = self.create_publisher(DiagnosticArray, STATISTICS, 10)
-        qos = QoSProfile(depth=100)
+        self.pub_stats = self.create_publisher(DiagnosticArray, topics.STATISTICS, 10)
         self.create_subscription(Temperature, topics.TEMPERATURE, self.on_temperature, qos_profile_sensor_data)
-        self.create_subscription(JointState, topics.JOINT_STATES, self.on_joint_state, qos)
-        self.create_subscription(JointState, topics.MOTOR_CURRENT, self.on_current, qos)
+        self.create_subscription(JointState, topics.JOINT_STATES, self.on_joint_state, QoSProfile(depth=DEPTH))
+        self.create_subscription(JointState, topics.MOTOR_CURRENT, self.on_current, QoSProfile(depth=DEPTH))
+        self._batch_timer = self.create_timer(self.settings.batch_period_s, self.process)
         self._diag_timer = self.create_timer(self.settings.diagnostics_period_s, self.publish_diagnostics)
         self._stats_timer = self.create_timer(self.settings.statistics_period_s, self.publish_statistics)
         parameter_guard(self, self._validate_params, self._apply_params)
         kt = ', '.join(f'{j} K_T={p.torque_constant_nm_per_a:g} N*m/A I_0={p.no_load_current_a:g} A'
                        for j, p in self.logic.axes.items())
-        self.get_logger().info(f'friction_estimator: {kt}; speed {est_settings.commanded_speed_rad_s:g} rad/s, '
-                               f'window {math.degrees(est_settings.position_min_rad):g}..'
-                               f'{math.degrees(est_settings.position_max_rad):g} deg')
+        self.get_logger().info(f'friction_estimator ({est_settings.method}): {kt}')
 
     # ------------------------------------------------------------------ parameters
     def _validate_params(self, params: list[Parameter]) -> None:
-        check_changes(params, self.model, (EstimatorSettings, self.logic.settings), (NodeSettings, self.settings))
+        model, est, node = split_parameters(params, _EST_FIELDS, _NODE_FIELDS)
+        axes = self.model.current(model) if model else None
+        est_settings = settings_from(EstimatorSettings, est, self.logic.settings) if est else None
+        if axes is not None or est_settings is not None:  # the whole estimator must build
+            EstimatorLogic(axes or self.logic.axes, est_settings or self.logic.settings)
+        self._candidate = (axes, est_settings, settings_from(NodeSettings, node, self.settings))
 
     def _apply_params(self, params: list[Parameter]) -> None:
-        model, est, node = split_parameters(params, _EST_FIELDS, _NODE_FIELDS)
-        if est:
-            self.logic.update_settings(settings_from(EstimatorSettings, est, self.logic.settings))
+        if self._candidate is None:
+            return
+        axes, est_settings, node_settings = self._candidate
+        self._candidate = None
+        self.process()  # what was received so far is judged with the old parameters
+        if est_settings is not None:
+            self.logic.update_settings(est_settings)
             self.get_logger().info('estimator settings changed: steady-state detection restarted')
-        if node:
-            old = self.settings
-            self.settings = settings_from(NodeSettings, node, old)
-            self._diag_timer = retime(self, self._diag_timer, old.diagnostics_period_s,
-                                      self.settings.diagnostics_period_s, self.publish_diagnostics)
-            self._stats_timer = retime(self, self._stats_timer, old.statistics_period_s,
-                                       self.settings.statistics_period_s, self.publish_statistics)
-        if model:
-            for axis, p in self.model.current().items():
-                old_p = self.logic.axes[axis]
-                if (old_p.torque_constant_nm_per_a, old_p.no_load_current_a) != \
-                        (p.torque_constant_nm_per_a, p.no_load_current_a):
-                    self.get_logger().info(f'{axis}: K_T={p.torque_constant_nm_per_a:g} N*m/A, '
-                                           f'I_0={p.no_load_current_a:g} A; statistics restarted')
+        if axes is not None:
+            for axis, p in axes.items():
                 self.logic.set_axis_params(axis, p)
+        old = self.settings
+        self.settings = node_settings
+        self._batch_timer = retime(self, self._batch_timer, old.batch_period_s, node_settings.batch_period_s,
+                                   self.process)
+        self._diag_timer = retime(self, self._diag_timer, old.diagnostics_period_s,
+                                  node_settings.diagnostics_period_s, self.publish_diagnostics)
+        self._stats_timer = retime(self, self._stats_timer, old.statistics_period_s,
+                                   node_settings.statistics_period_s, self.publish_statistics)
 
-    # ------------------------------------------------------------------ callbacks
-    def _warn(self, key: str, text: str, period_s: float = 5.0) -> None:
-        now = monotonic_s()
-        if now - self._last_warn.get(key, -math.inf) >= period_s:
-            self._last_warn[key] = now
-            self.get_logger().warning(text)
+    # ------------------------------------------------------------------ callbacks: buffer, then process
+    def _arrival_ns(self) -> int:
+        """Receive time [ns], strictly increasing (it orders the messages of a batch)."""
+        now = self.get_clock().now().nanoseconds
+        self._arrival = max(now, self._arrival + 1)
+        return self._arrival
 
     def on_temperature(self, msg: Temperature) -> None:
-        reason = self.logic.on_temperature(float(msg.temperature))
-        if reason is not None:
-            self._warn('temperature', f'temperature {msg.temperature!r} degC rejected: {reason}')
+        self._temps.append((self._arrival_ns(), join_stamp(msg.header.stamp.sec, msg.header.stamp.nanosec),
+                            float(msg.temperature)))
 
     def on_joint_state(self, msg: JointState) -> None:
-        self._publish(self.logic.on_joint_state(_stamp_ns(msg.header.stamp), msg.name, msg.position, msg.velocity))
+        self._joint_states.append((self._arrival_ns(), join_stamp(msg.header.stamp.sec, msg.header.stamp.nanosec),
+                                   list(msg.name), list(msg.position), list(msg.velocity), []))
 
     def on_current(self, msg: JointState) -> None:
-        self._publish(self.logic.on_current(_stamp_ns(msg.header.stamp), msg.name, msg.effort))
+        self._currents.append((self._arrival_ns(), join_stamp(msg.header.stamp.sec, msg.header.stamp.nanosec),
+                               list(msg.name), [], [], list(msg.effort)))
 
-    def _publish(self, measurements: list[Measurement]) -> None:
-        for m in measurements:
-            values = (m.position_rad, m.velocity_rad_s, m.friction_nm)
-            if not all(math.isfinite(x) for x in values):  # pragma: no cover - excluded by the logic
-                self._warn('nan', f'{m.joint}: non-finite measurement not published')
-                continue
+    def process(self) -> None:
+        """Hand the buffered messages to the logic and publish what it accepted."""
+        if not (self._temps or self._joint_states or self._currents):
+            return
+        batch, js_counts, cur_counts = chamber_arrays(self._temps, self._joint_states, self._currents,
+                                                       configured=self.logic.order)
+        self._temps, self._joint_states, self._currents = [], [], []
+        self.logic.count_messages(js_counts)
+        self.logic.count_messages(cur_counts)
+        self._publish(self.logic.feed(batch))
+
+    def _publish(self, m: MeasurementArrays) -> None:
+        if not len(m):
+            return
+        detail = detail_matrix(m)
+        n_fields = len(MEASUREMENT_FIELDS)
+        for k, joint in enumerate(m.joint.tolist()):
+            sec, nanosec = split_stamp(int(m.stamp_ns[k]))
             out = JointState()
-            sec, nanosec = divmod(m.stamp_ns, _NS)
             out.header.stamp = Time(sec=sec, nanosec=nanosec)
-            out.name = [m.joint]
-            out.position = [m.position_rad]
-            out.velocity = [m.velocity_rad_s]
-            out.effort = [m.friction_nm]
+            out.name = [joint]
+            out.position = [float(m.position_rad[k])]
+            out.velocity = [float(m.velocity_rad_s[k])]
+            out.effort = [float(m.friction_nm[k])]
             self.pub_measured.publish(out)
+            d = Float64MultiArray()
+            d.layout.dim = [MultiArrayDimension(label=joint, size=n_fields, stride=n_fields)]
+            d.data = detail[k].tolist()
+            self.pub_detail.publish(d)
 
     # ------------------------------------------------------------------ diagnostics and statistics
     def publish_diagnostics(self) -> None:
         logic = self.logic
         counters = logic.counters
         statuses = []
-        for axis in logic.order:
-            accepted = counters.accepted.get(axis, 0)
+        for axis in [*logic.order, UNKNOWN_JOINT]:
             rejected = counters.rejected.get(axis, {})
-            last = logic.last_measurement(axis)
-            params = logic.axes[axis]
-            values: dict[str, Any] = {
-                'accepted': accepted,
-                'pending': logic.pending(axis),
-                'last_friction_nm': last.friction_nm if last is not None else 'none',
-                'last_stamp_s': f'{last.stamp_ns / _NS:.9f}' if last is not None else 'none',
-                'torque_constant_nm_per_a': float(params.torque_constant_nm_per_a),
-                'no_load_current_a': float(params.no_load_current_a),
-            }
+            previous = self._last_counts.get(axis, {})
+            new_bad = {r: c - previous.get(r, 0) for r, c in rejected.items()
+                       if r in INPUT_REASONS and c > previous.get(r, 0)}
+            self._last_counts[axis] = dict(rejected)
+            problems = []
+            if new_bad:  # only what happened since the last report keeps the status at WARN
+                problems.append('bad inputs rejected: ' + ', '.join(f'{r} {c}x' for r, c in sorted(new_bad.items())))
+            if axis == UNKNOWN_JOINT:
+                values: dict[str, Any] = {
+                    'temperature_c': logic.last_temperature_c if math.isfinite(logic.last_temperature_c) else 'none'}
+                for reason, count in sorted(counters.temperature_rejected.items()):
+                    values[f'rejected_temperature: {reason}'] = count
+                previous_t = self._last_counts.get('temperature', {})
+                new_t = {r: c - previous_t.get(r, 0) for r, c in counters.temperature_rejected.items()
+                         if c > previous_t.get(r, 0)}
+                self._last_counts['temperature'] = dict(counters.temperature_rejected)
+                if new_t:
+                    problems.append('temperatures rejected: ' + ', '.join(f'{r} {c}x' for r, c in sorted(new_t.items())))
+                name, hw = 'gimbal_friction/estimator', ''
+            else:
+                accepted = counters.accepted.get(axis, 0)
+                last = logic.last.get(axis)
+                params = logic.axes[axis]
+                values = {
+                    'accepted': accepted,
+                    'pending': logic.pending(axis),
+                    'last_friction_nm': float(last.friction_nm[0]) if last is not None else 'none',
+                    'last_stamp_s': f'{int(last.stamp_ns[0]) / NS_PER_S:.9f}' if last is not None else 'none',
+                    'last_method': METHOD_NAMES[int(last.method[0])] if last is not None else 'none',
+                    'torque_constant_nm_per_a': float(params.torque_constant_nm_per_a),
+                    'no_load_current_a': float(params.no_load_current_a),
+                    'inertia_kg_m2': float(params.inertia_kg_m2),
+                }
+                if not accepted:
+                    problems.insert(0, 'no sample accepted yet')
+                name, hw = f'gimbal_friction/estimator/{axis}', axis
             for reason, count in sorted(rejected.items()):
                 values[f'rejected: {reason}'] = count
-            bad = {r: c for r, c in rejected.items() if r in INPUT_REASONS}
-            problems = []
-            if not accepted:
-                problems.append('no steady-state sample accepted yet')
-            if bad:
-                problems.append('bad inputs rejected: ' + ', '.join(f'{r} {c}x' for r, c in sorted(bad.items())))
             level = WARN if problems else OK
-            statuses.append(status(f'gimbal_friction/estimator/{axis}', level, '; '.join(problems) or 'ok', axis,
-                                   values))
-        general: dict[str, Any] = {
-            'temperature_c': logic.last_temperature_c if logic.last_temperature_c is not None else 'none'}
-        for reason, count in sorted(counters.rejected.get(UNKNOWN_JOINT, {}).items()):
-            general[f'rejected: {reason}'] = count
-        for reason, count in sorted(counters.temperature_rejected.items()):
-            general[f'rejected_temperature: {reason}'] = count
-        level = WARN if len(general) > 1 else OK
-        statuses.append(status('gimbal_friction/estimator', level,
-                               'inputs rejected (see values)' if level != OK else 'ok', '', general))
+            statuses.append(status(name, level, '; '.join(problems) or 'ok', hw, values))
         self.pub_diag.publish(diagnostic_array(self, statuses))
 
     def publish_statistics(self) -> None:

@@ -4,12 +4,16 @@ Subscribes ``/gimbal/temperature`` (sensor_msgs/Temperature, °C) and ``/joint_s
 optionally ``/gimbal/reference_velocity`` (JointState, velocity [rad/s]) when ``velocity_source`` is ``reference``.
 Publishes, for each joint-state message (optionally rate-limited by ``max_rate_hz``):
 
-- ``/gimbal/friction/feedforward`` (JointState): effort = torque [N·m] the motor must add, sign of motion,
-  stamped with the joint-state stamp that produced it;
-- ``/gimbal/friction/feedforward_commands`` (Float64MultiArray): the same torques in configured joint order;
-- ``/diagnostics`` (1 Hz): per joint, temperature age, model range, saturation, rejected inputs.
+- ``/gimbal/friction/feedforward`` (JointState): effort = torque [N·m] the motor must add, sign of motion, for the
+  configured joints present in the message (configured order), stamped with the joint-state stamp that produced it;
+- ``/gimbal/friction/feedforward_commands`` (Float64MultiArray): the torques of every configured joint in
+  configured order (0 for a joint absent from the message);
+- ``/diagnostics`` (every ``diagnostics_period_s``): per joint, temperature source and age, saturation, rejected
+  inputs.
 
-The physics is :class:`gimbal_friction.core.feedforward.FeedforwardLogic` (the same code the offline replay uses).
+The logic is :class:`gimbal_friction.core.feedforward.Feedforward`, the very object a controller can use in its own
+process and the offline replay runs over a whole bag; the node only converts messages. Times are message stamps
+(the receive time where a stamp is zero), the rule of :mod:`gimbal_friction.core.inputs`.
 """
 
 from __future__ import annotations
@@ -17,7 +21,8 @@ from __future__ import annotations
 import dataclasses
 import math
 import sys
-from typing import Any, Sequence
+from collections.abc import Sequence
+from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.node import Node
@@ -27,13 +32,37 @@ from sensor_msgs.msg import JointState, Temperature
 from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 
 from gimbal_friction.core.errors import ConfigError
-from gimbal_friction.core.feedforward import FeedforwardLogic, FeedforwardSettings, setting
-from gimbal_friction.nodes._common import ERROR, OK, WARN, check_changes, declare_settings, diagnostic_array, \
-    field_names, ModelParameters, monotonic_s, parameter_guard, retime, run_node, settings_from, split_parameters, \
-    status
+from gimbal_friction.core.feedforward import (
+    SOURCE_MEASURED,
+    SOURCE_NAMES,
+    SOURCE_ZERO,
+    Feedforward,
+    FeedforwardSettings,
+)
+from gimbal_friction.core.inputs import effective_time, is_fresh
+from gimbal_friction.core.settings import setting, settings_from
+from gimbal_friction.core.xp import SCALAR
+from gimbal_friction.nodes._common import (
+    ERROR,
+    OK,
+    WARN,
+    ModelParameters,
+    declare_settings,
+    diagnostic_array,
+    field_names,
+    parameter_guard,
+    retime,
+    run_node,
+    split_parameters,
+    stamp_to_s,
+    status,
+)
 from gimbal_friction.recording import topics
 
 VELOCITY_SOURCES = ('measured', 'reference')
+REFERENCE_VELOCITY = '/gimbal/reference_velocity'
+#: subscription depth of the joint states: a burst of this many messages is buffered, not dropped
+JOINT_STATE_DEPTH = 1000
 
 
 @dataclasses.dataclass(frozen=True)
@@ -41,8 +70,9 @@ class NodeSettings:
     """Node-level parameters of friction_feedforward (besides FeedforwardSettings and the model)."""
 
     velocity_source: str = setting('measured', '-', 'velocity used for the torque: measured (joint_states '
-                                   'velocity) or reference (reference_velocity topic)')
-    reference_timeout_s: float = setting(0.5, 's', 'a reference velocity older than this is not used (0 N*m)')
+                                   'velocity, relative to the base) or reference (reference_velocity topic)')
+    reference_timeout_s: float = setting(0.5, 's', 'a reference velocity whose stamp differs from the joint '
+                                         'state\'s by more than this is not used (0 N*m)')
     max_rate_hz: float = setting(0.0, 'Hz', 'publish at most this often; 0 = for every joint-state message')
     diagnostics_period_s: float = setting(1.0, 's', 'period of /diagnostics')
 
@@ -50,10 +80,10 @@ class NodeSettings:
         if self.velocity_source not in VELOCITY_SOURCES:
             raise ConfigError('velocity_source', f'must be one of {", ".join(VELOCITY_SOURCES)}',
                               self.velocity_source)
-        if not self.reference_timeout_s > 0.0:
-            raise ConfigError('reference_timeout_s', 'must be > 0 [s]', self.reference_timeout_s)
-        if not self.max_rate_hz >= 0.0:
-            raise ConfigError('max_rate_hz', 'must be >= 0 [Hz]', self.max_rate_hz)
+        if not 0.0 < self.reference_timeout_s <= 3600.0:
+            raise ConfigError('reference_timeout_s', 'must lie in (0, 3600] [s]', self.reference_timeout_s)
+        if not 0.0 <= self.max_rate_hz <= 1e6:
+            raise ConfigError('max_rate_hz', 'must lie in [0, 1e6] [Hz]', self.max_rate_hz)
         if not 0.05 <= self.diagnostics_period_s <= 60.0:
             raise ConfigError('diagnostics_period_s', 'must lie in [0.05, 60] [s]', self.diagnostics_period_s)
 
@@ -63,30 +93,33 @@ _NODE_FIELDS = field_names(NodeSettings)
 
 
 class FrictionFeedforward(Node):
-    """The feedforward node (thin adapter around FeedforwardLogic)."""
+    """The feedforward node (thin adapter around :class:`Feedforward`)."""
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__('friction_feedforward', **kwargs)
         self.model = ModelParameters(self)
         ff_settings = declare_settings(self, FeedforwardSettings)
         self.settings = declare_settings(self, NodeSettings)
-        self.logic = FeedforwardLogic(self.model.current(), ff_settings)
+        self.ff = Feedforward(self.model.current(), ff_settings)
+        self._candidate: tuple[Feedforward | None, NodeSettings] | None = None
         self._reference: dict[str, tuple[float, float]] = {}
         self._last_publish = -math.inf
+        self._last_time_s = math.nan
+        self._last_source = SOURCE_MEASURED
         self._rate_limited = 0
         self._last_warn: dict[str, float] = {}
-        self._axis_names = list(self.logic.axes)
         self._ff_msg = JointState()
         self._cmd_msg = Float64MultiArray()
-        n_axes = len(self._axis_names)
+        n_axes = len(self.ff.order)
         self._cmd_msg.layout.dim = [MultiArrayDimension(label='joints', size=n_axes, stride=n_axes)]
-        qos = QoSProfile(depth=10)
+        qos = QoSProfile(depth=100)
         self.pub_ff = self.create_publisher(JointState, topics.FEEDFORWARD, qos)
         self.pub_cmd = self.create_publisher(Float64MultiArray, topics.FEEDFORWARD_COMMANDS, qos)
         self.pub_diag = self.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, 10)
         self.create_subscription(Temperature, topics.TEMPERATURE, self.on_temperature, qos_profile_sensor_data)
-        self.create_subscription(JointState, topics.JOINT_STATES, self.on_joint_state, qos)
-        self.create_subscription(JointState, '/gimbal/reference_velocity', self.on_reference, qos)
+        self.create_subscription(JointState, topics.JOINT_STATES, self.on_joint_state,
+                                 QoSProfile(depth=JOINT_STATE_DEPTH))
+        self.create_subscription(JointState, REFERENCE_VELOCITY, self.on_reference, qos)
         self._diag_timer = self.create_timer(self.settings.diagnostics_period_s, self.publish_diagnostics)
         parameter_guard(self, self._validate_params, self._apply_params)
         self.get_logger().info(f'friction_feedforward: joints {", ".join(self.model.axes)}, model table '
@@ -94,33 +127,41 @@ class FrictionFeedforward(Node):
 
     # ------------------------------------------------------------------ parameters
     def _validate_params(self, params: list[Parameter]) -> None:
-        check_changes(params, self.model, (FeedforwardSettings, self.logic.settings), (NodeSettings, self.settings))
+        """Build the whole new feedforward (model tables included) from the proposed values; kept for apply."""
+        model, ff, node = split_parameters(params, _FF_FIELDS, _NODE_FIELDS)
+        axes = self.model.current(model)
+        ff_settings = settings_from(FeedforwardSettings, ff, self.ff.settings)
+        node_settings = settings_from(NodeSettings, node, self.settings)
+        candidate = Feedforward(axes, ff_settings) if (model or ff) else None
+        self._candidate = (candidate, node_settings)
 
     def _apply_params(self, params: list[Parameter]) -> None:
-        model, ff, node = split_parameters(params, _FF_FIELDS, _NODE_FIELDS)
-        if ff:
-            self.logic.update_settings(settings_from(FeedforwardSettings, ff, self.logic.settings))
-        if node:
-            old = self.settings
-            self.settings = settings_from(NodeSettings, node, old)
-            self._diag_timer = retime(self, self._diag_timer, old.diagnostics_period_s,
-                                      self.settings.diagnostics_period_s, self.publish_diagnostics)
-        if model:
-            current = self.model.current()
-            for axis, p in current.items():
-                if self.logic.axes.get(axis) != p:
-                    self.logic.set_axis_params(axis, p)
-                    self.get_logger().info(f'model of {axis} changed: table rebuilt')
+        if self._candidate is None:
+            return
+        candidate, node_settings = self._candidate
+        self._candidate = None
+        if candidate is not None:
+            candidate.take_state(self.ff)
+            self.ff = candidate
+            self.get_logger().info('feedforward rebuilt with the new parameters')
+        old = self.settings
+        self.settings = node_settings
+        self._diag_timer = retime(self, self._diag_timer, old.diagnostics_period_s,
+                                  node_settings.diagnostics_period_s, self.publish_diagnostics)
 
     # ------------------------------------------------------------------ callbacks
+    def _now_s(self) -> float:
+        return self.get_clock().now().nanoseconds * 1e-9
+
     def _warn(self, key: str, text: str, period_s: float = 5.0) -> None:
-        now = monotonic_s()
-        if now - self._last_warn.get(key, -math.inf) >= period_s:
+        now = self._now_s()
+        if not now - self._last_warn.get(key, -math.inf) < period_s:
             self._last_warn[key] = now
             self.get_logger().warning(text)
 
     def on_temperature(self, msg: Temperature) -> None:
-        reason = self.logic.update_temperature(float(msg.temperature), monotonic_s())
+        time_s = effective_time(stamp_to_s(msg.header.stamp), self._now_s())
+        reason = self.ff.update_temperature(float(msg.temperature), time_s)
         if reason is not None:
             self._warn('temperature', f'temperature {msg.temperature!r} degC rejected: {reason}')
 
@@ -128,83 +169,78 @@ class FrictionFeedforward(Node):
         if len(msg.velocity) != len(msg.name):
             self._warn('reference', 'reference_velocity: velocity/name length mismatch, ignored')
             return
-        now = monotonic_s()
-        for name, v in zip(msg.name, msg.velocity):
-            self._reference[name] = (float(v), now)
+        time_s = effective_time(stamp_to_s(msg.header.stamp), self._now_s())
+        seen = set()
+        for name, v in zip(msg.name, msg.velocity, strict=True):
+            if name not in seen:  # the first entry of a joint counts, as for joint states
+                seen.add(name)
+                self._reference[name] = (float(v), time_s)
 
-    def _velocities(self, msg: JointState) -> tuple[list[str], list[float]]:
+    def _velocities(self, msg: JointState, time_s: float) -> list[float]:
         if self.settings.velocity_source == 'measured':
-            return list(msg.name), list(msg.velocity)
-        now = monotonic_s()
+            return list(msg.velocity)
         timeout = self.settings.reference_timeout_s
-        names = list(msg.name)
-        vel = []
-        for n in names:
-            v, t = self._reference.get(n, (math.nan, -math.inf))
-            vel.append(v if now - t <= timeout else 0.0)
-        return names, vel
+        out = []
+        for name in msg.name:
+            v, t = self._reference.get(name, (math.nan, math.nan))
+            out.append(v if is_fresh(time_s, t, timeout, SCALAR) else 0.0)
+        return out
 
     def on_joint_state(self, msg: JointState) -> None:
+        now = self._now_s()
         if self.settings.max_rate_hz > 0.0:
-            now = monotonic_s()
             if now - self._last_publish < 1.0 / self.settings.max_rate_hz:
                 self._rate_limited += 1
                 return
             self._last_publish = now
-        names, velocities = self._velocities(msg)
-        now = monotonic_s()
-        # common case (exactly the configured joints, finite velocities): no intermediate records
-        torques = self.logic.torques_in_order(names, velocities, now)
+        time_s = effective_time(stamp_to_s(msg.header.stamp), now)
+        names = list(msg.name)
+        out = self.ff.message(names, self._velocities(msg, time_s), time_s)
+        self._last_time_s = time_s
+        if out is None:
+            self._warn('joint_state', 'joint_states message not used (see /diagnostics for the reason)')
+            return
+        self._last_source = out.source
         ff, cmd = self._ff_msg, self._cmd_msg
-        if torques is not None:
-            ff.name = self._axis_names
-            commands = torques
-        else:
-            out = self.logic.compute(names, velocities, now)
-            if out is None:
-                self._warn('joint_state', f'joint_states message rejected: {self.logic.last_rejection}')
-                return
-            ff.name = [j.name for j in out.joints]
-            torques = [j.torque_nm for j in out.joints]
-            commands = self.logic.command_vector(out)
         ff.header = msg.header  # the stamp of the joint state that produced it
-        ff.effort = torques
+        ff.name = out.names
+        ff.effort = out.torques_nm
         self.pub_ff.publish(ff)  # messages are serialized on publish, so both are reused
-        cmd.data = commands
+        cmd.data = out.commands_nm
         self.pub_cmd.publish(cmd)
 
     # ------------------------------------------------------------------ diagnostics
     def publish_diagnostics(self) -> None:
-        now = monotonic_s()
-        logic = self.logic
-        age = logic.temperature_age_s(now)
-        temperature, source = logic.effective_temperature(now)
-        s = logic.settings
+        ff = self.ff
+        s = ff.settings
+        c = ff.counters
+        last_time = self._last_time_s if math.isfinite(self._last_time_s) else self._now_s()
+        age = ff.temperature_age_s(last_time)
+        temperature, source = ff.temperature(last_time)
         statuses = []
-        for axis in logic.axes:
+        for axis in ff.order:
             level, problems = OK, []
-            if source != 'measured':
-                level = WARN if source != 'zero' else ERROR
-                problems.append(f'no fresh temperature: {source}')
-            sat = logic.counters.saturated.get(axis, 0)
+            if source != SOURCE_MEASURED:
+                level = ERROR if source == SOURCE_ZERO else WARN
+                problems.append(f'no fresh temperature: {SOURCE_NAMES[source]}')
+            sat = c.saturated.get(axis, 0)
             if sat:
                 level = max(level, WARN)
                 problems.append(f'output saturated {sat}x')
-            values = {
-                'temperature_c': temperature if temperature is not None else 'none',
-                'temperature_source': source,
+            values: dict[str, Any] = {
+                'temperature_c': temperature if math.isfinite(temperature) else 'none',
+                'temperature_source': SOURCE_NAMES[source],
                 'temperature_age_s': age if math.isfinite(age) else 'never',
                 'model_range_c': f'{s.temperature_min_c:g}..{s.temperature_max_c:g}',
-                'in_model_range': temperature is not None and s.temperature_min_c <= temperature <= s.temperature_max_c,
                 'saturated_count': sat,
                 'max_torque_nm': s.max_torque_nm,
-                'published': logic.counters.published,
+                'published': c.published,
                 'rate_limited': self._rate_limited,
             }
-            for reason, count in logic.counters.temperature_rejected.items():
+            for reason, count in c.temperature_rejected.items():
                 values[f'rejected_temperature: {reason}'] = count
                 level = max(level, WARN)
-            for reason, count in logic.counters.joint_state_rejected.items():
+            for reason, count in c.joint_state_rejected.items():
                 values[f'rejected_joint_state: {reason}'] = count
                 level = max(level, WARN)
             if level != OK and not problems:

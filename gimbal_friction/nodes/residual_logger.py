@@ -1,22 +1,28 @@
 """``residual_logger``: logs inputs, predictions, measurements and residuals to MCAP for the viscosity refit.
 
-Subscribes ``/gimbal/temperature``, ``/joint_states``, ``/gimbal/motor_current``, ``/gimbal/friction/feedforward``
-and ``/gimbal/friction/measured``. Every received message is logged as it arrived (raw CDR, log time = receive
-time). Each measured sample is paired with the feedforward of the same stamp (the estimator stamps a measurement
-with the joint-state stamp of its sample, the feedforward node its output with the same stamp) and logged as
+Subscribes ``/gimbal/temperature``, ``/joint_states``, ``/gimbal/motor_current``, ``/gimbal/friction/feedforward``,
+``/gimbal/friction/measured`` and ``/gimbal/friction/measured_detail``. Every received message is logged as it
+arrived (raw CDR, log time = receive time; ``log_inputs``). What the estimator measured arrives complete on
+``measured_detail`` (current, temperature, K_T and I_0 applied, method): nothing is reconstructed here. Each
+measurement is paired with the feedforward published for the same joint and joint-state stamp
+(:func:`gimbal_friction.core.residuals.match_predictions`) and logged as a residual row
+(:func:`gimbal_friction.core.residual_row.residual_rows`):
 
 - ``/gimbal/friction/residual`` (sensor_msgs/JointState): name = [joint], position [rad], velocity [rad/s],
   effort = [measured − predicted] [N·m], stamp = the sample's stamp;
-- ``/gimbal/friction/residual_detail`` (std_msgs/Float64MultiArray): ``layout.dim[0].label`` = joint, data in
-  the order of ``recording.topics.RESIDUAL_FIELDS`` (stamp_s, temperature_c, position_rad, velocity_rad_s,
-  current_a, measured_nm, predicted_nm, m_rolling_nm, m_sliding_nm, m_viscous_nm, residual_nm).
+- ``/gimbal/friction/residual_detail`` (std_msgs/Float64MultiArray): ``layout.dim[0].label`` = joint, data in the
+  order of :data:`gimbal_friction.core.residual_row.RESIDUAL_FIELDS`.
+
+A measurement whose feedforward has not arrived after ``pairing_timeout_s`` is logged with the prediction NaN
+(counted ``no_feedforward``: the sample is still good for the refit). A value that is not finite or not credible
+(|torque| above 100 N·m) is not logged (counted ``refused``).
 
 Files: ``output_dir/residuals_<n>.mcap`` (ROS 2 profile, CDR, standard types only), flushed every
 ``flush_period_s`` in small chunks, rotated by ``max_file_mb`` / ``max_file_duration_s``, closed with footer and
-``metadata.yaml`` on SIGINT/SIGTERM. If ``output_dir`` already holds a log, a timestamped sub-folder is used.
-A write error (full disk, unwritable folder) is reported on ``/diagnostics`` (ERROR) and retried every
-``retry_period_s``; the node stays up. ``/diagnostics`` also carries messages logged, bytes, current file and the
-residual RMS per axis and temperature bin.
+``metadata.yaml`` on SIGINT/SIGTERM. If ``output_dir`` already holds a log, a timestamped sub-folder is used. A write
+error (full disk, unwritable folder) is reported on ``/diagnostics`` (ERROR) and retried every ``retry_period_s``;
+the node stays up. ``/diagnostics`` also carries messages logged, bytes, current file and the residual RMS per axis
+and temperature bin.
 """
 
 from __future__ import annotations
@@ -25,24 +31,48 @@ import dataclasses
 import math
 import sys
 import time
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any
 
+import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.node import Node
 from rclpy.parameter import Parameter
-from rclpy.qos import qos_profile_sensor_data
-from rclpy.serialization import deserialize_message, serialize_message
+from rclpy.qos import QoSProfile, qos_profile_sensor_data
+from rclpy.serialization import deserialize_message
 from sensor_msgs.msg import JointState, Temperature
-from std_msgs.msg import Float64MultiArray, MultiArrayDimension
+from std_msgs.msg import Float64MultiArray
 
 from gimbal_friction.core.errors import ConfigError, GimbalFrictionError
-from gimbal_friction.core.feedforward import FeedforwardLogic, FeedforwardSettings, setting
-from gimbal_friction.core.residuals import ResidualPairing, ResidualRecord, ResidualStats
-from gimbal_friction.nodes._common import retime, ERROR, OK, WARN, check_changes, declare_settings, diagnostic_array, \
-    field_names, ModelParameters, monotonic_s, parameter_guard, run_node, settings_from, split_parameters, status
+from gimbal_friction.core.inputs import effective_time
+from gimbal_friction.core.measurement import MEASUREMENT_FIELDS, MeasurementArrays, from_detail
+from gimbal_friction.core.residual_row import ResidualRows, residual_rows
+from gimbal_friction.core.residuals import ResidualStats, credible_rows, match_predictions
+from gimbal_friction.core.settings import setting, settings_from
+from gimbal_friction.core.units import join_stamp
+from gimbal_friction.nodes._common import (
+    ERROR,
+    OK,
+    WARN,
+    check_changes,
+    declare_settings,
+    diagnostic_array,
+    field_names,
+    parameter_guard,
+    retime,
+    run_node,
+    split_parameters,
+    status,
+)
 from gimbal_friction.recording import topics
+from gimbal_friction.recording.cdr import float64_multi_array_cdr_rows, joint_state_cdr_rows, split_rows
 from gimbal_friction.recording.residual_log import ResidualLogWriter, residual_log_files
+
+#: subscription depth: a burst of this many messages is buffered, not dropped
+DEPTH = 1000
+#: feedforward entries kept for pairing [-] (several seconds at 1 kHz with two joints)
+FEEDFORWARD_HORIZON = 16384
 
 
 @dataclasses.dataclass(frozen=True)
@@ -55,10 +85,10 @@ class LoggerSettings:
     chunk_kib: int = setting(64, 'KiB', 'MCAP chunk size; small chunks lose little when the process is killed')
     max_file_mb: float = setting(64.0, 'MB', 'rotate to a new file at this size; 0 = never')
     max_file_duration_s: float = setting(0.0, 's', 'rotate to a new file after this much log time; 0 = never')
-    pairing_timeout_s: float = setting(1.0, 's', 'a measured sample waits this long for its feedforward, then '
-                                       'the logger uses its own prediction')
+    pairing_timeout_s: float = setting(1.0, 's', 'a measurement waits this long for its feedforward, then is '
+                                       'logged without a prediction')
     log_inputs: bool = setting(True, '-', 'also log the raw input topics (temperature, joint states, current, '
-                               'feedforward, measured)')
+                               'feedforward, measured, measured_detail)')
     residual_bin_c: float = setting(5.0, 'degC', 'temperature bin of the residual RMS on /diagnostics')
     retry_period_s: float = setting(5.0, 's', 'after a write error, try a new file this often')
     diagnostics_period_s: float = setting(1.0, 's', 'period of /diagnostics')
@@ -66,49 +96,60 @@ class LoggerSettings:
     def validate(self) -> None:
         if not self.output_dir.strip():
             raise ConfigError('output_dir', 'must be a folder path', self.output_dir)
-        for name in ('flush_period_s', 'pairing_timeout_s', 'residual_bin_c', 'retry_period_s',
-                     'diagnostics_period_s'):
-            if not getattr(self, name) > 0.0:
-                raise ConfigError(name, 'must be > 0', getattr(self, name))
+        for name, hi in (('flush_period_s', 3600.0), ('pairing_timeout_s', 3600.0), ('residual_bin_c', 1000.0),
+                         ('retry_period_s', 3600.0), ('diagnostics_period_s', 3600.0)):
+            if not 0.0 < getattr(self, name) <= hi:
+                raise ConfigError(name, f'must lie in (0, {hi:g}]', getattr(self, name))
         if not 1 <= self.chunk_kib <= 65536:
             raise ConfigError('chunk_kib', 'must lie in [1, 65536] [KiB]', self.chunk_kib)
         for name in ('max_file_mb', 'max_file_duration_s'):
-            if not getattr(self, name) >= 0.0:
-                raise ConfigError(name, 'must be >= 0 (0 = never)', getattr(self, name))
+            if not 0.0 <= getattr(self, name) <= 1e9:
+                raise ConfigError(name, 'must lie in [0, 1e9] (0 = never)', getattr(self, name))
 
 
 _SETTINGS = field_names(LoggerSettings)
-_FF_SETTINGS = field_names(FeedforwardSettings)
 _LIVE = {'pairing_timeout_s', 'residual_bin_c', 'diagnostics_period_s', 'flush_period_s', 'retry_period_s'}
 
 
 class ResidualLogger(Node):
-    """The residual logger node (adapter around ResidualPairing and ResidualLogWriter)."""
+    """The residual logger node (adapter around the core's pairing and rows, and ResidualLogWriter)."""
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__('residual_logger', **kwargs)
-        self.model = ModelParameters(self)
         self.settings = declare_settings(self, LoggerSettings)
-        ff_settings = declare_settings(self, FeedforwardSettings)
-        self.ff = FeedforwardLogic(self.model.current(), ff_settings)
-        self.pairing = ResidualPairing(self.ff, timeout_s=self.settings.pairing_timeout_s)
         self.stats = ResidualStats(self.settings.residual_bin_c)
         self.writer: ResidualLogWriter | None = None
         self.folder: Path | None = None
         self.error: str | None = None
         self.dropped = 0
         self.residuals_logged = 0
+        self.paired = 0
+        self.no_feedforward = 0
+        self.refused: dict[str, int] = {}
         self._last_retry = -math.inf
+        # feedforward ring: joint, effective stamp [ns], torque [N*m]
+        self._ff_joint = np.full(FEEDFORWARD_HORIZON, '', dtype=object)
+        self._ff_stamp = np.zeros(FEEDFORWARD_HORIZON, dtype=np.int64)
+        self._ff_torque = np.full(FEEDFORWARD_HORIZON, np.nan)
+        self._ff_next = 0
+        self._waiting: list[tuple[float, MeasurementArrays]] = []
         self._open_writer()
         self.pub_diag = self.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, 10)
         raw = {'raw': True}
-        self.create_subscription(Temperature, topics.TEMPERATURE, self.on_temperature, qos_profile_sensor_data, **raw)
+        qos = QoSProfile(depth=DEPTH)
+        self.create_subscription(Temperature, topics.TEMPERATURE,
+                                 lambda b: self.log_raw(topics.TEMPERATURE, topics.TEMPERATURE_TYPE, b),
+                                 qos_profile_sensor_data, **raw)
         self.create_subscription(JointState, topics.JOINT_STATES,
-                                 lambda b: self.log_raw(topics.JOINT_STATES, topics.JOINT_STATE_TYPE, b), 100, **raw)
+                                 lambda b: self.log_raw(topics.JOINT_STATES, topics.JOINT_STATE_TYPE, b), qos, **raw)
         self.create_subscription(JointState, topics.MOTOR_CURRENT,
-                                 lambda b: self.log_raw(topics.MOTOR_CURRENT, topics.JOINT_STATE_TYPE, b), 100, **raw)
-        self.create_subscription(JointState, topics.FEEDFORWARD, self.on_feedforward, 100, **raw)
-        self.create_subscription(JointState, topics.MEASURED, self.on_measured, 100, **raw)
+                                 lambda b: self.log_raw(topics.MOTOR_CURRENT, topics.JOINT_STATE_TYPE, b), qos,
+                                 **raw)
+        self.create_subscription(JointState, topics.MEASURED,
+                                 lambda b: self.log_raw(topics.MEASURED, topics.JOINT_STATE_TYPE, b), qos, **raw)
+        self.create_subscription(JointState, topics.FEEDFORWARD, self.on_feedforward, qos, **raw)
+        self.create_subscription(Float64MultiArray, topics.MEASURED_DETAIL, self.on_measured_detail, qos, **raw)
+        self._pair_timer = self.create_timer(0.05, self.pair)
         self._flush_timer = self.create_timer(self.settings.flush_period_s, self.on_flush_timer)
         self._diag_timer = self.create_timer(self.settings.diagnostics_period_s, self.publish_diagnostics)
         parameter_guard(self, self._validate_params, self._apply_params)
@@ -157,13 +198,12 @@ class ResidualLogger(Node):
                 writer.close()
             except GimbalFrictionError:
                 pass
-        self._last_retry = monotonic_s()
+        self._last_retry = time.monotonic()
 
     def close(self) -> None:
         """Finish the log (footer, metadata.yaml); called on shutdown by run_node."""
         if self.writer is not None:
-            for rec in self.pairing.expire(math.inf):
-                self.log_record(rec)
+            self.pair(final=True)
             try:
                 self.writer.close()
                 # the ROS context may already be shut down here (SIGINT): report on stderr
@@ -175,71 +215,102 @@ class ResidualLogger(Node):
 
     # ------------------------------------------------------------------ callbacks
     def _now_ns(self) -> int:
-        return self.get_clock().now().nanoseconds
+        return int(self.get_clock().now().nanoseconds)
+
+    def _refuse(self, reason: str, n: int = 1) -> None:
+        self.refused[reason] = self.refused.get(reason, 0) + n
 
     def log_raw(self, topic: str, msgtype: str, data: bytes) -> None:
         if self.settings.log_inputs:
             self._write('write_raw', topic, msgtype, self._now_ns(), data)
 
-    def on_temperature(self, data: bytes) -> None:
-        self.log_raw(topics.TEMPERATURE, topics.TEMPERATURE_TYPE, data)
-        msg = deserialize_message(data, Temperature)
-        self.ff.update_temperature(float(msg.temperature), monotonic_s())
-
     def on_feedforward(self, data: bytes) -> None:
         self.log_raw(topics.FEEDFORWARD, topics.JOINT_STATE_TYPE, data)
-        msg = deserialize_message(data, JointState)
-        stamp = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
-        for rec in self.pairing.on_feedforward(stamp, msg.name, msg.effort):
-            self.log_record(rec)
+        try:
+            msg = deserialize_message(data, JointState)
+        except Exception:
+            self._refuse('undecodable feedforward')
+            return
+        stamp = effective_time(join_stamp(msg.header.stamp.sec, msg.header.stamp.nanosec), self._now_ns())
+        if len(msg.effort) != len(msg.name):
+            self._refuse('feedforward effort/name length mismatch')
+            return
+        for name, effort in zip(msg.name, msg.effort, strict=True):
+            k = self._ff_next % FEEDFORWARD_HORIZON
+            self._ff_joint[k], self._ff_stamp[k], self._ff_torque[k] = name, stamp, float(effort)
+            self._ff_next += 1
 
-    def on_measured(self, data: bytes) -> None:
-        self.log_raw(topics.MEASURED, topics.JOINT_STATE_TYPE, data)
-        msg = deserialize_message(data, JointState)
-        stamp = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
-        for rec in self.pairing.on_measured(stamp, msg.name, msg.position, msg.velocity, msg.effort,
-                                            monotonic_s()):
-            self.log_record(rec)
+    def on_measured_detail(self, data: bytes) -> None:
+        self.log_raw(topics.MEASURED_DETAIL, topics.FLOAT64_MULTI_ARRAY_TYPE, data)
+        try:
+            msg = deserialize_message(data, Float64MultiArray)
+            label = msg.layout.dim[0].label if msg.layout.dim else ''
+            m = from_detail([label], np.asarray(msg.data, dtype=np.float64).reshape(1, len(MEASUREMENT_FIELDS)))
+        except Exception:
+            self._refuse(f'measured_detail not of {len(MEASUREMENT_FIELDS)} values with a joint label')
+            return
+        self._waiting.append((time.monotonic(), m))
 
-    def log_record(self, rec: ResidualRecord) -> None:
+    def pair(self, final: bool = False) -> None:
+        """Pair the waiting measurements with the feedforwards received; log the rows that are complete or have
+        waited long enough."""
+        if not self._waiting:
+            return
+        batch = MeasurementArrays.concatenate([m for _, m in self._waiting])
+        since = np.array([t for t, _ in self._waiting])
+        predicted = match_predictions(batch.joint, batch.stamp_ns, self._ff_joint.astype(str), self._ff_stamp,
+                                      self._ff_torque)
+        waited = time.monotonic() - since >= self.settings.pairing_timeout_s
+        done = ~np.isnan(predicted) | waited | final
+        keep = [w for w, d in zip(self._waiting, done.tolist(), strict=True) if not d]
+        self._waiting = keep
+        idx = np.flatnonzero(done)
+        if idx.size:
+            self.log_rows(residual_rows(batch.select(idx), predicted[idx]))
+
+    def log_rows(self, rows: ResidualRows) -> None:
+        ok = credible_rows(rows)
+        self._refuse('not finite or not credible', int(np.count_nonzero(~ok)))
+        rows = rows.select(ok)
+        n = len(rows)
+        if not n:
+            return
+        paired = int(np.count_nonzero(~np.isnan(rows.predicted_nm)))
+        self.paired += paired
+        self.no_feedforward += n - paired
         now = self._now_ns()
-        res = JointState(name=[rec.joint], position=[rec.position_rad], velocity=[rec.velocity_rad_s],
-                         effort=[rec.residual_nm])
-        res.header.stamp.sec, res.header.stamp.nanosec = divmod(rec.stamp_ns, 1_000_000_000)
-        self._write('write_raw', topics.RESIDUAL, topics.JOINT_STATE_TYPE, now, serialize_message(res))
-        detail = Float64MultiArray()
-        detail.layout.dim = [MultiArrayDimension(label=rec.joint, size=len(topics.RESIDUAL_FIELDS),
-                                                 stride=len(topics.RESIDUAL_FIELDS))]
-        detail.data = rec.detail_values()
-        self._write('write_raw', topics.RESIDUAL_DETAIL, topics.FLOAT64_MULTI_ARRAY_TYPE, now,
-                    serialize_message(detail))
-        self.stats.add(rec)
-        self.residuals_logged += 1
+        stamps = np.round(rows.stamp_s * 1e9).astype(np.int64)
+        detail = rows.matrix()
+        for k, joint in enumerate(rows.joint.tolist()):
+            r = slice(k, k + 1)
+            res = split_rows(joint_state_cdr_rows(stamps[r], [joint], rows.position_rad[r], rows.velocity_rad_s[r],
+                                                  rows.residual_nm[r]))[0]
+            self._write('write_raw', topics.RESIDUAL, topics.JOINT_STATE_TYPE, now, res)
+            det = split_rows(float64_multi_array_cdr_rows(detail[r], joint))[0]
+            self._write('write_raw', topics.RESIDUAL_DETAIL, topics.FLOAT64_MULTI_ARRAY_TYPE, now, det)
+        self.stats.add(rows)
+        self.residuals_logged += n
 
     def on_flush_timer(self) -> None:
-        for rec in self.pairing.expire(monotonic_s()):
-            self.log_record(rec)
         if self.writer is None:
-            if monotonic_s() - self._last_retry >= self.settings.retry_period_s:
-                self._last_retry = monotonic_s()
+            if time.monotonic() - self._last_retry >= self.settings.retry_period_s:
+                self._last_retry = time.monotonic()
                 self._open_writer()
             return
         self._write('flush')
 
     # ------------------------------------------------------------------ parameters
     def _validate_params(self, params: list[Parameter]) -> None:
-        _, own, _ = check_changes(params, self.model, (LoggerSettings, self.settings),
-                                  (FeedforwardSettings, self.ff.settings))
+        (own,) = check_changes(params, (LoggerSettings, self.settings))
         fixed = set(own) - _LIVE
         if fixed:
             raise ConfigError(sorted(fixed)[0], 'takes effect only at start-up (restart the node)')
 
     def _apply_params(self, params: list[Parameter]) -> None:
-        model, own, ff = split_parameters(params, _SETTINGS, _FF_SETTINGS)
+        (own,) = split_parameters(params, _SETTINGS)[1:]
         if own:
             old = self.settings
             self.settings = new = settings_from(LoggerSettings, own, old)
-            self.pairing.timeout_s = new.pairing_timeout_s
             self.stats.bin_c = new.residual_bin_c
             if self.writer is not None:
                 self.writer.flush_interval_s = new.flush_period_s
@@ -247,12 +318,6 @@ class ResidualLogger(Node):
                                        self.on_flush_timer)
             self._diag_timer = retime(self, self._diag_timer, old.diagnostics_period_s, new.diagnostics_period_s,
                                       self.publish_diagnostics)
-        if ff:
-            self.ff.update_settings(settings_from(FeedforwardSettings, ff, self.ff.settings))
-        if model:
-            for axis, p in self.model.current().items():
-                if self.ff.axes.get(axis) != p:
-                    self.ff.set_axis_params(axis, p)
 
     # ------------------------------------------------------------------ diagnostics
     def publish_diagnostics(self) -> None:
@@ -262,8 +327,8 @@ class ResidualLogger(Node):
         message = 'logging'
         if self.error is not None:
             level, message = ERROR, f'not logging: {self.error}'
-        elif self.pairing.own_prediction:
-            level, message = WARN, 'some measured samples had no feedforward (own prediction used)'
+        elif self.refused:
+            level, message = WARN, 'inputs refused: ' + ', '.join(f'{r} {c}x' for r, c in sorted(self.refused.items()))
         values: dict[str, Any] = {
             'folder': str(self.folder) if self.folder else 'none',
             'current_file': str(stats.current_file) if stats and stats.current_file else 'none',
@@ -271,15 +336,20 @@ class ResidualLogger(Node):
             'messages_logged': stats.messages if stats else 0,
             'bytes': stats.bytes if stats else 0,
             'residuals_logged': self.residuals_logged,
-            'paired_with_feedforward': self.pairing.paired,
-            'own_prediction': self.pairing.own_prediction,
+            'paired_with_feedforward': self.paired,
+            'no_feedforward': self.no_feedforward,
+            'waiting_for_feedforward': len(self._waiting),
             'dropped': self.dropped,
         }
+        for reason, count in sorted(self.refused.items()):
+            values[f'refused: {reason}'] = count
         statuses = [status('gimbal_friction/residual_logger', level, message, 'residual_logger', values)]
         by_axis: dict[str, dict[str, Any]] = {}
-        for (joint, b), (n, rms) in sorted(self.stats.rms().items(), key=lambda kv: (kv[0][0], kv[0][1])):
-            by_axis.setdefault(joint, {})[f'rms_nm_at_{b:+g}C'] = rms
-            by_axis[joint][f'samples_at_{b:+g}C'] = n
+        for (joint, b), (n, rms) in sorted(self.stats.rms().items(),
+                                           key=lambda kv: (kv[0][0], math.inf if kv[0][1] is None else kv[0][1])):
+            tag = 'unknown' if b is None else f'{b:+g}C'
+            by_axis.setdefault(joint, {})[f'rms_nm_at_{tag}'] = rms
+            by_axis[joint][f'samples_at_{tag}'] = n
         for joint, vals in by_axis.items():
             statuses.append(status(f'gimbal_friction/residual_logger/{joint}', OK, 'residual RMS per temperature '
                                    'bin', joint, vals))

@@ -37,7 +37,8 @@ from rosbags.typesys import TypesysError, get_types_from_msg, get_typestore
 
 from gimbal_friction.recording.bag import DEFAULT_STORE, default_typestore
 from gimbal_friction.recording.errors import RecordingError
-from gimbal_friction.recording.topics import FLOAT64_MULTI_ARRAY_TYPE, RESIDUAL, RESIDUAL_DETAIL, RESIDUAL_FIELDS
+from gimbal_friction.core.residual_row import RESIDUAL_FIELDS_V1, ResidualRows, rows_from_detail
+from gimbal_friction.recording.topics import FLOAT64_MULTI_ARRAY_TYPE, RESIDUAL, RESIDUAL_DETAIL
 
 try:  # the chunk builder of mcap's writer (internal; see _BulkChunk)
     from mcap._chunk_builder import ChunkBuilder
@@ -166,7 +167,7 @@ class ResidualArrays(NamedTuple):
 class ResidualLog(NamedTuple):
     """What :func:`read_residual_log` found."""
 
-    detail: ResidualArrays
+    detail: ResidualRows | None
     """The residual detail rows of every file."""
     files: tuple[Path, ...]
     """Files read, in order."""
@@ -1198,18 +1199,15 @@ def iter_residual_log(
     yield from _iter_log(folders, topics, _ReadReport())
 
 
-def read_residual_log(
+def read_residual_rows(
     folders: str | os.PathLike[str] | Iterable[str | os.PathLike[str]],
-) -> ResidualLog:
-    """Read the residual-detail rows of one or more residual-log folders into arrays (sorted by log time).
-
-    Torn files (killed writer) contribute their completed chunks and are listed in ``truncated_files``.
+) -> tuple[ResidualRows, ResidualLog]:
+    """The residual rows of one or more residual-log folders (sorted by log time), and what was read.
 
     Raises:
-        RecordingError: see :func:`iter_residual_log`.
+        RecordingError: see :func:`iter_residual_log`; or rows of an unknown layout.
     """
     report = _ReadReport()
-    n_fields = len(RESIDUAL_FIELDS)
     log_times: list[int] = []
     joints: list[str] = []
     rows: list[np.ndarray] = []
@@ -1218,26 +1216,32 @@ def read_residual_log(
             msg = f'{RESIDUAL_DETAIL} has type {item.msgtype}, expected {FLOAT64_MULTI_ARRAY_TYPE}'
             raise RecordingError(msg)
         data = np.asarray(item.msg.data, dtype=np.float64)  # type: ignore[attr-defined]
-        row = np.full(n_fields, math.nan)
-        row[: min(n_fields, data.shape[0])] = data[:n_fields]
         dims = item.msg.layout.dim  # type: ignore[attr-defined]
         log_times.append(item.log_time_ns)
         joints.append(dims[0].label if len(dims) else '')
-        rows.append(row)
+        rows.append(data)
     order = np.argsort(np.asarray(log_times, dtype=np.int64), kind='stable')
-    table = np.vstack(rows)[order] if rows else np.empty((0, n_fields))
-    columns = {name: np.ascontiguousarray(table[:, i]) for i, name in enumerate(RESIDUAL_FIELDS)}
-    detail = ResidualArrays(
-        log_time_ns=np.asarray(log_times, dtype=np.int64)[order],
-        joint=np.asarray(joints, dtype=np.str_)[order] if joints else np.empty(0, dtype=np.str_),
-        **columns,
-    )
-    return ResidualLog(
-        detail=detail,
-        files=tuple(report.files),
-        truncated_files=tuple(report.truncated),
-        topic_counts=dict(report.topic_counts),
-    )
+    widths = {r.shape[0] for r in rows}
+    if len(widths) > 1:
+        msg = f'residual log rows of mixed layouts ({sorted(widths)} values)'
+        raise RecordingError(msg)
+    try:
+        table = np.vstack(rows)[order] if rows else np.empty((0, len(RESIDUAL_FIELDS_V1) + 1))
+        detail = rows_from_detail(np.asarray(joints, dtype=np.str_)[order] if joints else np.empty(0, dtype=str),
+                                  table)
+    except ValueError as err:
+        raise RecordingError(f'residual log: {err}') from None
+    log = ResidualLog(detail=None, files=tuple(report.files), truncated_files=tuple(report.truncated),
+                      topic_counts=dict(report.topic_counts))
+    return detail, log
+
+
+def read_residual_log(
+    folders: str | os.PathLike[str] | Iterable[str | os.PathLike[str]],
+) -> ResidualLog:
+    """:func:`read_residual_rows` as one record (``detail`` = the rows)."""
+    rows, log = read_residual_rows(folders)
+    return log._replace(detail=rows)
 
 
 def recover_mcap(

@@ -2,12 +2,19 @@
 
 from __future__ import annotations
 
+from gimbal_friction.core.measurement import MEASUREMENT_FIELDS as _MEASUREMENT_FIELDS
+from gimbal_friction.core.residual_row import RESIDUAL_FIELDS as _RESIDUAL_FIELDS
+
 TEMPERATURE = '/gimbal/temperature'
 JOINT_STATES = '/joint_states'
 MOTOR_CURRENT = '/gimbal/motor_current'
 FEEDFORWARD = '/gimbal/friction/feedforward'
 FEEDFORWARD_COMMANDS = '/gimbal/friction/feedforward_commands'
 MEASURED = '/gimbal/friction/measured'
+#: estimator: std_msgs/Float64MultiArray per accepted sample, fields MEASUREMENT_FIELDS, dim[0].label = joint
+MEASURED_DETAIL = '/gimbal/friction/measured_detail'
+#: estimator: running statistics (diagnostic_msgs/DiagnosticArray)
+STATISTICS = '/gimbal/friction/statistics'
 DIAGNOSTICS = '/diagnostics'
 #: residual log only: one sensor_msgs/JointState per paired sample, effort = measured - predicted [N*m]
 RESIDUAL = '/gimbal/friction/residual'
@@ -26,17 +33,6 @@ CHAMBER_TOPICS = {
     MOTOR_CURRENT: JOINT_STATE_TYPE,
 }
 
-#: data[] layout of RESIDUAL_DETAIL (SI units; torques in N*m, temperature in degC as sensor_msgs/Temperature)
-RESIDUAL_FIELDS = (
-    'stamp_s',          # stamp of the measured sample [s]
-    'temperature_c',    # bearing temperature used for the prediction [degC]
-    'position_rad',     # joint position [rad]
-    'velocity_rad_s',   # joint velocity [rad/s]
-    'current_a',        # motor current [A]
-    'measured_nm',      # measured friction, signed [N*m]
-    'predicted_nm',     # model feedforward, signed [N*m]
-    'm_rolling_nm',     # model M_R magnitude [N*m]
-    'm_sliding_nm',     # model M_S magnitude [N*m]
-    'm_viscous_nm',     # model M_L magnitude [N*m]
-    'residual_nm',      # measured - predicted [N*m]
-)
+#: data[] layouts of RESIDUAL_DETAIL and MEASURED_DETAIL: defined once, in the core
+RESIDUAL_FIELDS = _RESIDUAL_FIELDS
+MEASUREMENT_FIELDS = _MEASUREMENT_FIELDS
