@@ -352,9 +352,11 @@ class Feedforward:
             vv = v[rows]
             tt = t_used[rows]
             zero = np.isnan(tt)
-            magnitude = self.tables[joint].magnitude_nm(np.where(zero, s.fallback_temperature_c, tt), vv, ARRAY)
-            k_dir = direction_factor(self.axes[joint], vv, ARRAY)
-            torque = feedforward_torque_nm(magnitude, vv, k_dir, s.velocity_threshold_rad_s, s.max_torque_nm, ARRAY)
+            with np.errstate(over='ignore', invalid='ignore'):  # absurd speeds saturate, as on floats
+                magnitude = self.tables[joint].magnitude_nm(np.where(zero, s.fallback_temperature_c, tt), vv, ARRAY)
+                k_dir = direction_factor(self.axes[joint], vv, ARRAY)
+                torque = feedforward_torque_nm(magnitude, vv, k_dir, s.velocity_threshold_rad_s, s.max_torque_nm,
+                                               ARRAY)
             torque = np.where(zero, 0.0, torque)
             c.add(c.saturated, joint, int(np.count_nonzero(np.abs(torque) >= s.max_torque_nm)))
             commands[rows, j] = torque

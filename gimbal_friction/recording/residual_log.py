@@ -38,7 +38,7 @@ from rosbags.typesys import TypesysError, get_types_from_msg, get_typestore
 from gimbal_friction.recording.bag import DEFAULT_STORE, default_typestore
 from gimbal_friction.recording.errors import RecordingError
 from gimbal_friction.core.residual_row import RESIDUAL_FIELDS_V1, ResidualRows, rows_from_detail
-from gimbal_friction.recording.topics import FLOAT64_MULTI_ARRAY_TYPE, RESIDUAL, RESIDUAL_DETAIL
+from gimbal_friction.recording.topics import FLOAT64_MULTI_ARRAY_TYPE, RESIDUAL, RESIDUAL_DETAIL, TEMPERATURE
 
 try:  # the chunk builder of mcap's writer (internal; see _BulkChunk)
     from mcap._chunk_builder import ChunkBuilder
@@ -1234,6 +1234,21 @@ def read_residual_rows(
     log = ResidualLog(detail=None, files=tuple(report.files), truncated_files=tuple(report.truncated),
                       topic_counts=dict(report.topic_counts))
     return detail, log
+
+
+def read_temperature_stream(
+    folders: str | os.PathLike[str] | Iterable[str | os.PathLike[str]],
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """The bearing temperatures logged as inputs: times [s] (stamp, or log time if the stamp is zero) and values
+    [°C]; empty arrays if the inputs were not logged."""
+    times: list[float] = []
+    values: list[float] = []
+    for item in _iter_log(folders, [TEMPERATURE], _ReadReport()):
+        stamp = item.msg.header.stamp  # type: ignore[attr-defined]
+        ns = stamp.sec * _NS_PER_S + stamp.nanosec
+        times.append((ns or item.log_time_ns) / _NS_PER_S)
+        values.append(float(item.msg.temperature))  # type: ignore[attr-defined]
+    return np.asarray(times, dtype=np.float64), np.asarray(values, dtype=np.float64)
 
 
 def read_residual_log(

@@ -65,19 +65,19 @@ def run(args: argparse.Namespace) -> int:
     elapsed = time.perf_counter() - t0
     summary = [{k: r[k] for k in ('joint', *SUMMARY_FIELDS, 'sign', 'measured_std_nmm')} for r in result.summary]
     (out / 'summary.json').write_text(json.dumps(summary, indent=1) + '\n', encoding='utf-8')
-    est = result.estimate
+    est = result.measurements
     info = {
         'bag': str(args.bag), 'residuals': str(result.residual_dir), 'summary': str(out / 'summary.json'),
         'messages_in': result.messages_in, 'messages_logged': result.messages_out,
-        'feedforward_outputs': int(len(result.feedforward.torque_nm)), 'accepted_samples': int(len(est)),
-        'rejected': est.counters.as_dict().get('rejected', {}), 'seconds': round(elapsed, 3),
+        'feedforward_outputs': len(result.feedforward), 'accepted_samples': len(est),
+        'rejected': result.estimator_counters.as_dict().get('rejected', {}), 'seconds': round(elapsed, 3),
         'messages_per_s': round(result.messages_in / elapsed, 1) if elapsed > 0 else None,
     }
     if args.format == 'json':
         print_json({**info, 'plateaus': summary})
         return 0
     print(f'replayed {args.bag}: {result.messages_in} messages in {elapsed:.2f} s '
-          f'({info["messages_per_s"]:.0f} msg/s); {len(est)} steady-state samples accepted')
+          f'({info["messages_per_s"]:.0f} msg/s); {len(est)} samples accepted')
     print(summary_table(result.summary))
     print(f'residual log: {result.residual_dir}/   summary: {out / "summary.json"}')
     return 0

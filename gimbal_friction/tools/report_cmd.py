@@ -78,16 +78,19 @@ def summary_table(summary: list[dict[str, Any]]) -> str:
 
 def _fig13(args: argparse.Namespace, axis: str, params: Any) -> tuple[list[dict[str, Any]], Path]:
     from gimbal_friction.config import axis_params, load_parameters
-    from gimbal_friction.core.residuals import plateau_summary
+    from gimbal_friction.core.residuals import plateau_summary, steady_temperature
     from gimbal_friction.plots import plot_model_vs_measured
-    from gimbal_friction.recording.residual_log import read_residual_log
-    log = read_residual_log(args.residuals)
-    d = log.detail
+    from gimbal_friction.recording.residual_log import read_residual_rows, read_temperature_stream
+    d, _ = read_residual_rows(args.residuals)
     sel = d.joint == axis
     if not sel.any():
         raise GimbalFrictionError(f'the residual logs hold no samples of axis {axis!r}')
+    t_time, t_value = read_temperature_stream(args.residuals)
+    if t_time.size < 2:  # the inputs were not logged: judge the plateaus on the samples' own temperatures
+        t_time, t_value = d.stamp_s[sel], d.temperature_c[sel]
+    steady = steady_temperature(d.stamp_s[sel], t_time, t_value)
     summary = plateau_summary(d.temperature_c[sel], d.velocity_rad_s[sel], d.measured_nm[sel],
-                              d.predicted_nm[sel], joint=d.joint[sel], stamp_s=d.stamp_s[sel])
+                              d.predicted_nm[sel], joint=d.joint[sel], steady=steady)
     models = {'configured': params}
     if args.compare is not None:
         compared = axis_params(load_parameters([*args.config, args.compare]), axis)

