@@ -387,6 +387,15 @@ def _split(t: Array, ratio: Array, o: ExportOptions) -> Array:
     return np.union1d(t, np.concatenate(new)) if new else t
 
 
+def _switch_band(params: AxisParams, g: TableGrid, band_midpoints: Array, t: Array) -> float:
+    """Largest relative deviation of the interpolated switch speed from the exact one, at the interval midpoints
+    and at the temperatures ``t`` where the table has speed-dependent values, [-]."""
+    top = g.t[g.upper_nm.shape[0] - 1]
+    t_in = t[t <= top]
+    dev = np.abs(np.interp(t_in, g.t, g.ln_vs) - _ln_switch_speed(params, t_in)) if t_in.size else np.zeros(1)
+    return float(np.expm1(max(float(np.max(band_midpoints, initial=0.0)), float(np.max(dev, initial=0.0)))))
+
+
 def _speed_matters_below(params: AxisParams, o: ExportOptions) -> float | None:
     """Temperature below which ν n ≥ 2000 is reachable at |v| ≤ v_max, [°C] (None: nowhere in the range)."""
     ln_max = math.log(o.max_speed_rad_s)
@@ -445,10 +454,8 @@ def build_table(axis: str, params: AxisParams, settings: FeedforwardSettings,
     settings.validate()
     target = 0.5 * o.relative_error
     t, kink = _initial_breakpoints(params, o)
-    rng = np.random.default_rng(o.seed)
-    rt, rv = _random_points(rng, o)
-    r_model = _model_nm(params, rt, rv)
-    r_branch = viscosity_cst(params, rt) * rpm_from_rad_s(np.abs(rv)) >= PALMGREN_SWITCH_CST_RPM
+    rt, rv = _random_points(np.random.default_rng(o.seed), o)
+    r_model: Array | None = None      # evaluated once, when the midpoints first pass
     passes = 0
     while True:
         passes += 1
@@ -462,6 +469,9 @@ def build_table(axis: str, params: AxisParams, settings: FeedforwardSettings,
         np.maximum.at(worst, pi, err)
         ratio = np.maximum(worst, band) / target
         if not (ratio > 1.0).any():
+            if r_model is None:
+                r_model = _model_nm(params, rt, rv)
+                r_branch = viscosity_cst(params, rt) * rpm_from_rad_s(np.abs(rv)) >= PALMGREN_SWITCH_CST_RPM
             table_r, branch = _interpolate(g, o.max_speed_rad_s, rt, rv)
             r_err = _relative_error(table_r, r_model)
             in_band = branch != r_branch
@@ -484,7 +494,7 @@ def build_table(axis: str, params: AxisParams, settings: FeedforwardSettings,
         midpoint_worst_speed_rad_s=float(pv[i_mid]), random_points=int(out.sum()),
         random_max_relative_error=float(r_err[i_rand]) if out.any() else 0.0,
         random_worst_temperature_c=float(rt[i_rand]), random_worst_speed_rad_s=float(rv[i_rand]),
-        switch_band=float(np.expm1(float(band.max()))) if band.size else 0.0,
+        switch_band=_switch_band(params, g, band, rt),
         switch_band_points=int(in_band.sum()),
         switch_band_max_relative_error=float(r_err[in_band].max()) if in_band.any() else 0.0,
         speed_matters_below_c=_speed_matters_below(params, o), loose_fit_c=kink)
