@@ -248,12 +248,13 @@ def _upper_branch_rpm(params: AxisParams, t: Array, rpm: Array) -> Array:
     """``rpm`` raised by a few ulp where needed so that ν(t)·rpm ≥ 2000 exactly as the model computes it."""
     nu = viscosity_cst(params, t)
     out = rpm.copy()
-    for _ in range(8):
+    for _ in range(64):
         low = nu * out < PALMGREN_SWITCH_CST_RPM
         if not low.any():
             return out
         out = np.where(low, np.nextafter(out, np.inf), out)
-    return out
+    msg = 'cannot place the switch-speed nodes on the upper branch of Eq. (9)'   # not seen: a few ulp suffice
+    raise ModelDomainError(msg)
 
 
 def _grid(params: AxisParams, t: Array, max_speed: float) -> TableGrid:
@@ -267,14 +268,13 @@ def _grid(params: AxisParams, t: Array, max_speed: float) -> TableGrid:
     rows = slice(0, k + 1)
     eta_top = max(float(np.max((max_speed * np.exp(-ln_vs[rows])) ** (2.0 / 3.0))), 2.0)
     eta = np.array([1.0, eta_top])
-    vs = np.exp(ln_vs[rows])
-    speeds = vs[:, None] * eta[None, :] ** 1.5
-    rpm = rpm_from_rad_s(speeds)
-    t_rows = np.broadcast_to(t[rows, None], rpm.shape).copy()
-    rpm[:, 0] = _upper_branch_rpm(params, t_rows[:, 0], rpm[:, 0])
+    # node speeds from ν directly (exp(ln v*) loses |ln v*| ulp), the η = 1 node nudged onto the upper branch
+    rpm_switch = PALMGREN_SWITCH_CST_RPM / viscosity_cst(params, t[rows])
+    rpm = np.stack([_upper_branch_rpm(params, t[rows], rpm_switch), rpm_switch * eta_top ** 1.5], axis=1)
+    t_rows = np.broadcast_to(t[rows, None], rpm.shape)
     upper = friction_torque(params, t_rows, rpm)
     return TableGrid(t, ln_vs, nm_from_nmm(lower.m_total_nmm), eta, nm_from_nmm(upper.m_total_nmm), lower, upper,
-                 speeds)
+                     rad_s_from_rpm(rpm))
 
 
 def _interpolate(g: TableGrid, max_speed: float, t_c: ArrayLike, v: ArrayLike) -> tuple[Array, NDArray[np.bool_]]:

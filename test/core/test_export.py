@@ -143,6 +143,19 @@ def test_kinks_loose_fit_is_a_breakpoint_and_the_switch_is_sharp(table):
         assert np.all(np.abs(table.evaluate_nm(t, v) / m - 1) <= BOUND)
 
 
+def test_switch_nodes_sit_on_the_upper_branch_even_when_very_cold():
+    """At -100 degC nu is 2e15 cSt and v* = 1e-12 rad/s: the eta = 1 nodes must still be on the upper branch of
+    Eq. (9) (exp(ln v*) alone loses |ln v*| ulp and can land below the switch)."""
+    t = build_table('elevation', AxisParams(), FeedforwardSettings(),
+                    ExportOptions(temperature_min_c=-100.0, temperature_max_c=0.0, random_points=2000))
+    g = t.grid
+    k = g.upper_nm.shape[0]
+    assert k == len(g.t)
+    ratio = g.upper.m_viscous_nmm[:, 0] / g.lower.m_viscous_nmm[:k]
+    assert np.allclose(ratio, 1.0 / (1.0 + PALMGREN_JUMP), rtol=1e-12)
+    assert t.report.midpoint_max_relative_error <= BOUND and t.report.random_max_relative_error <= BOUND
+
+
 def test_speed_matters_only_where_nu_n_reaches_2000(table):
     p, o = table.params, table.options
     t_s = table.report.speed_matters_below_c
