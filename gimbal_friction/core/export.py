@@ -15,7 +15,7 @@ differ by 0.79 % there), which crosses the whole (t, n) plane. Linear interpolat
 1e-4, however fine the grid. So the table is laid out in the coordinates of Eq. (9):
 
 * **temperature breakpoints** ``t_i`` (non-uniform): start every 5 °C plus the loose-fit kink as a breakpoint, then
-  halve every interval whose midpoint check fails, until all pass (see below);
+  split every interval whose midpoint check fails, until all pass (see below);
 * **switch speed** ``v*(t) = 2000/ν(t)`` [rpm → rad/s], the speed above which Eq. (9) takes its speed-dependent
   branch, stored as ``ln v*`` at each breakpoint and interpolated linearly in temperature (ln ν is much closer to
   linear in t than ν);
@@ -40,9 +40,12 @@ temperature the lubricant is thin enough that ν n < 2000 at every speed the tab
 **Error check.** The relative error ``|table − model| / model`` against the full model is evaluated at the midpoint
 of every temperature interval (speed 0; and, where the upper branch is reachable, just above the switch, at
 ``v_max`` and at the η-midpoint between), at the η-midpoint of every upper row, and at ``random_points`` seeded
-random points (t uniform, |v| half uniform, half log-uniform over six decades, both signs). Intervals whose
-midpoint error exceeds half the bound are halved; a random point above the bound halves its interval too. The
-grid is capped at ``max_breakpoints``; a bound that would need more is refused.
+random points (t uniform, |v| half uniform, half log-uniform over six decades, both signs). An interval whose
+midpoint error, or whose switch-speed deviation ``|lerp(ln v*) − ln v*|`` at its midpoint, exceeds half the bound
+is split into ``ceil(1.1 √(error / (bound/2)))`` equal parts (the error of linear interpolation scales with the
+step squared); an interval holding a random point above the bound is split too. The grid is capped at
+``max_breakpoints``; a bound that would need more is refused. Defaults: -60…120 °C (the feedforward node's table
+range), |v| ≤ 10 rad/s (573 °/s, above the slew rates of seeker gimbals; faster is clamped), bound 1e-4.
 
 **Switch band.** The table decides the Palmgren branch with the interpolated switch speed, the model with the exact
 one; they differ by at most ``switch_band`` (relative, ≤ half the bound by construction). Inside that band, i.e.
