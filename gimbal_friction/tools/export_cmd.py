@@ -239,7 +239,8 @@ def run(args: argparse.Namespace) -> int:
     if args.format == 'json':
         print_json(doc)
         return 0
-    print(f'wrote {args.out}: {len(tables)} axis/axes x (CSV, C header, ROS parameters) in {elapsed:.1f} s; '
+    axes_txt = '1 axis' if len(tables) == 1 else f'{len(tables)} axes'
+    print(f'wrote {args.out}: {axes_txt} x (CSV, C header, ROS parameters) in {elapsed:.1f} s; '
           f'relative error bound {options.relative_error:g} vs the full model, temperature '
           f'{options.temperature_min_c:g}..{options.temperature_max_c:g} degC, |v| <= {options.max_speed_rad_s:g} '
           'rad/s')
