@@ -29,7 +29,7 @@ from gimbal_friction.core.export import (
     render_csv,
     render_ros_yaml,
 )
-from gimbal_friction.core.feedforward import FeedforwardLogic, FeedforwardSettings
+from gimbal_friction.core.feedforward import Feedforward, FeedforwardSettings
 from gimbal_friction.core.friction import viscous_torque_Palmgren_1959
 from gimbal_friction.core.model import friction_torque, viscosity_cst
 from gimbal_friction.core.params import AxisParams
@@ -368,7 +368,7 @@ def test_c_function_agrees_with_the_python_model_at_random_points(table, tmp_pat
 
 
 def test_c_feedforward_is_the_nodes_rule(tmp_path):
-    """gf_<axis>_feedforward_nm against FeedforwardLogic.joint_torque (the node's rule) with direction factors
+    """gf_<axis>_feedforward_nm against Feedforward.torque_at (the node's rule) with direction factors
     and a clamp that bites; tolerance: the bound plus the node table's own (0.1 degC grid) error."""
     params = AxisParams().replace(scale_positive=1.1, scale_negative=0.8)
     settings = FeedforwardSettings(velocity_threshold_rad_s=0.01, max_torque_nm=0.0016)
@@ -378,8 +378,8 @@ def test_c_feedforward_is_the_nodes_rule(tmp_path):
     t = rng.uniform(-60.0, 120.0, n)
     v = np.concatenate([rng.uniform(-10.0, 10.0, n // 2), rng.uniform(-0.05, 0.05, n // 2)])
     _, c_ff = _run_c(tmp_path, [tb], t, v, 'elevation')
-    logic = FeedforwardLogic({'elevation': params}, settings)
-    node = np.array([logic.joint_torque('elevation', float(b), float(a)).torque_nm for a, b in zip(t, v, strict=True)])
+    logic = Feedforward({'elevation': params}, settings)
+    node = np.array([logic.torque_at('elevation', float(b), float(a)) for a, b in zip(t, v, strict=True)])
     node_table = FrictionTable(params)
     node_m = np.array([node_table.torque_nm(float(a), float(b)) for a, b in zip(t, v, strict=True)])
     m = model_nm(params, t, v)
