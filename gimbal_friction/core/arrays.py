@@ -70,6 +70,7 @@ class MessageCounts(NamedTuple):
 
     mismatch: dict[str, int]    #: messages whose value arrays are not as long as the name array (dropped)
     duplicate: dict[str, int]   #: repeated entries of a joint (the first one is used)
+    not_a_number: dict[str, int]  #: entries whose needed values are all NaN (the joint is then absent)
 
 
 def joint_state_arrays(messages: Sequence[tuple[int, int, Sequence[str], Sequence[float], Sequence[float],
@@ -90,6 +91,7 @@ def joint_state_arrays(messages: Sequence[tuple[int, int, Sequence[str], Sequenc
     stamps: list[int] = []
     mismatch: dict[str, int] = {}
     duplicate: dict[str, int] = {}
+    not_a_number: dict[str, int] = {}
     kept = 0
     for log_ns, stamp_ns, msg_names, pos, vel, eff in messages:
         values = [v for v, need in zip((pos, vel, eff), fields) if need]
@@ -110,6 +112,10 @@ def joint_state_arrays(messages: Sequence[tuple[int, int, Sequence[str], Sequenc
                 names.append(name)
                 cols[name] = [[math.nan] * kept, [math.nan] * kept, [math.nan] * kept]
         first = {name: i for i, name in reversed(list(enumerate(msg_names)))}
+        for name, i in first.items():
+            needed = [float(v[i]) for v, need in zip((pos, vel, eff), fields) if need and i < len(v)]
+            if needed and all(math.isnan(x) for x in needed):
+                not_a_number[name] = not_a_number.get(name, 0) + 1
         for name, col in cols.items():
             i = first.get(name)
             for f, (field_values, need) in enumerate(zip((pos, vel, eff), fields)):
@@ -123,7 +129,7 @@ def joint_state_arrays(messages: Sequence[tuple[int, int, Sequence[str], Sequenc
         {n: np.asarray(c[0], dtype=np.float64) for n, c in cols.items()},
         {n: np.asarray(c[1], dtype=np.float64) for n, c in cols.items()},
         {n: np.asarray(c[2], dtype=np.float64) for n, c in cols.items()})
-    return arrays, MessageCounts(mismatch, duplicate)
+    return arrays, MessageCounts(mismatch, duplicate, not_a_number)
 
 
 def temperature_arrays(messages: Sequence[tuple[int, int, float]]) -> TemperatureArrays:

@@ -385,7 +385,7 @@ class EstimatorLogic:
         batch, counts, _ = chamber_arrays(joint_states=[(self._arrival(stamp_ns, arrival_ns), stamp_ns,
                                                          list(names), list(positions), list(velocities), [])],
                                           configured=self.order)
-        self.count_messages(counts)
+        self.count_messages(counts, None)
         return self.feed(batch).records()
 
     def on_current(self, stamp_ns: int, names: Sequence[str], currents: Sequence[float],
@@ -393,15 +393,22 @@ class EstimatorLogic:
         """One ``/gimbal/motor_current`` message (current [A]), as a batch of one."""
         batch, _, counts = chamber_arrays(currents=[(self._arrival(stamp_ns, arrival_ns), stamp_ns, list(names),
                                                      [], [], list(currents))], configured=self.order)
-        self.count_messages(counts)
+        self.count_messages(None, counts)
         return self.feed(batch).records()
 
-    def count_messages(self, counts: MessageCounts) -> None:
-        """Count what :func:`~gimbal_friction.core.arrays.chamber_arrays` found odd in a node's messages."""
-        for joint, n in counts.mismatch.items():
-            self.counters.reject(joint if joint in self.axes else UNKNOWN_JOINT, R_LENGTH, n)
-        for joint, n in counts.duplicate.items():
-            self.counters.reject(joint if joint in self.axes else UNKNOWN_JOINT, R_DUPLICATE, n)
+    def count_messages(self, joint_states: MessageCounts | None, currents: MessageCounts | None) -> None:
+        """Count what :func:`~gimbal_friction.core.arrays.chamber_arrays` found odd in a node's messages (a NaN
+        current or an all-NaN joint state is absent from the arrays, so it is counted here)."""
+        for counts, nan_reason in ((joint_states, R_NON_FINITE_JS), (currents, R_NON_FINITE)):
+            if counts is None:
+                continue
+            for joint, n in counts.mismatch.items():
+                self.counters.reject(joint if joint in self.axes else UNKNOWN_JOINT, R_LENGTH, n)
+            for joint, n in counts.duplicate.items():
+                self.counters.reject(joint if joint in self.axes else UNKNOWN_JOINT, R_DUPLICATE, n)
+            for joint, n in counts.not_a_number.items():
+                if joint in self.axes:
+                    self.counters.reject(joint, nan_reason, n)
 
     # ------------------------------------------------------------------ the batch
     def feed(self, batch: ChamberArrays) -> MeasurementArrays:

@@ -214,6 +214,22 @@ def stamp_to_s(stamp: Any) -> float:
     return stamp.sec + 1e-9 * stamp.nanosec
 
 
+def callback_failed(node: Node, err: BaseException) -> None:
+    """Count and log (once per kind) a callback that raised; the node keeps running. Nodes show the counts in
+    ``/diagnostics`` (:func:`callback_error_values`)."""
+    errors: dict[str, int] = node.__dict__.setdefault('callback_errors', {})
+    key = f'{type(err).__name__}: {str(err).splitlines()[0] if str(err) else ""}'[:200]
+    if key not in errors:
+        node.get_logger().error(f'callback failed (the node keeps running): {key}')
+    errors[key] = errors.get(key, 0) + 1
+
+
+def callback_error_values(node: Node) -> dict[str, int]:
+    """``callback error: <kind>`` -> count, for ``/diagnostics``."""
+    errors: dict[str, int] = node.__dict__.get('callback_errors', {})
+    return {f'callback error: {k}': v for k, v in errors.items()}
+
+
 def run_node(exe: str, factory: Callable[[], Node], args: Sequence[str] | None = None) -> int:
     """Standard ``main``: init, build the node, spin with the EventsExecutor, clean exit on SIGINT/SIGTERM.
 
@@ -243,7 +259,12 @@ def run_node(exe: str, factory: Callable[[], Node], args: Sequence[str] | None =
         executor.add_node(node)
         # EventsExecutor.spin() busy-loops and misses signals with these wheels; a spin_once loop does not.
         while rclpy.ok() and not stop.is_set():
-            executor.spin_once(timeout_sec=0.1)
+            try:
+                executor.spin_once(timeout_sec=0.1)
+            except (KeyboardInterrupt, ExternalShutdownException):
+                raise
+            except Exception as err:
+                callback_failed(node, err)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except GimbalFrictionError as err:

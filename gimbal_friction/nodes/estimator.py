@@ -69,6 +69,7 @@ from gimbal_friction.nodes._common import (
     OK,
     WARN,
     ModelParameters,
+    callback_error_values,
     declare_settings,
     diagnostic_array,
     field_names,
@@ -200,8 +201,7 @@ class FrictionEstimator(Node):
         batch, js_counts, cur_counts = chamber_arrays(self._temps, self._joint_states, self._currents,
                                                        configured=self.logic.order)
         self._temps, self._joint_states, self._currents = [], [], []
-        self.logic.count_messages(js_counts)
-        self.logic.count_messages(cur_counts)
+        self.logic.count_messages(js_counts, cur_counts)
         self._publish(self.logic.feed(batch))
 
     def _publish(self, m: MeasurementArrays) -> None:
@@ -248,6 +248,10 @@ class FrictionEstimator(Node):
                 self._last_counts['temperature'] = dict(counters.temperature_rejected)
                 if new_t:
                     problems.append('temperatures rejected: ' + ', '.join(f'{r} {c}x' for r, c in sorted(new_t.items())))
+                errors = callback_error_values(self)
+                values.update(errors)
+                if errors:
+                    problems.append('a callback failed (see values)')
                 name, hw = 'gimbal_friction/estimator', ''
             else:
                 accepted = counters.accepted.get(axis, 0)

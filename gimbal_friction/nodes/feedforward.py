@@ -47,6 +47,7 @@ from gimbal_friction.nodes._common import (
     OK,
     WARN,
     ModelParameters,
+    callback_error_values,
     declare_settings,
     diagnostic_array,
     field_names,
@@ -243,6 +244,11 @@ class FrictionFeedforward(Node):
             for reason, count in c.joint_state_rejected.items():
                 values[f'rejected_joint_state: {reason}'] = count
                 level = max(level, WARN)
+            errors = callback_error_values(self)
+            if errors:
+                values.update(errors)
+                level = ERROR
+                problems.append('a callback failed (see values)')
             if level != OK and not problems:
                 problems.append('inputs rejected (see values)')
             statuses.append(status(f'gimbal_friction/feedforward/{axis}', level, '; '.join(problems) or 'ok',

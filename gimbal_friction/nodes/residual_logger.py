@@ -55,6 +55,7 @@ from gimbal_friction.nodes._common import (
     ERROR,
     OK,
     WARN,
+    callback_error_values,
     check_changes,
     declare_settings,
     diagnostic_array,
@@ -149,7 +150,7 @@ class ResidualLogger(Node):
                                  lambda b: self.log_raw(topics.MEASURED, topics.JOINT_STATE_TYPE, b), qos, **raw)
         self.create_subscription(JointState, topics.FEEDFORWARD, self.on_feedforward, qos, **raw)
         self.create_subscription(Float64MultiArray, topics.MEASURED_DETAIL, self.on_measured_detail, qos, **raw)
-        self._pair_timer = self.create_timer(0.05, self.pair)
+        self._pair_timer = self.create_timer(0.05, self.on_pair_timer)
         self._flush_timer = self.create_timer(self.settings.flush_period_s, self.on_flush_timer)
         self._diag_timer = self.create_timer(self.settings.diagnostics_period_s, self.publish_diagnostics)
         parameter_guard(self, self._validate_params, self._apply_params)
@@ -251,6 +252,9 @@ class ResidualLogger(Node):
             return
         self._waiting.append((time.monotonic(), m))
 
+    def on_pair_timer(self) -> None:
+        self.pair()
+
     def pair(self, final: bool = False) -> None:
         """Pair the waiting measurements with the feedforwards received; log the rows that are complete or have
         waited long enough."""
@@ -343,6 +347,10 @@ class ResidualLogger(Node):
         }
         for reason, count in sorted(self.refused.items()):
             values[f'refused: {reason}'] = count
+        errors = callback_error_values(self)
+        if errors:
+            values.update(errors)
+            level, message = ERROR, f'a callback failed (see values); {message}'
         statuses = [status('gimbal_friction/residual_logger', level, message, 'residual_logger', values)]
         by_axis: dict[str, dict[str, Any]] = {}
         for (joint, b), (n, rms) in sorted(self.stats.rms().items(),

@@ -181,7 +181,7 @@ def test_bad_inputs_are_rejected_and_counted_never_returned():
     assert logic.on_joint_state(t, [EL], [0.1], [V]) == []        # same stamp as the last one
     assert logic.on_joint_state(t - DT, [EL], [0.1], [V]) == []   # older
     c = logic.counters
-    assert c.rejected[EL] == {'non-finite': 1, 'over current rating': 2, 'length mismatch': 2,
+    assert c.rejected[EL] == {'non-finite': 2, 'over current rating': 2, 'length mismatch': 2,
                               'non-finite joint state': 2, 'stamp not increasing': 2}
     assert c.rejected['*'] == {'unknown joint': 1}   # the mismatch names a configured joint: counted there
     assert c.accepted[EL] == 0
@@ -193,11 +193,11 @@ def test_bad_inputs_are_rejected_and_counted_never_returned():
     assert c.rejected[EL]['duplicate joint name'] == 1
 
 
-def test_nan_current_is_an_absent_joint_not_a_sample():
+def test_nan_current_is_counted_and_never_paired():
     logic = make()
     t = warm(logic)
     assert logic.on_current(t, [EL], [math.nan]) == []
-    assert logic.pending(EL) == 0
+    assert logic.pending(EL) == 0 and rejected(logic, 'non-finite') == 1
 
 
 def test_temperature_rejections_and_credible_range():

@@ -39,8 +39,11 @@ def setup_probe(probe):
     probe.publisher(JointState, '/joint_states')
 
 
-def send_temperature(probe, t_c):
-    probe.pubs['/gimbal/temperature'].publish(Temperature(temperature=float(t_c)))
+def send_temperature(probe, t_c, sec=0):
+    """A temperature stamped ``sec`` (the stamp the next joint states carry: freshness compares stamps)."""
+    msg = Temperature(temperature=float(t_c))
+    msg.header.stamp = Time(sec=sec)
+    probe.pubs['/gimbal/temperature'].publish(msg)
 
 
 def send_joint(probe, names, velocities, sec=1, nanosec=0):
@@ -66,7 +69,7 @@ def wait_temperature_used(probe, t_c, sec_start):
     sec = [sec_start]
 
     def ok():
-        send_temperature(probe, t_c)
+        send_temperature(probe, t_c, sec[0] + 1)
         probe.executor.spin_once(timeout_sec=0.05)
         sec[0] += 1
         msg = request(probe, ['elevation'], [V_TEST], sec[0])
@@ -112,7 +115,6 @@ def test_torque_sign_and_smooth_zero_crossing(node_and_probe):
     probe.spin_until(lambda: len(probe.received[CMD]) >= 3, what='commands')
     assert len(probe.received[CMD][-1].data) == 1
     # a warmer bearing gives less friction
-    send_temperature(probe, 20.0)
     sec2 = wait_temperature_used(probe, 20.0, sec + 40)
     warm = request(probe, ['elevation'], [V_TEST], sec2 + 1)
     assert warm.effort[0] == pytest.approx(model_nm(20.0, V_TEST), rel=1e-4)
@@ -139,23 +141,25 @@ def test_bad_inputs_never_reach_the_output(node_and_probe):
         send_temperature(probe, bad)
     after = request(probe, ['elevation'], [V_TEST], sec + 1)
     assert after.effort[0] == pytest.approx(good, rel=1e-4)  # last valid temperature kept
-    # mismatched arrays: no output for that message; unknown names ignored; NaN velocity -> 0, never NaN
+    # mismatched arrays: no output for that message; unknown names ignored; NaN velocity: the joint is not
+    # used (no output for a message with nothing else); never NaN
     n0 = len(probe.received[FF])
     bad = JointState(name=['elevation', 'azimuth'], velocity=[V_TEST])
     bad.header.stamp = Time(sec=sec + 2)
     probe.pubs['/joint_states'].publish(bad)
     mixed = request(probe, ['bogus', 'elevation'], [1.0, -V_TEST], sec + 3)
     assert list(mixed.name) == ['elevation'] and mixed.effort[0] == pytest.approx(-good, rel=1e-4)
-    nan_msg = request(probe, ['elevation'], [math.nan], sec + 4)
-    assert nan_msg.effort[0] == 0.0
-    assert not any(m.header.stamp.sec == sec + 2 for m in probe.received[FF][n0:])
+    send_joint(probe, ['elevation'], [math.nan], sec=sec + 4)
+    request(probe, ['elevation'], [V_TEST], sec + 5)                  # the node is alive and answers
+    assert not any(m.header.stamp.sec in (sec + 2, sec + 4) for m in probe.received[FF][n0:])
     for m in probe.received[FF]:
         assert all(math.isfinite(e) for e in m.effort)
     for m in probe.received[CMD]:
         assert all(math.isfinite(e) for e in m.data)
     # diagnostics say why (published at 1 Hz)
     probe.spin_until(lambda: _diag_values(probe, 'rejected_temperature: non-finite') is not None
-                     and _diag_values(probe, 'length mismatch') is not None, what='diagnostics of rejections')
+                     and _diag_values(probe, 'length mismatch') is not None
+                     and _diag_values(probe, 'non-finite velocity') is not None, what='diagnostics of rejections')
     st, kv = _diag_values(probe, 'rejected_temperature: non-finite')
     assert int(kv.value) >= 2 and st.level != b'\x00'
     assert _diag_values(probe, 'rejected_temperature: temperature out of range') is not None
@@ -241,7 +245,7 @@ def test_refitted_parameter_file_changes_the_output(spawn, probe, tmp_path, monk
     expected_cold = model_nm(-40.0, V_TEST, refitted)
 
     def cold_in_use(sec=[500]):  # noqa: B006 - a counter across calls
-        send_temperature(probe, -40.0)
+        send_temperature(probe, -40.0, sec[0] + 1)
         probe.executor.spin_once(timeout_sec=0.05)
         sec[0] += 1
         return request(probe, ['elevation'], [V_TEST], sec[0]).effort[0] == pytest.approx(expected_cold, rel=1e-4)

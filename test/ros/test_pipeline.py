@@ -12,7 +12,7 @@ import pytest
 
 from gimbal_friction import demo
 from gimbal_friction.config import axis_params, load_parameters
-from gimbal_friction.recording.residual_log import read_residual_log
+from gimbal_friction.recording.residual_log import read_residual_log, read_residual_rows
 from gimbal_friction.replay import replay_bag
 from gimbal_friction.synth import SynthConfig
 from gimbal_friction.tools.cli import main
@@ -50,25 +50,20 @@ def test_main_job_outputs_and_refit_moves_toward_truth(pipeline, capsys):
 
 
 def test_offline_replay_gives_the_live_numbers(pipeline, tmp_path):
+    """Live nodes and the offline replay of the same bag: the same samples, the same numbers (one code path, one
+    freshness rule on stamps), to the transport: a sample DDS dropped at 20x is missing, nothing differs."""
     bag, out = pipeline
-    live = read_residual_log([out / 'residuals']).detail
-    offline = replay_bag(bag, None)
-    est = offline.estimate
-    # stamp_s is float64 seconds (~0.2 us resolution at epoch scale): match stamps within 1 us (samples are 40 ms
-    # apart); one joint in this bag
-    order = np.argsort(est.stamp_ns)
-    off_s = est.stamp_ns[order] * 1e-9
-    pos = np.clip(np.searchsorted(off_s, live.stamp_s), 1, len(off_s) - 1)
-    nearest = np.where(np.abs(off_s[pos - 1] - live.stamp_s) < np.abs(off_s[pos] - live.stamp_s), pos - 1, pos)
-    hit = np.abs(off_s[nearest] - live.stamp_s) < 1e-6
-    li = np.flatnonzero(hit)
-    oi = order[nearest[hit]]
-    # the live estimator accepts (nearly) the same samples; DDS may drop or reorder a few at 20x
-    assert len(li) >= 0.9 * min(len(live), len(est)), (len(li), len(live), len(est))
-    # measured friction: Eq. 23 of the same current sample -> identical
-    np.testing.assert_array_equal(live.measured_nm[li], est.friction_nm[oi])
-    # prediction: bit-identical wherever the live feedforward node had received the same temperature sample as
-    # the replay assumes (log-time order); the rest differ by one 2 Hz temperature sample (slow drift)
-    exact = np.isclose(live.predicted_nm[li], offline.predicted_nm[oi], rtol=1e-12, atol=0.0)
-    assert exact.mean() > 0.9, exact.mean()
-    np.testing.assert_allclose(live.predicted_nm[li], offline.predicted_nm[oi], rtol=0.02)
+    live, _ = read_residual_rows([out / 'residuals'])
+    offline = replay_bag(bag, None).rows
+    key_live = {(j, round(s * 1e6)): i for i, (j, s) in enumerate(zip(live.joint.tolist(), live.stamp_s.tolist()))}
+    pairs = [(key_live[(j, round(s * 1e6))], i) for i, (j, s) in
+             enumerate(zip(offline.joint.tolist(), offline.stamp_s.tolist())) if (j, round(s * 1e6)) in key_live]
+    li = np.array([a for a, _ in pairs])
+    oi = np.array([b for _, b in pairs])
+    assert len(pairs) >= 0.9 * min(len(live), len(offline)), (len(pairs), len(live), len(offline))
+    for name in ('measured_nm', 'current_a', 'position_rad', 'velocity_rad_s', 'torque_constant_nm_per_a'):
+        np.testing.assert_array_equal(getattr(live, name)[li], getattr(offline, name)[oi], err_msg=name)
+    np.testing.assert_array_equal(live.temperature_c[li], offline.temperature_c[oi])
+    both = np.isfinite(live.predicted_nm[li])
+    assert both.mean() > 0.9
+    np.testing.assert_allclose(live.predicted_nm[li][both], offline.predicted_nm[oi][both], rtol=1e-12, atol=0.0)

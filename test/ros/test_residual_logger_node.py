@@ -12,9 +12,9 @@ from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray
 from rosbags.highlevel import AnyReader
 from sensor_msgs.msg import JointState, Temperature
+from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 
-from gimbal_friction.core.feedforward import FeedforwardLogic, FeedforwardSettings
-from gimbal_friction.core.params import AxisParams
+from gimbal_friction.core.measurement import MEASUREMENT_FIELDS
 from gimbal_friction.recording import topics
 from gimbal_friction.recording.bag import default_typestore
 from gimbal_friction.recording.residual_log import read_residual_log
@@ -26,7 +26,7 @@ V = 2 * math.pi / 180
 def _setup(probe):
     for topic, kind in ((topics.TEMPERATURE, Temperature), (topics.JOINT_STATES, JointState),
                         (topics.MOTOR_CURRENT, JointState), (topics.FEEDFORWARD, JointState),
-                        (topics.MEASURED, JointState)):
+                        (topics.MEASURED, JointState), (topics.MEASURED_DETAIL, Float64MultiArray)):
         probe.publisher(kind, topic)
     probe.subscribe(DiagnosticArray, '/diagnostics')
 
@@ -34,6 +34,18 @@ def _setup(probe):
 def _js(sec: int, nanosec: int, effort: float, velocity: float = V) -> JointState:
     msg = JointState(name=['elevation'], position=[0.01], velocity=[velocity], effort=[effort])
     msg.header.stamp = Time(sec=sec, nanosec=nanosec)
+    return msg
+
+
+def _detail(sec: int, friction: float, velocity: float, current: float, temperature: float) -> Float64MultiArray:
+    """A measured_detail message as friction_estimator publishes it (MEASUREMENT_FIELDS)."""
+    values = {'stamp_sec': sec, 'stamp_nanosec': 0, 'position_rad': 0.01, 'velocity_rad_s': velocity,
+              'acceleration_rad_s2': 0.0, 'current_a': current, 'temperature_c': temperature, 'temperature_fresh': 1,
+              'friction_nm': friction, 'torque_constant_nm_per_a': 0.05, 'no_load_current_a': 0.002,
+              'inertia_kg_m2': 0.0, 'method': 0}
+    n = len(MEASUREMENT_FIELDS)
+    msg = Float64MultiArray(data=[float(values[f]) for f in MEASUREMENT_FIELDS])
+    msg.layout.dim = [MultiArrayDimension(label='elevation', size=n, stride=n)]
     return msg
 
 
@@ -54,12 +66,13 @@ def _start(spawn, folder: Path, *extra: str):
 
 def _wait_ready(probe):
     for topic in (topics.TEMPERATURE, topics.JOINT_STATES, topics.MOTOR_CURRENT, topics.FEEDFORWARD,
-                  topics.MEASURED):
+                  topics.MEASURED, topics.MEASURED_DETAIL):
         probe.wait_matched(topic)
 
 
 def _send_pairs(probe, n: int, start: int = 0, temperature: float = -40.0):
-    """n measured samples with their feedforward (same stamps); returns expected (pred, meas) per stamp."""
+    """n measured samples with their feedforward (same stamps); returns expected (pred, meas, current) per
+    stamp."""
     probe.pubs[topics.TEMPERATURE].publish(Temperature(temperature=temperature))
     expected = {}
     for i in range(start, start + n):
@@ -69,7 +82,9 @@ def _send_pairs(probe, n: int, start: int = 0, temperature: float = -40.0):
         probe.pubs[topics.JOINT_STATES].publish(_js(10 + i, 0, 0.0, v))
         probe.pubs[topics.FEEDFORWARD].publish(_js(10 + i, 0, pred, v))
         probe.pubs[topics.MEASURED].publish(_js(10 + i, 0, meas, v))
-        expected[(10 + i) * 1_000_000_000] = (pred, meas)
+        current = 0.01 * i
+        probe.pubs[topics.MEASURED_DETAIL].publish(_detail(10 + i, meas, v, current, temperature))
+        expected[(10 + i) * 1_000_000_000] = (pred, meas, current)
         probe.executor.spin_once(timeout_sec=0.002)
     return expected
 
@@ -93,18 +108,15 @@ def test_pairs_and_closes_a_readable_log(spawn, probe, tmp_path):
     log = read_residual_log([folder])
     d = log.detail
     assert len(d) == 40 and not log.truncated_files
-    ff = FeedforwardLogic({'elevation': AxisParams()}, FeedforwardSettings())
     for k in range(len(d)):
-        pred, meas = expected[round(d.stamp_s[k] * 1e9)]
+        pred, meas, current = expected[round(d.stamp_s[k] * 1e9)]
         assert d.predicted_nm[k] == pytest.approx(pred) and d.measured_nm[k] == pytest.approx(meas)
         assert d.residual_nm[k] == pytest.approx(meas - pred)
         assert d.temperature_c[k] == -40.0
-        assert d.current_a[k] == pytest.approx(meas / AxisParams().torque_constant_nm_per_a
-                                               + np.sign(d.velocity_rad_s[k]) * AxisParams().no_load_current_a)
-        jt = ff.joint_torque('elevation', d.velocity_rad_s[k], -40.0)
-        assert d.m_viscous_nm[k] == pytest.approx(jt.m_viscous_nm, rel=1e-12)
-        assert d.m_rolling_nm[k] + d.m_sliding_nm[k] == pytest.approx(jt.m_rolling_nm + jt.m_sliding_nm, rel=1e-12)
+        assert d.current_a[k] == current   # what the estimator measured, not reconstructed
+        assert (d.torque_constant_nm_per_a[k], d.no_load_current_a[k], d.method[k]) == (0.05, 0.002, 0)
     assert log.topic_counts[topics.RESIDUAL] == 40 and log.topic_counts[topics.MEASURED] == 40
+    assert log.topic_counts[topics.MEASURED_DETAIL] == 40
     assert log.topic_counts[topics.FEEDFORWARD] == 40 and log.topic_counts[topics.TEMPERATURE] >= 2
     # standard tools open the closed folder (rosbag2 metadata.yaml + MCAP)
     with AnyReader([folder], default_typestore=default_typestore()) as reader:
