@@ -7,7 +7,7 @@ The plant (one rigid axis, inertial angle θ and rate ω of the LOS, base rate �
 
 Friction acts on the rate of the gimbal *relative to the base*, so base motion reaches the LOS through friction
 (Lagunowich et al. 2007, the paper's introduction). The plant integrates at ``plant_substeps`` steps per
-controller tick (symplectic Euler for θ, ω; exact exponential updates for the current loop and the LuGre
+controller tick (explicit Euler for ω, trapezoidal θ, exact exponential updates for the current loop and the LuGre
 deflection, see :func:`~gimbal_friction.sim.lugre.lugre_z_step`); the controller runs at ``rate_loop_hz`` with a
 zero-order hold.
 
@@ -137,8 +137,9 @@ class Plant:
 
     State per run: inertial LOS angle ``theta`` [rad] and rate ``omega`` [rad/s], bristle deflection ``z`` [rad],
     motor current ``current`` [A]; ``friction`` is the truth torque of the last step [N·m].
-    :meth:`advance` integrates one controller tick in ``plant_substeps`` steps (symplectic Euler for θ, ω; exact
-    exponential updates for the current loop and the bristle deflection).
+    :meth:`advance` integrates one controller tick in ``plant_substeps`` steps: explicit Euler for ω with the
+    torque of the step (the friction from the bristle deflection at the end of the step), the trapezoidal rule for
+    θ (exact under constant torque), exact exponential updates for the current loop and the bristle deflection.
 
     Parameters
     ----------
@@ -194,8 +195,9 @@ class Plant:
             z_new = lugre_z_step(z, v, g, sigma0, h)
             friction = lugre_force_1995(z_new, (z_new - z) / h, v, sigma0, sigma1)
             z = z_new
-            omega = omega + h * (K_T * current - self._keep * friction + self.tau_dist) / J
-            theta = theta + h * omega
+            omega_new = omega + h * (K_T * current - self._keep * friction + self.tau_dist) / J
+            theta = theta + 0.5 * h * (omega + omega_new)
+            omega = omega_new
         self.theta, self.omega, self.z, self.current, self.friction = theta, omega, z, current, friction
 
 

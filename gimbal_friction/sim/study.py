@@ -88,7 +88,8 @@ class StudyResult(NamedTuple):
     """Outcome of :func:`run_study`."""
 
     records: list[dict[str, Any]]          #: one per case × temperature × profile
-    reversal_traces: list[ReversalTrace]   #: per case, coldest plateau, first reversal of the calibration profile
+    reversal_traces: list[ReversalTrace]   #: per case, coldest plateau, first reversal (tracking if run, else the
+    #: first profile)
     refit_params: AxisParams | None        #: parameters of case (d) (None: not run)
     notes: list[str]                       #: what happened that a reader should know (refit outcome, ...)
     wall_s: dict[str, float]               #: wall time per stage [s]
@@ -218,10 +219,11 @@ def run_study(config: SimConfig, axis: AxisParams | None = None, *,
         cases.remove('refit')
         want_refit = False
     calib = CALIBRATION_PROFILE
+    figure_profile = calib if calib in profiles else profiles[0]
     # stages: (profile, cases in that batch)
     stages: list[tuple[str, list[str]]] = []
-    if want_refit:
-        first = [c for c in cases if c != 'refit']
+    if want_refit:   # the calibration runs; all the other cases too when the calibration profile is wanted
+        first = [c for c in cases if c != 'refit'] if calib in profiles else []
         if 'feedforward' not in first:
             first.append('feedforward')
         stages.append((calib, first))
@@ -261,11 +263,11 @@ def run_study(config: SimConfig, axis: AxisParams | None = None, *,
 
         result = simulate(cfg, axis, prof, runs, comps, progress=report)
         done += w
-        recs = _records(result, cfg.profile_duration_s(name))
         is_calibration = want_refit and name == calib and 'refit' not in stage_cases
-        records.extend(r for r in recs if r['case'] in cases)
-        if name == calib:
-            reversal.extend(t for t in _reversal_traces(result, min(temps)) if t.case in cases)
+        if name in profiles:
+            records.extend(r for r in _records(result, cfg.profile_duration_s(name)) if r['case'] in cases)
+            if name == figure_profile:
+                reversal.extend(t for t in _reversal_traces(result, min(temps)) if t.case in cases)
         wall[label] = time.perf_counter() - t0
         if is_calibration:
             t1 = time.perf_counter()

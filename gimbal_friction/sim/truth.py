@@ -123,7 +123,7 @@ def direction_factors(axis: AxisParams, config: SimConfig) -> DirectionFactors:
 
     >>> k = direction_factors(AxisParams(), SimConfig())
     >>> [round(float(x), 3) for x in k.positive], [round(float(x), 3) for x in k.negative]
-    ([1.015, 0.969], [0.78, 1.236])
+    ([1.015, 0.969], [0.779, 1.236])
     """
     temps = np.asarray(config.asymmetry_temperatures_c, dtype=float)
     if not config.asymmetry_enabled:
