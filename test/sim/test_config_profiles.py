@@ -46,10 +46,10 @@ def test_from_mapping_accepts_the_flat_parameters_the_section_or_a_whole_file():
     ({'rate_bandwidth_hz': 'fast'}, 'rate_bandwidth_hz', 'must be a number, not str'),
     ({'plant_substeps': 2.5}, 'plant_substeps', 'must be a whole number'),
     ({'asymmetry_enabled': 1}, 'asymmetry_enabled', 'must be true or false'),
-    ({'ripple_amplitudes': [0.1]}, 'ripple_periods_deg', 'ripple_amplitudes, ripple_periods_deg and '
-     'ripple_phases_rad must have the same length'),
-    ({'ripple_amplitudes': [0.4, 0.2]}, 'ripple_amplitudes', 'must be >= 0 with sum x (1 + ripple_cold_gain) < 1 '
-     '(friction keeps its sign)'),
+    ({'ripple_amplitudes': [0.1]}, 'ripple_periods_deg',
+     'ripple_amplitudes, ripple_periods_deg and ripple_phases_rad must have the same length'),
+    ({'ripple_amplitudes': [0.4, 0.2]}, 'ripple_amplitudes',
+     'must be >= 0 with sum x (1 + ripple_cold_gain) < 1 (friction keeps its sign)'),
     ({'rate_bandwidth_hz': 400.0}, 'rate_bandwidth_hz', 'must lie in (0, rate_loop_hz / 4] [Hz]'),
     ({'rate_integral_hz': 50.0}, 'rate_integral_hz', 'must lie in [0, rate_bandwidth_hz) [Hz]'),
     ({'gyro_noise_rad_s': math.nan}, 'gyro_noise_rad_s', 'must be finite'),
