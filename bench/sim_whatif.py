@@ -3,7 +3,8 @@
 Not a test: prints, asserts nothing. For each variant, each profile and the plateaus -40, -20 and +20 degC, the
 LOS rate error RMS of the feedforward relative to no compensation (a) in the same batch (same noise), and its
 reversal peak relative to (a). Variants: the defaults; no transport latency; 3 ticks of latency; a wider smooth
-sign (v_th 0.02 rad/s); the reference velocity instead of the measured one (``velocity_source: reference``); a
+sign (v_th 0.02 rad/s); the reference velocity instead of the measured one (``velocity_source: reference``); the
+gyro's inertial rate instead of the joint's rate relative to the base (a wiring mistake); a
 temperature that reads 20 degC too warm; a stale temperature (the node's fallback, +20 degC); the truth without
 lubricant shift; twice the shift; no position ripple; no breakaway.
 
@@ -39,6 +40,13 @@ def stale(comp: Compensator, temperature_c: float) -> Compensator:
     return Compensator(torque, comp.delayed)
 
 
+def inertial(comp: Compensator) -> Compensator:
+    """``comp`` fed the gyro's inertial LOS rate in place of the joint's rate relative to the base (the mistake)."""
+    def torque(inputs: ControllerInputs) -> Any:
+        return comp.torque(inputs._replace(joint_velocity_rad_s=inputs.gyro_rate_rad_s))
+    return Compensator(torque, comp.delayed)
+
+
 def variants(axis: AxisParams) -> list[tuple[str, SimConfig, Callable[[], Compensator]]]:
     base = SimConfig()
     return [
@@ -48,6 +56,7 @@ def variants(axis: AxisParams) -> list[tuple[str, SimConfig, Callable[[], Compen
         ('v_th 0.02 rad/s', base,
          lambda: suite_feedforward(axis, FeedforwardSettings(velocity_threshold_rad_s=0.02))),
         ('reference velocity', base, lambda: suite_feedforward(axis, velocity_source='reference')),
+        ('gyro (inertial) rate', base, lambda: inertial(suite_feedforward(axis))),
         ('temperature +20 C off', base.replace(temperature_bias_c=20.0), lambda: suite_feedforward(axis)),
         ('stale temperature', base, lambda: stale(suite_feedforward(axis), 20.0)),
         ('no lubricant shift', base.replace(lubricant_walther_a_shift=0.0), lambda: suite_feedforward(axis)),
