@@ -48,7 +48,7 @@ from gimbal_friction.sim.truth import TemperatureTerms, TruthFriction, TruthTerm
 
 Array = NDArray[np.float64]
 
-__all__ = ['BatchResult', 'EstimatorTrace', 'Plant', 'Run', 'Traces', 'simulate']
+__all__ = ['BatchResult', 'ClosedLoop', 'EstimatorTrace', 'Plant', 'Run', 'Traces', 'simulate']
 
 #: The truth's temperature-dependent terms are recomputed when a bearing temperature moved more than this [°C].
 TRUTH_TEMPERATURE_RESOLUTION_C = 0.01
@@ -226,6 +226,164 @@ def _lag_step(x: Array, u0: Array, rate: float | Array, dt: float, tau: float) -
     return np.asarray(u0 + rate * dt - rate * tau + (x - u0 + rate * tau) * e)
 
 
+class ClosedLoop:
+    """The closed loop of a batch of runs, advanced one controller tick at a time.
+
+    :func:`simulate` runs it to the end of the profile; a real-time adapter (the later ``gimbal_sim`` node) can
+    call :meth:`step` at wall-clock pace, publish :meth:`last` and feed the received feedforward through a
+    compensator hook. Parameters as :func:`simulate`.
+
+    Raises:
+        ConfigError: an unknown case, no runs, or a profile sampled with another controller rate.
+    """
+
+    def __init__(self, config: SimConfig, axis: AxisParams, profile: Profile, runs: Sequence[Run],
+                 compensators: Mapping[str, Compensator] | None = None) -> None:
+        comps = dict(compensators or {})
+        if not runs:
+            raise ConfigError('runs', 'needs at least one run')
+        for r in runs:
+            if r.case not in (CASE_NONE, CASE_IDEAL) and r.case not in comps:
+                raise ConfigError('case', f'no compensator for this case (have none, ideal, {", ".join(comps)})',
+                                  r.case)
+            if not math.isfinite(r.temperature_c) or not -100.0 <= r.temperature_c <= 200.0:
+                raise ConfigError('temperature_c', 'must lie in [-100, 200] [degC]', r.temperature_c)
+        n = profile.time_s.shape[0]
+        if profile.base_rate_rad_s.shape != (n, config.plant_substeps) or (
+                n > 1 and not math.isclose(profile.time_s[1] - profile.time_s[0], config.controller_period_s)):
+            raise ConfigError('profile', 'was sampled with another controller rate or plant_substeps')
+        m = len(runs)
+        self.config, self.axis, self.profile, self.runs = config, axis, profile, tuple(runs)
+        self.ticks = n
+        self.k = 0
+        tau_v = config.resolver_velocity_time_constant_s
+        self._alpha_v = 1.0 - math.exp(-config.controller_period_s / tau_v) if tau_v > 0.0 else 1.0
+        self._noise = _noise(config, runs, n)
+        # cases: (compensator, run indices, all runs?, latency buffer)
+        ideal = np.array([r.case == CASE_IDEAL for r in runs])
+        self._groups: list[tuple[Compensator, NDArray[np.intp], bool, Array]] = []
+        for name, comp in comps.items():
+            idx = np.flatnonzero([r.case == name for r in runs])
+            if idx.size:
+                depth = config.latency_ticks if comp.delayed else 0
+                self._groups.append((comp, idx, idx.size == m, np.zeros((depth + 1, idx.size))))
+        # state
+        self._env0 = np.array([r.temperature_c for r in runs], dtype=float)
+        self.plant = Plant(config, axis, np.full(m, profile.target_angle_rad[0]),
+                           np.full(m, profile.target_rate_rad_s[0]), ideal)
+        self._integ = np.zeros(m)
+        self.bearing = self._env0 + config.initial_bearing_offset_c
+        self._sensor_t = self.bearing.copy()
+        self._v_filter = self.plant.omega - profile.base_rate_rad_s[0, 0]
+        self._boresight = np.zeros(m)
+        self._measured_t = np.zeros(m)
+        self._terms = self.plant.truth.terms(self.bearing)
+        self._terms_at = self.bearing.copy()
+        self._bias = config.gyro_bias_rad_s + np.zeros(m)
+        self.sampled = np.zeros(n, dtype=bool)
+        self._rec = {f: np.empty((n, m)) for f in Traces._fields}
+
+    @property
+    def done(self) -> bool:
+        """All ticks of the profile simulated."""
+        return bool(self.k >= self.ticks)
+
+    def last(self) -> Traces:
+        """The values recorded at the last tick, arrays of shape (runs,) (views into the traces)."""
+        k = max(self.k - 1, 0)
+        return Traces(**{f: v[k] for f, v in self._rec.items()})
+
+    def result(self) -> BatchResult:
+        """The batch so far (traces of the ticks simulated)."""
+        k = self.k
+        prof = self.profile
+        cut = Profile(prof.name, prof.time_s[:k], prof.target_angle_rad[:k], prof.target_rate_rad_s[:k],
+                      prof.base_angle_rad[:k], prof.base_rate_rad_s[:k], prof.reversal_times_s, prof.base_motion)
+        traces = Traces(**{f: v[:k] for f, v in self._rec.items()})
+        return BatchResult(self.config, cut if k < self.ticks else prof, self.runs, traces, self.sampled[:k])
+
+    def step(self) -> None:
+        """Simulate one controller tick: sensors, controller (+ compensations), plant, thermal.
+
+        Raises:
+            ConfigError: the profile is over.
+        """
+        k = self.k
+        if k >= self.ticks:
+            raise ConfigError('tick', 'the profile is over', k)
+        cfg, prof, plant, rec = self.config, self.profile, self.plant, self._rec
+        T = cfg.controller_period_s
+        K_T = self.axis.torque_constant_nm_per_a
+        limit = cfg.current_limit_a
+        kp, ki = cfg.rate_kp_per_s, cfg.rate_ki_per_s
+        n_gyro, n_res, n_vel, n_track, n_temp, n_cur = self._noise
+        t_k = float(prof.time_s[k])
+        theta, omega = plant.theta, plant.omega
+        bearing = self.bearing
+        # ---------------------------------------------------------------- sensors
+        joint_true = theta - prof.base_angle_rad[k]
+        gyro = omega + self._bias + n_gyro[k]
+        joint_meas = joint_true + n_res[k]
+        vel_meas = self._v_filter + n_vel[k]
+        if k % cfg.track_every_ticks == 0:
+            self._boresight = prof.target_angle_rad[k] - theta + n_track[k]
+        if k % cfg.temperature_every_ticks == 0:
+            self._measured_t = self._sensor_t + cfg.temperature_bias_c + n_temp[k]
+            self.sampled[k] = True
+        measured_t = self._measured_t
+        # ---------------------------------------------------------------- controller
+        rate_cmd = prof.target_rate_rad_s[k] + cfg.track_k_per_s * self._boresight
+        err = rate_cmd - gyro
+        i_raw = cfg.inertia_kg_m2 * (kp * err + self._integ) / K_T
+        tau_ff = np.zeros(theta.shape)
+        if self._groups:
+            inputs = ControllerInputs(t_k, measured_t, joint_meas, vel_meas, rate_cmd - (gyro - vel_meas), gyro)
+            for comp, idx, whole, buf in self._groups:
+                sub = inputs if whole else ControllerInputs(
+                    t_k, measured_t[idx], joint_meas[idx], vel_meas[idx], inputs.reference_velocity_rad_s[idx],
+                    gyro[idx])
+                out = np.broadcast_to(np.asarray(comp.torque(sub), dtype=float), (idx.size,))
+                if buf.shape[0] > 1:
+                    buf[1:] = buf[:-1]
+                buf[0] = out
+                tau_ff[idx] = buf[-1]
+            i_raw = i_raw + tau_ff / K_T
+        i_cmd = np.clip(i_raw, -limit, limit)
+        wind = ((i_raw > limit) & (err > 0.0)) | ((i_raw < -limit) & (err < 0.0))
+        self._integ = self._integ + np.where(wind, 0.0, kp * ki * T * err)
+        # ---------------------------------------------------------------- record
+        rec['los_angle_rad'][k] = theta
+        rec['los_rate_rad_s'][k] = omega
+        rec['joint_position_rad'][k] = joint_meas
+        rec['joint_velocity_rad_s'][k] = vel_meas
+        rec['joint_velocity_true_rad_s'][k] = omega - prof.base_rate_rad_s[k, 0]
+        i_total = plant.motor_current
+        rec['current_a'][k] = i_total
+        rec['current_measured_a'][k] = i_total + n_cur[k]
+        rec['current_command_a'][k] = i_cmd
+        rec['temperature_c'][k] = measured_t
+        rec['bearing_temperature_c'][k] = bearing
+        rec['gyro_rate_rad_s'][k] = gyro
+        rec['rate_command_rad_s'][k] = rate_cmd
+        rec['feedforward_nm'][k] = tau_ff
+        # ---------------------------------------------------------------- plant
+        moved = np.abs(bearing - self._terms_at) > TRUTH_TEMPERATURE_RESOLUTION_C
+        if moved.any():   # per run, so a batch gives the same numbers as its runs one by one
+            self._terms = _update_terms(self._terms, plant.truth.terms(bearing), moved)
+            self._terms_at = np.where(moved, bearing, self._terms_at)
+        plant.advance(i_cmd, prof.base_rate_rad_s[k], self._terms, 1.0 + ripple(cfg, joint_true, bearing))
+        rec['friction_nm'][k] = plant.friction
+        self._v_filter = self._v_filter + self._alpha_v * (
+            plant.omega - prof.base_rate_rad_s[k, cfg.plant_substeps - 1] - self._v_filter)
+        # ---------------------------------------------------------------- thermal
+        ramp = cfg.environment_ramp_c_per_s
+        new_bearing = _lag_step(bearing, self._env0 + ramp * t_k, ramp, T, cfg.thermal_time_constant_s)
+        self._sensor_t = _lag_step(self._sensor_t, bearing, (new_bearing - bearing) / T, T,
+                                   cfg.temperature_sensor_time_constant_s)
+        self.bearing = new_bearing
+        self.k = k + 1
+
+
 def simulate(config: SimConfig, axis: AxisParams, profile: Profile, runs: Sequence[Run],
              compensators: Mapping[str, Compensator] | None = None, *,
              progress: Callable[[float], None] | None = None) -> BatchResult:
@@ -250,127 +408,11 @@ def simulate(config: SimConfig, axis: AxisParams, profile: Profile, runs: Sequen
     Raises:
         ConfigError: an unknown case, no runs, or a profile sampled with another controller rate.
     """
-    comps = dict(compensators or {})
-    if not runs:
-        raise ConfigError('runs', 'needs at least one run')
-    for r in runs:
-        if r.case not in (CASE_NONE, CASE_IDEAL) and r.case not in comps:
-            raise ConfigError('case', f'no compensator for this case (have none, ideal, {", ".join(comps)})', r.case)
-        if not math.isfinite(r.temperature_c) or not -100.0 <= r.temperature_c <= 200.0:
-            raise ConfigError('temperature_c', 'must lie in [-100, 200] [degC]', r.temperature_c)
-    n = profile.time_s.shape[0]
-    if profile.base_rate_rad_s.shape != (n, config.plant_substeps) or (
-            n > 1 and not math.isclose(profile.time_s[1] - profile.time_s[0], config.controller_period_s)):
-        raise ConfigError('profile', 'was sampled with another controller rate or plant_substeps')
-    m = len(runs)
-    T = config.controller_period_s
-    S = config.plant_substeps
-    J = config.inertia_kg_m2
-    K_T = axis.torque_constant_nm_per_a
-    limit = config.current_limit_a
-    kp, ki, ktr = config.rate_kp_per_s, config.rate_ki_per_s, config.track_k_per_s
-    tau_v = config.resolver_velocity_time_constant_s
-    alpha_v = 1.0 - math.exp(-T / tau_v) if tau_v > 0.0 else 1.0
-    n_track, n_temp = config.track_every_ticks, config.temperature_every_ticks
-    ramp = config.environment_ramp_c_per_s
-    noise = _noise(config, runs, n)
-    n_gyro, n_res, n_vel, n_track_noise, n_temp_noise, n_cur = noise
-
-    # --- cases
-    ideal = np.array([r.case == CASE_IDEAL for r in runs])
-    groups: list[tuple[Compensator, NDArray[np.intp], bool, Array]] = []
-    latency = config.latency_ticks
-    for name, comp in comps.items():
-        idx = np.flatnonzero([r.case == name for r in runs])
-        if idx.size:
-            depth = latency if comp.delayed else 0
-            groups.append((comp, idx, idx.size == m, np.zeros((depth + 1, idx.size))))
-
-    # --- state
-    env0 = np.array([r.temperature_c for r in runs], dtype=float)
-    plant = Plant(config, axis, np.full(m, profile.target_angle_rad[0]), np.full(m, profile.target_rate_rad_s[0]),
-                  ideal)
-    truth = plant.truth
-    integ = np.zeros(m)
-    bearing = env0 + config.initial_bearing_offset_c
-    sensor_t = bearing.copy()
-    v_filter = plant.omega - profile.base_rate_rad_s[0, 0]
-    boresight = np.zeros(m)
-    measured_t = np.zeros(m)
-    terms = truth.terms(bearing)
-    terms_at = bearing.copy()
-    sampled = np.zeros(n, dtype=bool)
-
-    rec = {f: np.empty((n, m)) for f in Traces._fields}
-    t_arr, theta_t, omega_t = profile.time_s, profile.target_angle_rad, profile.target_rate_rad_s
-    base_angle, base_rate = profile.base_angle_rad, profile.base_rate_rad_s
-    bias = config.gyro_bias_rad_s + 0.0 * bearing
-    t_bias = config.temperature_bias_c
+    loop = ClosedLoop(config, axis, profile, runs, compensators)
+    n = loop.ticks
     every = max(1, n // 100)
-
     for k in range(n):
-        t_k = float(t_arr[k])
-        theta, omega = plant.theta, plant.omega
-        # ---------------------------------------------------------------- sensors
-        joint_true = theta - base_angle[k]
-        v_true = omega - base_rate[k, 0]
-        gyro = omega + bias + n_gyro[k]
-        joint_meas = joint_true + n_res[k]
-        vel_meas = v_filter + n_vel[k]
-        if k % n_track == 0:
-            boresight = theta_t[k] - theta + n_track_noise[k]
-        if k % n_temp == 0:
-            measured_t = sensor_t + t_bias + n_temp_noise[k]
-            sampled[k] = True
-        # ---------------------------------------------------------------- controller
-        rate_cmd = omega_t[k] + ktr * boresight
-        err = rate_cmd - gyro
-        i_raw = J * (kp * err + integ) / K_T
-        tau_ff = np.zeros(m)
-        if groups:
-            inputs = ControllerInputs(t_k, measured_t, joint_meas, vel_meas, rate_cmd - (gyro - vel_meas), gyro)
-            for comp, idx, whole, buf in groups:
-                sub = inputs if whole else ControllerInputs(
-                    t_k, measured_t[idx], joint_meas[idx], vel_meas[idx], inputs.reference_velocity_rad_s[idx],
-                    gyro[idx])
-                out = np.broadcast_to(np.asarray(comp.torque(sub), dtype=float), (idx.size,))
-                if buf.shape[0] > 1:
-                    buf[1:] = buf[:-1]
-                buf[0] = out
-                tau_ff[idx] = buf[-1]
-            i_raw = i_raw + tau_ff / K_T
-        i_cmd = np.clip(i_raw, -limit, limit)
-        wind = ((i_raw > limit) & (err > 0.0)) | ((i_raw < -limit) & (err < 0.0))
-        integ = integ + np.where(wind, 0.0, kp * ki * T * err)
-        # ---------------------------------------------------------------- record
-        rec['los_angle_rad'][k] = theta
-        rec['los_rate_rad_s'][k] = omega
-        rec['joint_position_rad'][k] = joint_meas
-        rec['joint_velocity_rad_s'][k] = vel_meas
-        rec['joint_velocity_true_rad_s'][k] = v_true
-        i_total = plant.motor_current
-        rec['current_a'][k] = i_total
-        rec['current_measured_a'][k] = i_total + n_cur[k]
-        rec['current_command_a'][k] = i_cmd
-        rec['temperature_c'][k] = measured_t
-        rec['bearing_temperature_c'][k] = bearing
-        rec['gyro_rate_rad_s'][k] = gyro
-        rec['rate_command_rad_s'][k] = rate_cmd
-        rec['feedforward_nm'][k] = tau_ff
-        # ---------------------------------------------------------------- plant
-        moved = np.abs(bearing - terms_at) > TRUTH_TEMPERATURE_RESOLUTION_C
-        if moved.any():   # per run, so a batch gives the same numbers as its runs one by one
-            terms = _update_terms(terms, truth.terms(bearing), moved)
-            terms_at = np.where(moved, bearing, terms_at)
-        plant.advance(i_cmd, base_rate[k], terms, 1.0 + ripple(config, joint_true, bearing))
-        rec['friction_nm'][k] = plant.friction
-        v_filter = v_filter + alpha_v * (plant.omega - base_rate[k, S - 1] - v_filter)
-        # ---------------------------------------------------------------- thermal
-        env_k = env0 + ramp * t_k
-        new_bearing = _lag_step(bearing, env_k, ramp, T, config.thermal_time_constant_s)
-        sensor_t = _lag_step(sensor_t, bearing, (new_bearing - bearing) / T, T,
-                             config.temperature_sensor_time_constant_s)
-        bearing = new_bearing
+        loop.step()
         if progress is not None and (k % every == 0 or k == n - 1):
             progress((k + 1) / n)
-    return BatchResult(config, profile, tuple(runs), Traces(**rec), sampled)
+    return loop.result()

@@ -142,3 +142,26 @@ def test_estimator_trace_as_the_suites_input_streams():
     np.testing.assert_array_equal(arrays.motor_current.effort['elevation'], res.traces.current_measured_a[::10, 1])
     assert len(arrays.temperature.stamp_ns) == cfg.temperature_rate_hz * 1.0   # the sensor's own rate
     assert abs(float(np.mean(arrays.temperature.temperature_c)) - 20.0) < 0.2
+
+
+def test_stepping_the_closed_loop_is_simulate():
+    """A real-time adapter steps the loop tick by tick and publishes last(); same numbers as simulate()."""
+    from gimbal_friction.core.errors import ConfigError
+    from gimbal_friction.sim.engine import ClosedLoop
+
+    cfg = SimConfig()
+    prof = make_profile(cfg, 'pointing', 0.2)
+    runs = [Run('none', -40.0), Run('ideal', 20.0)]
+    whole = simulate(cfg, AXIS, prof, runs)
+    loop = ClosedLoop(cfg, AXIS, prof, runs)
+    for k in range(prof.time_s.shape[0]):
+        loop.step()
+        np.testing.assert_array_equal(loop.last().joint_position_rad, whole.traces.joint_position_rad[k])
+        if k == 99:
+            half = loop.result()
+            assert half.traces.los_rate_rad_s.shape == (100, 2) and half.profile.time_s.shape == (100,)
+    assert loop.done
+    with pytest.raises(ConfigError):
+        loop.step()
+    for name in whole.traces._fields:
+        np.testing.assert_array_equal(getattr(loop.result().traces, name), getattr(whole.traces, name))
