@@ -44,7 +44,7 @@ from gimbal_friction.sim.lugre import lugre_g_1995, stribeck_curve_LuGre_1995
 
 Array = NDArray[np.float64]
 
-__all__ = ['DirectionFactors', 'ModelMagnitude', 'TemperatureTerms', 'TruthFriction', 'cold_weight',
+__all__ = ['DirectionFactors', 'ModelMagnitude', 'TemperatureTerms', 'TruthFriction', 'TruthTerms', 'cold_weight',
            'direction_factors', 'ripple', 'truth_params']
 
 #: Temperatures where the ripple's cold amplification is full (−40 °C) and zero (+20 °C and above) [°C].
