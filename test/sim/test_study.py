@@ -1,0 +1,100 @@
+"""The loop study on the short profile: ordering of the cases at -40 degC, records, refit hook, goals."""
+
+from __future__ import annotations
+
+import itertools
+import math
+
+import pytest
+
+from gimbal_friction.core.errors import ConfigError, FitError
+from gimbal_friction.core.params import AxisParams
+from gimbal_friction.sim.config import SimConfig
+from gimbal_friction.sim.study import goal_checks, run_study
+
+#: a tiny study configuration for the plumbing tests
+TINY = SimConfig(tracking_duration_s=1.2, scan_duration_s=1.2, pointing_duration_s=1.2, settle_s=0.5)
+KEYS = {'case', 'temperature_c', 'profile', 'rate_error_rms_rad_s', 'rate_error_peak_rad_s',
+        'position_error_rms_rad', 'position_error_peak_rad', 'reversal_error_peak_rad', 'current_margin'}
+
+
+@pytest.fixture(scope='module')
+def cold_study():
+    seen = []
+    res = run_study(SimConfig(), temperatures=[-40.0], profiles=['tracking', 'pointing'],
+                    cases=['none', 'feedforward', 'ideal'], short=True,
+                    progress=lambda stage, f: seen.append((stage, f)))
+    return res, seen
+
+
+def test_ideal_beats_feedforward_beats_no_compensation_in_the_cold(cold_study):
+    """(e) <= (c) < (a) at -40 degC on the short tracking (1/3 rpm, one reversal) and pointing profiles."""
+    res, _ = cold_study
+    rms = {(r['profile'], r['case']): r['rate_error_rms_rad_s'] for r in res.records}
+    for profile in ('tracking', 'pointing'):
+        assert rms[(profile, 'ideal')] <= rms[(profile, 'feedforward')] < rms[(profile, 'none')], profile
+
+
+def test_records_carry_the_contract_fields(cold_study):
+    res, seen = cold_study
+    assert len(res.records) == 2 * 3
+    for rec in res.records:
+        assert set(rec) >= KEYS
+        assert all(math.isfinite(rec[k]) for k in KEYS - {'case', 'profile'})
+        assert 0.0 < rec['current_margin'] < 1.0
+    assert [r['case'] for r in res.records[:3]] == ['none', 'feedforward', 'ideal']
+    assert {t.case for t in res.reversal_traces} == {'none', 'feedforward', 'ideal'}
+    assert seen[-1][1] == pytest.approx(1.0) and all(b[1] >= a[1] for a, b in itertools.pairwise(seen))
+    assert res.config.tracking_duration_s == 5.5
+
+
+def test_refit_case_uses_the_estimators_samples_from_the_same_simulation():
+    calls = []
+
+    def refit(traces, axis, config):
+        calls.append([t.run for t in traces])
+        return axis.replace(walther_a=axis.walther_a + config.lubricant_walther_a_shift)   # the truth's lubricant
+
+    res = run_study(TINY, temperatures=[-40.0, 20.0], profiles=['scan'], cases=['none', 'refit'], refit=refit)
+    assert [[(r.case, r.temperature_c) for r in c] for c in calls] == [[('feedforward', -40.0), ('feedforward', 20.0)]]
+    assert res.refit_params is not None and res.refit_params.walther_a == pytest.approx(8.6345)
+    assert sorted((r['case'], r['temperature_c']) for r in res.records) == [
+        ('none', -40.0), ('none', 20.0), ('refit', -40.0), ('refit', 20.0)]
+    assert any('walther_a 8.6195 -> 8.6345' in n for n in res.notes)
+
+
+def test_default_refit_moves_the_lubricant_towards_the_truth():
+    res = run_study(SimConfig(), AxisParams(), temperatures=[-40.0], profiles=['tracking'],
+                    cases=['feedforward', 'refit'], short=True)
+    assert res.refit_params is not None
+    # truth walther_a = 8.6195 + 0.015; the CW factor of the truth (1.015 at -40 degC) is folded into it
+    assert 8.6195 + 0.01 < res.refit_params.walther_a < 8.6195 + 0.03
+
+
+def test_a_refused_refit_leaves_the_case_out_with_a_note():
+    def refit(traces, axis, config):
+        raise FitError('too few samples: 0 (need at least 20)')
+
+    res = run_study(TINY, temperatures=[20.0], profiles=['pointing'], cases=['none', 'refit'], refit=refit)
+    assert {r['case'] for r in res.records} == {'none'}
+    assert res.notes == ['case refit left out: the refit was refused (too few samples: 0 (need at least 20))']
+
+
+@pytest.mark.parametrize(('kwargs', 'parameter'), [
+    ({'cases': ['magic']}, 'cases'), ({'profiles': ['spiral']}, 'profiles'), ({'temperatures': []}, 'temperatures'),
+    ({'temperatures': [-80.0]}, 'temperatures')])
+def test_bad_study_arguments_are_refused(kwargs, parameter):
+    with pytest.raises(ConfigError) as info:
+        run_study(SimConfig(), **kwargs)
+    assert info.value.parameter == parameter
+
+
+def test_goal_checks():
+    recs = []
+    for case, rms, rev in [('none', 10.0, 5.0), ('constant', 5.0, 4.0), ('feedforward', 3.0, 6.0),
+                           ('refit', 1.1, 1.0), ('ideal', 1.0, 1.0)]:
+        recs.append({'profile': 'tracking', 'case': case, 'temperature_c': -40.0, 'rate_error_rms_rad_s': rms,
+                     'reversal_error_peak_rad': rev})
+    got = {g['goal']: (round(g['value'], 6), g['met']) for g in goal_checks(recs)}
+    assert got == {'c_vs_a_cold': (0.7, True), 'c_vs_a_all': (0.7, True), 'c_reversal': (1.2, False),
+                   'c_vs_b_cold': (0.4, True), 'd_near_e_cold': (1.1, True)}
