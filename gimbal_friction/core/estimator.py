@@ -15,13 +15,17 @@ is refused (``'friction opposes motion'``).
 
 Two methods (``method`` setting: ``steady_state``, ``observer`` or ``both``):
 
+The acceleration ``α̂`` of a joint state (both methods) is the least-squares slope of the joint velocity over the
+accepted joint states of the last ``acceleration_window_s`` (at least the last three; unknown when those span more
+than ten windows and 0.25 s, i.e. a gap in the data): at 1 kHz the difference of two successive velocities is
+mostly noise.
+
 - **steady_state** — the paper's chamber protocol: a sample counts only at the commanded constant speed, inside
-  the position window, with low acceleration, after a dwell (in this order, the first failing check is the reason:
-  ``'outside position window'``, ``'speed off command'``, ``'acceleration'``, ``'dwell'``); α̂ is not used.
-- **observer** — friction while the gimbal works: ``α̂`` is the least-squares slope of the joint velocity over
-  the accepted joint states of the last ``observer_window_s`` (at least the last three); a sample counts when the
-  speed is away from zero (``'observer: speed near zero'``), the window holds three joint states within ten
-  windows' time (``'observer: window'``),
+  the position window, with ``|α̂| ≤ max_accel_rad_s2`` (known), after a dwell (in this order, the first failing
+  check is the reason: ``'outside position window'``, ``'speed off command'``, ``'acceleration'``, ``'dwell'``);
+  J·α̂ is not subtracted (it is small by this rule).
+- **observer** — friction while the gimbal works: a sample counts when the speed is away from zero
+  (``'observer: speed near zero'``), α̂ is known (``'observer: window'``),
   ``|α̂| ≤ observer_max_accel_rad_s2`` (``'observer: acceleration'``) and the standard error of α̂ is at most
   ``observer_max_accel_noise_rad_s2`` (``'observer: acceleration noise'``).
 - **both** — a steady-state sample where the steady-state rules hold, else an observer sample where the observer
@@ -92,8 +96,10 @@ from gimbal_friction.core.xp import ARRAY
 HISTORY_LENGTH = 256
 #: currents waiting for their joint state, per joint [-]
 WAIT_LENGTH = 256
-#: most joint states used in one observer window [-]
+#: most joint states used in one acceleration window [-]
 OBSERVER_MAX_SAMPLES = 64
+#: joint states of an acceleration window spanning more than this (or ten windows) straddle a gap [ns]
+MAX_GAP_NS = 250_000_000
 #: joint key of rejections that belong to no configured joint (unknown names)
 UNKNOWN_JOINT = '*'
 METHODS = ('steady_state', 'observer', 'both')
@@ -143,8 +149,8 @@ class EstimatorSettings:
                                       '(paper: swept from -6 deg, kept from -5 deg)')
     position_max_rad: float = setting(math.radians(10.0), 'rad', 'upper end of the accepted position window '
                                       '(paper: swept to +11 deg, kept to +10 deg)')
-    max_accel_rad_s2: float = setting(0.1, 'rad/s^2', 'largest |dv/dt| between successive joint states of a '
-                                      'joint for a sample to count as steady')
+    max_accel_rad_s2: float = setting(0.1, 'rad/s^2', 'largest |acceleration| (see acceleration_window_s) for a '
+                                      'sample to count as steady')
     pairing_tolerance_s: float = setting(0.005, 's', 'a current pairs with the joint state nearest its own stamp '
                                          'within this')
     max_current_a: float = setting(2.0, 'A', 'motor current rating; larger |current| is rejected as bad input')
@@ -158,8 +164,8 @@ class EstimatorSettings:
     ripple_bins: int = setting(15, '-', 'position bins across the window for the ripple statistic')
     stamp_reset_s: float = setting(1.0, 's', 'a joint-state stamp earlier than the last accepted one by more than '
                                    'this restarts the joint\'s stream (time source jumped back)')
-    observer_window_s: float = setting(0.01, 's', 'observer: velocity samples of this last time span give the '
-                                       'acceleration (least-squares slope)')
+    acceleration_window_s: float = setting(0.01, 's', 'the acceleration of a joint state is the least-squares '
+                                           'slope of the velocities of this last time span (at least the last 3)')
     observer_min_speed_rad_s: float = setting(0.01, 'rad/s', 'observer: |velocity| must be at least this (away '
                                               'from the Stribeck/pre-sliding region around zero speed)')
     observer_max_accel_rad_s2: float = setting(2.0, 'rad/s^2', 'observer: largest |acceleration| accepted (keeps '
@@ -193,7 +199,7 @@ class EstimatorSettings:
             ('ripple_bins', isinstance(bins, int) and not isinstance(bins, bool) and 1 <= bins <= 10000,
              'must be an integer in [1, 10000]'),
             ('stamp_reset_s', 0.0 < self.stamp_reset_s <= 1e6, 'must lie in (0, 1e6] [s]'),
-            ('observer_window_s', 1e-4 <= self.observer_window_s <= 10.0, 'must lie in [1e-4, 10] [s]'),
+            ('acceleration_window_s', 1e-4 <= self.acceleration_window_s <= 10.0, 'must lie in [1e-4, 10] [s]'),
             ('observer_min_speed_rad_s', 0.0 < self.observer_min_speed_rad_s <= 100.0, 'must lie in (0, 100] '
              '[rad/s]'),
             ('observer_max_accel_rad_s2', 0.0 < self.observer_max_accel_rad_s2 <= 1e6,
@@ -661,13 +667,10 @@ class EstimatorLogic:
         in_win = (s.position_min_rad <= P) & (s.position_max_rad >= P)
         speed_ok = np.abs(np.abs(V) - s.commanded_speed_rad_s) <= band
         sign = np.where(V > 0.0, 1, -1)
-        # acceleration against the previous accepted joint state
-        prev_s = np.concatenate([hist.stamp[-1:], S[:-1]]) if hist.stamp.size else np.concatenate([[S[0]], S[:-1]])
-        prev_v = np.concatenate([hist.velocity[-1:], V[:-1]]) if hist.stamp.size else np.concatenate([[V[0]], V[:-1]])
-        dt = (S - prev_s) / NS_PER_S
-        with np.errstate(divide='ignore', invalid='ignore'):
-            acc = np.where(dt > 0.0, np.abs(V - prev_v) / dt, 0.0)
-        acc_bad = acc > s.max_accel_rad_s2
+        # acceleration: one estimate for both methods, the least-squares slope over the acceleration window
+        alpha, alpha_se = _window_slope(np.concatenate([hist.stamp, S]), np.concatenate([hist.velocity, V]),
+                                        hist.stamp.shape[0], ns_from_seconds(s.acceleration_window_s))
+        acc_bad = ~(np.abs(alpha) <= s.max_accel_rad_s2)   # unknown (fewer than 3 joint states yet): not steady
         # dwell: constant-speed runs (same sign, speed within tolerance)
         prev_ok = np.concatenate([[state.speed_ok_last], speed_ok[:-1]])
         prev_sign = np.concatenate([[state.run_sign if state.run_sign else 0], sign[:-1]])
@@ -680,8 +683,6 @@ class EstimatorLogic:
         state.speed_ok_last = bool(speed_ok[-1])
         state.run_sign = int(sign[-1]) if speed_ok[-1] else 0
         state.run_start = int(run_start[-1])
-        alpha, alpha_se = _window_slope(np.concatenate([hist.stamp, S]), np.concatenate([hist.velocity, V]),
-                                        hist.stamp.shape[0], ns_from_seconds(s.observer_window_s))
         return _History(S, A, P, V, code.astype(np.int8), alpha, alpha_se)
 
     def _observer_code(self, full: _History, idx: NDArray[np.intp]) -> NDArray[np.int64]:
@@ -753,7 +754,7 @@ def _window_slope(stamp: NDArray[np.int64], velocity: NDArray[np.float64], first
                   ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """Least-squares slope of velocity over time [rad/s²] and its standard error, for each sample from ``first``
     on, over the samples of the last ``window_ns`` — at least the last 3, at most OBSERVER_MAX_SAMPLES; NaN where
-    there are fewer than 3 or they span more than 10 windows (a gap in the data)."""
+    there are fewer than 3 or they span more than 10 windows and MAX_GAP_NS (a gap in the data)."""
     n = stamp.shape[0]
     m = np.arange(first, n)
     if m.size == 0:
@@ -781,7 +782,7 @@ def _window_slope(stamp: NDArray[np.int64], velocity: NDArray[np.float64], first
         stv += dt * dv
         svv += dv * dv
     span = stamp[m] - stamp[m - count + 1]
-    usable = (count >= 3) & (stt > 0.0) & (span <= 10 * window_ns)
+    usable = (count >= 3) & (stt > 0.0) & (span <= max(10 * window_ns, MAX_GAP_NS))
     with np.errstate(divide='ignore', invalid='ignore'):
         slope = np.where(usable, stv / stt, np.nan)
         resid = np.maximum(svv - slope * stv, 0.0)

@@ -249,17 +249,26 @@ class Feedforward:
         return time_s - self.last_temperature_time_s
 
     # ------------------------------------------------------------------ one joint (a controller tick)
+    def rule(self, joint: str, velocity_rad_s: Any, temperature_c: Any, xp: Any, terms: Any = None) -> Any:
+        """The torque rule of ``joint`` [N·m] at velocities [rad/s] and temperatures [°C] (finite), floats
+        (``xp`` = SCALAR) or arrays (ARRAY); ``terms`` may carry the table's temperature terms already computed
+        for these temperatures. No counting, no input checks: the callers below do those."""
+        s = self.settings
+        table = self.tables[joint]
+        if terms is None:
+            terms = table.temperature_terms(temperature_c, xp)
+        magnitude = table.magnitude_from_terms(terms, velocity_rad_s, xp)
+        k_dir = direction_factor(self.axes[joint], velocity_rad_s, xp)
+        return feedforward_torque_nm(magnitude, velocity_rad_s, k_dir, s.velocity_threshold_rad_s, s.max_torque_nm,
+                                     xp)
+
     def torque_at(self, joint: str, velocity_rad_s: float, temperature_c: float) -> float:
         """Feedforward torque [N·m] of ``joint`` at ``velocity_rad_s`` [rad/s] and ``temperature_c`` [°C] (NaN:
         zero policy, 0 N·m). Non-finite velocity gives 0 N·m. Counts saturation."""
         if not (math.isfinite(velocity_rad_s) and temperature_c == temperature_c):
             return 0.0
-        s = self.settings
-        magnitude = self.tables[joint].magnitude_nm(temperature_c, velocity_rad_s, SCALAR)
-        k_dir = direction_factor(self.axes[joint], velocity_rad_s, SCALAR)
-        torque: float = feedforward_torque_nm(magnitude, velocity_rad_s, k_dir, s.velocity_threshold_rad_s,
-                                              s.max_torque_nm, SCALAR)
-        if abs(torque) >= s.max_torque_nm:
+        torque: float = self.rule(joint, velocity_rad_s, temperature_c, SCALAR)
+        if abs(torque) >= self.settings.max_torque_nm:
             self.counters.add(self.counters.saturated, joint)
         return torque
 
@@ -353,10 +362,7 @@ class Feedforward:
             tt = t_used[rows]
             zero = np.isnan(tt)
             with np.errstate(over='ignore', invalid='ignore'):  # absurd speeds saturate, as on floats
-                magnitude = self.tables[joint].magnitude_nm(np.where(zero, s.fallback_temperature_c, tt), vv, ARRAY)
-                k_dir = direction_factor(self.axes[joint], vv, ARRAY)
-                torque = feedforward_torque_nm(magnitude, vv, k_dir, s.velocity_threshold_rad_s, s.max_torque_nm,
-                                               ARRAY)
+                torque = self.rule(joint, vv, np.where(zero, s.fallback_temperature_c, tt), ARRAY)
             torque = np.where(zero, 0.0, torque)
             c.add(c.saturated, joint, int(np.count_nonzero(np.abs(torque) >= s.max_torque_nm)))
             commands[rows, j] = torque

@@ -16,7 +16,7 @@ the in-process controller API) or for numpy arrays (``xp`` = ARRAY: the offline 
 from __future__ import annotations
 
 import math
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -30,7 +30,7 @@ from gimbal_friction.core.units import NM_PER_NMM, NMM_PER_NM, RAD_S_PER_RPM, RP
 from gimbal_friction.core.viscosity import nu_Walther
 from gimbal_friction.core.xp import ARRAY, SCALAR
 
-__all__ = ['FrictionTable', 'interp_uniform']
+__all__ = ['FrictionTable', 'TemperatureTerms', 'interp_uniform']
 
 
 def interp_uniform(values: Any, x: Any, x0: float, step: float, n: int, xp: Any) -> Any:
@@ -46,6 +46,14 @@ def interp_uniform(values: Any, x: Any, x0: float, step: float, n: int, xp: Any)
     w = pos - i
     lo = xp.take(values, i)
     return lo + w * (xp.take(values, i + 1) - lo)
+
+
+class TemperatureTerms(NamedTuple):
+    """The temperature-dependent terms of the tabulated model (floats or arrays)."""
+
+    m_contact_nmm: Any   #: M_R + M_S of the axis, interpolated [N·mm]
+    viscosity_cst: Any   #: kinematic viscosity ν (Eq. 20/21) [mm²/s]
+    pitch_mm: Any        #: pitch diameter d_m at temperature (Eq. 11) [mm]
 
 
 class FrictionTable:
@@ -93,15 +101,25 @@ class FrictionTable:
     def magnitude_nm(self, t_c: Any, omega_rad_s: Any, xp: Any = SCALAR) -> Any:
         """Friction torque magnitude of the axis [N·m] at temperature ``t_c`` [°C] (clamped to the table) and
         angular velocity ``omega_rad_s`` [rad/s] (magnitude used): interpolated M_R + M_S, exact M_L (Eq. 9)."""
+        return self.magnitude_from_terms(self.temperature_terms(t_c, xp), omega_rad_s, xp)
+
+    def temperature_terms(self, t_c: Any, xp: Any = SCALAR) -> TemperatureTerms:
+        """The parts of :meth:`magnitude_nm` that depend on temperature only (a caller whose temperature changes
+        slowly, like a simulation over many runs, computes them once per temperature)."""
         p = self.params
         t = xp.clip(t_c, self.t_min, self.t_max)
         m_rs = interp_uniform(self._m_rs[xp], t, self.t_min, self.step, self.n, xp)
         nu = nu_Walther(t + p.kelvin_offset_k, p.walther_a, p.walther_b, p.viscosity_offset_cst, p.viscosity_model,
                         xp)
         d_m = thermal_expansion_Eq11(p.pitch_diameter_mm, p.steel_cte_per_c, t - p.reference_temperature_c, xp)
-        m_l = p.bearings_per_axis * viscous_torque_Palmgren_1959(p.palmgren_factor, nu, omega_rad_s * RPM_PER_RAD_S,
-                                                                  d_m, xp)
-        return (m_rs + m_l) * NM_PER_NMM
+        return TemperatureTerms(m_rs, nu, d_m)
+
+    def magnitude_from_terms(self, terms: TemperatureTerms, omega_rad_s: Any, xp: Any = SCALAR) -> Any:
+        """:meth:`magnitude_nm` from :meth:`temperature_terms` and the angular velocity [rad/s], [N·m]."""
+        p = self.params
+        m_l = p.bearings_per_axis * viscous_torque_Palmgren_1959(p.palmgren_factor, terms.viscosity_cst,
+                                                                  omega_rad_s * RPM_PER_RAD_S, terms.pitch_mm, xp)
+        return (terms.m_contact_nmm + m_l) * NM_PER_NMM
 
     def viscosity_cst(self, t_c: float) -> float:
         """Kinematic viscosity of the lubricant at ``t_c`` [°C] (Eq. 20/21, exact), [mm²/s]."""

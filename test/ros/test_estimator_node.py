@@ -161,7 +161,9 @@ def sweep_plan():
                 continue
             if not lo <= pos <= hi:
                 counts['outside position window'] += 1
-            elif k in wobble or (k - 1) in wobble:      # 5 % in 40 ms = 0.044 rad/s^2 > 0.02
+            elif k in wobble or (k - 2) in wobble:
+                # the least-squares slope over the last three joint states (80 ms): 5 % of V in 80 ms
+                # = 0.022 rad/s^2 > 0.02 in the windows ending at the wobble and two samples later
                 counts['acceleration'] += 1
             elif k * dt < 500 * MS:                     # within 0.5 s of the start of the pass
                 counts['dwell'] += 1
