@@ -77,7 +77,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections.abc import Mapping, Sequence
-from typing import NamedTuple
+from typing import Any, NamedTuple, cast
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -273,7 +273,8 @@ class SampleModel:
 
     def params(self, v: Mapping[str, float]) -> AxisParams:
         """``base`` with the fit parameters ``v`` (not validated: used inside the fit only)."""
-        return dataclasses.replace(self.base, **{name: v[name] for name in FIT_PARAMETERS})
+        changes = cast('dict[str, Any]', {name: v[name] for name in FIT_PARAMETERS})
+        return dataclasses.replace(self.base, **changes)
 
     def viscosity_cst(self, v: Mapping[str, float]) -> Array:
         """ν of every sample, Eq. (20)/(21), [mm²/s]."""
@@ -282,7 +283,7 @@ class SampleModel:
 
     def upper_branch(self, v: Mapping[str, float]) -> NDArray[np.bool_]:
         """Samples in Palmgren's upper branch ``ν·n ≥ 2000`` (M_L depends on ν), Eq. (9)."""
-        return self.viscosity_cst(v) * self.n >= PALMGREN_THRESHOLD
+        return np.asarray(self.viscosity_cst(v) * self.n >= PALMGREN_THRESHOLD, dtype=bool)
 
     def torque_nmm(self, v: Mapping[str, float], *, offset: bool = True) -> Array:
         """|τ| of every sample, [N·mm] (with the offset, or the friction alone)."""
@@ -332,7 +333,7 @@ class SampleModel:
 class _Points(NamedTuple):
     """Fine bins of the statistics: the model is evaluated at their mean temperature and speed."""
 
-    count: Array
+    weight: Array                # samples [-]
     t: Array                     # mean temperature [°C]
     n: Array                     # mean speed [rpm]
     d: Array                     # ±1
@@ -342,7 +343,7 @@ class _Points(NamedTuple):
 
 
 def _points(stats: SufficientStats) -> _Points:
-    c = stats.count
+    c = stats.samples
     if stats.exact:
         return _Points(c, stats.sum_t / c, stats.sum_n / c, stats.direction.astype(float), stats.mean_y, stats.m2_y,
                        np.arange(len(stats), dtype=np.intp))
@@ -350,18 +351,23 @@ def _points(stats: SufficientStats) -> _Points:
     _, inverse = np.unique(keys, axis=0, return_inverse=True)
     inverse = inverse.reshape(-1).astype(np.intp)
     m = int(inverse.max()) + 1 if inverse.size else 0
-    count = np.bincount(inverse, weights=c, minlength=m)
-    y = np.bincount(inverse, weights=c * stats.mean_y, minlength=m) / count
-    m2 = np.bincount(inverse, weights=stats.m2_y + c * (stats.mean_y - y[inverse]) ** 2, minlength=m)
+    count = _sum(inverse, c, m)
+    y = _sum(inverse, c * stats.mean_y, m) / count
+    m2 = _sum(inverse, stats.m2_y + c * (stats.mean_y - y[inverse]) ** 2, m)
     d = np.zeros(m)
     d[inverse] = stats.direction
-    return _Points(count, np.bincount(inverse, weights=stats.sum_t, minlength=m) / count,
-                   np.bincount(inverse, weights=stats.sum_n, minlength=m) / count, d, y, m2, inverse)
+    return _Points(count, _sum(inverse, stats.sum_t, m) / count, _sum(inverse, stats.sum_n, m) / count, d, y, m2,
+                   inverse)
+
+
+def _sum(index: NDArray[np.intp], weights: Array, m: int) -> Array:
+    """Sum of ``weights`` per ``index`` (0 … m−1)."""
+    return np.asarray(np.bincount(index, weights=weights, minlength=m), dtype=np.float64)
 
 
 class _Groups(NamedTuple):
-    index: NDArray[np.intp]      # group of every point (−1: dropped)
-    count: Array                 # samples per group
+    of: NDArray[np.intp]         # group of every point (−1: dropped)
+    size: Array                  # samples per group
     t_bin: Array                 # bin centre [°C]
     direction: NDArray[np.int64]
     speed_bin: NDArray[np.int64]
@@ -379,7 +385,7 @@ def _group(pts: _Points, bin_width_c: float, min_bin_samples: int) -> _Groups:
     uniq_arr, all_index = np.unique(keys, axis=0, return_inverse=True)
     all_index = all_index.reshape(-1).astype(np.intp)
     uniq = [(float(a), int(b), int(c)) for a, b, c in uniq_arr.tolist()]
-    all_count = np.bincount(all_index, weights=pts.count, minlength=len(uniq))
+    all_count = _sum(all_index, pts.weight, len(uniq))
     used = all_count >= min_bin_samples
     remap = np.full(len(uniq), -1, dtype=np.intp)
     remap[used] = np.arange(int(used.sum()))
@@ -390,9 +396,9 @@ def _group(pts: _Points, bin_width_c: float, min_bin_samples: int) -> _Groups:
                    np.array([uniq[i][2] for i in sel], dtype=np.int64), all_index, all_count, uniq, used)
 
 
-def _group_mean(index: NDArray[np.intp], count: Array, weights: Array, values: Array) -> Array:
+def _group_mean(index: NDArray[np.intp], size: Array, weights: Array, values: Array) -> Array:
     """Sample-weighted mean of point ``values`` per group (``index`` of the used points)."""
-    return np.bincount(index, weights=weights * values, minlength=count.shape[0]) / count
+    return np.bincount(index, weights=weights * values, minlength=size.shape[0]) / size
 
 
 def _group_se(stats: SufficientStats, pts: _Points, groups: _Groups, tau0: Array, mean_abs: Array,
@@ -403,21 +409,21 @@ def _group_se(stats: SufficientStats, pts: _Points, groups: _Groups, tau0: Array
     the group's cells in time order cut into 10 consecutive stretches of (nearly) equal sample counts, as
     ``numpy.array_split`` cuts samples; a cell goes to the stretch its first sample falls in.
     """
-    k = groups.count.shape[0]
-    used_pt = groups.index >= 0
-    idx = groups.index[used_pt]
-    c = pts.count[used_pt]
+    k = groups.size.shape[0]
+    used_pt = groups.of >= 0
+    idx = groups.of[used_pt]
+    c = pts.weight[used_pt]
     r = (pts.y - tau0)[used_pt]
-    r_mean = np.bincount(idx, weights=c * r, minlength=k) / groups.count
+    r_mean = np.bincount(idx, weights=c * r, minlength=k) / groups.size
     ss = np.bincount(idx, weights=pts.m2[used_pt] + c * (r - r_mean[idx]) ** 2, minlength=k)
-    n = groups.count
+    n = groups.size
     s = np.sqrt(np.where(n > 1.0, ss / np.maximum(n - 1.0, 1.0), 0.0))
     se = s / np.sqrt(n)
     # batch means over the cells
-    cell_group = groups.index[pts.cell_point]
+    cell_group = groups.of[pts.cell_point]
     keep = cell_group >= 0
     cg = cell_group[keep]
-    cc = stats.count[keep]
+    cc = stats.samples[keep]
     cr = stats.mean_y[keep] - tau0[pts.cell_point[keep]]
     order = np.lexsort((np.flatnonzero(keep), stats.batch[keep], cg))
     cg, cc, cr = cg[order], cc[order], cr[order]
@@ -489,14 +495,14 @@ class _Problem:
         self.f_scale = f_scale
         self.max_nfev = max_nfev
         self.base = model.values()
-        self.used = groups.index >= 0
+        self.used = groups.of >= 0
         self.absolute = absolute  # weights are 1/standard error (False: relative, scale from the residuals)
         self.offset_limit = float(np.min(np.abs(y_mean))) if y_mean.size else 0.0
 
     # internal <-> raw: a' = a + b x_ref (centred Walther form), everything else raw
     def _to_values(self, names: Sequence[str], theta: Array) -> dict[str, float]:
         v = dict(self.base)
-        v.update({name: float(x) for name, x in zip(names, theta)})
+        v.update({name: float(x) for name, x in zip(names, theta, strict=False)})
         if 'walther_a' in names:
             v['walther_a'] = v['walther_a'] - v['walther_b'] * self.x_ref
         return v
@@ -509,7 +515,7 @@ class _Problem:
     def bounds(self, names: Sequence[str]) -> tuple[Array, Array]:
         v = self.base
         lo, hi = [], []
-        for name, x0 in zip(names, self.internal0(names)):
+        for name, x0 in zip(names, self.internal0(names), strict=False):
             if name == 'walther_a':
                 lo.append(x0 - 0.3)
                 hi.append(x0 + 0.3)
@@ -535,7 +541,7 @@ class _Problem:
         v = self._to_values(names, theta)
         tau = self.model.torque_nmm(v)[self.used] * 1e-3
         g = self.groups
-        return (self.y_mean - _group_mean(g.index[self.used], g.count, self.pts.count[self.used], tau)) / self.se
+        return (self.y_mean - _group_mean(g.of[self.used], g.size, self.pts.weight[self.used], tau)) / self.se
 
     def jacobian(self, names: Sequence[str], theta: Array) -> Array:
         v = self._to_values(names, theta)
@@ -544,9 +550,9 @@ class _Problem:
             ia, ib = names.index('walther_a'), names.index('walther_b')
             raw[:, ib] = raw[:, ib] - self.x_ref * raw[:, ia]
         g = self.groups
-        idx = g.index[self.used]
-        w = self.pts.count[self.used]
-        cols = [np.bincount(idx, weights=w * raw[:, k], minlength=g.count.shape[0]) / g.count
+        idx = g.of[self.used]
+        w = self.pts.weight[self.used]
+        cols = [np.bincount(idx, weights=w * raw[:, k], minlength=g.size.shape[0]) / g.size
                 for k in range(len(names))]
         return -np.column_stack(cols) / self.se[:, None]
 
@@ -568,7 +574,7 @@ class _Problem:
                    f'{res.cost:.6g}')
             raise FitError(msg)
         span = hi - lo
-        for name, x, low, high, width in zip(names, res.x, lo, hi, span):
+        for name, x, low, high, width in zip(names, res.x, lo, hi, span, strict=False):
             if (x - low <= 1e-6 * width and low != 0.0) or high - x <= 1e-6 * width:
                 raw = self._to_values(names, res.x)[name]
                 msg = (f'the fit diverged: {_label(name)} ran to the edge of its plausible range ({raw:.6g}); the '
@@ -617,10 +623,10 @@ def _distinct_viscous_temperatures(pts: _Points, groups: _Groups, upper: NDArray
     """Temperature bins of used groups with at least half (and ``min_bin_samples``) of their samples in the upper
     Palmgren branch."""
     g = groups
-    used = g.index >= 0
-    n_upper = np.bincount(g.index[used], weights=pts.count[used] * upper[used].astype(float),
-                          minlength=g.count.shape[0])
-    ok = (n_upper >= min_bin_samples) & (n_upper >= 0.5 * g.count)
+    used = g.of >= 0
+    n_upper = np.bincount(g.of[used], weights=pts.weight[used] * upper[used].astype(float),
+                          minlength=g.size.shape[0])
+    ok = (n_upper >= min_bin_samples) & (n_upper >= 0.5 * g.size)
     return sorted({float(x) for x in g.t_bin[ok]})
 
 
@@ -636,7 +642,7 @@ def palmgren_threshold_temperature(base: AxisParams, speed_rpm: float) -> float:
         T = 10.0**x if base.viscosity_model == 'walther' else 10.0 ** (10.0**x)
     except (ValueError, OverflowError, ZeroDivisionError):
         return math.nan
-    return T - base.kelvin_offset_k
+    return float(T) - base.kelvin_offset_k
 
 
 def _check_options(fit: Sequence[str], weights: str, loss: str, bin_width_c: float, offset: str,
@@ -792,11 +798,11 @@ def refit_stats(base: AxisParams, stats: SufficientStats, *, fit: Sequence[str] 
     if np.any(pts.t < -200.0) or np.any(pts.t > 400.0):
         raise FitError('temperatures must lie in [-200, 400] degC for this model')
     groups = _group(pts, bin_width_c, max(int(min_bin_samples), 2))
-    if groups.count.shape[0] == 0:
+    if groups.size.shape[0] == 0:
         msg = (f'too few samples per temperature bin: no ({bin_width_c:g} degC bin, direction, speed) group has '
                f'{min_bin_samples} samples or more ({n_total} samples in {len(groups.all_keys)} groups)')
         raise FitError(msg)
-    used = groups.index >= 0
+    used = groups.of >= 0
     try:
         model = SampleModel(base, pts.t, pts.n, pts.d)
     except GimbalFrictionError as err:
@@ -804,8 +810,8 @@ def refit_stats(base: AxisParams, stats: SufficientStats, *, fit: Sequence[str] 
         raise FitError(msg) from None
     v0 = model.values()
     tau0 = model.torque_nmm(v0) * 1e-3
-    idx = groups.index[used]
-    y_mean = _group_mean(idx, groups.count, pts.count[used], pts.y[used])
+    idx = groups.of[used]
+    y_mean = _group_mean(idx, groups.size, pts.weight[used], pts.y[used])
     if weights == 'bin_se':
         se = _group_se(stats, pts, groups, tau0, np.abs(y_mean), se_floor_rel)
         f_default = 3.0
@@ -819,7 +825,7 @@ def refit_stats(base: AxisParams, stats: SufficientStats, *, fit: Sequence[str] 
     upper0 = model.upper_branch(v0)
     visc_temps0 = _distinct_viscous_temperatures(pts, groups, upper0, min_bin_samples)
     sel_x = used & upper0 if np.any(used & upper0) else used
-    x_ref = float(np.average(model.x[sel_x], weights=pts.count[sel_x]))
+    x_ref = float(np.average(model.x[sel_x], weights=pts.weight[sel_x]))
     problem = _Problem(model, pts, groups, y_mean, se, x_ref, loss, scale, max_nfev, weights == 'bin_se')
 
     requested = [name for name in FIT_PARAMETERS if name in fit]
@@ -942,14 +948,14 @@ def _degenerate(active: Sequence[str], J: Array) -> dict[str, str]:
     norms = np.linalg.norm(J, axis=0)
     top = float(norms.max()) if norms.size else 0.0
     zero = {name: 'the data do not depend on it (zero sensitivity)'
-            for name, nk in zip(active, norms) if not (top > 0.0 and nk > 1e-9 * top)}
+            for name, nk in zip(active, norms, strict=False) if not (top > 0.0 and nk > 1e-9 * top)}
     if zero or len(active) < 2:
         return zero
     _, s, vt = np.linalg.svd(J / norms, full_matrices=False)
     cond = float(s[0] / s[-1]) if s[-1] > 0.0 else math.inf
     if cond <= MAX_CONDITION:
         return {}
-    involved = [name for name, c in zip(active, vt[-1]) if abs(c) > 0.1]
+    involved = [name for name, c in zip(active, vt[-1], strict=False) if abs(c) > 0.1]
     drop = involved[-1]
     others = ', '.join(_label(name) for name in involved if name != drop)
     return {drop: f'collinear with {others}: the data determine only a combination (condition number {cond:.3g})'}
@@ -993,7 +999,7 @@ def _result(base: AxisParams, stats: SufficientStats, problem: _Problem, groups:
             calibration_se_nm: float | None) -> RefitResult:
     cov_int, dof = _covariance(sol, problem.absolute)
     cov = sol.to_raw @ cov_int @ sol.to_raw.T
-    se_active = dict(zip(active, np.sqrt(np.abs(np.diag(cov))).tolist()))
+    se_active = dict(zip(active, np.sqrt(np.abs(np.diag(cov))).tolist(), strict=False))
     q = float(stdtrit(dof, 0.975)) if dof > 0 else Z95
     v0 = model.values()
     fitted, ses, cis, ident = {}, {}, {}, {}
@@ -1018,8 +1024,8 @@ def _result(base: AxisParams, stats: SufficientStats, problem: _Problem, groups:
     upper1 = model.upper_branch(sol.values)
     nu0 = model.viscosity_cst(v0)
     nu1 = model.viscosity_cst(sol.values)
-    used = groups.index >= 0
-    c = pts.count
+    used = groups.of >= 0
+    c = pts.weight
     n_all = len(groups.all_keys)
     ai = groups.all_index
 
@@ -1035,7 +1041,7 @@ def _result(base: AxisParams, stats: SufficientStats, problem: _Problem, groups:
     r0, r1 = grms(tau0), grms(tau1)
     nuv0, nuv1 = gmean(nu0), gmean(nu1)
     n_up = np.bincount(ai, weights=c * (upper0 & upper1), minlength=n_all)
-    se_by_group = dict(zip(np.flatnonzero(groups.used).tolist(), problem.se.tolist()))
+    se_by_group = dict(zip(np.flatnonzero(groups.used).tolist(), problem.se.tolist(), strict=False))
     bins = []
     for j, key in enumerate(groups.all_keys):
         cnt = int(round(float(groups.all_count[j])))
@@ -1058,7 +1064,7 @@ def _result(base: AxisParams, stats: SufficientStats, problem: _Problem, groups:
             'warm friction differs from the model; recalibrate (calibrate-kt), or refit with --fit ...,palmgren_factor')
     n_used = float(c[used].sum())
     message = (f'fitted {", ".join(_label(n) for n in active)} from {int(round(n_used))} samples in '
-               f'{groups.count.shape[0]} groups, {int(np.count_nonzero(used))} bins ({sol.nfev} evaluations: '
+               f'{groups.size.shape[0]} groups, {int(np.count_nonzero(used))} bins ({sol.nfev} evaluations: '
                f'{sol.message})')
     return RefitResult(
         fitted=fitted, base={name: v0[name] for name in requested}, standard_errors=ses, confidence_intervals=cis,
@@ -1097,12 +1103,12 @@ def _viscosity_intervals(model: SampleModel, pts: _Points, groups: _Groups, uppe
     k = [list(active).index(name) for name in names]
     c = cov[np.ix_(k, k)]
     out = []
-    used = groups.index >= 0
+    used = groups.of >= 0
     vm = model.base.viscosity_model
     col = {'walther_a': 0, 'walther_b': 1, 'viscosity_offset_cst': 2}
     for t_bin in visc_temps:
-        sel = used & upper & np.isin(groups.index, np.flatnonzero(groups.t_bin == t_bin))
-        t_c = float(np.average(pts.t[sel], weights=pts.count[sel]))
+        sel = used & upper & np.isin(groups.of, np.flatnonzero(groups.t_bin == t_bin))
+        t_c = float(np.average(pts.t[sel], weights=pts.weight[sel]))
         T = np.array([t_c + model.base.kelvin_offset_k])
         nu0 = float(nu_Walther(T, v0['walther_a'], v0['walther_b'], v0['viscosity_offset_cst'], vm)[0])
         nu1 = float(nu_Walther(T, v1['walther_a'], v1['walther_b'], v1['viscosity_offset_cst'], vm)[0])

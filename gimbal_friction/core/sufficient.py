@@ -113,7 +113,7 @@ class SufficientStats(NamedTuple):
     direction: IntArray   #: +1 or −1 [-]
     s_index: IntArray     #: fine speed bin floor(ln n / ln speed_ratio) [-]
     batch: IntArray       #: time batch [-] (the sample ordinal when exact)
-    count: Array          #: samples [-]
+    samples: Array        #: samples [-]
     sum_t: Array          #: Σ temperature [°C]
     sum_n: Array          #: Σ speed [rpm]
     mean_y: Array         #: mean |τ| along the motion [N·m]
@@ -123,14 +123,14 @@ class SufficientStats(NamedTuple):
     speed_ratio: float = SPEED_RATIO
     exact: bool = False
 
-    def __len__(self) -> int:  # type: ignore[override]
+    def __len__(self) -> int:
         """Number of cells [-]."""
-        return int(self.count.shape[0])
+        return int(self.samples.shape[0])
 
     @property
     def n_samples(self) -> int:
         """Samples in all cells [-]."""
-        return int(round(float(self.count.sum())))
+        return int(round(float(self.samples.sum())))
 
     # ------------------------------------------------------------------ construction
     @staticmethod
@@ -215,7 +215,8 @@ class SufficientStats(NamedTuple):
                 batches.append(s.batch - (s.batch.min() if len(s) else 0) + offset)
                 offset += len(s)
             cols[3] = np.concatenate(batches)
-            return SufficientStats(*cols, tally, self.temperature_resolution_c, self.speed_ratio, True)
+            return SufficientStats(cols[0], cols[1], cols[2], cols[3], cols[4], cols[5], cols[6], cols[7], cols[8],
+                                   tally, self.temperature_resolution_c, self.speed_ratio, True)
         return _merge_cells([self, *others], tally)
 
     def with_tally(self, tally: Tally) -> SufficientStats:
@@ -223,7 +224,7 @@ class SufficientStats(NamedTuple):
         return self._replace(tally=tally)
 
 
-_CELL_FIELDS = ('t_index', 'direction', 's_index', 'batch', 'count', 'sum_t', 'sum_n', 'mean_y', 'm2_y')
+_CELL_FIELDS = ('t_index', 'direction', 's_index', 'batch', 'samples', 'sum_t', 'sum_n', 'mean_y', 'm2_y')
 
 
 def _cells(ti: IntArray, d: IntArray, si: IntArray, batch: IntArray, t: Array, n: Array, y: Array,
@@ -233,11 +234,11 @@ def _cells(ti: IntArray, d: IntArray, si: IntArray, batch: IntArray, t: Array, n
         return SufficientStats.empty(temperature_resolution_c=resolution, speed_ratio=ratio)
     keys = (ti, (d > 0).astype(np.int64), si, batch)
     lows = [int(k.min()) for k in keys]
-    spans = [int(k.max()) - lo + 1 for k, lo in zip(keys, lows)]
+    spans = [int(k.max()) - lo + 1 for k, lo in zip(keys, lows, strict=False)]
     total = math.prod(spans)
     if total <= 8 * ti.shape[0] + 1024:
         code = np.zeros(ti.shape[0], dtype=np.int64)
-        for k, lo, span in zip(keys, lows, spans):
+        for k, lo, span in zip(keys, lows, spans, strict=False):
             code = code * span + (k - lo)
         counts = np.bincount(code, minlength=total)
         present = np.flatnonzero(counts)
@@ -251,14 +252,17 @@ def _cells(ti: IntArray, d: IntArray, si: IntArray, batch: IntArray, t: Array, n
         present = np.arange(uniq.shape[0])
     m = present.shape[0]
     count = np.bincount(inverse, minlength=m).astype(np.float64)
-    sum_y = np.bincount(inverse, weights=y, minlength=m)
-    mean_y = sum_y / count
-    m2 = np.bincount(inverse, weights=(y - mean_y[inverse]) ** 2, minlength=m)
+    mean_y = _sum(inverse, y, m) / count
+    m2 = _sum(inverse, (y - mean_y[inverse]) ** 2, m)
     first_of = np.empty(m, dtype=np.int64)
     first_of[inverse] = np.arange(ti.shape[0])  # a sample of every cell (all of a cell share its key)
     return SufficientStats(ti[first_of], d[first_of], si[first_of], batch[first_of], count,
-                           np.bincount(inverse, weights=t, minlength=m), np.bincount(inverse, weights=n, minlength=m),
-                           mean_y, m2, Tally(), resolution, ratio, False)
+                           _sum(inverse, t, m), _sum(inverse, n, m), mean_y, m2, Tally(), resolution, ratio, False)
+
+
+def _sum(index: IntArray, weights: Array, m: int) -> Array:
+    """Sum of ``weights`` per ``index`` (0 … m−1)."""
+    return np.asarray(np.bincount(index, weights=weights, minlength=m), dtype=np.float64)
 
 
 def _merge_cells(parts: list[SufficientStats], tally: Tally) -> SufficientStats:
@@ -276,10 +280,10 @@ def _merge_cells(parts: list[SufficientStats], tally: Tally) -> SufficientStats:
     new[1:] = np.any(keys[1:] != keys[:-1], axis=1)
     starts = np.flatnonzero(new)
     if starts.shape[0] == keys.shape[0]:
-        return SufficientStats(cols['t_index'], cols['direction'], cols['s_index'], cols['batch'], cols['count'],
+        return SufficientStats(cols['t_index'], cols['direction'], cols['s_index'], cols['batch'], cols['samples'],
                                cols['sum_t'], cols['sum_n'], cols['mean_y'], cols['m2_y'], tally, res, ratio, False)
     group = np.cumsum(new) - 1
-    c = cols['count']
+    c = cols['samples']
     count = np.add.reduceat(c, starts)
     sum_y = np.add.reduceat(c * cols['mean_y'], starts)
     mean = sum_y / count
