@@ -35,8 +35,9 @@ Calibration offset. An error δ in the no-load current I_0 (or T_0 = K_T I_0) of
 viscous regime (cold) and one below it (warm): the warm plateaus, whose friction does not depend on the viscosity,
 fix ``c``, and the cold ones then fix ν. It is reported with its 95 % interval and the no-load current that would
 remove it (``I_0 + c/K_T``), and it is compared with the calibration's own uncertainty σ_T0 (the 1-sigma of T_0
-that ``calibrate-kt`` prints): a warning is raised when ``|c| > 1.96 √(se_c² + σ_T0²)``, i.e. when the calibration
-cannot explain it. It has the lowest priority: a requested ``palmgren_factor`` (whose low-speed floor is a
+that ``calibrate-kt`` prints): a warning is raised when ``|c| − 1.96 se_c > σ_T0``, i.e. when the offset is beyond
+the calibration's 1-sigma even at the near end of its own 95 % interval (an I_0 off by 2 σ is flagged once the
+offset is known to better than about σ/2). It has the lowest priority: a requested ``palmgren_factor`` (whose low-speed floor is a
 constant torque too) wins a collinearity, the offset is then held at 0 and says so. ``offset='on'`` always fits it,
 ``'off'`` never. The offset is not a model parameter: the written parameters and the feedforward do not contain it.
 
@@ -181,7 +182,7 @@ class OffsetResult(NamedTuple):
     standard_error_nm: float = math.nan  #: 1-sigma [N·m]
     confidence_interval_nm: tuple[float, float] = (math.nan, math.nan)  #: 95 % [N·m]
     calibration_se_nm: float = math.nan  #: 1-sigma of the calibration's T_0 (NaN: not given) [N·m]
-    exceeds_calibration: bool | None = None  #: |c| > 1.96 √(se² + σ_T0²) (None: no calibration uncertainty)
+    exceeds_calibration: bool | None = None  #: |c| − 1.96 se > σ_T0 (None: no calibration uncertainty)
     torque_constant_nm_per_a: float = math.nan  #: K_T the data were measured with [N·m/A]
     no_load_current_a: float = math.nan  #: I_0 the data were measured with [A]
     implied_no_load_current_a: float = math.nan  #: I_0 that removes the offset, I_0 + c/K_T [A]
@@ -1088,7 +1089,7 @@ def _offset_result(mode: str, reasons: dict[str, str], se_active: dict[str, floa
         return OffsetResult(mode, False, reasons.get(OFFSET, ''), calibration_se_nm=cal, torque_constant_nm_per_a=kt,
                             no_load_current_a=i0)
     value, s = sol.values[OFFSET], se_active[OFFSET]
-    exceeds = None if calibration_se_nm is None else bool(abs(value) > Z95 * math.hypot(s, cal))
+    exceeds = None if calibration_se_nm is None else bool(abs(value) - Z95 * s > cal)
     why = 'switched on' if mode == 'on' else 'auto: plateaus in the viscous regime and below it'
     return OffsetResult(mode, True, why, value, s, (value - q * s, value + q * s), cal, exceeds, kt, i0,
                         i0 + value / kt)
