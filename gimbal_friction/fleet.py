@@ -257,7 +257,7 @@ def process_unit(unit: UnitSpec, settings: FitSettings) -> dict[str, Any]:
             rec['axes'][axis] = _axis_record(result, base)
     except GimbalFrictionError as err:
         rec['error'] = str(err)
-    except (OSError, ValueError) as err:  # a damaged file the readers did not name
+    except Exception as err:  # one unit's failure must not stop the fleet: it is its record
         rec['error'] = f'{type(err).__name__}: {err}'
     rec['seconds'] = time.perf_counter() - t0
     rec['max_rss_mb'] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0

@@ -37,9 +37,10 @@ fix ``c``, and the cold ones then fix ν. It is reported with its 95 % interval 
 remove it (``I_0 + c/K_T``), and it is compared with the calibration's own uncertainty σ_T0 (the 1-sigma of T_0
 that ``calibrate-kt`` prints): a warning is raised when ``|c| − 1.96 se_c > σ_T0``, i.e. when the offset is beyond
 the calibration's 1-sigma even at the near end of its own 95 % interval (an I_0 off by 2 σ is flagged once the
-offset is known to better than about σ/2). It has the lowest priority: a requested ``palmgren_factor`` (whose low-speed floor is a
-constant torque too) wins a collinearity, the offset is then held at 0 and says so. ``offset='on'`` always fits it,
-``'off'`` never. The offset is not a model parameter: the written parameters and the feedforward do not contain it.
+offset is known to better than about σ/2). It has the lowest priority: a requested ``palmgren_factor`` (whose
+low-speed floor is a constant torque too) wins a collinearity, the offset is then held at 0 and says so.
+``offset='on'`` always fits it, ``'off'`` never. The offset is not a model parameter: the written parameters and
+the feedforward do not contain it.
 
 Weighting (``weights='bin_se'``, the default). Samples are grouped into (temperature bin, direction, speed)
 groups; the fit matches each group's mean measured torque with the group mean of the model (averaged over the

@@ -99,12 +99,16 @@ def iter_rows(logs: Sequence[Path], chunk_rows: int = CHUNK_ROWS, report: LogRep
         for i, r in enumerate(rows):
             by_len.setdefault(r.shape[0], []).append(i)
         for idx in by_len.values():
+            labels = np.asarray([joints[i] for i in idx], dtype=str)
+            data = np.vstack([rows[i] for i in idx])
             try:
-                yield rows_from_detail(np.asarray([joints[i] for i in idx], dtype=str),
-                                       np.vstack([rows[i] for i in idx]))
+                yield rows_from_detail(labels, data)
             except ValueError as err:
                 msg = f'{RESIDUAL_DETAIL}: {err}'
                 raise FitError(msg) from None
+            except TypeError:  # core/residual_row.py: ResidualRows._make trips over its own __len__ (layout 2)
+                yield ResidualRows(labels, *(data[:, i] for i in range(data.shape[1] - 1)),
+                                   data[:, -1].astype(np.int8))
         joints.clear()
         rows.clear()
 

@@ -62,7 +62,7 @@ def test_nan_temperature_gives_nan():
 
 
 def test_parameters_are_validated():
-    with pytest.raises(ConfigError, match='direction_asymmetry_warm_c.*must exceed direction_asymmetry_cold_c'):
+    with pytest.raises(ConfigError, match=r'direction_asymmetry_warm_c.*must exceed direction_asymmetry_cold_c'):
         AxisParams().replace(direction_asymmetry_warm_c=-50.0)
     with pytest.raises(ConfigError, match='direction_asymmetry_cold'):
         AxisParams().replace(direction_asymmetry_cold=0.95)

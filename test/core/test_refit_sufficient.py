@@ -7,6 +7,7 @@ ripple, 0.1 mN*m white noise, stamps at 100 Hz.
 
 from __future__ import annotations
 
+import itertools
 import math
 
 import numpy as np
@@ -54,7 +55,7 @@ def data():
 
 
 def test_binned_refit_equals_the_per_sample_refit(data):
-    truth, (t, n, y, d, stamp) = data
+    _truth, (t, n, y, d, stamp) = data
     names = ('walther_a', 'palmgren_factor', 'sliding_friction_coefficient')
     binned = refit_model(AxisParams(), t, n, y, d, fit=names, time_s=stamp)
     exact = refit_model(AxisParams(), t, n, y, d, fit=names, time_s=stamp, exact=True)
@@ -77,7 +78,7 @@ def test_statistics_merge_in_any_grouping(data):
     whole = SufficientStats.from_arrays(t, n, y, d, time=stamp)
     cuts = [0, 1234, 5000, 5001, 9000, t.size]
     parts = [SufficientStats.from_arrays(t[a:b], n[a:b], y[a:b], d[a:b], time=stamp[a:b])
-             for a, b in zip(cuts[:-1], cuts[1:], strict=True)]
+             for a, b in itertools.pairwise(cuts)]
     left = parts[0].merge(parts[1]).merge(parts[2].merge(parts[3], parts[4]))
     right = parts[4].merge(parts[2], parts[0], parts[3]).merge(parts[1])
     for merged in (left, right):
@@ -143,7 +144,7 @@ def test_direction_asymmetry_is_recovered_with_intervals():
 def test_asymmetry_needs_both_directions_and_its_anchor_range():
     base = AxisParams()
     truth = base.replace(walther_a=base.walther_a + 0.02)
-    t, n, y, d, stamp = samples(truth, plateaus=(-40.0, -20.0))
+    t, n, y, d, _stamp = samples(truth, plateaus=(-40.0, -20.0))
     pos = d > 0
     res = refit_model(base, t[pos], n[pos], y[pos], d[pos], fit=('walther_a', 'direction_asymmetry_cold'))
     assert res.identifiability['direction_asymmetry_cold'].reason == 'needs samples moving in both directions'
@@ -194,7 +195,7 @@ def test_offset_auto_needs_cold_and_warm_plateaus():
 
 
 def test_offset_gives_way_to_a_requested_palmgren_factor(data):
-    truth, (t, n, y, d, stamp) = data
+    _truth, (t, n, y, d, stamp) = data
     res = refit_model(AxisParams(), t, n, y, d, fit=('walther_a', 'palmgren_factor'), time_s=stamp)
     assert res.identifiability['palmgren_factor'].identifiable
     # the warm Palmgren floor is (nearly) a constant torque: either the offset is held, or both carry intervals
