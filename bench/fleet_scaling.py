@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import shutil
 import sys
 import tempfile
@@ -78,7 +79,10 @@ def main() -> int:
         for w in (int(x) for x in args.workers.split(',')):
             run = run_fleet(units, settings, workers=w)
             flagged = sorted({(o['unit'], o['parameter']) for o in run.population['outliers']})
-            runs.append({'workers': w, 'seconds': run.seconds, 'units_per_minute': 60.0 * len(units) / run.seconds,
+            work = run.seconds - run.startup_s
+            runs.append({'workers': w, 'seconds': run.seconds, 'startup_s': run.startup_s,
+                         'units_per_minute': 60.0 * len(units) / run.seconds,
+                         'units_per_minute_after_startup': 60.0 * len(units) / work,
                          'speedup_vs_serial': t_serial / run.seconds,
                          'max_worker_rss_mb': max(r['max_rss_mb'] for r in run.records),
                          'errors': [r['unit'] for r in run.records if r['error']], 'outliers': flagged})
@@ -92,10 +96,13 @@ def main() -> int:
             return 0
         print(f'{len(units)} {args.kind} units ({args.rate:g} Hz, {args.hold:g} s holds); serial in-process baseline '
               f'{t_serial:.1f} s = {doc["serial_units_per_minute"]:.1f} units/min')
-        print(f'{"workers":>7} {"seconds":>8} {"units/min":>9} {"vs serial":>9} {"max RSS/worker [MB]":>20}')
+        print(f'{"workers":>7} {"seconds":>8} {"startup":>8} {"units/min":>9} {"after startup":>13} '
+              f'{"vs serial":>9} {"max RSS/worker [MB]":>20}')
         for r in runs:
-            print(f'{r["workers"]:>7} {r["seconds"]:>8.1f} {r["units_per_minute"]:>9.1f} '
-                  f'{r["speedup_vs_serial"]:>8.2f}x {r["max_worker_rss_mb"]:>20.0f}')
+            print(f'{r["workers"]:>7} {r["seconds"]:>8.1f} {r["startup_s"]:>8.1f} {r["units_per_minute"]:>9.1f} '
+                  f'{r["units_per_minute_after_startup"]:>13.1f} {r["speedup_vs_serial"]:>8.2f}x '
+                  f'{r["max_worker_rss_mb"]:>20.0f}')
+        print(f'load average during the run (other processes share the 2 cores): {os.getloadavg()}')
         for r in runs:
             print(f'{r["workers"]} worker(s): outliers {r["outliers"]}; errors {r["errors"] or "none"}')
         return 0

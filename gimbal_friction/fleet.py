@@ -331,7 +331,8 @@ class FleetRun(NamedTuple):
     population: dict[str, Any]
     scheduler: str
     workers: int
-    seconds: float
+    seconds: float          #: wall time, cluster start included [s]
+    startup_s: float = 0.0  #: of which starting (or connecting to) the cluster [s]
 
 
 def run_fleet(units: Sequence[UnitSpec], settings: FitSettings, *, scheduler: str | None = None,
@@ -382,6 +383,7 @@ def run_fleet(units: Sequence[UnitSpec], settings: FitSettings, *, scheduler: st
         where = scheduler or 'a local cluster'
         msg = f'cannot start or reach Dask ({where}): {err}'
         raise GimbalFrictionError(msg) from None
+    t_ready = time.perf_counter()
     records: list[dict[str, Any]] = []
     try:
         address = str(client.scheduler.address) if client.scheduler is not None else str(scheduler)
@@ -400,7 +402,7 @@ def run_fleet(units: Sequence[UnitSpec], settings: FitSettings, *, scheduler: st
     order = {u.name: i for i, u in enumerate(units)}
     records.sort(key=lambda r: order[r['unit']])
     return FleetRun(records, population(records), address if scheduler else 'local', n_workers,
-                    time.perf_counter() - t0)
+                    time.perf_counter() - t0, t_ready - t0)
 
 
 def progress_line(done: int, total: int, rec: Mapping[str, Any], stream: Any = None) -> None:
