@@ -37,8 +37,9 @@ fix ``c``, and the cold ones then fix ν. It is reported with its 95 % interval 
 remove it (``I_0 + c/K_T``), and it is compared with the calibration's own uncertainty σ_T0 (the 1-sigma of T_0
 that ``calibrate-kt`` prints): a warning is raised when ``|c| − 1.96 se_c > σ_T0``, i.e. when the offset is beyond
 the calibration's 1-sigma even at the near end of its own 95 % interval (an I_0 off by 2 σ is flagged once the
-offset is known to better than about σ/2). It has the lowest priority: a requested ``palmgren_factor`` (whose
-low-speed floor is a constant torque too) wins a collinearity, the offset is then held at 0 and says so.
+offset is known to better than about σ/2). A requested ``palmgren_factor`` (whose low-speed floor is a constant
+torque too) switches the automatic offset off; with ``offset='on'`` both are fitted and the offset, lowest in
+priority, is the one held if they turn out collinear.
 ``offset='on'`` always fits it, ``'off'`` never. The offset is not a model parameter: the written parameters and
 the feedforward do not contain it.
 
@@ -832,7 +833,7 @@ def refit_stats(base: AxisParams, stats: SufficientStats, *, fit: Sequence[str] 
 
     requested = [name for name in FIT_PARAMETERS if name in fit]
     reasons = _a_priori_reasons(base, model, pts, used, requested, visc_temps0, groups)
-    offset_on, offset_why = _offset_mode(offset, visc_temps0, groups)
+    offset_on, offset_why = _offset_mode(offset, visc_temps0, groups, requested)
     active = [name for name in requested if name not in reasons]
     if offset_on:
         active.append(OFFSET)
@@ -920,13 +921,16 @@ def _a_priori_reasons(base: AxisParams, model: SampleModel, pts: _Points, used: 
     return reasons
 
 
-def _offset_mode(mode: str, visc_temps0: list[float], groups: _Groups) -> tuple[bool, str]:
+def _offset_mode(mode: str, visc_temps0: list[float], groups: _Groups, requested: list[str]) -> tuple[bool, str]:
     """Whether the offset is fitted, and why (not)."""
     if mode == 'off':
         return False, 'switched off'
     warm = sorted({float(x) for x in groups.t_bin} - set(visc_temps0))
     if mode == 'on':
         return True, 'switched on'
+    if 'palmgren_factor' in requested:
+        return False, ('auto: off, palmgren_factor is fitted and its low-speed floor is a constant torque too (the '
+                       'two are told apart only weakly); --offset on fits both')
     if visc_temps0 and warm:
         return True, (f'auto: plateaus in the viscous regime ({", ".join(f"{x:g}" for x in visc_temps0)} degC) and '
                       f'below it ({", ".join(f"{x:g}" for x in warm)} degC)')

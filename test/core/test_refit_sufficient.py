@@ -198,8 +198,7 @@ def test_offset_gives_way_to_a_requested_palmgren_factor(data):
     _truth, (t, n, y, d, stamp) = data
     res = refit_model(AxisParams(), t, n, y, d, fit=('walther_a', 'palmgren_factor'), time_s=stamp)
     assert res.identifiability['palmgren_factor'].identifiable
+    assert not res.offset.estimated and 'palmgren_factor is fitted' in res.offset.reason
+    both = refit_model(AxisParams(), t, n, y, d, fit=('walther_a', 'palmgren_factor'), time_s=stamp, offset='on')
     # the warm Palmgren floor is (nearly) a constant torque: either the offset is held, or both carry intervals
-    if not res.offset.estimated:
-        assert 'collinear' in res.offset.reason
-    else:
-        assert res.offset.standard_error_nm > 0.0
+    assert (not both.offset.estimated and 'collinear' in both.offset.reason) or both.offset.standard_error_nm > 0.0
