@@ -20,10 +20,19 @@ The test the paper ran, and what is generated here:
   with ``F`` the truth model (:class:`~gimbal_friction.core.table.FrictionTable`, N·m), ``d`` the direction
   factor (truth ``scale_positive``/``scale_negative`` times the cold asymmetry below), ``r`` the position ripple,
   ``J a`` the inertial torque during reversals, ``K_T``/``I_0`` the truth motor constants.
-- Direction asymmetry grows in the cold as the paper observed (CW 3.19 N·mm vs CCW −2.45 N·mm at −40 °C):
-  ``|CCW|/|CW| = 1 − (1 − asym_ratio_cold) · w(T)`` with ``w(T) = clip((asym_t_ref_c − T) /
-  (asym_t_ref_c − asym_t_cold_c), 0, 1)``, i.e. 2.45/3.19 ≈ 0.768 at −40 °C and 1 at +20 °C and above.
+- The direction factor ``d`` is the model's own (:func:`~gimbal_friction.core.direction.direction_factor` of the
+  truth parameters: ``scale_positive``/``scale_negative`` and the temperature-dependent ``direction_asymmetry_*``,
+  none by default) times a synthetic cold asymmetry that is *not* in the model's form, on the CCW side only
+  (the default, as before): ``|CCW|/|CW| = 1 − (1 − asym_ratio_cold) · w(T)`` with ``w(T) = clip((asym_t_ref_c − T)
+  / (asym_t_ref_c − asym_t_cold_c), 0, 1)``, i.e. 2.45/3.19 ≈ 0.768 at −40 °C and 1 at +20 °C and above.
   Positive velocity is the paper's clockwise (CONTRACT.md).
+- Preset ``paper`` (:func:`preset_config`): a chamber test whose plateau means are the paper's four measured
+  values (CW 3.19 / CCW −2.45 N·mm at −40 °C, CW 1.05 / CCW −1.34 at +60 °C, Sec. 6): truth lubricant, Palmgren
+  factor and direction asymmetry :data:`PAPER_TRUTH_OVERRIDES` (the synthetic cold asymmetry off). The mean of
+  the two directions sets ``walther_a`` (cold: ν(−40 °C) = 27.7k cSt) and ``palmgren_factor`` (warm floor); their
+  difference sets the asymmetry anchors (``(CW − |CCW|)/(CW + |CCW|)``). Whether the paper's warm excess over the
+  model (1.195 vs 1.084 N·mm) is a higher Palmgren floor or an I_0 error cannot be told from these four numbers;
+  the preset takes the Palmgren floor.
 - Ripple is a sum of sines in position (amplitude as a fraction of the friction torque, spatial period in
   degrees), amplified in the cold by ``1 + ripple_cold_gain · w(T)`` ("its fluctuation was much more severe at
   −40 °C").
@@ -39,12 +48,14 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field
-from typing import Any, Iterator, Mapping, NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
 
+from gimbal_friction.core.direction import ARRAY, direction_factor
 from gimbal_friction.core.errors import ConfigError
 from gimbal_friction.core.params import AxisParams
 from gimbal_friction.core.table import FrictionTable
@@ -64,6 +75,22 @@ PAPER_COLD_RATIO = 2.45 / 3.19
 #: (+0.03 N·mm on the low-speed floor). Truth M at 1/3 rpm: ≈3.93 N·mm at −40 °C (defaults 3.14), ≈1.07 at
 #: +20 °C (1.05).
 DEFAULT_TRUTH_OVERRIDES: Mapping[str, Any] = {'walther_a': 8.6345, 'palmgren_factor': 2.0}
+
+#: Paper Sec. 6 measured plateau means [N·mm], keyed by (temperature [°C], direction ±1); CCW negative.
+PAPER_MEANS_NMM: Mapping[tuple[float, int], float] = {(-40.0, 1): 3.19, (-40.0, -1): -2.45, (60.0, 1): 1.05,
+                                                     (60.0, -1): -1.34}
+
+#: Truth of preset ``paper`` (see the module notes): reproduces :data:`PAPER_MEANS_NMM` at 1/3 rpm within 0.01 %.
+PAPER_TRUTH_OVERRIDES: Mapping[str, Any] = {'walther_a': 8.59967, 'palmgren_factor': 2.2660,
+                                            'direction_asymmetry_cold': 0.13121, 'direction_asymmetry_warm': -0.12134,
+                                            'direction_asymmetry_cold_c': -40.0, 'direction_asymmetry_warm_c': 60.0}
+
+#: Presets of :func:`preset_config`: SynthConfig fields that differ from the defaults.
+PRESETS: Mapping[str, Mapping[str, Any]] = {
+    'default': {},
+    'paper': {'truth_overrides': PAPER_TRUTH_OVERRIDES, 'asym_ratio_cold': 1.0,
+              'plateaus_c': (-40.0, -20.0, 0.0, 20.0, 40.0, 60.0)},
+}
 
 #: Default epoch of the first sample, [ns since the Unix epoch] (2017-05-01T00:00:00Z, the paper's year).
 DEFAULT_START_NS = 1_493_596_800_000_000_000
@@ -492,10 +519,10 @@ def generate(cfg: SynthConfig | None = None) -> SynthData:
         model[:, j] = m_nm
         pos_deg = np.degrees(pos)
         ripple = np.zeros_like(pos)
-        for amp, per, ph in zip(cfg.ripple_amplitude, cfg.ripple_period_deg, cfg.ripple_phase_rad):
+        for amp, per, ph in zip(cfg.ripple_amplitude, cfg.ripple_period_deg, cfg.ripple_phase_rad, strict=False):
             ripple += amp * np.sin(2.0 * math.pi * pos_deg / per + ph)
         sgn = np.sign(vel)
-        direction = np.where(sgn > 0.0, p.scale_positive, p.scale_negative * asym_neg)
+        direction = direction_factor(p, bearing_c, sgn, ARRAY) * np.where(sgn > 0.0, 1.0, asym_neg)
         friction[:, j] = sgn * m_nm * direction * (1.0 + ripple * rip_gain)
         noise = rng.normal(0.0, cfg.current_noise_a, tc.size) if cfg.current_noise_a else 0.0
         current[:, j] = (friction[:, j] + cfg.inertia_kg_m2 * acc) / kt + sgn * i0 + noise
@@ -548,13 +575,31 @@ def messages(data: SynthData, *, frame_id: str = 'gimbal') -> Iterator[tuple[str
     pos, vel, cur = data.position_rad, data.velocity_rad_s, data.current_a
     temp_t, joint_t, cur_t = topics.TEMPERATURE, topics.JOINT_STATES, topics.MOTOR_CURRENT
     temp_type, js_type = topics.TEMPERATURE_TYPE, topics.JOINT_STATE_TYPE
-    for log_ns, k, i in zip(log.tolist(), stream.tolist(), index.tolist()):
+    for log_ns, k, i in zip(log.tolist(), stream.tolist(), index.tolist(), strict=False):
         if k == 0:
             yield temp_t, temp_type, log_ns, make_temperature(t_stamp[i], t_val[i], frame_id=frame_id)
         elif k == 1:
             yield joint_t, js_type, log_ns, make_joint_state(j_stamp[i], names, position=pos[i], velocity=vel[i])
         else:
             yield cur_t, js_type, log_ns, make_joint_state(c_stamp[i], names, effort=cur[i])
+
+
+def preset_config(name: str, **changes: Any) -> SynthConfig:
+    """The :class:`SynthConfig` of preset ``name`` (:data:`PRESETS`) with ``changes`` on top.
+
+    >>> cfg = preset_config('paper', hold_s=20.0)
+    >>> cfg.truth_params().direction_asymmetry_cold, cfg.asym_ratio_cold
+    (0.13121, 1.0)
+
+    Raises:
+        ConfigError: unknown preset or a bad field.
+    """
+    if name not in PRESETS:
+        raise ConfigError('preset', f'must be one of {", ".join(PRESETS)}', name)
+    fields = {**PRESETS[name], **changes}
+    if 'truth_overrides' in PRESETS[name] and 'truth_overrides' in changes:
+        fields['truth_overrides'] = {**PRESETS[name]['truth_overrides'], **changes['truth_overrides']}
+    return SynthConfig(**fields)
 
 
 def truth_summary(cfg: SynthConfig) -> dict[str, Any]:
@@ -569,13 +614,15 @@ def truth_summary(cfg: SynthConfig) -> dict[str, Any]:
         temps = np.asarray(cfg.plateaus_c)
         torque = table.evaluate(temps, np.full(temps.size, cfg.speed_rpm))[2]
         ref = FrictionTable(defaults).evaluate(temps, np.full(temps.size, cfg.speed_rpm))[2]
+        k_pos = direction_factor(p, temps, 1.0, ARRAY)
+        k_neg = direction_factor(p, temps, -1.0, ARRAY) * cfg.ccw_ratio(temps)
         out[joint] = {
             'differs_from_defaults': {f.name: getattr(p, f.name) for f in dataclasses.fields(p)
                                       if getattr(p, f.name) != getattr(defaults, f.name)},
             'torque_constant_nm_per_a': kt, 'no_load_current_a': i0,
             'plateaus': [{'temperature_c': float(t), 'viscosity_cst': table.viscosity_cst(float(t)),
-                          'truth_cw_nmm': float(m) * p.scale_positive,
-                          'truth_ccw_nmm': -float(m) * p.scale_negative * float(cfg.ccw_ratio(t)),
-                          'default_model_nmm': float(r)} for t, m, r in zip(temps, torque, ref)],
+                          'truth_cw_nmm': float(m) * float(kp), 'truth_ccw_nmm': -float(m) * float(kn),
+                          'default_model_nmm': float(r)}
+                         for t, m, r, kp, kn in zip(temps, torque, ref, k_pos, k_neg, strict=True)],
         }
     return out

@@ -13,8 +13,15 @@ import pytest
 from gimbal_friction.config import axis_params, load_parameters
 from gimbal_friction.core.errors import ConfigError
 from gimbal_friction.recording import topics
-from gimbal_friction.synth import PAPER_COLD_RATIO, SynthConfig, chamber_and_bearing, generate, message_order, \
-    schedule, sweep
+from gimbal_friction.synth import (
+    PAPER_COLD_RATIO,
+    SynthConfig,
+    chamber_and_bearing,
+    generate,
+    message_order,
+    schedule,
+    sweep,
+)
 from gimbal_friction.tools.cli import main
 
 V_NOMINAL = 2.0 * math.pi / 180.0   # 1/3 rpm = 2 deg/s [rad/s]
@@ -167,7 +174,7 @@ def test_truth_differs_from_defaults():
     cfg = SynthConfig()
     truth = cfg.truth_params()
     assert truth.walther_a != 8.6195 and truth.palmgren_factor != 1.917
-    with pytest.raises(ConfigError, match='truth.no_such'):
+    with pytest.raises(ConfigError, match=r'truth\.no_such'):
         SynthConfig(truth_overrides={'no_such': 1.0})
 
 
@@ -277,7 +284,7 @@ def test_cli_force_replaces_bag_and_empty_dir_ok(tmp_path, capsys):
                  '--joint-rate-hz', '10', '--format', 'json']) == 0
     doc = json.loads(capsys.readouterr().out)
     assert [p['temperature_c'] for p in doc['plateaus']] == [-20.0, 0.0]
-    types, msgs = _read_bag(out)
+    _types, msgs = _read_bag(out)
     assert len(msgs[topics.JOINT_STATES]) == doc['messages'][topics.JOINT_STATES]
 
 
@@ -371,3 +378,40 @@ def test_shipped_sample_is_small_complete_and_reproducible(tmp_path, capsys):
     np.testing.assert_array_equal(again.joint_states.position['elevation'], js.position['elevation'])
     np.testing.assert_array_equal(again.temperature.log_time_ns, shipped.temperature.log_time_ns)
     assert (tmp_path / 'truth.yaml').read_text() == (BAGS / 'chamber_sample.truth.yaml').read_text()
+
+
+# ---------------------------------------------------------------------------------------------- preset 'paper'
+def test_paper_preset_reproduces_the_four_measured_means():
+    from gimbal_friction.synth import PAPER_MEANS_NMM, preset_config, truth_summary
+
+    cfg = preset_config('paper', hold_s=20.0, joint_rate_hz=50.0)
+    assert cfg.asym_ratio_cold == 1.0   # the synthetic CCW-only asymmetry is off: the model's own term is the truth
+    rows = {r['temperature_c']: r for r in truth_summary(cfg)['elevation']['plateaus']}
+    for (t, d), mean in PAPER_MEANS_NMM.items():
+        got = rows[t]['truth_cw_nmm'] if d > 0 else rows[t]['truth_ccw_nmm']
+        assert got == pytest.approx(mean, rel=1e-3), (t, d)
+    # the generated friction at constant speed on the hold of each end plateau has those means (ripple averages out)
+    data = generate(cfg)
+    t_c = data.seconds(data.current_stamp_ns)
+    vel = data.truth_velocity_rad_s[:, 0]
+    steady = _steady(data)
+    for p in data.plateaus:
+        if p.temperature_c not in (-40.0, 60.0):
+            continue
+        m = _hold_mask(data, p, t_c) & steady
+        for d in (1, -1):
+            sel = m & (np.sign(vel) == d)
+            mean = 1e3 * float(np.mean(data.truth_friction_nm[sel, 0]))
+            assert mean == pytest.approx(PAPER_MEANS_NMM[(p.temperature_c, d)], rel=0.02), (p.temperature_c, d)
+
+
+def test_cli_paper_preset_and_truth_file(tmp_path, capsys):
+    out, truth = tmp_path / 'bag', tmp_path / 'truth.yaml'
+    assert main(['synth-bag', '--out', str(out), '--preset', 'paper', '--plateaus=-40,60', '--hold-s', '10',
+                 '--joint-rate-hz', '20', '--truth-out', str(truth), '--format', 'json']) == 0
+    doc = json.loads(capsys.readouterr().out)
+    cw = {r['temperature_c']: (r['truth_cw_nmm'], r['truth_ccw_nmm']) for r in doc['truth']['elevation']['plateaus']}
+    assert cw[-40.0] == pytest.approx((3.19, -2.45), rel=1e-3) and cw[60.0] == pytest.approx((1.05, -1.34), rel=1e-3)
+    p = axis_params(load_parameters([truth]), 'elevation')
+    assert (p.direction_asymmetry_cold, p.direction_asymmetry_warm) == (0.13121, -0.12134)
+    assert 'asymmetry' not in truth.read_text().split('ros__parameters')[0].split('Not part of the truth')[1]

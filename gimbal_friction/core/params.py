@@ -147,6 +147,20 @@ class AxisParams:
                                Bound(0.0, 10.0, True), group='direction')
     scale_negative: float = _p(1.0, '-', '', 'factor on the model torque while moving in the negative direction',
                                Bound(0.0, 10.0, True), group='direction')
+    # Temperature-dependent direction asymmetry (core/direction.py): k = scale_dir * (1 + dir * a(T)),
+    # a(T) linear from the cold to the warm anchor, constant outside; zero by default (no asymmetry)
+    direction_asymmetry_cold: float = _p(0.0, '-', 'a_c', 'direction asymmetry a at direction_asymmetry_cold_c: '
+                                         'CW (positive) friction x (1 + a), CCW x (1 - a); paper -40 degC: 0.131',
+                                         Bound(-0.9, 0.9, True, True), group='direction')
+    direction_asymmetry_warm: float = _p(0.0, '-', 'a_w', 'direction asymmetry a at direction_asymmetry_warm_c '
+                                         '(paper +60 degC: -0.121); linear in temperature between the anchors',
+                                         Bound(-0.9, 0.9, True, True), group='direction')
+    direction_asymmetry_cold_c: float = _p(-40.0, 'degC', 'T_c', 'cold anchor temperature of the direction '
+                                           'asymmetry; a = direction_asymmetry_cold at and below it',
+                                           Bound(-200.0, 400.0, True), group='direction')
+    direction_asymmetry_warm_c: float = _p(60.0, 'degC', 'T_w', 'warm anchor temperature of the direction '
+                                           'asymmetry (must exceed the cold one); a = direction_asymmetry_warm at '
+                                           'and above it', Bound(-200.0, 400.0, True), group='direction')
 
     # ------------------------------------------------------------------ derived quantities (MODEL.md §1.1)
     @property
@@ -259,6 +273,9 @@ def _check_geometry(p: AxisParams) -> None:
     if p.ball_count * p.ball_diameter_mm >= math.pi * p.pitch_diameter_mm:
         raise ConfigError('ball_count', 'balls do not fit on the pitch circle: Z D_w must be < pi d_m',
                           p.ball_count)
+    if p.direction_asymmetry_warm_c <= p.direction_asymmetry_cold_c:
+        raise ConfigError('direction_asymmetry_warm_c', 'must exceed direction_asymmetry_cold_c [degC]',
+                          p.direction_asymmetry_warm_c)
     if p.housing_outside_diameter_mm <= p.outside_diameter_mm + abs(p.interference_mm):
         raise ConfigError('housing_outside_diameter_mm', 'must exceed the bearing outside_diameter_mm',
                           p.housing_outside_diameter_mm)

@@ -10,7 +10,8 @@ from __future__ import annotations
 import argparse
 import importlib
 import sys
-from typing import NoReturn, Sequence
+from collections.abc import Sequence
+from typing import NoReturn
 
 from gimbal_friction.core.errors import GimbalFrictionError
 
@@ -23,6 +24,7 @@ SUBCOMMANDS = {
     'report': 'report_cmd',
     'refit': 'refit_cmd',
     'export': 'export_cmd',
+    'fleet': 'fleet_cmd',
 }
 
 #: options whose values may start with '-' (negative temperatures): '--temperature -40,0' is rewritten.

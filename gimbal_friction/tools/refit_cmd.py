@@ -1,11 +1,18 @@
 """``gimbal-friction refit``: refit the lubricant viscosity (and optionally other) parameters from residual logs.
 
-Reads one or more residual-log folders (``residual_logger`` or ``replay`` output) with
-:func:`~gimbal_friction.recording.residual_log.read_residual_log` and uses each ``residual_detail`` row's
-``temperature_c``, ``velocity_rad_s`` (speed and direction) and ``measured_nm`` (signed; friction along the motion
-is ``measured_nm · sign(velocity)``). Rows with a non-finite value or zero velocity are skipped and counted. The
-fit is :func:`gimbal_friction.core.refit.refit_model` per axis (every axis present in the logs that is configured,
-or ``--axis``); it says which parameters the data can determine and holds the others at their configured values.
+Streams one or more residual-log folders (``residual_logger`` or ``replay`` output) chunk by chunk
+(:func:`iter_rows`, bounded memory) and uses each ``residual_detail`` row's ``temperature_c``, ``velocity_rad_s``
+(speed and direction) and ``measured_nm`` (signed; friction along the motion is ``measured_nm · sign(velocity)``),
+accumulated into per-bin sufficient statistics (:mod:`gimbal_friction.core.sufficient`). Rows with a non-finite
+value or zero velocity are skipped and counted. The fit is :func:`gimbal_friction.core.refit.refit_stats` per axis
+(every axis present in the logs that is configured, or ``--axis``); it says which parameters the data can
+determine and holds the others at their configured values.
+
+Calibration offset: with ``--offset auto`` (default) a constant torque offset (an error of the no-load current
+I_0) is fitted as a nuisance when the logs hold both a cold (viscous-regime) and a warm plateau; it is reported
+with its interval and the I_0 that would remove it, and a warning is printed (stderr) when it exceeds the
+calibration's uncertainty, read from the ``calibrate-kt`` output file (``--calibration FILE.yaml``: its header line
+``T_0 = ... +/- SE N*m``) or given as ``--calibration-se`` [N*m]. The offset is never written to the file.
 
 Output file: a layerable parameter file holding **only the refitted parameters**, always under
 ``axis.<name>.<parameter>`` (also for a single axis): an ``axis.*`` entry overrides ``model.*`` whatever the file
@@ -20,36 +27,152 @@ from __future__ import annotations
 import argparse
 import datetime as dt
 import math
+import re
 import sys
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Any, NamedTuple
 
 import numpy as np
 
 from gimbal_friction.config import axis_names, axis_params, load_parameters, render_parameter_file
+from gimbal_friction.core.direction import ARRAY, direction_factor
 from gimbal_friction.core.errors import ConfigError, FitError, GimbalFrictionError
 from gimbal_friction.core.model import friction_torque
 from gimbal_friction.core.params import AxisParams
-from gimbal_friction.core.refit import FIT_PARAMETERS, PALMGREN_THRESHOLD, RefitResult, \
-    palmgren_threshold_temperature, refit_model
-from gimbal_friction.recording.residual_log import read_residual_log
-from gimbal_friction.recording.topics import RESIDUAL_DETAIL
-from gimbal_friction.core.table import RPM_PER_RAD_S
+from gimbal_friction.core.refit import (
+    ASYMMETRY_PARAMETERS,
+    FIT_PARAMETERS,
+    OFFSET_MODES,
+    PALMGREN_THRESHOLD,
+    RefitResult,
+    palmgren_threshold_temperature,
+    refit_stats,
+)
+from gimbal_friction.core.residual_row import ResidualRows, rows_from_detail
+from gimbal_friction.core.sufficient import SufficientStats, accumulate_rows
+from gimbal_friction.recording.topics import FLOAT64_MULTI_ARRAY_TYPE, RESIDUAL_DETAIL
 from gimbal_friction.tools._common import add_common, format_table, print_json, write_text_atomic
 
 DEFAULT_FIT = 'walther_a'
+#: ``--fit`` shorthand for both anchors of the direction asymmetry
+FIT_ALIASES = {'direction_asymmetry': ASYMMETRY_PARAMETERS}
+#: rows per chunk read from the logs (bounds the memory of a refit or a fleet worker)
+CHUNK_ROWS = 1 << 18
 
 
 class AxisData(NamedTuple):
-    """Samples of one axis taken from the logs, and what was skipped."""
+    """What the logs held for one axis: the statistics, and what was skipped."""
 
-    temperature_c: np.ndarray
-    speed_rpm: np.ndarray
-    measured_abs_nm: np.ndarray
-    direction: np.ndarray
+    stats: SufficientStats
     rows: int
     skipped_nonfinite: int
     skipped_standstill: int
+
+
+class LogReport:
+    """Files read by :func:`iter_rows` (filled while iterating)."""
+
+    def __init__(self) -> None:
+        self.files: list[Path] = []
+        self.truncated_files: list[Path] = []
+
+
+def iter_rows(logs: Sequence[Path], chunk_rows: int = CHUNK_ROWS, report: LogReport | None = None,
+              ) -> Iterator[ResidualRows]:
+    """The ``residual_detail`` rows of residual-log folders (or ``.mcap`` files) in chunks of ``chunk_rows``,
+    streamed (one chunk in memory). Reads layout 2 (12 columns) and layout 1 (11, K_T/I_0 unknown: NaN).
+
+    The one place this command reads logs; to be replaced by ``recording``'s ``iter_residual_rows``.
+
+    Raises:
+        RecordingError: not a residual log, unreadable or undecodable data.
+    """
+    from gimbal_friction.recording.residual_log import _iter_log, _ReadReport
+
+    rep = _ReadReport()
+    joints: list[str] = []
+    rows: list[np.ndarray] = []
+
+    def flush() -> Iterator[ResidualRows]:
+        by_len: dict[int, list[int]] = {}
+        for i, r in enumerate(rows):
+            by_len.setdefault(r.shape[0], []).append(i)
+        for idx in by_len.values():
+            labels = np.asarray([joints[i] for i in idx], dtype=str)
+            data = np.vstack([rows[i] for i in idx])
+            try:
+                yield rows_from_detail(labels, data)
+            except ValueError as err:
+                msg = f'{RESIDUAL_DETAIL}: {err}'
+                raise FitError(msg) from None
+            except TypeError:  # core/residual_row.py: ResidualRows._make trips over its own __len__ (layout 2)
+                yield ResidualRows(labels, *(data[:, i] for i in range(data.shape[1] - 1)),
+                                   data[:, -1].astype(np.int8))
+        joints.clear()
+        rows.clear()
+
+    try:
+        for item in _iter_log(list(logs), [RESIDUAL_DETAIL], rep):
+            if item.msgtype != FLOAT64_MULTI_ARRAY_TYPE:
+                msg = f'{RESIDUAL_DETAIL} has type {item.msgtype}, expected {FLOAT64_MULTI_ARRAY_TYPE}'
+                raise FitError(msg)
+            dims = item.msg.layout.dim  # type: ignore[attr-defined]
+            joints.append(dims[0].label if len(dims) else '')
+            rows.append(np.asarray(item.msg.data, dtype=np.float64))  # type: ignore[attr-defined]
+            if len(rows) >= chunk_rows:
+                yield from flush()
+        if rows:
+            yield from flush()
+    finally:
+        if report is not None:
+            report.files[:] = rep.files
+            report.truncated_files[:] = rep.truncated
+
+
+def read_stats(logs: Sequence[Path], *, joints: list[str] | None = None, direction: str = 'both',
+               report: LogReport | None = None, label: str = 'refit: reading') -> dict[str, AxisData]:
+    """Per-joint sufficient statistics of the logs, streamed chunk by chunk (progress on a terminal's stderr)."""
+    stats: dict[str, SufficientStats] = {}
+    done = 0
+    for chunk in iter_rows(logs, report=report):
+        accumulate_rows(chunk, stats, joints=joints, direction=direction)
+        done += len(chunk)
+        if sys.stderr.isatty():
+            sys.stderr.write(f'\r{label}: {done} rows')
+            sys.stderr.flush()
+    if done and sys.stderr.isatty():
+        sys.stderr.write('\n')
+    return {j: AxisData(s, s.tally.rows, s.tally.skipped_nonfinite, s.tally.skipped_standstill)
+            for j, s in stats.items()}
+
+
+_T0_LINE = re.compile(r'T_0 = (\S+) \+/- (\S+) N\*m')
+_AXIS_LINE = re.compile(r"no-load current of axis '([^']+)'")
+
+
+def read_calibration_se(path: Path) -> tuple[str | None, float]:
+    """(axis, 1-sigma of T_0 [N*m]) from the header of a ``calibrate-kt`` output file.
+
+    Raises:
+        ConfigError: not readable, or no ``T_0 = ... +/- ... N*m`` line (not a calibrate-kt file).
+    """
+    try:
+        text = path.read_text(encoding='utf-8')
+    except OSError as err:
+        raise ConfigError('--calibration', f'cannot read: {err.strerror}', str(path)) from None
+    m = _T0_LINE.search(text)
+    if m is None:
+        raise ConfigError('--calibration', "no 'T_0 = ... +/- ... N*m' header line: not a calibrate-kt output file",
+                          str(path))
+    try:
+        se = float(m.group(2))
+    except ValueError:
+        raise ConfigError('--calibration', f'unreadable T_0 uncertainty {m.group(2)!r}', str(path)) from None
+    if not (math.isfinite(se) and se >= 0.0):
+        raise ConfigError('--calibration', 'the T_0 uncertainty must be a finite value >= 0', str(path))
+    a = _AXIS_LINE.search(text)
+    return (a.group(1) if a else None), se
 
 
 class AxisRefit(NamedTuple):
@@ -87,6 +210,14 @@ def add_parser(sub: Any) -> None:
                         'apart in the cold (grease distribution, not viscosity); cw = positive motion')
     parser.add_argument('--plot', type=Path, metavar='PNG',
                         help='draw measured vs model before/after by direction over temperature (paper Fig. 13)')
+    parser.add_argument('--offset', choices=OFFSET_MODES, default='auto',
+                        help='constant torque offset of the measurement (an I_0 calibration error) fitted as a '
+                        'nuisance: auto (default) = when the logs hold a cold (nu*n >= 2000) and a warm plateau')
+    parser.add_argument('--calibration', type=Path, metavar='FILE.yaml',
+                        help='calibrate-kt output the logs were measured with: its T_0 uncertainty is what the '
+                        'offset is compared with (values not applied; layer it with --config for that)')
+    parser.add_argument('--calibration-se', type=float, metavar='N*M',
+                        help='1-sigma uncertainty of the no-load torque T_0 = K_T*I_0 [N*m], instead of --calibration')
     parser.set_defaults(func=run)
 
 
@@ -95,33 +226,19 @@ def parse_fit(text: str) -> tuple[str, ...]:
 
     >>> parse_fit('walther_a, scale_negative')
     ('walther_a', 'scale_negative')
+    >>> parse_fit('walther_a,direction_asymmetry')
+    ('walther_a', 'direction_asymmetry_cold', 'direction_asymmetry_warm')
     """
-    names = tuple(x.strip() for x in text.split(',') if x.strip())
+    names = tuple(y for x in text.split(',') if x.strip() for y in FIT_ALIASES.get(x.strip(), (x.strip(),)))
     if not names:
         raise ConfigError('--fit', f'give at least one of {", ".join(FIT_PARAMETERS)}', text)
     bad = [x for x in names if x not in FIT_PARAMETERS]
     if bad:
-        raise ConfigError('--fit', f'unknown {", ".join(bad)}; choose from {", ".join(FIT_PARAMETERS)}', text)
+        raise ConfigError('--fit', f'unknown {", ".join(bad)}; choose from {", ".join(FIT_PARAMETERS)} (or '
+                          f'{", ".join(FIT_ALIASES)})', text)
     if len(set(names)) != len(names):
         raise ConfigError('--fit', 'a parameter is listed twice', text)
     return names
-
-
-def axis_samples(detail: Any, axis: str, direction: str = 'both') -> AxisData:
-    """Samples of ``axis`` from the residual-detail arrays: temperature, speed [rpm], |friction| along the motion
-    [N*m] and direction, with rows having a non-finite value or zero velocity skipped; ``direction`` 'cw' or
-    'ccw' keeps positive or negative motion only."""
-    sel = detail.joint == axis
-    if direction != 'both':
-        sel = sel & ((detail.velocity_rad_s > 0.0) if direction == 'cw' else (detail.velocity_rad_s < 0.0))
-    t = detail.temperature_c[sel]
-    v = detail.velocity_rad_s[sel]
-    m = detail.measured_nm[sel]
-    finite = np.isfinite(t) & np.isfinite(v) & np.isfinite(m)
-    moving = finite & (v != 0.0)
-    direction = np.sign(v[moving])
-    return AxisData(t[moving], np.abs(v[moving]) * RPM_PER_RAD_S, m[moving] * direction, direction,
-                    int(sel.sum()), int((~finite).sum()), int((finite & ~moving).sum()))
 
 
 def _select_axes(args: argparse.Namespace, cfg: dict[str, Any], present: list[str]) -> tuple[list[str], list[str]]:
@@ -174,6 +291,7 @@ def provenance_header(fits: list[AxisRefit], logs: list[Path], files: int, fit: 
         for vi in r.viscosity:
             lines.append(f'  viscosity at {vi.temperature_c:.1f} degC: {vi.before_cst:.6g} -> {vi.after_cst:.6g} cSt '
                          f'(95% [{vi.low_cst:.6g}, {vi.high_cst:.6g}])')
+        lines.append(f'  {offset_text(r)} (not written)')
     lines.append('layer with: gimbal-friction ... --config FILE, or ros2 run ... --ros-args --params-file FILE')
     return '\n'.join(lines)
 
@@ -186,7 +304,7 @@ def plot_refit(fits: list[AxisRefit], path: Path) -> Path:
     import matplotlib.pyplot as plt
 
     fig, axes = plt.subplots(1, len(fits), figsize=(7.5 * len(fits), 5.0), squeeze=False)
-    for ax, f in zip(axes[0], fits):
+    for ax, f in zip(axes[0], fits, strict=False):
         r = f.result
         used = [b for b in r.bins if b.used]
         t_lo = min(b.temperature_c for b in used) - 5.0
@@ -204,8 +322,9 @@ def plot_refit(fits: list[AxisRefit], path: Path) -> Path:
             speed = float(np.median([b.speed_rpm for b in pts]))
             speeds.append(speed)
             for params, style, when in ((f.base, '--', 'before'), (r.params, '-', 'after')):
-                k = params.scale_positive if sign > 0 else params.scale_negative
-                model = k * friction_torque(params, grid, speed).m_total_nmm
+                k = direction_factor(params, grid, float(sign), ARRAY)
+                shift = 1e3 * r.offset.value_nm if when == 'after' and r.offset.estimated else 0.0
+                model = k * friction_torque(params, grid, speed).m_total_nmm + shift
                 ax.plot(grid, model, style, color=color, lw=1.6 if when == 'after' else 1.1,
                         label=f'model {when}, {label}, {speed:.3g} rpm')
         t_thr = palmgren_threshold_temperature(r.params, min(speeds)) if speeds else math.nan
@@ -251,10 +370,38 @@ def _axis_record(f: AxisRefit) -> dict[str, Any]:
             'model_before_nmm': 1e3 * b.model_before_nm, 'model_after_nmm': 1e3 * b.model_after_nm,
             'rms_before_nmm': 1e3 * b.rms_before_nm, 'rms_after_nmm': 1e3 * b.rms_after_nm,
             'viscosity_before_cst': b.viscosity_before_cst, 'viscosity_after_cst': b.viscosity_after_cst,
+            'friction_after_nmm': 1e3 * b.friction_after_nm,
         } for b in r.bins],
         'cost': r.cost,
         'message': r.message,
+        'fine_bins': r.n_bins,
+        'offset': offset_record(r),
+        'warnings': list(r.warnings),
     }
+
+
+def offset_record(r: RefitResult) -> dict[str, Any]:
+    """The calibration offset of a refit as JSON (torques in N*mm)."""
+    o = r.offset
+    return {'mode': o.mode, 'estimated': o.estimated, 'reason': o.reason, 'value_nmm': 1e3 * o.value_nm,
+            'standard_error_nmm': 1e3 * o.standard_error_nm,
+            'ci95_nmm': [1e3 * o.confidence_interval_nm[0], 1e3 * o.confidence_interval_nm[1]],
+            'calibration_se_nmm': 1e3 * o.calibration_se_nm, 'exceeds_calibration': o.exceeds_calibration,
+            'torque_constant_nm_per_a': o.torque_constant_nm_per_a, 'no_load_current_a': o.no_load_current_a,
+            'implied_no_load_current_a': o.implied_no_load_current_a}
+
+
+def offset_text(r: RefitResult) -> str:
+    """One line on the calibration offset of a refit."""
+    o = r.offset
+    if not o.estimated:
+        return f'torque offset: not estimated ({o.reason})'
+    lo, hi = o.confidence_interval_nm
+    cal = (f'; calibration T_0 1-sigma {1e3 * o.calibration_se_nm:.3g} N*mm: '
+           + ('EXCEEDS it' if o.exceeds_calibration else 'within it')) if o.exceeds_calibration is not None else \
+        '; no calibration uncertainty given (--calibration / --calibration-se)'
+    return (f'torque offset {1e3 * o.value_nm:+.4g} N*mm (95% [{1e3 * lo:+.4g}, {1e3 * hi:+.4g}]), as if I_0 were '
+            f'{o.implied_no_load_current_a:.6g} A instead of {o.no_load_current_a:.6g} A{cal}')
 
 
 def _print_axis(f: AxisRefit) -> None:
@@ -277,6 +424,9 @@ def _print_axis(f: AxisRefit) -> None:
         if not ident.identifiable:
             print(f'  {name}: not identifiable: {ident.reason}')
     print(f'RMS residual: {1e3 * r.rms_before_nm:.4g} -> {1e3 * r.rms_after_nm:.4g} N*mm ({r.message})')
+    print(offset_text(r))
+    for warning in r.warnings:
+        print(f'WARNING: {warning}')
     brows = []
     for b in r.bins:
         brows.append([f'{b.temperature_c:.1f}', 'CW' if b.direction > 0 else 'CCW', f'{b.speed_rpm:.3g}',
@@ -296,6 +446,24 @@ def _print_axis(f: AxisRefit) -> None:
               'the viscous torque does not depend on viscosity at these speeds')
 
 
+def calibration_se_by_axis(args: argparse.Namespace, axes: list[str]) -> dict[str, float | None]:
+    """The T_0 uncertainty [N*m] to compare each axis' offset with, from --calibration-se or --calibration."""
+    out: dict[str, float | None] = dict.fromkeys(axes)
+    if args.calibration_se is not None:
+        if not (math.isfinite(args.calibration_se) and args.calibration_se >= 0.0):
+            raise ConfigError('--calibration-se', 'must be a finite torque >= 0 [N*m]', args.calibration_se)
+        out = {axis: float(args.calibration_se) for axis in axes}
+    if args.calibration is not None:
+        if args.calibration_se is not None:
+            raise ConfigError('--calibration', 'give --calibration or --calibration-se, not both',
+                              str(args.calibration))
+        cal_axis, se = read_calibration_se(args.calibration)
+        for axis in axes:
+            if cal_axis is None or cal_axis == axis:
+                out[axis] = se
+    return out
+
+
 def run(args: argparse.Namespace) -> int:
     out: Path = args.out
     if out.is_dir():
@@ -305,21 +473,24 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError('--bin-width', 'must be > 0 [degC]', args.bin_width)
     fit = parse_fit(args.fit)
     cfg = load_parameters(args.config)
-    log = read_residual_log(args.logs)  # refuses empty and foreign folders
-    detail = log.detail
+    if args.calibration is not None:
+        read_calibration_se(args.calibration)  # refuse a bad file before reading the logs
+    report = LogReport()
+    data_by_joint = read_stats(list(args.logs), direction=args.direction, report=report)
     where = ', '.join(str(p) for p in args.logs)
-    if len(detail) == 0:
+    if not data_by_joint:
         msg = f'{where}: the residual log holds no {RESIDUAL_DETAIL} samples'
         raise FitError(msg)
-    present = sorted({str(j) for j in detail.joint.tolist()})
+    present = sorted(data_by_joint)
     axes, ignored = _select_axes(args, cfg, present)
+    cal_se = calibration_se_by_axis(args, axes)
     fits: list[AxisRefit] = []
     for axis in axes:
         base = axis_params(cfg, axis)
-        data = axis_samples(detail, axis, args.direction)
+        data = data_by_joint[axis]
         try:
-            result = refit_model(base, data.temperature_c, data.speed_rpm, data.measured_abs_nm, data.direction,
-                                 fit=fit, loss=args.loss, bin_width_c=args.bin_width)
+            result = refit_stats(base, data.stats, fit=fit, loss=args.loss, bin_width_c=args.bin_width,
+                                 offset=args.offset, calibration_se_nm=cal_se[axis])
         except FitError as err:
             hint = ' (pass --axis to refit only the others)' if len(axes) > 1 else ''
             msg = f'axis {axis}: {err}{hint}'
@@ -328,20 +499,23 @@ def run(args: argparse.Namespace) -> int:
     if args.plot is not None:
         plot_refit(fits, args.plot)
     text = render_parameter_file(axes_overrides={f.axis: f.result.refitted for f in fits},
-                                 header=provenance_header(fits, list(args.logs), len(log.files), fit,
+                                 header=provenance_header(fits, list(args.logs), len(report.files), fit,
                                                           list(args.config)))
     write_text_atomic(out, text)
+    for f in fits:
+        for warning in f.result.warnings:
+            print(f'gimbal-friction refit: warning: axis {f.axis}: {warning}', file=sys.stderr)
 
     if args.format == 'json':
-        print_json({'logs': [str(p) for p in args.logs], 'files': [str(p) for p in log.files],
-                    'truncated_files': [str(p) for p in log.truncated_files], 'out': str(out),
+        print_json({'logs': [str(p) for p in args.logs], 'files': [str(p) for p in report.files],
+                    'truncated_files': [str(p) for p in report.truncated_files], 'out': str(out),
                     'plot': None if args.plot is None else str(args.plot), 'fit': list(fit),
-                    'config': [str(c) for c in args.config],
+                    'config': [str(c) for c in args.config], 'offset_mode': args.offset,
                     'ignored_joints': ignored, 'axes': {f.axis: _axis_record(f) for f in fits}})
         print(f'wrote {out}' + ('' if args.plot is None else f', plot: {args.plot}'), file=sys.stderr)
         return 0
-    print(f'refit of {", ".join(fit)} from {len(log.files)} file(s) in {where}'
-          + (f' ({len(log.truncated_files)} truncated)' if log.truncated_files else ''))
+    print(f'refit of {", ".join(fit)} from {len(report.files)} file(s) in {where}'
+          + (f' ({len(report.truncated_files)} truncated)' if report.truncated_files else ''))
     if ignored:
         print(f'joints not configured, ignored: {", ".join(ignored)}')
     for f in fits:

@@ -20,16 +20,25 @@ import shutil
 import sys
 import tempfile
 import time
+from collections.abc import Iterator
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any
 
 from gimbal_friction.config import all_axis_params, load_parameters, render_parameter_file
 from gimbal_friction.core.errors import ConfigError
 from gimbal_friction.core.params import AxisParams
 from gimbal_friction.recording.errors import RecordingError
-from gimbal_friction.synth import DEFAULT_TRUTH_OVERRIDES, SynthConfig, SynthData, generate, messages, \
-    truth_summary
-from gimbal_friction.tools._common import add_common, format_table, print_json, progress
+from gimbal_friction.synth import (
+    DEFAULT_TRUTH_OVERRIDES,
+    PRESETS,
+    SynthConfig,
+    SynthData,
+    generate,
+    messages,
+    preset_config,
+    truth_summary,
+)
+from gimbal_friction.tools._common import add_common, format_table, print_json, progress, write_text_atomic
 
 STORAGES = ('mcap', 'sqlite3')
 COMPRESSIONS = ('none', 'zstd')
@@ -84,6 +93,11 @@ def add_parser(sub: Any) -> None:
                         help='parameter file whose model/axis values are the truth (layered over the packaged '
                         'defaults and --config); default: the configuration with '
                         + ', '.join(f'{k} = {v:.6g}' for k, v in DEFAULT_TRUTH_OVERRIDES.items()))
+    parser.add_argument('--preset', choices=list(PRESETS), default='default',
+                        help="paper = a test whose plateau means are the paper's four measured values (CW 3.19 / CCW "
+                        '-2.45 N*mm at -40 degC, 1.05 / -1.34 at +60): truth lubricant, Palmgren factor and the '
+                        'temperature-dependent direction asymmetry of core/direction.py (default: the default truth '
+                        'and a synthetic cold CCW asymmetry)')
     parser.add_argument('--truth-out', type=Path, metavar='FILE.yaml',
                         help='also write the truth as a parameter file (layerable with --config)')
     add_common(parser)
@@ -112,13 +126,15 @@ def build_config(args: argparse.Namespace) -> SynthConfig:
     layers = list(args.config) + ([args.truth] if args.truth is not None else [])
     params = load_parameters(layers)
     truth = all_axis_params(params)
-    return SynthConfig(
+    preset = getattr(args, 'preset', 'default')
+    overrides = dict(PRESETS[preset].get('truth_overrides', DEFAULT_TRUTH_OVERRIDES))
+    return preset_config(preset,
         plateaus_c=parse_plateaus(args.plateaus), hold_s=args.hold_s, soak_s=args.soak_s,
         ramp_rate_c_per_min=args.ramp_rate, bearing_lag_s=args.bearing_lag_s, duration_s=args.duration_s,
         joint_rate_hz=args.joint_rate_hz, current_rate_hz=args.current_rate_hz,
         temperature_rate_hz=args.temperature_rate_hz, current_noise_a=args.current_noise_a, seed=args.seed,
         joints=tuple(truth), truth_base=truth,
-        truth_overrides={} if args.truth is not None else dict(DEFAULT_TRUTH_OVERRIDES))
+        truth_overrides={} if args.truth is not None else overrides)
 
 
 def _check_out(out: Path, force: bool) -> bool:
@@ -143,10 +159,8 @@ def _dir_size(path: Path) -> int:
 
 
 def _with_progress(items: Iterator[Any], total: int, every: int = 5000) -> Iterator[Any]:
-    done = 0
-    for item in items:
+    for done, item in enumerate(items, start=1):
         yield item
-        done += 1
         if done % every == 0:
             progress(done, total, 'synth-bag: writing')
     progress(total, total, 'synth-bag: writing')
@@ -224,11 +238,12 @@ def truth_parameter_text(cfg: SynthConfig) -> str:
         diff = {k: v for k, v in p.to_mapping().items() if v != getattr(first, k)}
         if diff:
             axes[joint] = diff
+    legacy = ('the cold direction asymmetry (|CCW|/|CW| = '
+              f'{cfg.asym_ratio_cold:.4f} at {cfg.asym_t_cold_c:g} degC, 1 at {cfg.asym_t_ref_c:g} degC and above)\n'
+              'and ') if cfg.asym_ratio_cold != 1.0 else ''
     header = (f'Truth of a synthetic chamber bag: gimbal-friction synth-bag --seed {cfg.seed}\n'
               'Layer over the packaged defaults (--config / --params-file) to predict with the truth model.\n'
-              'Not part of the truth here: the cold direction asymmetry (|CCW|/|CW| = '
-              f'{cfg.asym_ratio_cold:.4f} at {cfg.asym_t_cold_c:g} degC, 1 at {cfg.asym_t_ref_c:g} degC and above)\n'
-              'and the position ripple.')
+              f'Not part of the truth here: {legacy}the position ripple.')
     return render_parameter_file(model, axes or None, axes=list(joints), header=header)
 
 
@@ -236,20 +251,6 @@ def _with_motor(cfg: SynthConfig, joint: str) -> AxisParams:
     kt, i0 = cfg.motor_constants(joint)
     p = cfg.truth_params(joint)
     return dataclasses.replace(p, torque_constant_nm_per_a=kt, no_load_current_a=i0)
-
-
-def _write_text_atomic(path: Path, text: str) -> None:
-    try:
-        path.absolute().parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(prefix=f'.{path.name}.', dir=path.absolute().parent)
-        with os.fdopen(fd, 'w', encoding='utf-8') as f:
-            f.write(text)
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(tmp, 0o666 & ~umask)
-        os.replace(tmp, path)
-    except OSError as err:
-        raise RecordingError(f'{path}: cannot write: {err.strerror or err}') from None
 
 
 # ---------------------------------------------------------------------------------------------- run
@@ -280,7 +281,7 @@ def run(args: argparse.Namespace) -> int:
     size = write_bag(data, args.out, storage=args.storage, compression=compression, replace=replace)
     t2 = time.perf_counter()
     if args.truth_out is not None:
-        _write_text_atomic(args.truth_out, truth_parameter_text(cfg))
+        write_text_atomic(args.truth_out, truth_parameter_text(cfg))
     counts = data.message_counts()
     doc = {
         'out': str(args.out), 'storage': args.storage, 'compression': compression, 'seed': cfg.seed,
@@ -307,8 +308,8 @@ def run(args: argparse.Namespace) -> int:
         diffs = ', '.join(f'{k} = {v:.6g}' if isinstance(v, float) else f'{k} = {v}'
                           for k, v in truth['differs_from_defaults'].items()) or 'none'
         print(f'truth of {joint}: differs from the defaults in {diffs}; K_T = {truth["torque_constant_nm_per_a"]:g} '
-              f'N*m/A, I_0 = {truth["no_load_current_a"]:g} A; CCW/CW = {cfg.asym_ratio_cold:.3f} at '
-              f'{cfg.asym_t_cold_c:g} degC -> 1 at {cfg.asym_t_ref_c:g} degC')
+              f'N*m/A, I_0 = {truth["no_load_current_a"]:g} A' + (f'; synthetic CCW/CW x {cfg.asym_ratio_cold:.3f} at '
+              f'{cfg.asym_t_cold_c:g} degC -> 1 at {cfg.asym_t_ref_c:g} degC' if cfg.asym_ratio_cold != 1.0 else ''))
         rows = [[f'{r["temperature_c"]:g}', f'{r["viscosity_cst"]:.4g}', f'{r["truth_cw_nmm"]:.3f}',
                  f'{r["truth_ccw_nmm"]:.3f}', f'{r["default_model_nmm"]:.3f}'] for r in truth['plateaus']]
         print(format_table(rows, ['t [degC]', 'nu [cSt]', 'truth CW [N*mm]', 'truth CCW [N*mm]',

@@ -186,7 +186,7 @@ def test_weights_and_robust_loss_options(one_cold):
         assert float(viscosity_cst(res.params, -40.0)) == pytest.approx(float(viscosity_cst(truth, -40.0)),
                                                                         rel=0.03)
     base = AxisParams()
-    pal = dict(fit=('walther_a', 'palmgren_factor'))
+    pal = {'fit': ('walther_a', 'palmgren_factor')}
     plain = refit_model(base, t, n, y, d, **pal).fitted['palmgren_factor']
     robust = refit_model(base, t, n, y, d, loss='soft_l1', **pal).fitted['palmgren_factor']
     assert abs(robust - base.palmgren_factor) < abs(plain - base.palmgren_factor)

@@ -1,0 +1,161 @@
+"""``gimbal-friction fleet`` and gimbal_friction.fleet: units found, refitted on Dask, population and outliers.
+
+Units are tiny residual logs written in the 12-column residual layout (plateaus -40..60 degC, both directions,
+1/3 rpm, +/-5 % ripple, 0.1 mN*m noise) from truths that differ a little in lubricant and contact friction; one
+unit has a different grease (walther_a + 0.05: nu(-40 degC) x 3).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from gimbal_friction.core.model import friction_torque
+from gimbal_friction.core.params import AxisParams
+from gimbal_friction.core.residual_row import RESIDUAL_FIELDS
+from gimbal_friction.fleet import FitSettings, UnitSpec, discover_units, population, process_unit
+from gimbal_friction.recording.bag import make_float64_multi_array
+from gimbal_friction.recording.residual_log import ResidualLogWriter
+from gimbal_friction.recording.topics import FLOAT64_MULTI_ARRAY_TYPE, RESIDUAL_DETAIL
+from gimbal_friction.tools.cli import main
+
+T0 = 1_700_000_000_000_000_000  # [ns]
+SPEED = 2.0 * math.pi / 180.0   # 1/3 rpm [rad/s]
+
+
+def write_unit(folder: Path, truth: AxisParams, seed: int, plateaus=(-40.0, -20.0, 0.0, 20.0, 40.0, 60.0),
+               n_per: int = 80) -> Path:
+    rng = np.random.default_rng(seed)
+    k = 0
+    with ResidualLogWriter(folder) as writer:
+        for plateau in plateaus:
+            for sign in (1.0, -1.0):
+                t = plateau + rng.normal(0.0, 0.05, n_per)
+                pos = np.linspace(-0.1, 0.19, n_per)
+                tau = friction_torque(truth, t, 1 / 3).m_total_nmm * 1e-3
+                tau = tau * (1.0 + 0.05 * np.sin(2.0 * np.pi * pos / math.radians(3.4)))
+                measured = sign * (tau + rng.normal(0.0, 1e-4, n_per))
+                for i in range(n_per):
+                    stamp = T0 + k * 10_000_000
+                    k += 1
+                    row = [stamp * 1e-9, t[i], pos[i], sign * SPEED, measured[i] / 0.05, measured[i], math.nan,
+                           math.nan, 0.0, 0.05, 0.0, 0.0]
+                    assert len(row) == len(RESIDUAL_FIELDS)
+                    writer.write(RESIDUAL_DETAIL, FLOAT64_MULTI_ARRAY_TYPE, stamp, make_float64_multi_array(row,
+                                                                                                          'elevation'))
+    return folder
+
+
+@pytest.fixture(scope='module')
+def fleet_dir(tmp_path_factory) -> Path:
+    root = tmp_path_factory.mktemp('fleet') / 'line'
+    root.mkdir()
+    base = AxisParams()
+    rng = np.random.default_rng(7)
+    for i in range(6):
+        truth = base.replace(walther_a=base.walther_a + 0.02 + rng.normal(0.0, 0.001),
+                             sliding_friction_coefficient=0.095 * (1.0 + rng.normal(0.0, 0.01)))
+        if i == 4:
+            truth = truth.replace(walther_a=base.walther_a + 0.07)   # a different grease batch
+        write_unit(root / f'seeker_{i:02d}', truth, seed=i)
+    return root
+
+
+def test_fleet_finds_the_outlier_and_writes_json_csv_figure(fleet_dir, tmp_path, capsys):
+    out = tmp_path / 'report'
+    assert main(['fleet', str(fleet_dir), '--out', str(out), '--threads', '--workers', '2']) == 0
+    captured = capsys.readouterr()
+    assert 'fleet: 6/6' in captured.err and 'embedded local Dask cluster' in captured.err
+    assert 'OUTLIER seeker_04 (elevation): walther_a' in captured.out
+    doc = json.loads((out / 'fleet.json').read_text())
+    assert [u['unit'] for u in doc['units']] == [f'seeker_{i:02d}' for i in range(6)]
+    assert all(u['error'] is None for u in doc['units'])
+    flagged = {(o['unit'], o['parameter']) for o in doc['population']['outliers']}
+    assert ('seeker_04', 'walther_a') in flagged
+    assert {u for u, _ in flagged} == {'seeker_04'}
+    reason = next(o['reason'] for o in doc['population']['outliers'] if o['parameter'] == 'walther_a')
+    assert 'above the median' in reason and 'grease batch' in reason
+    pop = doc['population']['axes']['elevation']['walther_a']
+    assert pop['n'] == 6 and pop['median'] == pytest.approx(AxisParams().walther_a + 0.02, abs=3e-3)
+    assert pop['spread'] < 0.01
+    unit0 = doc['units'][0]['axes']['elevation']
+    lo, hi = unit0['ci95']['walther_a']
+    assert lo < unit0['fitted']['walther_a'] < hi
+    csv = (out / 'fleet.csv').read_text().splitlines()
+    assert csv[0].startswith('unit,axis,kind,samples') and len(csv) == 7
+    assert (out / 'fleet.png').read_bytes()[:8] == b'\x89PNG\r\n\x1a\n'
+    assert doc['workers'] == 2 and doc['units_per_minute'] > 0
+
+
+def test_fleet_json_on_stdout_with_processes_and_a_bag(fleet_dir, tmp_path, capsys):
+    # two log units and a chamber bag (replayed on the worker), on one worker process
+    assert main(['synth-bag', '--out', str(tmp_path / 'bag_unit'), '--plateaus=-40,20', '--hold-s', '12',
+                 '--joint-rate-hz', '25', '--format', 'json']) == 0
+    capsys.readouterr()
+    out = tmp_path / 'report'
+    assert main(['fleet', str(fleet_dir / 'seeker_00'), str(fleet_dir / 'seeker_01'), str(tmp_path / 'bag_unit'),
+                 '--out', str(out), '--workers', '1', '--fit', 'walther_a', '--format', 'json']) == 0
+    doc = json.loads(capsys.readouterr().out)
+    kinds = {u['unit']: u['kind'] for u in doc['units']}
+    assert kinds == {'seeker_00': 'log', 'seeker_01': 'log', 'bag_unit': 'bag'}
+    bag = next(u for u in doc['units'] if u['unit'] == 'bag_unit')
+    assert bag['error'] is None and bag['axes']['elevation']['samples'] > 100
+    assert bag['axes']['elevation']['identifiable']['walther_a']
+    assert doc['population']['axes']['elevation']['walther_a']['n'] == 3 and doc['workers'] == 1
+
+
+def test_a_broken_unit_is_reported_not_fatal(fleet_dir, tmp_path, capsys):
+    broken = tmp_path / 'broken'
+    broken.mkdir()
+    (broken / 'residuals_0.mcap').write_bytes(b'not an mcap file at all')
+    out = tmp_path / 'report'
+    assert main(['fleet', str(fleet_dir / 'seeker_01'), str(broken), '--out', str(out), '--threads']) == 0
+    doc = json.loads((out / 'fleet.json').read_text())
+    err = next(u['error'] for u in doc['units'] if u['unit'] == 'broken')
+    assert err and 'mcap' in err.lower()
+    assert 'broken' in capsys.readouterr().err
+
+
+def test_refusals_are_one_line(tmp_path, capsys):
+    empty = tmp_path / 'empty'
+    empty.mkdir()
+    for argv, match in ((['fleet', str(tmp_path / 'missing'), '--out', str(tmp_path / 'o')], 'no such file'),
+                        (['fleet', str(empty), '--out', str(tmp_path / 'o')], 'neither a residual log'),
+                        (['fleet', str(empty), '--out', str(tmp_path / 'o'), '--workers', '0'], 'must be >= 1')):
+        assert main(argv) == 1
+        err = capsys.readouterr().err.strip()
+        assert len(err.splitlines()) == 1 and err.startswith('gimbal-friction fleet: error: ') and match in err
+
+
+def test_discover_units_kinds(fleet_dir, tmp_path):
+    replay_out = tmp_path / 'replay_out'
+    (replay_out / 'residuals').mkdir(parents=True)
+    (replay_out / 'residuals' / 'residuals_0.mcap').write_bytes(b'')
+    units = discover_units([fleet_dir, replay_out, fleet_dir / 'seeker_00'])
+    names = [u.name for u in units]
+    assert names[:6] == [f'seeker_{i:02d}' for i in range(6)]
+    assert units[6] == UnitSpec('replay_out', str(replay_out / 'residuals'), 'log')
+    assert names[7] == 'seeker_00#2'
+
+
+def test_population_is_robust_and_noise_aware():
+    def rec(unit, a, se=1e-4):
+        return {'unit': unit, 'axes': {'x': {'fitted': {'walther_a': a}, 'standard_errors': {'walther_a': se},
+                                             'identifiable': {'walther_a': True}, 'viscosity_m40_cst': 1.0,
+                                             'offset': {'estimated': False}}}}
+    same = [rec(f'u{i}', 8.64 + 1e-7 * i) for i in range(8)]      # identical within their own noise
+    assert population(same)['outliers'] == []
+    spread = [rec(f'u{i}', 8.64 + 0.001 * i) for i in range(8)] + [rec('bad', 8.70)]
+    pop = population(spread)
+    assert [o['unit'] for o in pop['outliers']] == ['bad']
+    assert pop['axes']['x']['walther_a']['median'] == pytest.approx(8.644)
+
+
+def test_process_unit_records_an_unconfigured_joint(fleet_dir):
+    settings = FitSettings(axes={'azimuth': AxisParams()}, config_paths=())
+    rec = process_unit(UnitSpec('u', str(fleet_dir / 'seeker_00'), 'log'), settings)
+    assert rec['error'].startswith('no samples of a configured axis (joints present: elevation')
