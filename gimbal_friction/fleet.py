@@ -184,7 +184,7 @@ def unit_stats_from_bag(path: str, config_paths: Sequence[str], direction: str) 
     one place a fleet worker reads a bag."""
     from gimbal_friction.replay import replay_bag
 
-    est = replay_bag(path, None, config_paths=[Path(p) for p in config_paths], log_inputs=False).estimate
+    est = replay_bag(path, None, config_paths=[Path(p) for p in config_paths], log_inputs=False).measurements
     out: dict[str, SufficientStats] = {}
     for joint in sorted({str(j) for j in est.joint.tolist()}):
         sel = est.joint == joint

@@ -57,9 +57,11 @@ Statistics (:meth:`EstimatorLogic.statistics`, steady-state samples only, the pa
 
 >>> logic = EstimatorLogic({'elevation': AxisParams(no_load_current_a=0.01)}, EstimatorSettings(min_dwell_s=0.0))
 >>> v = EstimatorSettings().commanded_speed_rad_s
->>> logic.on_joint_state(10**9, ['elevation'], [0.0], [-v]), logic.on_current(10**9, ['elevation'], [-0.05])
-([], [])
->>> (m,) = logic.on_joint_state(10**9 + 10**7, ['elevation'], [0.0], [-v])   # beyond the pairing window
+>>> for k in range(3):                          # three joint states at 100 Hz: the acceleration is known
+...     _ = logic.on_joint_state(10**9 + k * 10**7, ['elevation'], [0.0], [-v])
+>>> logic.on_current(10**9 + 2 * 10**7, ['elevation'], [-0.05])
+[]
+>>> (m,) = logic.on_joint_state(10**9 + 3 * 10**7, ['elevation'], [0.0], [-v])   # beyond the pairing window
 >>> round(m.friction_nm, 6), m.direction   # 0.05 N*m/A * (-0.05 A + 0.01 A)
 (-0.002, -1)
 """

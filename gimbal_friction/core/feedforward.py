@@ -3,7 +3,9 @@ and a controller in the same process all use :class:`Feedforward` (pure: no rclp
 
 Torque of a joint = model friction magnitude at the bearing temperature and speed (the tabulated fast path,
 :class:`~gimbal_friction.core.table.FrictionTable`) × a smooth sign of the velocity × the direction factor of the
-joint, clamped to ``max_torque_nm`` (:func:`feedforward_torque_nm`):
+joint at that temperature (:func:`~gimbal_friction.core.direction.direction_factor`: ``scale_positive`` /
+``scale_negative`` and the temperature-dependent CW/CCW asymmetry), clamped to ``max_torque_nm``
+(:func:`feedforward_torque_nm`):
 
 .. math:: \tau = \operatorname{clamp}\left(\tanh(v / v_{th})\; k_{dir}\; M(t, |v|),\ \pm\tau_{max}\right)
 
@@ -40,6 +42,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from gimbal_friction.core.arrays import ChamberArrays
+from gimbal_friction.core.direction import direction_factor
 from gimbal_friction.core.errors import ConfigError
 from gimbal_friction.core.inputs import (
     J_DUPLICATE,
@@ -112,12 +115,6 @@ class FeedforwardSettings:
 def smooth_sign(velocity_rad_s: Any, v_th: float, xp: Any) -> Any:
     """``tanh(v / v_th)`` [-], the sign of motion without a discontinuity at zero speed."""
     return xp.tanh(velocity_rad_s / v_th)
-
-
-def direction_factor(params: AxisParams, velocity_rad_s: Any, xp: Any) -> Any:
-    """Factor on the model magnitude for the direction of motion: ``scale_positive`` for v ≥ 0, else
-    ``scale_negative`` [-]."""
-    return xp.where(velocity_rad_s >= 0.0, params.scale_positive, params.scale_negative)
 
 
 def feedforward_torque_nm(magnitude_nm: Any, velocity_rad_s: Any, k_dir: Any, v_th: float, max_torque_nm: float,
@@ -258,7 +255,7 @@ class Feedforward:
         if terms is None:
             terms = table.temperature_terms(temperature_c, xp)
         magnitude = table.magnitude_from_terms(terms, velocity_rad_s, xp)
-        k_dir = direction_factor(self.axes[joint], velocity_rad_s, xp)
+        k_dir = direction_factor(self.axes[joint], temperature_c, velocity_rad_s, xp)
         return feedforward_torque_nm(magnitude, velocity_rad_s, k_dir, s.velocity_threshold_rad_s, s.max_torque_nm,
                                      xp)
 

@@ -27,7 +27,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from gimbal_friction.core.errors import ConfigError, GimbalFrictionError
-from gimbal_friction.core.estimator import EstimatorSettings, estimate_arrays
+from gimbal_friction.core.estimator import EstimatorLogic, EstimatorSettings
 from gimbal_friction.core.params import AxisParams
 from gimbal_friction.core.refit import refit_model
 from gimbal_friction.core.units import NS_PER_S, RAD_S_PER_RPM, RPM_PER_RAD_S
@@ -119,7 +119,7 @@ def estimator_refit(traces: Sequence[EstimatorTrace], axis: AxisParams, config: 
     every = max(1, int(round(config.rate_loop_hz / ESTIMATOR_RATE_HZ)))
     cols: list[list[Array]] = [[], [], [], []]
     for trace in traces:
-        est = estimate_arrays({'elevation': axis}, settings, trace.chamber_arrays('elevation', every))
+        est = EstimatorLogic({'elevation': axis}, settings).feed(trace.chamber_arrays('elevation', every))
         cw = est.direction > 0
         cols[0].append(est.temperature_c[cw])
         cols[1].append(np.abs(est.velocity_rad_s[cw]) * RPM_PER_RAD_S)

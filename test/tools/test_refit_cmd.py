@@ -60,8 +60,7 @@ def detail_rows(truth: AxisParams, plateaus=PLATEAUS, n_per: int = 120, seed: in
                 stamp = T0 + k * 10_000_000
                 k += 1
                 rows.append([stamp * 1e-9, t[i], pos[i], v[i], measured[i] / 0.05, measured[i], predicted[i],
-                             model.m_rolling_nmm[i] * 1e-3, model.m_sliding_nmm[i] * 1e-3,
-                             model.m_viscous_nmm[i] * 1e-3, measured[i] - predicted[i]])
+                             measured[i] - predicted[i], 0.0, 0.05, 0.0, 0.0])   # RESIDUAL_FIELDS
                 stamps.append(stamp)
     return rows, stamps
 
