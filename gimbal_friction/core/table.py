@@ -90,6 +90,14 @@ class FrictionTable:
         self.t_max = self.t_min + (self.n - 1) * self.step
         self.grid = self.t_min + self.step * np.arange(self.n)
         contact = friction_torque(params, self.grid, 0.0)
+        # a lubricant cannot have a negative viscosity (Walther constants fitted elsewhere, a typo); Palmgren's
+        # (nu n)^(2/3) would turn it into a positive torque without a word
+        thin = np.flatnonzero(~(contact.viscosity_cst > 0.0))
+        if thin.size:
+            k = int(thin[0])
+            raise ModelDomainError(f'the lubricant viscosity from walther_a, walther_b and viscosity_offset_cst is '
+                                   f'{float(contact.viscosity_cst[k]):.3g} cSt at {float(self.grid[k]):g} degC; it '
+                                   f'must be > 0 over the table [{self.t_min:g}, {self.t_max:g}] degC')
         m_rs = contact.m_rolling_nmm + contact.m_sliding_nmm
         self._m_rs = {ARRAY: m_rs, SCALAR: m_rs.tolist()}
         # the viscous part must be finite over the whole range too (e.g. a Walther constant gone wrong)
