@@ -40,7 +40,6 @@ joint's K_T or I_0 restarts that joint's statistics.
 
 from __future__ import annotations
 
-import dataclasses
 import math
 import sys
 from collections.abc import Sequence
@@ -55,7 +54,6 @@ from sensor_msgs.msg import JointState, Temperature
 from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 
 from gimbal_friction.core.arrays import chamber_arrays
-from gimbal_friction.core.errors import ConfigError
 from gimbal_friction.core.estimator import (
     INPUT_REASONS,
     UNKNOWN_JOINT,
@@ -63,7 +61,7 @@ from gimbal_friction.core.estimator import (
     EstimatorSettings,
 )
 from gimbal_friction.core.measurement import MEASUREMENT_FIELDS, METHOD_NAMES, MeasurementArrays, detail_matrix
-from gimbal_friction.core.settings import setting, settings_from
+from gimbal_friction.core.settings import EstimatorNodeSettings, settings_from
 from gimbal_friction.core.units import NS_PER_S, join_stamp, split_stamp
 from gimbal_friction.nodes._common import (
     OK,
@@ -86,24 +84,7 @@ DEPTH = 1000
 _Msg = tuple[int, int, list[str], list[float], list[float], list[float]]
 
 
-@dataclasses.dataclass(frozen=True)
-class NodeSettings:
-    """Node-level parameters of friction_estimator (besides EstimatorSettings and the model)."""
-
-    batch_period_s: float = setting(0.02, 's', 'the messages received are processed together this often (the '
-                                    'result does not depend on it; measurements are published this much later)')
-    statistics_period_s: float = setting(2.0, 's', 'period of the statistics summary on '
-                                         '/gimbal/friction/statistics')
-    diagnostics_period_s: float = setting(1.0, 's', 'period of /diagnostics')
-
-    def validate(self) -> None:
-        if not 0.001 <= self.batch_period_s <= 1.0:
-            raise ConfigError('batch_period_s', 'must lie in [0.001, 1] [s]', self.batch_period_s)
-        for name in ('statistics_period_s', 'diagnostics_period_s'):
-            value = getattr(self, name)
-            if not 0.05 <= value <= 3600.0:
-                raise ConfigError(name, 'must lie in [0.05, 3600] [s]', value)
-
+NodeSettings = EstimatorNodeSettings  # the node-level parameters (gimbal_friction.core.settings)
 
 _EST_FIELDS = field_names(EstimatorSettings)
 _NODE_FIELDS = field_names(NodeSettings)
@@ -247,7 +228,8 @@ class FrictionEstimator(Node):
                          if c > previous_t.get(r, 0)}
                 self._last_counts['temperature'] = dict(counters.temperature_rejected)
                 if new_t:
-                    problems.append('temperatures rejected: ' + ', '.join(f'{r} {c}x' for r, c in sorted(new_t.items())))
+                    problems.append('temperatures rejected: '
+                                    + ', '.join(f'{r} {c}x' for r, c in sorted(new_t.items())))
                 errors = callback_error_values(self)
                 values.update(errors)
                 if errors:

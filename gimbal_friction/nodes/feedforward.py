@@ -18,7 +18,6 @@ process and the offline replay runs over a whole bag; the node only converts mes
 
 from __future__ import annotations
 
-import dataclasses
 import math
 import sys
 from collections.abc import Sequence
@@ -31,7 +30,6 @@ from rclpy.qos import QoSProfile, qos_profile_sensor_data
 from sensor_msgs.msg import JointState, Temperature
 from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 
-from gimbal_friction.core.errors import ConfigError
 from gimbal_friction.core.feedforward import (
     SOURCE_MEASURED,
     SOURCE_NAMES,
@@ -40,7 +38,7 @@ from gimbal_friction.core.feedforward import (
     FeedforwardSettings,
 )
 from gimbal_friction.core.inputs import effective_time, is_fresh
-from gimbal_friction.core.settings import setting, settings_from
+from gimbal_friction.core.settings import FeedforwardNodeSettings, settings_from
 from gimbal_friction.core.xp import SCALAR
 from gimbal_friction.nodes._common import (
     ERROR,
@@ -60,34 +58,10 @@ from gimbal_friction.nodes._common import (
 )
 from gimbal_friction.recording import topics
 
-VELOCITY_SOURCES = ('measured', 'reference')
 REFERENCE_VELOCITY = '/gimbal/reference_velocity'
 #: subscription depth of the joint states: a burst of this many messages is buffered, not dropped
 JOINT_STATE_DEPTH = 1000
-
-
-@dataclasses.dataclass(frozen=True)
-class NodeSettings:
-    """Node-level parameters of friction_feedforward (besides FeedforwardSettings and the model)."""
-
-    velocity_source: str = setting('measured', '-', 'velocity used for the torque: measured (joint_states '
-                                   'velocity, relative to the base) or reference (reference_velocity topic)')
-    reference_timeout_s: float = setting(0.5, 's', 'a reference velocity whose stamp differs from the joint '
-                                         'state\'s by more than this is not used (0 N*m)')
-    max_rate_hz: float = setting(0.0, 'Hz', 'publish at most this often; 0 = for every joint-state message')
-    diagnostics_period_s: float = setting(1.0, 's', 'period of /diagnostics')
-
-    def validate(self) -> None:
-        if self.velocity_source not in VELOCITY_SOURCES:
-            raise ConfigError('velocity_source', f'must be one of {", ".join(VELOCITY_SOURCES)}',
-                              self.velocity_source)
-        if not 0.0 < self.reference_timeout_s <= 3600.0:
-            raise ConfigError('reference_timeout_s', 'must lie in (0, 3600] [s]', self.reference_timeout_s)
-        if not 0.0 <= self.max_rate_hz <= 1e6:
-            raise ConfigError('max_rate_hz', 'must lie in [0, 1e6] [Hz]', self.max_rate_hz)
-        if not 0.05 <= self.diagnostics_period_s <= 60.0:
-            raise ConfigError('diagnostics_period_s', 'must lie in [0.05, 60] [s]', self.diagnostics_period_s)
-
+NodeSettings = FeedforwardNodeSettings  # the node-level parameters (gimbal_friction.core.settings)
 
 _FF_FIELDS = field_names(FeedforwardSettings)
 _NODE_FIELDS = field_names(NodeSettings)

@@ -27,7 +27,6 @@ and temperature bin.
 
 from __future__ import annotations
 
-import dataclasses
 import math
 import sys
 import time
@@ -49,7 +48,7 @@ from gimbal_friction.core.inputs import effective_time
 from gimbal_friction.core.measurement import MEASUREMENT_FIELDS, MeasurementArrays, from_detail
 from gimbal_friction.core.residual_row import ResidualRows, residual_rows
 from gimbal_friction.core.residuals import ResidualStats, credible_rows, match_predictions
-from gimbal_friction.core.settings import setting, settings_from
+from gimbal_friction.core.settings import LoggerSettings, settings_from
 from gimbal_friction.core.units import join_stamp
 from gimbal_friction.nodes._common import (
     ERROR,
@@ -74,38 +73,6 @@ from gimbal_friction.recording.residual_log import ResidualLogWriter, residual_l
 DEPTH = 1000
 #: feedforward entries kept for pairing [-] (several seconds at 1 kHz with two joints)
 FEEDFORWARD_HORIZON = 16384
-
-
-@dataclasses.dataclass(frozen=True)
-class LoggerSettings:
-    """Parameters of residual_logger."""
-
-    output_dir: str = setting('residuals', '-', 'folder of the residual log (created; a timestamped sub-folder '
-                              'is used if it already holds a log)')
-    flush_period_s: float = setting(1.0, 's', 'completed data reaches the disk at least this often')
-    chunk_kib: int = setting(64, 'KiB', 'MCAP chunk size; small chunks lose little when the process is killed')
-    max_file_mb: float = setting(64.0, 'MB', 'rotate to a new file at this size; 0 = never')
-    max_file_duration_s: float = setting(0.0, 's', 'rotate to a new file after this much log time; 0 = never')
-    pairing_timeout_s: float = setting(1.0, 's', 'a measurement waits this long for its feedforward, then is '
-                                       'logged without a prediction')
-    log_inputs: bool = setting(True, '-', 'also log the raw input topics (temperature, joint states, current, '
-                               'feedforward, measured, measured_detail)')
-    residual_bin_c: float = setting(5.0, 'degC', 'temperature bin of the residual RMS on /diagnostics')
-    retry_period_s: float = setting(5.0, 's', 'after a write error, try a new file this often')
-    diagnostics_period_s: float = setting(1.0, 's', 'period of /diagnostics')
-
-    def validate(self) -> None:
-        if not self.output_dir.strip():
-            raise ConfigError('output_dir', 'must be a folder path', self.output_dir)
-        for name, hi in (('flush_period_s', 3600.0), ('pairing_timeout_s', 3600.0), ('residual_bin_c', 1000.0),
-                         ('retry_period_s', 3600.0), ('diagnostics_period_s', 3600.0)):
-            if not 0.0 < getattr(self, name) <= hi:
-                raise ConfigError(name, f'must lie in (0, {hi:g}]', getattr(self, name))
-        if not 1 <= self.chunk_kib <= 65536:
-            raise ConfigError('chunk_kib', 'must lie in [1, 65536] [KiB]', self.chunk_kib)
-        for name in ('max_file_mb', 'max_file_duration_s'):
-            if not 0.0 <= getattr(self, name) <= 1e9:
-                raise ConfigError(name, 'must lie in [0, 1e9] (0 = never)', getattr(self, name))
 
 
 _SETTINGS = field_names(LoggerSettings)
