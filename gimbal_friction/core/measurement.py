@@ -137,13 +137,30 @@ def from_detail(joints: NDArray[np.str_] | list[str], data: NDArray[np.float64])
     """Measurements from ``measured_detail`` rows (``data``: (n, len(MEASUREMENT_FIELDS))).
 
     Raises:
-        ValueError: ``data`` does not have one row per joint and the layout's columns.
+        ValueError: ``data`` does not have one row per joint and the layout's columns, a stamp is not a valid
+            ``builtin_interfaces/Time`` (a NaN or 1e300 second would wrap to a plausible stamp when converted), or a
+            method code is unknown.
+
+    >>> from_detail(['elevation'], [[float('nan')] + [0.0] * 12])
+    Traceback (most recent call last):
+    ...
+    ValueError: stamp_sec must be a whole number that fits int32 and stamp_nanosec a whole number in [0, 1e9)
     """
     d = np.asarray(data, dtype=np.float64).reshape(-1, len(MEASUREMENT_FIELDS))
     j = np.asarray(joints, dtype=str)
     if j.shape[0] != d.shape[0]:
         msg = f'{j.shape[0]} joint labels for {d.shape[0]} rows'
         raise ValueError(msg)
-    stamp = d[:, 0].astype(np.int64) * NS_PER_S + d[:, 1].astype(np.int64)
+    sec, nanosec, method = d[:, 0], d[:, 1], d[:, 12]
+    with np.errstate(invalid='ignore'):
+        stamp_ok = (np.isfinite(sec) & (sec == np.round(sec)) & (sec >= -2.0**31) & (sec < 2.0**31)
+                    & np.isfinite(nanosec) & (nanosec == np.round(nanosec)) & (nanosec >= 0) & (nanosec < NS_PER_S))
+    if not np.all(stamp_ok):
+        msg = 'stamp_sec must be a whole number that fits int32 and stamp_nanosec a whole number in [0, 1e9)'
+        raise ValueError(msg)
+    if not np.all(np.isin(method, list(METHOD_NAMES))):
+        msg = f'method must be one of {sorted(METHOD_NAMES)}'
+        raise ValueError(msg)
+    stamp = sec.astype(np.int64) * NS_PER_S + nanosec.astype(np.int64)
     return MeasurementArrays(j, stamp, d[:, 2], d[:, 3], d[:, 4], d[:, 5], d[:, 6], d[:, 7] != 0.0, d[:, 8],
                              d[:, 9], d[:, 10], d[:, 11], d[:, 12].astype(np.int8))

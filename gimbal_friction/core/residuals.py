@@ -48,15 +48,22 @@ def match_predictions(joint: NDArray[np.str_], stamp_ns: NDArray[np.int64], ff_j
     return out
 
 
+def credible_torque(torque_nm: ArrayLike) -> NDArray[np.bool_]:
+    """Torques [N·m] that are finite and at most :data:`MAX_CREDIBLE_TORQUE_NM` in magnitude.
+
+    >>> credible_torque([0.003, -1e154, float('nan'), float('inf')]).tolist()
+    [True, False, False, False]
+    """
+    t = np.asarray(torque_nm, dtype=np.float64)
+    with np.errstate(invalid='ignore'):
+        return np.isfinite(t) & (np.abs(t) <= MAX_CREDIBLE_TORQUE_NM)
+
+
 def credible_rows(rows: ResidualRows) -> NDArray[np.bool_]:
     """Rows whose measured value is finite and credible, and whose prediction is NaN (none arrived) or finite and
     credible (a hostile or corrupted input must not reach the log or poison its statistics)."""
-    meas = np.asarray(rows.measured_nm, dtype=np.float64)
     pred = np.asarray(rows.predicted_nm, dtype=np.float64)
-    ok = np.isfinite(meas) & (np.abs(meas) <= MAX_CREDIBLE_TORQUE_NM)
-    with np.errstate(invalid='ignore'):
-        ok &= np.isnan(pred) | (np.isfinite(pred) & (np.abs(pred) <= MAX_CREDIBLE_TORQUE_NM))
-    return ok
+    return credible_torque(rows.measured_nm) & (np.isnan(pred) | credible_torque(pred))
 
 
 class ResidualStats:
