@@ -20,6 +20,8 @@ from gimbal_friction.core.statistics import GroupStatistics
 
 #: residual or torque magnitudes above this are not credible for a gimbal bearing and are not logged [N·m]
 MAX_CREDIBLE_TORQUE_NM = 100.0
+#: bearing temperatures above this are not credible [°C]
+MAX_CREDIBLE_TEMPERATURE_C = 1000.0
 
 
 def match_predictions(joint: NDArray[np.str_], stamp_ns: NDArray[np.int64], ff_joint: NDArray[np.str_],
@@ -60,10 +62,17 @@ def credible_torque(torque_nm: ArrayLike) -> NDArray[np.bool_]:
 
 
 def credible_rows(rows: ResidualRows) -> NDArray[np.bool_]:
-    """Rows whose measured value is finite and credible, and whose prediction is NaN (none arrived) or finite and
-    credible (a hostile or corrupted input must not reach the log or poison its statistics)."""
+    """Rows whose measured value is finite and credible, whose prediction is NaN (none arrived) or finite and
+    credible, whose temperature is NaN (none) or inside [-273.15, :data:`MAX_CREDIBLE_TEMPERATURE_C`] °C and whose
+    position and velocity are finite (a hostile or corrupted input must not reach the log or poison its statistics:
+    each distinct absurd temperature would open a statistics bin of its own)."""
     pred = np.asarray(rows.predicted_nm, dtype=np.float64)
-    return credible_torque(rows.measured_nm) & (np.isnan(pred) | credible_torque(pred))
+    t = np.asarray(rows.temperature_c, dtype=np.float64)
+    with np.errstate(invalid='ignore'):
+        t_ok = np.isnan(t) | ((t >= -273.15) & (t <= MAX_CREDIBLE_TEMPERATURE_C))
+    kinematics = np.isfinite(np.asarray(rows.position_rad, dtype=np.float64)) & np.isfinite(
+        np.asarray(rows.velocity_rad_s, dtype=np.float64))
+    return credible_torque(rows.measured_nm) & (np.isnan(pred) | credible_torque(pred)) & t_ok & kinematics
 
 
 class ResidualStats:
