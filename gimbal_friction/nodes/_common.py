@@ -15,6 +15,7 @@ import threading
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from typing import Any, TypeVar
 
+import numpy as np
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, SetParametersResult
@@ -22,11 +23,13 @@ from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.signals import SignalHandlerOptions
+from rclpy.subscription import Subscription
 
-from gimbal_friction.config import axis_names, load_parameters
-from gimbal_friction.core.errors import ConfigError, GimbalFrictionError
+from gimbal_friction.config import axis_names, check_parameter_names, command_line_parameters, load_parameters
+from gimbal_friction.core.errors import ConfigError, GimbalFrictionError, ModelDomainError
 from gimbal_friction.core.params import AxisParams, parameter_specs
 from gimbal_friction.core.settings import settings_from
+from gimbal_friction.core.table import FrictionTable
 
 T = TypeVar('T')
 OK, WARN, ERROR = DiagnosticStatus.OK, DiagnosticStatus.WARN, DiagnosticStatus.ERROR
@@ -55,6 +58,21 @@ def _value(param: Parameter) -> Any:
     return value
 
 
+def declare_axes(node: Node, default: list[str] | None = None) -> list[str]:
+    """Declare the read-only ``axes`` parameter (the configured joints; default: the packaged file's) and return
+    the validated joint names.
+
+    Raises:
+        ConfigError: not a non-empty list of unique joint names.
+    """
+    if default is None:
+        default = axis_names(load_parameters())
+    node.declare_parameter('axes', default, ParameterDescriptor(
+        description='configured gimbal axes = joint names in /joint_states (read-only)', read_only=True,
+        dynamic_typing=True))
+    return axis_names({'axes': _value(node.get_parameter('axes'))})
+
+
 class ModelParameters:
     """Declares the model parameters on ``node`` and turns them into validated :class:`AxisParams`."""
 
@@ -62,13 +80,14 @@ class ModelParameters:
         self.node = node
         defaults = load_parameters()  # packaged config/gimbal_friction.yaml
         default_axes = axis_names(defaults)
-        node.declare_parameter('axes', default_axes, ParameterDescriptor(
-            description='configured gimbal axes = joint names in /joint_states (read-only)', read_only=True))
-        self.axes: list[str] = [str(a) for a in node.get_parameter('axes').value]
-        axis_names({'axes': self.axes})
+        self.axes = declare_axes(node, default_axes)
         model_defaults = {**AxisParams().to_mapping(), **(defaults.get('model') or {})}
         default_overrides = defaults.get('axis') or {}
         self.specs = parameter_specs()
+        #: parameter name -> its default (packaged file over AxisParams), for messages
+        self.defaults: dict[str, Any] = {f'model.{k}': v for k, v in model_defaults.items()}
+        self.defaults.update({f'axis.{a}.{k}': v for a in self.axes
+                              for k, v in (default_overrides.get(a) or {}).items()})
         for spec in self.specs:
             name = spec['name']
             node.declare_parameter(f'model.{name}', model_defaults[name],
@@ -171,26 +190,156 @@ def declare_settings(node: Node, cls: type[T], prefix: str = '') -> T:
     return settings_from(cls, values)
 
 
+def describe_request(params: Iterable[Parameter]) -> str:
+    """``name = value, ...`` of a ``set_parameters`` request (for a refusal that the core did not name)."""
+    return ', '.join(f'{p.name} = {_value(p)!r}' for p in params)
+
+
 def parameter_guard(node: Node, validate: Callable[[list[Parameter]], None],
                     apply: Callable[[list[Parameter]], None]) -> None:
-    """Install ``ros2 param set`` semantics: ``validate`` raises ConfigError to refuse (old value stays),
-    ``apply`` runs after a successful set."""
+    """Install ``ros2 param set`` semantics: ``validate`` raises GimbalFrictionError to refuse (the old value stays
+    and stays in effect), ``apply`` runs after a successful set. A refusal's reason names the parameter: a
+    ConfigError does itself, any other error is prefixed with the request (``model.walther_a = 1.0: the lubricant
+    viscosity ...``). An unexpected exception refuses too (counted as a callback error) rather than leaving the
+    caller without an answer."""
 
     def on_set(params: list[Parameter]) -> SetParametersResult:
         try:
-            validate(params)
-        except GimbalFrictionError as err:
+            with np.errstate(all='ignore'):  # a model that overflows is refused with a reason, not warnings
+                validate(params)
+        except ConfigError as err:
             return SetParametersResult(successful=False, reason=str(err))
+        except GimbalFrictionError as err:
+            return SetParametersResult(successful=False, reason=f'{describe_request(params)}: {err}')
+        except Exception as err:  # a bug must not leave a set_parameters call unanswered
+            callback_failed(node, err)
+            return SetParametersResult(successful=False, reason=f'{describe_request(params)}: internal error '
+                                       f'{type(err).__name__}: {err}')
         return SetParametersResult(successful=True)
 
     def post_set(params: list[Parameter]) -> None:
         try:
             apply(params)
-        except GimbalFrictionError as err:  # pragma: no cover - validated before
-            node.get_logger().error(f'could not apply parameters: {err}')
+        except Exception as err:  # pragma: no cover - validated before
+            callback_failed(node, err)
 
     node.add_on_set_parameters_callback(on_set)
     node.add_post_set_parameters_callback(post_set)
+
+
+def check_model(axes: Mapping[str, AxisParams], t_min_c: float, t_max_c: float) -> None:
+    """The whole model of every axis can be built over ``[t_min_c, t_max_c]`` °C (positive, finite viscosity and
+    torque): :class:`~gimbal_friction.core.table.FrictionTable` on a 1 °C grid. For a node that does not tabulate
+    the model itself (the estimator) but shares its parameters.
+
+    Raises:
+        ModelDomainError: naming the axis.
+    """
+    step = max(1.0, (t_max_c - t_min_c) / 1000.0)
+    for axis, params in axes.items():
+        try:
+            with np.errstate(all='ignore'):
+                FrictionTable(params, t_min_c, t_max_c, step)
+        except ModelDomainError as err:
+            raise ModelDomainError(f'axis {axis}: {err}') from None
+
+
+def startup_model_error(node: Node, err: GimbalFrictionError, defaults: Mapping[str, Any]) -> ModelDomainError:
+    """A model that does not build at start-up, with the parameters whose values differ from their ``defaults``
+    (name -> default): the ones to look at."""
+    changed = []
+    for name, default in defaults.items():
+        if node.has_parameter(name):
+            value = _value(node.get_parameter(name))
+            if value is not None and value != default:
+                changed.append(f'{name} = {value!r}')
+    suffix = f' (set, not default: {", ".join(changed)})' if changed else ''
+    return ModelDomainError(f'{err}{suffix}')
+
+
+def settings_defaults(*classes: type) -> dict[str, Any]:
+    """Parameter name -> default of every field of the settings dataclasses."""
+    return {f.name: f.default for cls in classes for f in dataclasses.fields(cls)}  # type: ignore[arg-type]
+
+
+class InputCounter:
+    """Messages received per topic and messages lost on the way (gaps in each publisher's sequence numbers).
+
+    DDS numbers the messages of each publisher (``publication_sequence_number`` of the message info, 1, 2, ...):
+    a jump from n to n + k means k - 1 messages that the publisher sent never reached the callback (queue full,
+    overwritten in a keep-last history, lost on the network), wherever they were lost. Fast DDS does not report
+    those as a QoS "message lost" event, so this is how they are counted. Messages sent before this node matched
+    the publisher are not counted. An rmw that gives no sequence numbers makes losses unknowable: the topic is then
+    listed in :attr:`unknown`.
+    """
+
+    MAX_PUBLISHERS = 1024
+
+    def __init__(self) -> None:
+        self.received: dict[str, int] = {}
+        self.lost: dict[str, int] = {}
+        self.unknown: set[str] = set()
+        self._last: dict[tuple[str, bytes], int] = {}
+        self._reported: dict[str, int] = {}
+
+    def count(self, topic: str, info: Mapping[str, Any] | None) -> None:
+        """One message received on ``topic`` with its message info."""
+        self.received[topic] = self.received.get(topic, 0) + 1
+        seq = info.get('publication_sequence_number') if info else None
+        gid = info.get('publisher_gid') if info else None
+        if not isinstance(seq, int) or not isinstance(gid, Mapping) or 'data' not in gid:
+            self.unknown.add(topic)
+            return
+        key = (topic, bytes(gid['data']))
+        last = self._last.get(key)
+        if last is None:
+            if len(self._last) >= self.MAX_PUBLISHERS:  # publishers come and go: forget the oldest
+                self._last.pop(next(iter(self._last)))
+        elif seq > last + 1:
+            self.lost[topic] = self.lost.get(topic, 0) + seq - last - 1
+        if last is None or seq > last:
+            self._last[key] = seq
+
+    def total_lost(self) -> int:
+        """Messages lost on every topic so far [-]."""
+        return sum(self.lost.values())
+
+    def new_losses(self) -> dict[str, int]:
+        """Messages lost per topic since the previous call (for a diagnostics period)."""
+        out = {t: n - self._reported.get(t, 0) for t, n in self.lost.items() if n > self._reported.get(t, 0)}
+        self._reported = dict(self.lost)
+        return out
+
+    def values(self) -> dict[str, Any]:
+        """``/diagnostics`` values: ``received: <topic>``, ``lost: <topic>`` (``unknown`` without sequence
+        numbers)."""
+        out: dict[str, Any] = {}
+        for topic in sorted(self.received):
+            out[f'received: {topic}'] = self.received[topic]
+            out[f'lost: {topic}'] = 'unknown' if topic in self.unknown else self.lost.get(topic, 0)
+        return out
+
+
+def subscribe(node: Node, counter: InputCounter, msg_type: Any, topic: str, callback: Callable[[Any], None],
+              qos: Any, *, raw: bool = False) -> Any:
+    """``node.create_subscription`` whose messages are counted by ``counter`` (received, lost) before
+    ``callback(msg)`` runs.
+
+    The message info (publisher sequence numbers) needs rclpy's "callback with message info" form. rclpy 9's
+    EventsExecutor passes the ``(msg, info)`` tuple as one argument where the other executors pass two; the
+    wrapper takes either, and is registered with the two-argument callback type explicitly (rclpy infers the type
+    from the signature, and a ``*args`` callback would be taken for a message-only one).
+    """
+    count = counter.count
+
+    def on_message(*args: Any) -> None:
+        msg, info = args if len(args) == 2 else args[0]
+        count(topic, info)
+        callback(msg)
+
+    sub = node.create_subscription(msg_type, topic, on_message, qos, raw=raw)
+    sub._callback_type = Subscription.CallbackType.WithMessageInfo
+    return sub
 
 
 def status(name: str, level: bytes, message: str, hardware_id: str, values: Mapping[str, Any]) -> DiagnosticStatus:
@@ -230,12 +379,32 @@ def callback_error_values(node: Node) -> dict[str, int]:
     return {f'callback error: {k}': v for k, v in errors.items()}
 
 
-def run_node(exe: str, factory: Callable[[], Node], args: Sequence[str] | None = None) -> int:
+def startup_overrides(argv: Sequence[str], node_name: str) -> tuple[list[Parameter], dict[str, str]]:
+    """Check the parameters the command line gives ``node_name`` and return the overrides rclpy must be given on
+    top of rcl's (the values the user wrote last where rcl would keep another type's value), and where each value
+    came from.
+
+    Raises:
+        ConfigError: a name no node of the suite declares, an axis override of a joint not in ``axes``, a name of
+            another node given specifically to this one, or a value rcl cannot take.
+    """
+    cl = command_line_parameters(argv, node_name)
+    check_parameter_names(node_name, cl.values, cl.node_specific, cl.sources)
+    return [Parameter(name, value=cl.values[name]) for name in cl.ignored_by_rcl], cl.sources
+
+
+def run_node(exe: str, factory: Callable[..., Node], args: Sequence[str] | None = None, *,
+             suite_node: str | None = None) -> int:
     """Standard ``main``: init, build the node, spin with the EventsExecutor, clean exit on SIGINT/SIGTERM.
 
     SIGINT and SIGTERM only *request* shutdown (a flag checked between callbacks): a signal never raises inside
     a callback, so a file being written (the residual log) is never left half-written. A bad parameter file or
     value ends the process with exit code 1 and one line on stderr.
+
+    ``suite_node`` (the node's name in :data:`gimbal_friction.config.SUITE_NODES`) also checks the command line
+    before the node starts (:func:`startup_overrides`): a parameter name no node of the suite declares is refused,
+    and a ``-p`` value that rcl would silently drop because a parameter file set the name with another type is
+    applied (and validated) instead of the file's value.
     """
     argv = list(sys.argv if args is None else args)
     stop = threading.Event()
@@ -252,8 +421,12 @@ def run_node(exe: str, factory: Callable[[], Node], args: Sequence[str] | None =
         return 1
     node = None
     code = 0
+    sources: dict[str, str] = {}
     try:
-        node = factory()
+        overrides: list[Parameter] = []
+        if suite_node is not None:
+            overrides, sources = startup_overrides(argv, suite_node)
+        node = factory(parameter_overrides=overrides) if overrides else factory()
         from rclpy.experimental import EventsExecutor
         executor = EventsExecutor()
         executor.add_node(node)
@@ -268,7 +441,9 @@ def run_node(exe: str, factory: Callable[[], Node], args: Sequence[str] | None =
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except GimbalFrictionError as err:
-        print(f'{exe}: error: {err}', file=sys.stderr)
+        origin = sources.get(getattr(err, 'parameter', ''), '')
+        where = f' (from {origin})' if origin and 'from ' not in str(err) else ''
+        print(f'{exe}: error: {err}{where}', file=sys.stderr)
         code = 1
     except Exception as err:
         if type(err).__module__.startswith('rclpy') and 'Parameter' in type(err).__name__:

@@ -54,6 +54,7 @@ from sensor_msgs.msg import JointState, Temperature
 from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 
 from gimbal_friction.core.arrays import chamber_arrays
+from gimbal_friction.core.errors import ModelDomainError
 from gimbal_friction.core.estimator import (
     INPUT_REASONS,
     UNKNOWN_JOINT,
@@ -64,18 +65,24 @@ from gimbal_friction.core.measurement import MEASUREMENT_FIELDS, METHOD_NAMES, M
 from gimbal_friction.core.settings import EstimatorNodeSettings, settings_from
 from gimbal_friction.core.units import NS_PER_S, join_stamp, split_stamp
 from gimbal_friction.nodes._common import (
+    ERROR,
     OK,
     WARN,
+    InputCounter,
     ModelParameters,
     callback_error_values,
+    check_model,
     declare_settings,
     diagnostic_array,
     field_names,
     parameter_guard,
     retime,
     run_node,
+    settings_defaults,
     split_parameters,
+    startup_model_error,
     status,
+    subscribe,
 )
 from gimbal_friction.recording import topics
 
@@ -102,7 +109,14 @@ class FrictionEstimator(Node):
         self.model = ModelParameters(self)
         est_settings = declare_settings(self, EstimatorSettings)
         self.settings = declare_settings(self, NodeSettings)
-        self.logic = EstimatorLogic(self.model.current(), est_settings)
+        self.inputs = InputCounter()
+        axes = self.model.current()
+        try:
+            check_model(axes, est_settings.temperature_min_c, est_settings.temperature_max_c)
+        except ModelDomainError as err:
+            defaults = {**self.model.defaults, **settings_defaults(EstimatorSettings)}
+            raise startup_model_error(self, err, defaults) from None
+        self.logic = EstimatorLogic(axes, est_settings)
         self._candidate: tuple[Any, EstimatorSettings | None, NodeSettings] | None = None
         self._temps: list[tuple[int, int, float]] = []
         self._joint_states: list[_Msg] = []
@@ -115,9 +129,9 @@ class FrictionEstimator(Node):
         self.pub_detail = self.create_publisher(Float64MultiArray, topics.MEASURED_DETAIL, QoSProfile(depth=DEPTH))
         self.pub_diag = self.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, 10)
         self.pub_stats = self.create_publisher(DiagnosticArray, topics.STATISTICS, 10)
-        self.create_subscription(Temperature, topics.TEMPERATURE, self.on_temperature, qos_profile_sensor_data)
-        self.create_subscription(JointState, topics.JOINT_STATES, self.on_joint_state, QoSProfile(depth=DEPTH))
-        self.create_subscription(JointState, topics.MOTOR_CURRENT, self.on_current, QoSProfile(depth=DEPTH))
+        subscribe(self, self.inputs, Temperature, topics.TEMPERATURE, self.on_temperature, qos_profile_sensor_data)
+        subscribe(self, self.inputs, JointState, topics.JOINT_STATES, self.on_joint_state, QoSProfile(depth=DEPTH))
+        subscribe(self, self.inputs, JointState, topics.MOTOR_CURRENT, self.on_current, QoSProfile(depth=DEPTH))
         self._batch_timer = self.create_timer(self.settings.batch_period_s, self.process)
         self._diag_timer = self.create_timer(self.settings.diagnostics_period_s, self.publish_diagnostics)
         self._stats_timer = self.create_timer(self.settings.statistics_period_s, self.publish_statistics)
@@ -131,8 +145,10 @@ class FrictionEstimator(Node):
         model, est, node = split_parameters(params, _EST_FIELDS, _NODE_FIELDS)
         axes = self.model.current(model) if model else None
         est_settings = settings_from(EstimatorSettings, est, self.logic.settings) if est else None
-        if axes is not None or est_settings is not None:  # the whole estimator must build
-            EstimatorLogic(axes or self.logic.axes, est_settings or self.logic.settings)
+        if axes is not None or est_settings is not None:  # the whole estimator and the shared model must build
+            new_axes, new_settings = axes or self.logic.axes, est_settings or self.logic.settings
+            check_model(new_axes, new_settings.temperature_min_c, new_settings.temperature_max_c)
+            EstimatorLogic(new_axes, new_settings)
         self._candidate = (axes, est_settings, settings_from(NodeSettings, node, self.settings))
 
     def _apply_params(self, params: list[Parameter]) -> None:
@@ -209,6 +225,7 @@ class FrictionEstimator(Node):
         logic = self.logic
         counters = logic.counters
         statuses = []
+        failed = False
         for axis in [*logic.order, UNKNOWN_JOINT]:
             rejected = counters.rejected.get(axis, {})
             previous = self._last_counts.get(axis, {})
@@ -230,10 +247,18 @@ class FrictionEstimator(Node):
                 if new_t:
                     problems.append('temperatures rejected: '
                                     + ', '.join(f'{r} {c}x' for r, c in sorted(new_t.items())))
+                new_lost = self.inputs.new_losses()
+                if new_lost:
+                    problems.append('messages lost on the way: '
+                                    + ', '.join(f'{t} {n}' for t, n in sorted(new_lost.items())))
+                values.update(self.inputs.values())
                 errors = callback_error_values(self)
                 values.update(errors)
-                if errors:
+                previous_e = self._last_counts.get('errors', {})
+                self._last_counts['errors'] = dict(errors)
+                if any(n > previous_e.get(k, 0) for k, n in errors.items()):
                     problems.append('a callback failed (see values)')
+                    failed = True
                 name, hw = 'gimbal_friction/estimator', ''
             else:
                 accepted = counters.accepted.get(axis, 0)
@@ -254,7 +279,7 @@ class FrictionEstimator(Node):
                 name, hw = f'gimbal_friction/estimator/{axis}', axis
             for reason, count in sorted(rejected.items()):
                 values[f'rejected: {reason}'] = count
-            level = WARN if problems else OK
+            level = (ERROR if failed else WARN) if problems else OK
             statuses.append(status(name, level, '; '.join(problems) or 'ok', hw, values))
         self.pub_diag.publish(diagnostic_array(self, statuses))
 
@@ -278,7 +303,7 @@ class FrictionEstimator(Node):
 
 def main(args: Sequence[str] | None = None) -> None:
     """console_scripts entry point: ``friction_estimator --ros-args --params-file config/gimbal_friction.yaml``."""
-    sys.exit(run_node('friction_estimator', FrictionEstimator, args))
+    sys.exit(run_node('friction_estimator', FrictionEstimator, args, suite_node='friction_estimator'))
 
 
 if __name__ == '__main__':

@@ -23,6 +23,7 @@ import sys
 from collections.abc import Sequence
 from typing import Any
 
+import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.node import Node
 from rclpy.parameter import Parameter
@@ -30,6 +31,7 @@ from rclpy.qos import QoSProfile, qos_profile_sensor_data
 from sensor_msgs.msg import JointState, Temperature
 from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 
+from gimbal_friction.core.errors import ModelDomainError
 from gimbal_friction.core.feedforward import (
     SOURCE_MEASURED,
     SOURCE_NAMES,
@@ -44,6 +46,7 @@ from gimbal_friction.nodes._common import (
     ERROR,
     OK,
     WARN,
+    InputCounter,
     ModelParameters,
     callback_error_values,
     declare_settings,
@@ -52,9 +55,12 @@ from gimbal_friction.nodes._common import (
     parameter_guard,
     retime,
     run_node,
+    settings_defaults,
     split_parameters,
     stamp_to_s,
+    startup_model_error,
     status,
+    subscribe,
 )
 from gimbal_friction.recording import topics
 
@@ -75,7 +81,7 @@ class FrictionFeedforward(Node):
         self.model = ModelParameters(self)
         ff_settings = declare_settings(self, FeedforwardSettings)
         self.settings = declare_settings(self, NodeSettings)
-        self.ff = Feedforward(self.model.current(), ff_settings)
+        self.ff = self._build(self.model.current(), ff_settings, startup=True)
         self._candidate: tuple[Feedforward | None, NodeSettings] | None = None
         self._reference: dict[str, tuple[float, float]] = {}
         self._last_publish = -math.inf
@@ -83,6 +89,8 @@ class FrictionFeedforward(Node):
         self._last_source = SOURCE_MEASURED
         self._rate_limited = 0
         self._last_warn: dict[str, float] = {}
+        self.inputs = InputCounter()
+        self._reported: dict[str, dict[str, int]] = {}
         self._ff_msg = JointState()
         self._cmd_msg = Float64MultiArray()
         n_axes = len(self.ff.order)
@@ -91,23 +99,35 @@ class FrictionFeedforward(Node):
         self.pub_ff = self.create_publisher(JointState, topics.FEEDFORWARD, qos)
         self.pub_cmd = self.create_publisher(Float64MultiArray, topics.FEEDFORWARD_COMMANDS, qos)
         self.pub_diag = self.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, 10)
-        self.create_subscription(Temperature, topics.TEMPERATURE, self.on_temperature, qos_profile_sensor_data)
-        self.create_subscription(JointState, topics.JOINT_STATES, self.on_joint_state,
-                                 QoSProfile(depth=JOINT_STATE_DEPTH))
-        self.create_subscription(JointState, REFERENCE_VELOCITY, self.on_reference, qos)
+        subscribe(self, self.inputs, Temperature, topics.TEMPERATURE, self.on_temperature, qos_profile_sensor_data)
+        subscribe(self, self.inputs, JointState, topics.JOINT_STATES, self.on_joint_state,
+                  QoSProfile(depth=JOINT_STATE_DEPTH))
+        subscribe(self, self.inputs, JointState, REFERENCE_VELOCITY, self.on_reference, qos)
         self._diag_timer = self.create_timer(self.settings.diagnostics_period_s, self.publish_diagnostics)
         parameter_guard(self, self._validate_params, self._apply_params)
         self.get_logger().info(f'friction_feedforward: joints {", ".join(self.model.axes)}, model table '
                                f'{ff_settings.temperature_min_c:g}..{ff_settings.temperature_max_c:g} degC')
 
     # ------------------------------------------------------------------ parameters
+    def _build(self, axes: dict[str, Any], settings: FeedforwardSettings, startup: bool = False) -> Feedforward:
+        """The whole feedforward (model tables included); a model that does not build is refused with the
+        parameters to look at."""
+        try:
+            with np.errstate(all='ignore'):
+                return Feedforward(axes, settings)
+        except ModelDomainError as err:
+            if not startup:
+                raise
+            defaults = {**self.model.defaults, **settings_defaults(FeedforwardSettings)}
+            raise startup_model_error(self, err, defaults) from None
+
     def _validate_params(self, params: list[Parameter]) -> None:
         """Build the whole new feedforward (model tables included) from the proposed values; kept for apply."""
         model, ff, node = split_parameters(params, _FF_FIELDS, _NODE_FIELDS)
         axes = self.model.current(model)
         ff_settings = settings_from(FeedforwardSettings, ff, self.ff.settings)
         node_settings = settings_from(NodeSettings, node, self.settings)
-        candidate = Feedforward(axes, ff_settings) if (model or ff) else None
+        candidate = self._build(axes, ff_settings) if (model or ff) else None
         self._candidate = (candidate, node_settings)
 
     def _apply_params(self, params: list[Parameter]) -> None:
@@ -147,7 +167,8 @@ class FrictionFeedforward(Node):
         time_s = effective_time(stamp_to_s(msg.header.stamp), self._now_s())
         seen = set()
         for name, v in zip(msg.name, msg.velocity, strict=True):
-            if name not in seen:  # the first entry of a joint counts, as for joint states
+            # the first entry of a joint counts, as for joint states; other names are not kept
+            if name not in seen and name in self.ff.axes:
                 seen.add(name)
                 self._reference[name] = (float(v), time_s)
 
@@ -185,46 +206,66 @@ class FrictionFeedforward(Node):
         self.pub_cmd.publish(cmd)
 
     # ------------------------------------------------------------------ diagnostics
+    def _new_since_report(self, key: str, counts: dict[str, int]) -> dict[str, int]:
+        """Counts that grew since the previous diagnostics report (what keeps a status at WARN)."""
+        previous = self._reported.get(key, {})
+        self._reported[key] = dict(counts)
+        return {r: n - previous.get(r, 0) for r, n in counts.items() if n > previous.get(r, 0)}
+
     def publish_diagnostics(self) -> None:
+        """One status per joint. WARN (ERROR for the zero policy or a failed callback) names what happened since
+        the previous report; the status returns to OK once the cause has gone for a period. The totals stay in the
+        values."""
         ff = self.ff
         s = ff.settings
         c = ff.counters
         last_time = self._last_time_s if math.isfinite(self._last_time_s) else self._now_s()
         age = ff.temperature_age_s(last_time)
         temperature, source = ff.temperature(last_time)
+        new_t = self._new_since_report('temperature', c.temperature_rejected)
+        new_j = self._new_since_report('joint_state', c.joint_state_rejected)
+        new_sat = self._new_since_report('saturated', c.saturated)
+        new_lost = self.inputs.new_losses()
+        errors = callback_error_values(self)
+        new_errors = self._new_since_report('errors', errors)
         statuses = []
         for axis in ff.order:
             level, problems = OK, []
             if source != SOURCE_MEASURED:
                 level = ERROR if source == SOURCE_ZERO else WARN
                 problems.append(f'no fresh temperature: {SOURCE_NAMES[source]}')
-            sat = c.saturated.get(axis, 0)
-            if sat:
+            if new_sat.get(axis):
                 level = max(level, WARN)
-                problems.append(f'output saturated {sat}x')
+                problems.append(f'output saturated {new_sat[axis]}x')
+            if new_t:
+                level = max(level, WARN)
+                problems.append('temperatures rejected: ' + ', '.join(f'{r} {n}x' for r, n in sorted(new_t.items())))
+            if new_j:
+                level = max(level, WARN)
+                problems.append('joint states rejected: ' + ', '.join(f'{r} {n}x' for r, n in sorted(new_j.items())))
+            if new_lost:
+                level = max(level, WARN)
+                problems.append('messages lost on the way: ' + ', '.join(f'{t} {n}'
+                                                                          for t, n in sorted(new_lost.items())))
+            if new_errors:
+                level = ERROR
+                problems.append('a callback failed (see values)')
             values: dict[str, Any] = {
                 'temperature_c': temperature if math.isfinite(temperature) else 'none',
                 'temperature_source': SOURCE_NAMES[source],
                 'temperature_age_s': age if math.isfinite(age) else 'never',
                 'model_range_c': f'{s.temperature_min_c:g}..{s.temperature_max_c:g}',
-                'saturated_count': sat,
+                'saturated_count': c.saturated.get(axis, 0),
                 'max_torque_nm': s.max_torque_nm,
                 'published': c.published,
                 'rate_limited': self._rate_limited,
             }
             for reason, count in c.temperature_rejected.items():
                 values[f'rejected_temperature: {reason}'] = count
-                level = max(level, WARN)
             for reason, count in c.joint_state_rejected.items():
                 values[f'rejected_joint_state: {reason}'] = count
-                level = max(level, WARN)
-            errors = callback_error_values(self)
-            if errors:
-                values.update(errors)
-                level = ERROR
-                problems.append('a callback failed (see values)')
-            if level != OK and not problems:
-                problems.append('inputs rejected (see values)')
+            values.update(self.inputs.values())
+            values.update(errors)
             statuses.append(status(f'gimbal_friction/feedforward/{axis}', level, '; '.join(problems) or 'ok',
                                    axis, values))
         self.pub_diag.publish(diagnostic_array(self, statuses))
@@ -232,7 +273,7 @@ class FrictionFeedforward(Node):
 
 def main(args: Sequence[str] | None = None) -> None:
     """console_scripts entry point: ``friction_feedforward --ros-args --params-file config/gimbal_friction.yaml``."""
-    sys.exit(run_node('friction_feedforward', FrictionFeedforward, args))
+    sys.exit(run_node('friction_feedforward', FrictionFeedforward, args, suite_node='friction_feedforward'))
 
 
 if __name__ == '__main__':

@@ -27,6 +27,7 @@ and temperature bin.
 
 from __future__ import annotations
 
+import contextlib
 import math
 import sys
 import time
@@ -47,15 +48,17 @@ from gimbal_friction.core.errors import ConfigError, GimbalFrictionError
 from gimbal_friction.core.inputs import effective_time
 from gimbal_friction.core.measurement import MEASUREMENT_FIELDS, MeasurementArrays, from_detail
 from gimbal_friction.core.residual_row import ResidualRows, residual_rows
-from gimbal_friction.core.residuals import ResidualStats, credible_rows, match_predictions
+from gimbal_friction.core.residuals import ResidualStats, credible_rows, credible_torque, match_predictions
 from gimbal_friction.core.settings import LoggerSettings, settings_from
 from gimbal_friction.core.units import join_stamp
 from gimbal_friction.nodes._common import (
     ERROR,
     OK,
     WARN,
+    InputCounter,
     callback_error_values,
     check_changes,
+    declare_axes,
     declare_settings,
     diagnostic_array,
     field_names,
@@ -64,6 +67,7 @@ from gimbal_friction.nodes._common import (
     run_node,
     split_parameters,
     status,
+    subscribe,
 )
 from gimbal_friction.recording import topics
 from gimbal_friction.recording.cdr import float64_multi_array_cdr_rows, joint_state_cdr_rows, split_rows
@@ -84,7 +88,11 @@ class ResidualLogger(Node):
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__('residual_logger', **kwargs)
+        self.axes = declare_axes(self)
+        self._axes_set = frozenset(self.axes)
         self.settings = declare_settings(self, LoggerSettings)
+        self.inputs = InputCounter()
+        self._reported: dict[str, int] = {}
         self.stats = ResidualStats(self.settings.residual_bin_c)
         self.writer: ResidualLogWriter | None = None
         self.folder: Path | None = None
@@ -103,20 +111,17 @@ class ResidualLogger(Node):
         self._waiting: list[tuple[float, MeasurementArrays]] = []
         self._open_writer()
         self.pub_diag = self.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, 10)
-        raw = {'raw': True}
         qos = QoSProfile(depth=DEPTH)
-        self.create_subscription(Temperature, topics.TEMPERATURE,
-                                 lambda b: self.log_raw(topics.TEMPERATURE, topics.TEMPERATURE_TYPE, b),
-                                 qos_profile_sensor_data, **raw)
-        self.create_subscription(JointState, topics.JOINT_STATES,
-                                 lambda b: self.log_raw(topics.JOINT_STATES, topics.JOINT_STATE_TYPE, b), qos, **raw)
-        self.create_subscription(JointState, topics.MOTOR_CURRENT,
-                                 lambda b: self.log_raw(topics.MOTOR_CURRENT, topics.JOINT_STATE_TYPE, b), qos,
-                                 **raw)
-        self.create_subscription(JointState, topics.MEASURED,
-                                 lambda b: self.log_raw(topics.MEASURED, topics.JOINT_STATE_TYPE, b), qos, **raw)
-        self.create_subscription(JointState, topics.FEEDFORWARD, self.on_feedforward, qos, **raw)
-        self.create_subscription(Float64MultiArray, topics.MEASURED_DETAIL, self.on_measured_detail, qos, **raw)
+        for msg_type, topic, type_name, topic_qos in (
+                (Temperature, topics.TEMPERATURE, topics.TEMPERATURE_TYPE, qos_profile_sensor_data),
+                (JointState, topics.JOINT_STATES, topics.JOINT_STATE_TYPE, qos),
+                (JointState, topics.MOTOR_CURRENT, topics.JOINT_STATE_TYPE, qos),
+                (JointState, topics.MEASURED, topics.JOINT_STATE_TYPE, qos)):
+            subscribe(self, self.inputs, msg_type, topic,
+                      lambda b, t=topic, n=type_name: self.log_raw(t, n, b), topic_qos, raw=True)
+        subscribe(self, self.inputs, JointState, topics.FEEDFORWARD, self.on_feedforward, qos, raw=True)
+        subscribe(self, self.inputs, Float64MultiArray, topics.MEASURED_DETAIL, self.on_measured_detail, qos,
+                  raw=True)
         self._pair_timer = self.create_timer(0.05, self.on_pair_timer)
         self._flush_timer = self.create_timer(self.settings.flush_period_s, self.on_flush_timer)
         self._diag_timer = self.create_timer(self.settings.diagnostics_period_s, self.publish_diagnostics)
@@ -162,16 +167,18 @@ class ResidualLogger(Node):
     def _abandon_writer(self) -> None:
         writer, self.writer = self.writer, None
         if writer is not None:
-            try:
+            with contextlib.suppress(GimbalFrictionError):
                 writer.close()
-            except GimbalFrictionError:
-                pass
         self._last_retry = time.monotonic()
 
     def close(self) -> None:
         """Finish the log (footer, metadata.yaml); called on shutdown by run_node."""
         if self.writer is not None:
-            self.pair(final=True)
+            try:  # the measurements still waiting are logged without a prediction; nothing may stop the close
+                self.pair(final=True)
+            except Exception as err:
+                print(f'residual_logger: error: {len(self._waiting)} waiting measurements not logged: '
+                      f'{type(err).__name__}: {err}', file=sys.stderr)
             try:
                 self.writer.close()
                 # the ROS context may already be shut down here (SIGINT): report on stderr
@@ -203,19 +210,39 @@ class ResidualLogger(Node):
         if len(msg.effort) != len(msg.name):
             self._refuse('feedforward effort/name length mismatch')
             return
-        for name, effort in zip(msg.name, msg.effort, strict=True):
-            k = self._ff_next % FEEDFORWARD_HORIZON
-            self._ff_joint[k], self._ff_stamp[k], self._ff_torque[k] = name, stamp, float(effort)
-            self._ff_next += 1
+        credible = credible_torque(msg.effort).tolist()
+        seen = set()
+        for name, effort, ok in zip(msg.name, msg.effort, credible, strict=True):
+            if name not in self._axes_set:
+                self._refuse('feedforward of an unknown joint')
+            elif name in seen:
+                self._refuse('feedforward: duplicate joint name')  # the first entry counts, as everywhere
+            elif not ok:
+                self._refuse('feedforward not finite or not credible')  # the measurement is logged without it
+            else:
+                k = self._ff_next % FEEDFORWARD_HORIZON
+                self._ff_joint[k], self._ff_stamp[k], self._ff_torque[k] = name, stamp, float(effort)
+                self._ff_next += 1
+            seen.add(name)
 
     def on_measured_detail(self, data: bytes) -> None:
         self.log_raw(topics.MEASURED_DETAIL, topics.FLOAT64_MULTI_ARRAY_TYPE, data)
         try:
             msg = deserialize_message(data, Float64MultiArray)
-            label = msg.layout.dim[0].label if msg.layout.dim else ''
-            m = from_detail([label], np.asarray(msg.data, dtype=np.float64).reshape(1, len(MEASUREMENT_FIELDS)))
         except Exception:
+            self._refuse('undecodable measured_detail')
+            return
+        label = msg.layout.dim[0].label if msg.layout.dim else ''
+        if len(msg.data) != len(MEASUREMENT_FIELDS) or not label:
             self._refuse(f'measured_detail not of {len(MEASUREMENT_FIELDS)} values with a joint label')
+            return
+        if label not in self._axes_set:
+            self._refuse('measured_detail of an unknown joint')
+            return
+        try:
+            m = from_detail([label], np.asarray(msg.data, dtype=np.float64).reshape(1, len(MEASUREMENT_FIELDS)))
+        except ValueError:
+            self._refuse('measured_detail with an invalid stamp or method')
             return
         self._waiting.append((time.monotonic(), m))
 
@@ -296,10 +323,18 @@ class ResidualLogger(Node):
         stats = w.stats if w is not None else None
         level = OK
         message = 'logging'
+        new_refused = {r: n - self._reported.get(r, 0) for r, n in self.refused.items() if n > self._reported.get(r, 0)}
+        self._reported = dict(self.refused)
+        new_lost = self.inputs.new_losses()
         if self.error is not None:
             level, message = ERROR, f'not logging: {self.error}'
-        elif self.refused:
-            level, message = WARN, 'inputs refused: ' + ', '.join(f'{r} {c}x' for r, c in sorted(self.refused.items()))
+        elif new_refused or new_lost:  # what happened since the previous report; totals stay in the values
+            level, parts = WARN, []
+            if new_refused:
+                parts.append('inputs refused: ' + ', '.join(f'{r} {c}x' for r, c in sorted(new_refused.items())))
+            if new_lost:
+                parts.append('messages lost on the way: ' + ', '.join(f'{t} {n}' for t, n in sorted(new_lost.items())))
+            message = '; '.join(parts)
         values: dict[str, Any] = {
             'folder': str(self.folder) if self.folder else 'none',
             'current_file': str(stats.current_file) if stats and stats.current_file else 'none',
@@ -314,9 +349,12 @@ class ResidualLogger(Node):
         }
         for reason, count in sorted(self.refused.items()):
             values[f'refused: {reason}'] = count
+        values.update(self.inputs.values())
         errors = callback_error_values(self)
-        if errors:
-            values.update(errors)
+        values.update(errors)
+        new_errors = {k: n for k, n in errors.items() if n > self._reported.get(k, 0)}
+        self._reported.update(errors)
+        if new_errors:
             level, message = ERROR, f'a callback failed (see values); {message}'
         statuses = [status('gimbal_friction/residual_logger', level, message, 'residual_logger', values)]
         by_axis: dict[str, dict[str, Any]] = {}
@@ -333,7 +371,7 @@ class ResidualLogger(Node):
 
 def main(args: Sequence[str] | None = None) -> None:
     """console_scripts entry point: ``residual_logger --ros-args -p output_dir:=/tmp/residuals``."""
-    sys.exit(run_node('residual_logger', ResidualLogger, args))
+    sys.exit(run_node('residual_logger', ResidualLogger, args, suite_node='residual_logger'))
 
 
 if __name__ == '__main__':
