@@ -1,0 +1,112 @@
+"""Fixtures of the robustness suite.
+
+- The live-node harness of ``test/ros/conftest.py`` (``ros_env``, ``spawn``, ``probe``: real processes on an
+  isolated ROS_DOMAIN_ID, loopback discovery, stopped with SIGINT), loaded from that file so both suites start nodes
+  the same way.
+- ``in_process``: the node classes built in this process on a private rclpy context (isolated domain, loopback),
+  their publishers replaced by recorders. Callbacks are called directly: thousands of hostile messages per second
+  through the very adapter code the executables run, without DDS in the way.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import math
+import os
+import sys
+from collections.abc import Callable, Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+rclpy = pytest.importorskip('rclpy', reason='node tests need the ros-* wheels (requirements.txt)')
+
+ROOT = Path(__file__).resolve().parents[2]
+_spec = importlib.util.spec_from_file_location('_gimbal_friction_ros_harness', ROOT / 'test' / 'ros' / 'conftest.py')
+assert _spec is not None and _spec.loader is not None
+_harness = importlib.util.module_from_spec(_spec)
+sys.modules[_spec.name] = _harness
+_spec.loader.exec_module(_harness)
+
+ros_env = _harness.ros_env
+spawn = _harness.spawn
+probe = _harness.probe
+Probe = _harness.Probe
+NodeProcess = _harness.NodeProcess
+TIMEOUT = _harness.TIMEOUT
+
+
+class Recorder:
+    """Stands in for a publisher: keeps what would have been published."""
+
+    def __init__(self) -> None:
+        self.messages: list[Any] = []
+
+    def publish(self, msg: Any) -> None:
+        self.messages.append(msg)
+
+    def clear(self) -> None:
+        self.messages.clear()
+
+
+class InProcess:
+    """Builds nodes on one private context; ``make(cls, *args, **parameters)`` returns the node with every
+    publisher (attributes named ``pub_*``) replaced by a :class:`Recorder`."""
+
+    def __init__(self, domain: int) -> None:
+        self.domain = domain
+        self.context = rclpy.Context()
+        rclpy.init(args=['robustness'], context=self.context, domain_id=domain)
+        self.nodes: list[Any] = []
+
+    def make(self, cls: Callable[..., Any], **parameters: Any) -> Any:
+        from rclpy.parameter import Parameter
+        overrides = [Parameter(k, value=v) for k, v in parameters.items()]
+        node = cls(context=self.context, parameter_overrides=overrides)
+        for name in list(vars(node)):
+            if name.startswith('pub_'):
+                setattr(node, name, Recorder())
+        self.nodes.append(node)
+        return node
+
+    def close(self) -> None:
+        for node in self.nodes:
+            close = getattr(node, 'close', None)
+            if close is not None:
+                close()
+            node.destroy_node()
+        self.context.try_shutdown()
+
+
+@pytest.fixture(scope='module')
+def in_process(tmp_path_factory: pytest.TempPathFactory) -> Iterator[InProcess]:
+    from domain_coordinator import domain_id
+    log_dir = tmp_path_factory.mktemp('roslog')
+    saved = {k: os.environ.get(k) for k in ('ROS_AUTOMATIC_DISCOVERY_RANGE', 'ROS_LOG_DIR')}
+    os.environ.update(ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST', ROS_LOG_DIR=str(log_dir))
+    with domain_id() as did:
+        p = InProcess(did)
+        try:
+            yield p
+        finally:
+            p.close()
+            for k, v in saved.items():
+                if v is None:
+                    os.environ.pop(k, None)
+                else:
+                    os.environ[k] = v
+
+
+def finite_within(values: Any, bound: float) -> bool:
+    """Every value finite and at most ``bound`` in magnitude."""
+    return all(math.isfinite(v) and abs(v) <= bound for v in values)
+
+
+def diag_statuses(msgs: list[Any]) -> list[Any]:
+    """The DiagnosticStatus entries of the last DiagnosticArray recorded."""
+    return list(msgs[-1].status) if msgs else []
+
+
+def diag_values(status: Any) -> dict[str, str]:
+    return {kv.key: kv.value for kv in status.values}
