@@ -38,13 +38,15 @@ TIMEOUT = _harness.TIMEOUT
 
 
 class Recorder:
-    """Stands in for a publisher: keeps what would have been published."""
+    """Stands in for a publisher: keeps what would have been published (serialized and read back, as a
+    subscriber would get it: the nodes reuse their message objects)."""
 
     def __init__(self) -> None:
         self.messages: list[Any] = []
 
     def publish(self, msg: Any) -> None:
-        self.messages.append(msg)
+        from rclpy.serialization import deserialize_message, serialize_message
+        self.messages.append(deserialize_message(serialize_message(msg), type(msg)))
 
     def clear(self) -> None:
         self.messages.clear()
