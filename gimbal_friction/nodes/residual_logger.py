@@ -160,6 +160,10 @@ class ResidualLogger(Node):
         try:
             getattr(self.writer, fn)(*args)
         except GimbalFrictionError as err:
+            if self.writer.failed is None and fn == 'write_raw':
+                # the writer is fine, this message is not (e.g. XCDR2 from another DDS setup): refuse only it
+                self._refuse(f'{args[0]}: message not loggable (not plain CDR)')
+                return
             self.dropped += 1
             self._report_error(str(err))
             self._abandon_writer()
