@@ -148,8 +148,14 @@ def test_estimator_node_survives_hostile_streams(estimator, stream):
     estimator.pub_measured.clear()
     estimator.pub_detail.clear()
     for kind, js, t in stream:
-        {'js': lambda: estimator.on_joint_state(js), 'cur': lambda: estimator.on_current(js),
-         't': lambda: estimator.on_temperature(t), 'process': estimator.process}[kind]()
+        if kind == 'js':
+            estimator.on_joint_state(js)
+        elif kind == 'cur':
+            estimator.on_current(js)
+        elif kind == 't':
+            estimator.on_temperature(t)
+        else:
+            estimator.process()
     estimator.process()
     for m in estimator.pub_measured.messages:
         assert m.name == ['elevation'] and math.isfinite(m.effort[0]) and m.effort[0] * m.velocity[0] > 0.0
@@ -210,7 +216,7 @@ def feedforward(sec: int, effort: float, names: tuple[str, ...] = ('elevation',)
     return serialize_message(msg)
 
 
-FIELD = st.sampled_from([f for f in MEASUREMENT_FIELDS])
+FIELD = st.sampled_from(list(MEASUREMENT_FIELDS))
 
 
 @settings(max_examples=80, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])

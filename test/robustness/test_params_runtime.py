@@ -241,7 +241,7 @@ def test_any_value_is_either_applied_whole_or_refused_with_nothing_changed(ff, d
     """Random parameter, random value (any type, any float): afterwards the output is finite and within the clamp,
     and it equals either the old output (refused) or the output of a node started with the new value."""
     node = ff.node
-    name, default, bound, choices = data.draw(st.sampled_from(parameters_of('ff')))
+    name, default, _, choices = data.draw(st.sampled_from(parameters_of('ff')))
     value = data.draw(st.one_of(st.floats(allow_nan=True, allow_infinity=True), st.integers(-10**6, 10**6),
                                 st.text(max_size=5), st.booleans(), st.sampled_from(list(choices or ['x'])),
                                 st.just(default)))
