@@ -25,6 +25,14 @@ backlog: median latency of the last second no more than ``--backlog-ms`` above t
 second), CPU, and the ratios feedforward/relay of p50 and p99 against the targets (p50 <= 1.2x, p99 <= 1.5x).
 Ratios, not absolute numbers, are the result: machines are shared and noisy. This is a benchmark, not a test.
 
+Drops, counted twice: ``lost`` = joint states sent by this process whose output never came back (whatever lost
+them: the driver's own publisher history, the node's input queue, its output path); ``node lost`` = what the node
+itself reports on ``/diagnostics`` (``lost: /joint_states``, from gaps in the publisher's sequence numbers), with
+``accounted`` = the node's received + lost (counted from after priming) equals what this process published then.
+After the latency rounds, drop runs (``--drop-rates``, default 3 kHz, relay and feedforward) and back-to-back
+bursts (``--bursts``, default 20, 1000 and 5000 messages, ``--burst-repeats`` each, published without pausing,
+then the outputs awaited) report the same counts. ``--no-drops`` skips them.
+
 Run from the repository root:  ``.venv/bin/python bench/feedforward_latency.py [--duration 10] [--rounds 2]
 [--json]``
 """
@@ -32,6 +40,7 @@ Run from the repository root:  ``.venv/bin/python bench/feedforward_latency.py [
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import math
 import os
@@ -41,9 +50,10 @@ import subprocess
 import sys
 import tempfile
 import time
+from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any, Callable, Sequence
+from typing import Any
 
 ROOT = Path(__file__).resolve().parents[1]
 BIN = Path(sys.executable).parent
@@ -64,6 +74,7 @@ DISTURBED_LATE = 0.01         # a run whose driver sent more than this fraction 
 MATCH_TIMEOUT_S = 20.0        # discovery can take 3 s (late joiner); generous
 PRIME_MESSAGES = 5            # round trips observed before the measured window
 CLK_TCK = os.sysconf('SC_CLK_TCK')
+DIAG_PERIOD_S = 0.2           # the feedforward's /diagnostics period in the benchmark (its drop counts)
 
 
 def node_command(kind: str) -> list[str]:
@@ -75,7 +86,7 @@ def node_command(kind: str) -> list[str]:
                 str(PARAMS_FILE)]
     exe = BIN / 'friction_feedforward'
     cmd = [str(exe)] if exe.exists() else [sys.executable, '-m', 'gimbal_friction.nodes.feedforward']
-    return cmd + ['--ros-args', '--params-file', str(PARAMS_FILE)]
+    return [*cmd, '--ros-args', '--params-file', str(PARAMS_FILE), '-p', f'diagnostics_period_s:={DIAG_PERIOD_S}']
 
 
 def proc_cpu_s(pid: int) -> float:
@@ -116,7 +127,29 @@ class RunResult:
     disturbed: bool = False       #: > 1 % late sends: this process was descheduled, i.e. the machine was busy
     exit_code: int | None = None
     last_effort_nm: float | None = None    #: effort[0] of the last output (sanity: the node computed a torque)
+    rate_hz: float = 0.0          #: target send rate [Hz]
+    js_sent_total: int = 0        #: joint states this process published after priming (warm-up included)
+    node_received: int | None = None       #: the node's own count (/diagnostics 'received: /joint_states')
+    node_lost: int | None = None           #: the node's own count of joint states lost on the way to it
+    accounted: bool | None = None          #: node_received + node_lost == js_sent_total
     latencies_us: list[float] = field(default_factory=list, repr=False)
+
+
+@dataclass
+class BurstResult:
+    """Back-to-back bursts of one size."""
+
+    kind: str
+    size: int                     #: messages per burst, published without pausing
+    repeats: int
+    sent: int = 0
+    received: int = 0             #: outputs that came back within 2 s of the burst
+    lost: int = 0
+    worst_burst_lost: int = 0
+    publish_s: float = 0.0        #: mean time to publish one burst [s]
+    node_received: int | None = None
+    node_lost: int | None = None
+    accounted: bool | None = None
 
 
 class NodeProcess:
@@ -178,6 +211,10 @@ class Driver:
         self.pub_t = self.node.create_publisher(Temperature, TEMPERATURE, qos)
         # Deeper than the node's queue so this side never drops what the node delivered.
         self.sub = self.node.create_subscription(JointState, FEEDFORWARD, self._on_output, QoSProfile(depth=1000))
+        from diagnostic_msgs.msg import DiagnosticArray
+        self.node_counts: tuple[int, int] | None = None   # (received, lost) of /joint_states, from /diagnostics
+        self.diag = self.node.create_subscription(DiagnosticArray, '/diagnostics', self._on_diagnostics, 50)
+        self.js_sent = 0
         self.received: list[tuple[int, int]] = []   # (sequence number, receive time [ns])
         self.last_output: Any = None
         self._msgs = []
@@ -187,6 +224,27 @@ class Driver:
             self._msgs.append(m)
         self._temperature = Temperature(temperature=TEMPERATURE_C, variance=0.0)
         self._position = 0.0
+
+    def _on_diagnostics(self, msg: Any) -> None:
+        for status in msg.status:
+            values = {kv.key: kv.value for kv in status.values}
+            received, lost = values.get(f'received: {JOINT_STATES}'), values.get(f'lost: {JOINT_STATES}')
+            if received is not None and lost is not None and lost != 'unknown':
+                self.node_counts = (int(received), int(lost))
+
+    def settled_node_counts(self, timeout_s: float = 3.0) -> tuple[int, int] | None:
+        """The node's (received, lost) once two successive reports agree (nothing in flight any more), or the
+        latest after ``timeout_s``; None from a node that does not count (the relay)."""
+        deadline = time.monotonic() + timeout_s
+        previous = None
+        while time.monotonic() < deadline:
+            self.node_counts = None
+            while self.node_counts is None and time.monotonic() < deadline:
+                self.executor.spin_once(timeout_sec=0.05)
+            if self.node_counts is not None and self.node_counts == previous:
+                break
+            previous = self.node_counts
+        return previous if self.node_counts is None else self.node_counts
 
     def _on_output(self, msg: Any) -> None:
         t = time.monotonic_ns()
@@ -202,6 +260,7 @@ class Driver:
         m.header.stamp.nanosec = 0
         t = time.monotonic_ns()
         self.pub_js.publish(m)
+        self.js_sent += 1
         return t
 
     def send_temperature(self) -> None:
@@ -231,27 +290,15 @@ def run_once(kind: str, round_no: int, domain: int, env: dict[str, str], log_dir
     """One node, one measured window."""
     result = RunResult(kind, round_no)
     driver = Driver(domain)   # subscriber and publishers exist before the node starts
-    node = NodeProcess(kind, env, log_dir / f'{kind}_{round_no}.log')
     try:
-        alive = node.alive
-        driver.spin_until(lambda: not alive() or (driver.pub_js.get_subscription_count() >= 1
-                                                  and driver.sub.get_publisher_count() >= 1),
-                          MATCH_TIMEOUT_S, f'{kind}: /joint_states subscriber and {FEEDFORWARD} publisher')
-        if not alive():
-            raise BenchError(f'{kind} exited early (rc={node.proc.returncode}):\n{node.tail()}')
-        # Round trip: priming messages (negative sequence numbers) at 100 Hz until outputs come back.
-        prime = [-1]
-
-        def send_prime() -> None:
-            if -prime[0] % 10 == 1:   # every 10th priming message, starting with the first
-                driver.send_temperature()
-            driver.send(prime[0], 0.01)
-            prime[0] -= 1
-
-        driver.spin_until(lambda: sum(1 for s, _ in driver.received if s < 0) >= PRIME_MESSAGES,
-                          MATCH_TIMEOUT_S, f'{kind}: {PRIME_MESSAGES} round trips', every=send_prime)
-        driver.received.clear()
-
+        node = start_and_prime(kind, driver, env, log_dir / f'{kind}_{round_no}_{rate_hz:g}.log')
+    except BenchError:
+        driver.close()
+        raise
+    try:
+        # the node's counts before the measured run (messages sent before it matched us are not its to count)
+        counts0 = driver.settled_node_counts() if kind != 'relay' else None
+        sent0 = driver.js_sent
         period_ns = int(round(1e9 / rate_hz))
         n_total = int(round(duration_s * rate_hz))
         n_warm = int(round(warmup_s * rate_hz))
@@ -289,10 +336,8 @@ def run_once(kind: str, round_no: int, domain: int, env: dict[str, str], log_dir
         ru1 = resource.getrusage(resource.RUSAGE_SELF)
         # Drain: outputs still in flight.
         last_seq = n_total - 1
-        try:
+        with contextlib.suppress(BenchError):
             driver.spin_until(lambda: any(s == last_seq for s, _ in driver.received[-50:]), 1.0, 'drain')
-        except BenchError:
-            pass
         t_drain = time.monotonic() + 0.1
         while time.monotonic() < t_drain:
             executor.spin_once(timeout_sec=0.02)
@@ -327,12 +372,87 @@ def run_once(kind: str, round_no: int, domain: int, env: dict[str, str], log_dir
         result.disturbed = result.late_sends > DISTURBED_LATE * measured
         if driver.last_output is not None and len(driver.last_output.effort):
             result.last_effort_nm = float(driver.last_output.effort[0])
+        result.rate_hz = rate_hz
+        result.js_sent_total = driver.js_sent - sent0
+        counts = driver.settled_node_counts() if counts0 is not None else None
+        if counts is not None and counts0 is not None:
+            result.node_received, result.node_lost = counts[0] - counts0[0], counts[1] - counts0[1]
+            result.accounted = result.node_received + result.node_lost == result.js_sent_total
         if not node.alive():
             raise BenchError(f'{kind} died during the run (rc={node.proc.returncode}):\n{node.tail()}')
     finally:
         result.exit_code = node.stop()
         driver.close()
     return result
+
+
+def start_and_prime(kind: str, driver: Driver, env: dict[str, str], log: Path) -> NodeProcess:
+    """Start the node, wait for matching and a few round trips."""
+    node = NodeProcess(kind, env, log)
+    alive = node.alive
+    driver.spin_until(lambda: not alive() or (driver.pub_js.get_subscription_count() >= 1
+                                              and driver.sub.get_publisher_count() >= 1),
+                      MATCH_TIMEOUT_S, f'{kind}: /joint_states subscriber and {FEEDFORWARD} publisher')
+    if not alive():
+        raise BenchError(f'{kind} exited early (rc={node.proc.returncode}):\n{node.tail()}')
+    prime = [-1]
+
+    def send_prime() -> None:
+        if -prime[0] % 10 == 1:
+            driver.send_temperature()
+        driver.send(prime[0], 0.01)
+        prime[0] -= 1
+
+    driver.spin_until(lambda: sum(1 for s, _ in driver.received if s < 0) >= PRIME_MESSAGES,
+                      MATCH_TIMEOUT_S, f'{kind}: {PRIME_MESSAGES} round trips', every=send_prime)
+    driver.received.clear()
+    return node
+
+
+def run_bursts(kind: str, domain: int, env: dict[str, str], log_dir: Path, sizes: Sequence[int],
+               repeats: int) -> list[BurstResult]:
+    """Bursts of ``sizes`` messages published back to back (no pause, no spin in between), ``repeats`` times each;
+    after each burst the outputs are awaited (2 s at most) before the next."""
+    driver = Driver(domain)
+    node = start_and_prime(kind, driver, env, log_dir / f'{kind}_bursts.log')
+    results = []
+    seq = 0
+    try:
+        counts0 = driver.settled_node_counts() if kind != 'relay' else None
+        sent0 = driver.js_sent
+        for size in sizes:
+            res = BurstResult(kind, size, repeats)
+            for _ in range(repeats):
+                first = seq
+                t0 = time.perf_counter()
+                for _k in range(size):
+                    driver.send(seq, 0.001)
+                    seq += 1
+                res.publish_s += (time.perf_counter() - t0) / repeats
+                last = seq - 1
+                with contextlib.suppress(BenchError):
+                    driver.spin_until(lambda last=last: any(s == last for s, _ in driver.received[-20:]), 2.0,
+                                      'burst outputs')
+                t_settle = time.monotonic() + 0.05
+                while time.monotonic() < t_settle:
+                    driver.executor.spin_once(timeout_sec=0.01)
+                got = len({s for s, _ in driver.received if first <= s <= last})
+                res.sent += size
+                res.received += got
+                res.worst_burst_lost = max(res.worst_burst_lost, size - got)
+            res.lost = res.sent - res.received
+            results.append(res)
+        counts = driver.settled_node_counts() if counts0 is not None else None
+        if counts is not None and counts0 is not None:   # all sizes together: shown on the last one
+            last_res = results[-1]
+            last_res.node_received, last_res.node_lost = counts[0] - counts0[0], counts[1] - counts0[1]
+            last_res.accounted = last_res.node_received + last_res.node_lost == driver.js_sent - sent0
+        if not node.alive():
+            raise BenchError(f'{kind} died during the bursts (rc={node.proc.returncode}):\n{node.tail()}')
+    finally:
+        node.stop()
+        driver.close()
+    return results
 
 
 def pooled(results: list[RunResult], kind: str) -> dict[str, Any]:
@@ -409,6 +529,29 @@ def print_report(config: dict[str, Any], results: list[RunResult], summary: dict
               'use more --rounds')
 
 
+def _node_counts(received: int | None, lost: int | None, accounted: bool | None) -> str:
+    if received is None:
+        return 'not counted'
+    return f'{received} received, {lost} lost ({"accounts for every message sent" if accounted else "INCOMPLETE"})'
+
+
+def print_drops(results: list[RunResult], drop_runs: list[RunResult], burst_runs: list[BurstResult]) -> None:
+    """Drops: outputs missing at the driver, and the node's own count of inputs lost on the way to it."""
+    print('drops (lost = sent - outputs received by the driver, measured window; node = the node\'s own '
+          '/diagnostics count of joint states received and lost on the way to it, after priming incl. warm-up)')
+    for r in [*results, *drop_runs]:
+        pct = 100.0 * r.lost / r.sent if r.sent else float('nan')
+        print(f'  {r.kind:<12}{r.rate_hz:>7.0f} Hz  sent {r.sent:>6}  lost {r.lost:>5} ({pct:.2f} %)  '
+              f'tx {r.send_rate_hz:7.1f} Hz, late {r.late_sends}  node: '
+              f'{_node_counts(r.node_received, r.node_lost, r.accounted)}')
+    for b in burst_runs:
+        pct = 100.0 * b.lost / b.sent if b.sent else float('nan')
+        print(f'  {b.kind:<12}burst {b.size:>5} x{b.repeats}  sent {b.sent:>6}  lost {b.lost:>5} ({pct:.2f} %), '
+              f'worst burst {b.worst_burst_lost}, published in {1e3 * b.publish_s:.1f} ms'
+              + (f'  node: {_node_counts(b.node_received, b.node_lost, b.accounted)}'
+                 if b.node_received is not None else ''))
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split('\n\n')[0],
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -421,8 +564,27 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument('--nodes', default='relay,feedforward',
                         help="comma-separated nodes run in this order each round; 'relay' (the baseline) is "
                              "required; 'lean' = bench/lean_feedforward.py (experiment) (default relay,feedforward)")
+    parser.add_argument('--drop-rates', default='3000',
+                        help='comma-separated rates [Hz] of extra drop runs (relay and feedforward, one each, '
+                             '--drop-duration long); the latency rounds report drops at --rate already (3000)')
+    parser.add_argument('--drop-duration', type=float, default=5.0, help='send window of a drop run [s] (5)')
+    parser.add_argument('--bursts', default='20,1000,5000',
+                        help='comma-separated sizes of back-to-back bursts (20,1000,5000: the last overflows the '
+                             "node's 1000-deep queue, to show the loss is counted)")
+    parser.add_argument('--burst-repeats', type=int, default=3, help='bursts of each size (3)')
+    parser.add_argument('--no-drops', action='store_true', help='only the latency rounds')
     parser.add_argument('--json', action='store_true', help='print one JSON document instead of the table')
     args = parser.parse_args(argv)
+    try:
+        drop_rates = [float(x) for x in args.drop_rates.split(',') if x.strip()]
+        bursts = [int(x) for x in args.bursts.split(',') if x.strip()]
+    except ValueError:
+        parser.error('--drop-rates and --bursts are comma-separated numbers')
+    if args.no_drops:
+        drop_rates, bursts = [], []
+    if any(r <= 0 for r in drop_rates) or any(b < 1 for b in bursts) or args.burst_repeats < 1 \
+            or args.drop_duration < args.warmup + 2.0:
+        parser.error('need rates > 0, burst sizes >= 1, --burst-repeats >= 1, --drop-duration >= --warmup + 2 s')
     if args.duration < args.warmup + 2.0 or args.rounds < 1 or args.rate <= 0:
         parser.error('need --duration >= --warmup + 2 s, --rounds >= 1, --rate > 0')
     kinds = [k.strip() for k in args.nodes.split(',') if k.strip()]
@@ -451,6 +613,19 @@ def main(argv: Sequence[str] | None = None) -> int:
                         print(f'round {rnd}: {kind} ...', file=sys.stderr, flush=True)
                     results.append(run_once(kind, rnd, did, env, log_dir, args.duration, args.rate, args.warmup,
                                             args.backlog_ms))
+            drop_runs: list[RunResult] = []
+            for rate in drop_rates:
+                for kind in ('relay', 'feedforward'):
+                    if not args.json:
+                        print(f'drops at {rate:g} Hz: {kind} ...', file=sys.stderr, flush=True)
+                    drop_runs.append(run_once(kind, 0, did, env, log_dir, args.drop_duration, rate, args.warmup,
+                                              args.backlog_ms))
+            burst_runs: list[BurstResult] = []
+            if bursts:
+                for kind in ('relay', 'feedforward'):
+                    if not args.json:
+                        print(f'bursts: {kind} ...', file=sys.stderr, flush=True)
+                    burst_runs += run_bursts(kind, did, env, log_dir, bursts, args.burst_repeats)
         except BenchError as err:
             print(f'feedforward_latency: error: {err}', file=sys.stderr)
             return 1
@@ -462,9 +637,12 @@ def main(argv: Sequence[str] | None = None) -> int:
             d = asdict(r)
             del d['latencies_us']
             runs.append(d)
-        print(json.dumps({'config': config, 'runs': runs, 'summary': summary}, indent=2))
+        drops = [{k: v for k, v in asdict(r).items() if k != 'latencies_us'} for r in drop_runs]
+        print(json.dumps({'config': config, 'runs': runs, 'summary': summary, 'drop_runs': drops,
+                          'bursts': [asdict(b) for b in burst_runs]}, indent=2))
     else:
         print_report(config, results, summary)
+        print_drops(results, drop_runs, burst_runs)
     return 0
 
 
