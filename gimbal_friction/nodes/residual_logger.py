@@ -268,7 +268,9 @@ class ResidualLogger(Node):
         self._waiting = keep
         idx = np.flatnonzero(done)
         if idx.size:
-            self.log_rows(residual_rows(batch.select(idx), predicted[idx]))
+            with np.errstate(invalid='ignore', over='ignore'):  # non-finite rows are refused by log_rows
+                rows = residual_rows(batch.select(idx), predicted[idx])
+            self.log_rows(rows)
 
     def log_rows(self, rows: ResidualRows) -> None:
         ok = credible_rows(rows)

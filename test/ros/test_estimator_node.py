@@ -210,7 +210,7 @@ def test_constant_speed_sweep_gives_eq23_friction_and_rejects_the_rest(spawn, pr
         probe.spin_until(diag_complete, what='diagnostics with every count')
     except AssertionError:
         raise AssertionError(f'expected {counts}, got {latest_status(probe, name)[1]}') from None
-    st, values = latest_status(probe, name)
+    _st, values = latest_status(probe, name)
     # bad inputs were rejected: WARN naming them while they came; OK again once they stopped
     warned = [s for arr in probe.received['/diagnostics'] for s in arr.status
               if s.name == name and s.level == b'\x01' and 'bad inputs rejected' in s.message]

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 import math
 
 import pytest
@@ -106,7 +107,7 @@ def test_torque_sign_and_smooth_zero_crossing(node_and_probe):
     vs = [-3 * V_TH, -V_TH, -0.2 * V_TH, 0.0, 0.2 * V_TH, V_TH, 3 * V_TH]
     out = [request(probe, ['elevation'], [v], sec + 10 + i).effort[0] for i, v in enumerate(vs)]
     assert out[3] == 0.0
-    assert all(b > a for a, b in zip(out, out[1:]))
+    assert all(b > a for a, b in itertools.pairwise(out))
     for v, tau in zip(vs, out):
         assert tau == pytest.approx(model_nm(-40.0, v), rel=1e-4, abs=1e-12)
     assert abs(out[4]) < 0.25 * abs(out[6])

@@ -5,8 +5,6 @@ Also checks that the offline ``replay`` of the same bag gives the live nodes' nu
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 import pytest
 
@@ -32,7 +30,7 @@ def pipeline(tmp_path_factory):
 
 
 def test_main_job_outputs_and_refit_moves_toward_truth(pipeline, capsys):
-    bag, out = pipeline
+    _bag, out = pipeline
     capsys.readouterr()
     assert (out / 'residuals' / 'metadata.yaml').exists()  # closed cleanly by SIGINT
     log = read_residual_log([out / 'residuals'])

@@ -177,10 +177,11 @@ def test_unwritable_folder_reported_node_stays_up(spawn, probe, tmp_path):
 
 
 def test_runtime_period_change_takes_effect_and_start_up_only_setting_is_refused(spawn, probe, tmp_path):
+    import time
+
     from rcl_interfaces.msg import Parameter as ParameterMsg
     from rcl_interfaces.msg import ParameterType, ParameterValue
     from rcl_interfaces.srv import SetParameters
-    import time
     _setup(probe)
     node = spawn('residual_logger', '--ros-args', '-p', f'output_dir:={tmp_path / "p"}',
                  '-p', 'diagnostics_period_s:=10.0')
