@@ -12,6 +12,10 @@ README into its parameter table.
 Traceback (most recent call last):
 ...
 gimbal_friction.core.errors.ConfigError: parameter 'ball_diameter_mm' = -1.0: must be > 0 [mm]
+>>> AxisParams.from_mapping({'ball_count': float('inf')})
+Traceback (most recent call last):
+...
+gimbal_friction.core.errors.ConfigError: parameter 'ball_count' = inf: must be a finite number
 """
 
 from __future__ import annotations
@@ -293,6 +297,8 @@ def _coerce(name: str, value: Any, current: Any) -> Any:
         raise ConfigError(name, 'must be a string', value)
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         raise ConfigError(name, f'must be a number, not {type(value).__name__}', value)
+    if not math.isfinite(value):
+        raise ConfigError(name, 'must be a finite number', value)
     if kind is int:
         if float(value) != int(value):
             raise ConfigError(name, 'must be a whole number', value)

@@ -204,11 +204,19 @@ def parameter_guard(node: Node, validate: Callable[[list[Parameter]], None],
     caller without an answer."""
 
     def on_set(params: list[Parameter]) -> SetParametersResult:
+        unset = [p.name for p in params if p.type_ == Parameter.Type.NOT_SET and node.has_parameter(p.name)]
+        if unset:  # rclpy would undeclare it: the node could not read it any more
+            return SetParametersResult(successful=False, reason=f'parameter {unset[0]!r} cannot be unset (rclpy '
+                                       'would undeclare it); set a value (an axis override: the model.* value)')
         try:
             with np.errstate(all='ignore'):  # a model that overflows is refused with a reason, not warnings
                 validate(params)
         except ConfigError as err:
-            return SetParametersResult(successful=False, reason=str(err))
+            names = {p.name for p in params}
+            if err.parameter in names or not names:
+                return SetParametersResult(successful=False, reason=str(err))
+            # a cross-field rule names the other field: say which value of the request broke it
+            return SetParametersResult(successful=False, reason=f'{describe_request(params)}: {err}')
         except GimbalFrictionError as err:
             return SetParametersResult(successful=False, reason=f'{describe_request(params)}: {err}')
         except Exception as err:  # a bug must not leave a set_parameters call unanswered

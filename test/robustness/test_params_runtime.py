@@ -153,6 +153,7 @@ def test_feedforward_refuses_every_wrong_value_and_keeps_the_old_one_in_effect(f
                 problems.append(problem)
     assert not problems, '\n'.join(problems[:15])
     assert ff.torques() == baseline
+    assert not getattr(node, 'callback_errors', {})   # every refusal came from a rule, none from a crash
 
 
 @pytest.mark.parametrize(('name', 'value', 'needle'), [
@@ -217,6 +218,7 @@ def test_estimator_refuses_every_wrong_value_and_keeps_the_old_one_in_effect(est
         if problem:
             problems.append(problem)
     assert not problems, '\n'.join(problems[:15])
+    assert not getattr(node, 'callback_errors', {})
 
 
 def test_logger_refuses_every_wrong_value(logger):
@@ -230,6 +232,7 @@ def test_logger_refuses_every_wrong_value(logger):
             if problem:
                 problems.append(problem)
     assert not problems, '\n'.join(problems[:15])
+    assert not getattr(logger, 'callback_errors', {})
     # start-up-only settings are refused at run time, with the reason
     result = logger.set_parameters([Parameter('output_dir', value='/tmp/elsewhere')])[0]
     assert not result.successful and 'output_dir' in result.reason and 'start-up' in result.reason
@@ -263,5 +266,17 @@ def test_any_value_is_either_applied_whole_or_refused_with_nothing_changed(ff, d
             assert getattr(node.ff.settings, field) == value
         else:
             assert getattr(node.settings, field) == value
-        assert node.set_parameters([Parameter(name, value=old)])[0].successful
-    assert ff.torques() == before or not result.successful
+        restore = old if old is not None else AxisParams().to_mapping()[name.split('.')[-1]]
+        assert node.set_parameters([Parameter(name, value=restore)])[0].successful
+    assert ff.torques() == before
+
+
+def test_unsetting_a_parameter_is_refused_not_undeclared(ff):
+    """A NOT_SET value would make rclpy undeclare the parameter, and every later read of it would raise."""
+    node = ff.node
+    for name in ('model.shaft_length_mm', 'axis.elevation.shaft_length_mm', 'max_torque_nm'):
+        result = node.set_parameters([Parameter(name, Parameter.Type.NOT_SET)])[0]
+        assert not result.successful and name in result.reason and 'cannot be unset' in result.reason
+        assert node.has_parameter(name)
+    assert node.set_parameters([Parameter('model.palmgren_factor', value=1.917)])[0].successful
+    assert not getattr(node, 'callback_errors', {})

@@ -209,7 +209,7 @@ def _wrong_values(default: Any, bound: Any = None, choices: Any = None) -> list[
     if isinstance(default, bool):
         return ['abc', '1']
     if isinstance(default, int):
-        out = ['15.5', 'abc']
+        out = ['15.5', 'abc', 'nan', '-.inf']
     elif isinstance(default, float):
         out = ['abc', '[1.0, 2.0]', 'nan', '1e400']
     else:
