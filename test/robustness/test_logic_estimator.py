@@ -169,3 +169,21 @@ def test_current_against_the_motion_is_refused_not_published_with_the_wrong_sign
         bad += k % 3 == 0
     assert good > 0
     assert logic.counters.rejected[EL][R_OPPOSES] > 0
+
+
+def test_a_joint_named_twice_uses_the_first_entry_like_the_feedforward():
+    """The two nodes once disagreed on ``name=[elevation, elevation]`` (last vs first entry)."""
+    from gimbal_friction.core.feedforward import Feedforward, FeedforwardSettings
+    logic = EstimatorLogic(AXES, EstimatorSettings(min_dwell_s=0.05))
+    t = T0
+    out = []
+    for _ in range(40):
+        t += 10 * MS
+        out += logic.on_joint_state(t, [EL, EL], [0.01, 0.05], [V, -V], arrival_ns=t)
+        out += logic.on_current(t, [EL, EL], [0.06, -0.06], arrival_ns=t + 1)
+    assert out and all(m.velocity_rad_s == V and m.position_rad == 0.01 and m.current_a == 0.06 for m in out)
+    assert logic.counters.rejected[EL]['duplicate joint name'] == 80
+    ff = Feedforward({EL: AXES[EL]}, FeedforwardSettings(table_step_c=5.0))
+    ff.update_temperature(20.0, 0.0)
+    msg = ff.message([EL, EL], [V, -V], 0.0)
+    assert msg is not None and msg.torques_nm[0] > 0.0        # the first entry (+V) here too
