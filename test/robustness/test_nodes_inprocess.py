@@ -23,6 +23,7 @@ from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 
 from gimbal_friction.core.measurement import MEASUREMENT_FIELDS
 
+pytestmark = pytest.mark.ros  # real rclpy nodes and contexts on an isolated domain
 OK, WARN, ERROR = b'\x00', b'\x01', b'\x02'
 V = 2 * math.pi / 180 / 3 * 3
 ANY = st.floats(allow_nan=True, allow_infinity=True)

@@ -25,6 +25,7 @@ from gimbal_friction.core.feedforward import FeedforwardSettings
 from gimbal_friction.core.params import AxisParams, parameter_specs
 from gimbal_friction.core.settings import EstimatorNodeSettings, FeedforwardNodeSettings, LoggerSettings
 
+pytestmark = pytest.mark.ros  # real rclpy nodes and contexts on an isolated domain
 V = 0.0349
 SPECS = {s['name']: s for s in parameter_specs()}
 

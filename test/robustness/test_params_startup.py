@@ -44,6 +44,7 @@ from gimbal_friction.core.settings import EstimatorNodeSettings, FeedforwardNode
 rclpy = pytest.importorskip('rclpy')
 from rclpy.node import Node  # noqa: E402
 
+pytestmark = pytest.mark.ros  # real rclpy nodes and contexts on an isolated domain
 ROOT = Path(__file__).resolve().parents[2]
 PACKAGED = str(ROOT / 'config' / 'gimbal_friction.yaml')
 FF = 'friction_feedforward'
