@@ -19,10 +19,19 @@ from gimbal_friction.sim.config import PROFILES, SimConfig
 from gimbal_friction.sim.engine import BatchResult, ClosedLoop, EstimatorTrace, Run, Traces, simulate
 from gimbal_friction.sim.metrics import RunMetrics, batch_metrics
 from gimbal_friction.sim.profiles import Profile, make_profile
-from gimbal_friction.sim.study import DEFAULT_TEMPERATURES, StudyResult, estimator_refit, goal_checks, run_study
+from gimbal_friction.sim.study import (
+    DEFAULT_TEMPERATURES,
+    FeedforwardSetup,
+    RefitOutcome,
+    StudyResult,
+    estimator_rows,
+    goal_checks,
+    refit_rows,
+    run_study,
+)
 from gimbal_friction.sim.truth import TruthFriction
 
 __all__ = ['CASES', 'DEFAULT_TEMPERATURES', 'PROFILES', 'BatchResult', 'ClosedLoop', 'Compensator', 'ControllerInputs',
-           'EstimatorTrace', 'Profile', 'Run', 'RunMetrics', 'SimConfig', 'StudyResult', 'Traces', 'TruthFriction',
-           'batch_metrics', 'constant_coulomb', 'estimator_refit', 'goal_checks', 'make_profile', 'run_study',
-           'simulate', 'suite_feedforward']
+           'EstimatorTrace', 'FeedforwardSetup', 'Profile', 'RefitOutcome', 'Run', 'RunMetrics', 'SimConfig',
+           'StudyResult', 'Traces', 'TruthFriction', 'batch_metrics', 'constant_coulomb', 'estimator_rows',
+           'goal_checks', 'make_profile', 'refit_rows', 'run_study', 'simulate', 'suite_feedforward']
