@@ -27,9 +27,10 @@ Inertia. The configured J is the axis parameter ``inertia_kg_m2`` of
 :class:`~gimbal_friction.core.params.AxisParams` (default 1.0e-4 kg·m²; the seeker's controller gains and the
 estimator's observer use it); the plant's true J is that times ``inertia_truth_ratio`` (default 1: the configured J
 is right), so the number has one default. Why 1.0e-4 kg·m²; assumed load: an aluminium (6061, 2700 kg/m³) flat
-mirror 60 mm in diameter and 8 mm thick, rotating about a diameter: m = 61 g, J = m(r²/4 + t²/12) = 1.4e-5 kg·m²; its inner frame / yoke and the
-shaft between the two 26 mm bearings (≈ 100 g at a radius of gyration of ≈ 25 mm): 6e-5 kg·m²; the rotor of a
-frameless torque motor sized for the 17 mm shaft: ≈ 1e-5 kg·m². Sum ≈ 8.5e-5, rounded up to 1.0e-4 kg·m². The
+mirror 60 mm in diameter and 8 mm thick, rotating about a diameter: m = 61 g, J = m(r²/4 + t²/12) = 1.4e-5 kg·m²;
+its inner frame / yoke and the shaft between the two 26 mm bearings (≈ 100 g at a radius of gyration of ≈ 25 mm):
+6e-5 kg·m²; the rotor of a frameless torque motor sized for the 17 mm shaft: ≈ 1e-5 kg·m². Sum ≈ 8.5e-5, rounded
+up to 1.0e-4 kg·m². The
 friction-to-inertia ratio T_F/J (Stockum 1988, the paper's Sec. 3) is then 10 rad/s² at +20 °C and 39 rad/s² at
 −40 °C (truth), which is why a light mirror axis is so sensitive to friction.
 
