@@ -25,10 +25,11 @@ SUBCOMMANDS = {
     'refit': 'refit_cmd',
     'export': 'export_cmd',
     'fleet': 'fleet_cmd',
+    'loop-study': 'loop_study_cmd',
 }
 
 #: options whose values may start with '-' (negative temperatures): '--temperature -40,0' is rewritten.
-NEGATIVE_VALUE_OPTIONS = ('--temperature', '-t', '--plateaus')
+NEGATIVE_VALUE_OPTIONS = ('--temperature', '-t', '--plateaus', '--temperatures')
 
 
 class OneLineParser(argparse.ArgumentParser):
