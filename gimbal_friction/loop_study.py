@@ -222,13 +222,22 @@ def table_text(doc: dict[str, Any]) -> str:
             out.append(f'  {k}: {base:.6g} -> {v:.6g}' + ('' if ok else ' (not identifiable: held)'))
     live = doc.get('live')
     if live:
-        out.append(f'live ({live["case"]}, {live["profile"]}, {live["temperature_c"]:+g} degC): rate error RMS '
-                   f'{_fmt(live["live_rate_error_rms_rad_s"], 1e3)} mrad/s live vs '
-                   f'{_fmt(live["offline_rate_error_rms_rad_s"], 1e3)} offline (same latency): '
+        rows = [[r['case'], _fmt(r['rate_error_rms_rad_s'], 1e3), _fmt(r['reversal_error_peak_rad'], 1e3, 2),
+                 _fmt(r.get('feedforward_latency_p50_s'), 1e3, 2)] for r in records if r.get('mode') == 'live']
+        out.append(f'live runs ({live["profile"]}, {live["temperature_c"]:+g} degC, {live["duration_s"]:g} s, real '
+                   f'nodes on loopback):')
+        out.append(format_table(rows, ['case', 'rate RMS [mrad/s]', 'reversal [mrad]', 'ff latency p50 [ms]']))
+        out.append(f'live vs offline ({live["case"]}): {_fmt(live["live_rate_error_rms_rad_s"], 1e3)} mrad/s live, '
+                   f'{_fmt(live["offline_rate_error_rms_rad_s"], 1e3)} offline with the live timing replayed: '
                    f'{live["relative_difference"]:+.1%} ({"agree" if live["agree"] else "DISAGREE"} within 10 %); '
-                   f'feedforward latency p50 {_fmt(live["feedforward_latency_p50_s"], 1e3, 2)} ms, '
-                   f'p95 {_fmt(live["feedforward_latency_p95_s"], 1e3, 2)} ms; applied age p50 '
-                   f'{live["feedforward_age_p50_ticks"]:g} ticks')
+                   f'offline with a fixed {live["offline_fixed_latency_ticks"]} ticks (the live median age): '
+                   f'{_fmt(live["offline_fixed_latency_rate_error_rms_rad_s"], 1e3)}, with the nominal '
+                   f'{live["offline_nominal_latency_ticks"]} ticks: '
+                   f'{_fmt(live["offline_nominal_latency_rate_error_rms_rad_s"], 1e3)}')
+        out.append(f'feedforward transport latency p50 {_fmt(live["feedforward_latency_p50_s"], 1e3, 2)} ms, p95 '
+                   f'{_fmt(live["feedforward_latency_p95_s"], 1e3, 2)} ms, max '
+                   f'{_fmt(live["feedforward_latency_max_s"], 1e3, 2)} ms; age of the torque applied p50 '
+                   f'{live["feedforward_age_p50_ticks"]:g}, p95 {live["feedforward_age_p95_ticks"]:g} ticks')
     for n in doc.get('notes', []):
         out.append(f'note: {n}')
     return '\n'.join(out) + '\n'

@@ -1,6 +1,10 @@
 """Start the gimbal_friction suite with the packaged parameter file (needs a full ROS 2 install: launch_ros).
 
     ros2 launch gimbal_friction gimbal_friction.launch.py [params_file:=/path/extra.yaml] [log_dir:=/tmp/res]
+        [sim:=true] [sim_params_file:=/path/gimbal_sim.yaml]
+
+``sim:=true`` also starts ``gimbal_sim``, a simulated gimbal axis in closed loop that publishes the suite's input
+topics and adds its feedforward (config/gimbal_sim.yaml; no hardware needed).
 
 Without a ROS install (PyPI wheels only) use the plain supervisor instead: ``python -m gimbal_friction.suite``.
 """
@@ -10,6 +14,7 @@ import os
 from ament_index_python.packages import get_package_share_directory
 from launch import LaunchDescription
 from launch.actions import DeclareLaunchArgument
+from launch.conditions import IfCondition
 from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
 
@@ -19,6 +24,7 @@ EXECUTABLES = ('friction_feedforward', 'friction_estimator', 'residual_logger')
 def generate_launch_description():
     share = get_package_share_directory('gimbal_friction')
     default_params = os.path.join(share, 'config', 'gimbal_friction.yaml')
+    default_sim_params = os.path.join(share, 'config', 'gimbal_sim.yaml')
     params_file = LaunchConfiguration('params_file')
     log_dir = LaunchConfiguration('log_dir')
     nodes = []
@@ -28,10 +34,17 @@ def generate_launch_description():
             parameters.append({'output_dir': log_dir})
         nodes.append(Node(package='gimbal_friction', executable=exe, name=exe, output='screen',
                           parameters=parameters, emulate_tty=True))
+    nodes.append(Node(package='gimbal_friction', executable='gimbal_sim', name='gimbal_sim', output='screen',
+                      parameters=[default_params, params_file, LaunchConfiguration('sim_params_file')],
+                      emulate_tty=True, condition=IfCondition(LaunchConfiguration('sim'))))
     return LaunchDescription([
         DeclareLaunchArgument('params_file', default_value=default_params,
                               description='extra parameter file layered over the packaged defaults'),
         DeclareLaunchArgument('log_dir', default_value='residuals',
                               description='folder of the residual log written by residual_logger'),
+        DeclareLaunchArgument('sim', default_value='false',
+                              description='also start gimbal_sim (a simulated gimbal axis in closed loop)'),
+        DeclareLaunchArgument('sim_params_file', default_value=default_sim_params,
+                              description='parameter file of gimbal_sim (its gimbal_sim section)'),
         *nodes,
     ])

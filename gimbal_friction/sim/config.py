@@ -184,6 +184,9 @@ class SimConfig:
     # --- feedforward transport
     feedforward_latency_s: float = _p(1.0e-3, 's', 'transport latency of the feedforward (node) cases, rounded '
                                       'to whole controller ticks', 'feedforward')
+    feedforward_timeout_s: float = _p(0.02, 's', 'the seeker controller adds a feedforward only while it is at most '
+                                      'this old (its stamp vs the tick; older: 0 N*m): a stalled link must not '
+                                      'apply a torque of the past', 'feedforward')
     # --- profiles
     tracking_speed_rpm: float = _p(1.0 / 3.0, 'rpm', 'tracking profile: LOS speed (paper test: 1/3 rpm)',
                                    'profiles')
@@ -221,6 +224,11 @@ class SimConfig:
     def latency_ticks(self) -> int:
         """Feedforward transport latency in whole controller ticks [-]."""
         return int(round(self.feedforward_latency_s * self.rate_loop_hz))
+
+    @property
+    def timeout_ticks(self) -> int:
+        """Oldest feedforward the controller applies, in whole controller ticks [-]."""
+        return int(math.floor(self.feedforward_timeout_s * self.rate_loop_hz + 1e-9))
 
     @property
     def rate_kp_per_s(self) -> float:
@@ -361,6 +369,7 @@ class SimConfig:
              and all(x > 0.0 for x in s.asymmetry_ccw_nmm),
              'must give one magnitude > 0 per asymmetry temperature [N*mm]'),
             ('feedforward_latency_s', 0.0 <= s.feedforward_latency_s <= 1.0, 'must lie in [0, 1] [s]'),
+            ('feedforward_timeout_s', 0.0 < s.feedforward_timeout_s <= 10.0, 'must lie in (0, 10] [s]'),
             ('tracking_speed_rpm', 0.0 < s.tracking_speed_rpm <= 100.0, 'must lie in (0, 100] [rpm]'),
             ('tracking_travel_deg', len(s.tracking_travel_deg) == 2
              and s.tracking_travel_deg[0] < s.tracking_travel_deg[1], 'must be [low, high] with low < high [deg]'),

@@ -14,8 +14,8 @@ its tick and measures
 
 - the **transport latency**: wall time it arrived − wall time that joint state was published [s];
 - the **age** of the torque applied at each tick: ticks since the joint state that produced it (1 = the
-  previous tick's, the best a separate process can do), which :func:`gimbal_friction.sim.study.run_study`
-  reproduces offline with ``feedforward_latency_s = age · T``.
+  previous tick's, the best a separate process can do); a torque older than ``feedforward_timeout_s`` is not
+  applied (0 N·m, age −1), as the offline loop does with a latency beyond the timeout.
 
 >>> from gimbal_friction.core.params import AxisParams
 >>> cfg = SimConfig(tracking_duration_s=0.01)
@@ -114,6 +114,7 @@ class RealtimeRun:
         self.received = 0        #: feedforward messages received for this run
         self.stale = 0           #: received for a tick older than the one applied (ignored)
         self.foreign = 0         #: stamps that are no tick of this run (ignored)
+        self.timed_out = 0       #: ticks whose latest feedforward was older than feedforward_timeout_s (0 N·m)
 
     # ------------------------------------------------------------------ stepping
     @property
@@ -136,8 +137,12 @@ class RealtimeRun:
 
     def _hook(self, inputs: ControllerInputs) -> Array:
         k = self.loop.k
-        self.applied_age[k] = k - self._ff_tick if self._ff_tick >= 0 else -1
-        return np.full(inputs.temperature_c.shape, self._ff_nm)
+        age = k - self._ff_tick if self._ff_tick >= 0 else -1
+        fresh = 0 <= age <= self.config.timeout_ticks
+        self.applied_age[k] = age if fresh else -1
+        if age > self.config.timeout_ticks:
+            self.timed_out += 1
+        return np.full(inputs.temperature_c.shape, self._ff_nm if fresh else 0.0)
 
     def step(self, wall_s: float) -> TickOutput:
         """Simulate the next tick with the latest feedforward received; ``wall_s`` [s] is when its messages go out.
@@ -190,4 +195,5 @@ class RealtimeRun:
                 'feedforward_latency_max_s': float(max(lat)) if lat else math.nan,
                 'feedforward_age_p50_ticks': percentile(ages, 50.0),
                 'feedforward_age_p95_ticks': percentile(ages, 95.0),
-                'feedforward_received': float(self.received)}
+                'feedforward_received': float(self.received),
+                'feedforward_timed_out_ticks': float(self.timed_out)}
