@@ -56,9 +56,10 @@ def save_run(path: str | os.PathLike[str], run: RealtimeRun) -> Path:
             'stale': run.stale, 'foreign': run.foreign}
     arrays = {f'trace_{name}': np.asarray(getattr(res.traces, name))[:, 0] for name in Traces._fields}
     tmp = out.with_name(f'.{out.name}.tmp.npz')
-    np.savez(tmp, meta=np.frombuffer(json.dumps(meta).encode(), dtype=np.uint8), sampled=res.temperature_sampled,
-             applied_age=run.applied_age, publish_wall_s=run.publish_wall_s,
-             transport_latency_s=np.asarray(run.transport_latency_s, dtype=float), **arrays)
+    arrays.update(meta=np.frombuffer(json.dumps(meta).encode(), dtype=np.uint8), sampled=res.temperature_sampled,
+                  applied_age=run.applied_age, publish_wall_s=run.publish_wall_s,
+                  transport_latency_s=np.asarray(run.transport_latency_s, dtype=float))
+    np.savez(tmp, **arrays)  # type: ignore[arg-type]
     os.replace(tmp, out)
     return out
 
@@ -148,8 +149,8 @@ def live_study(inputs: Any, *, temperature_c: float = -40.0, profile: str = 'tra
                 args = ['--ros-args', *(a for f in param_files for a in ('--params-file', str(f)))]
                 log(f'loop-study --live: starting {", ".join(LIVE_NODES)} (domain {did}, loopback only)')
                 for name in LIVE_NODES:
-                    extra = ['-p', f'output_dir:={work_dir / "residuals"}'] if name == 'residual_logger' else []
-                    sup.start(name, [*args, *extra])
+                    more = ['-p', f'output_dir:={work_dir / "residuals"}'] if name == 'residual_logger' else []
+                    sup.start(name, [*args, *more])
                 watcher = Watcher(did)
                 _wait_connected(watcher, sup, connect_timeout_s)
                 for case in cases:

@@ -136,7 +136,7 @@ class GimbalSim(Node):
             raise ConfigError('joint', f'must be a configured axis ({", ".join(self.model.axes)})', joint)
         return config, settings, joint
 
-    def _validate_params(self, params: list[Parameter]) -> None:
+    def _validate_params(self, params: list[Parameter[Any]]) -> None:
         proposed = {p.name: _value(p) for p in params}
         config, settings, joint = self._read(proposed)
         if joint != self.joint:
@@ -145,7 +145,7 @@ class GimbalSim(Node):
         self.model.current(model)   # raises on an invalid model value
         self._pending = (config, settings, joint)
 
-    def _apply_params(self, params: list[Parameter]) -> None:
+    def _apply_params(self, params: list[Parameter[Any]]) -> None:
         if self._pending is not None:
             with self._lock:
                 self.config, self.settings, _ = self._pending

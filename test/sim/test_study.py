@@ -106,3 +106,40 @@ def test_goal_checks():
     got = {g['goal']: (round(g['value'], 6), g['met']) for g in goal_checks(recs)}
     assert got == {'c_vs_a_cold': (0.7, True), 'c_vs_a_all': (0.7, True), 'c_reversal': (1.2, False),
                    'c_vs_b_cold': (0.4, True), 'd_near_e_cold': (1.1, True)}
+
+
+def test_case_d_from_observer_samples_of_pointing_alone():
+    """No constant-speed sweep at all: the observer samples the gimbal collects while holding a target under base
+    motion are enough to refit (issue 9, section 3)."""
+    res = run_study(SimConfig(), temperatures=[-40.0, 60.0], profiles=['pointing'], cases=['none', 'refit', 'ideal'],
+                    short=True)
+    assert res.refit is not None and res.refit.params is not None
+    assert len(res.refit.rows) > 1000 and set(res.refit.rows.method.tolist()) == {1}
+    rms = {(r['case'], r['temperature_c']): r['rate_error_rms_rad_s'] for r in res.records}
+    assert rms[('ideal', -40.0)] < rms[('refit', -40.0)] < rms[('none', -40.0)]
+
+
+def test_steady_state_method_collects_the_constant_speed_sweep_only():
+    seen = []
+
+    def refit(rows, axis):
+        seen.append(rows)
+        return axis
+
+    run_study(SimConfig(), temperatures=[20.0], profiles=['tracking'], cases=['refit'], short=True,
+              estimator_method='steady_state', refit=refit)
+    (rows,) = seen
+    assert len(rows) > 100 and set(rows.method.tolist()) == {0}
+    speed = np.abs(rows.velocity_rad_s)
+    assert np.all(np.abs(speed - 0.0349066) <= 0.1 * 0.0349066 + 1e-9)
+
+
+def test_the_reference_velocity_wiring_orders_the_cases_in_the_cold():
+    from gimbal_friction.core.feedforward import FeedforwardSettings
+    from gimbal_friction.sim.study import FeedforwardSetup
+    ff = FeedforwardSetup(FeedforwardSettings(velocity_threshold_rad_s=0.002), 'reference')
+    res = run_study(SimConfig(), temperatures=[-40.0], profiles=['tracking'], short=True, feedforward=ff,
+                    cases=['none', 'constant', 'feedforward', 'ideal'])
+    rms = {r['case']: r['rate_error_rms_rad_s'] for r in res.records}
+    assert rms['ideal'] <= rms['feedforward'] < rms['constant'] < rms['none']
+    assert rms['feedforward'] < 0.4 * rms['none']
