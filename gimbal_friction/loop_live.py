@@ -17,9 +17,11 @@ joint state that produced it, so latency = arrival wall time − publish wall ti
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 import os
+import subprocess
 import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -57,7 +59,7 @@ def save_run(path: str | os.PathLike[str], run: RealtimeRun) -> Path:
     arrays = {f'trace_{name}': np.asarray(getattr(res.traces, name))[:, 0] for name in Traces._fields}
     tmp = out.with_name(f'.{out.name}.tmp.npz')
     arrays.update(meta=np.frombuffer(json.dumps(meta).encode(), dtype=np.uint8), sampled=res.temperature_sampled,
-                  applied_age=run.applied_age, publish_wall_s=run.publish_wall_s,
+                  feedforward_age=run.feedforward_age, publish_wall_s=run.publish_wall_s,
                   transport_latency_s=np.asarray(run.transport_latency_s, dtype=float))
     np.savez(tmp, **arrays)  # type: ignore[arg-type]
     os.replace(tmp, out)
@@ -75,7 +77,7 @@ def load_run(path: str | os.PathLike[str]) -> tuple[BatchResult, dict[str, Any],
             meta = json.loads(bytes(data['meta']).decode())
             traces = Traces(**{name: np.asarray(data[f'trace_{name}'])[:, None] for name in Traces._fields})
             sampled = np.asarray(data['sampled'])
-            extra = {k: np.asarray(data[k]) for k in ('applied_age', 'publish_wall_s', 'transport_latency_s')}
+            extra = {k: np.asarray(data[k]) for k in ('feedforward_age', 'publish_wall_s', 'transport_latency_s')}
     except (OSError, KeyError, ValueError) as err:
         msg = f'{path}: not a gimbal_sim run record ({err})'
         raise GimbalFrictionError(msg) from None
@@ -92,6 +94,30 @@ def load_run(path: str | os.PathLike[str]) -> tuple[BatchResult, dict[str, Any],
 
 
 # ---------------------------------------------------------------------------------------------- live study
+class _GraphProbe:
+    """A node in this process that only looks at the graph (no subscriptions: it costs no CPU per message)."""
+
+    def __init__(self, domain: int) -> None:
+        import rclpy
+        from rclpy.executors import SingleThreadedExecutor
+        from rclpy.node import Node
+        self.context = rclpy.Context()
+        rclpy.init(context=self.context, domain_id=domain)
+        self.node = Node('loop_study_probe', context=self.context)
+        self.executor = SingleThreadedExecutor(context=self.context)
+        self.executor.add_node(self.node)
+
+    def spin(self, seconds: float) -> None:
+        end = time.monotonic() + seconds
+        while time.monotonic() < end:
+            self.executor.spin_once(timeout_sec=min(0.05, max(end - time.monotonic(), 0.0)))
+
+    def close(self) -> None:
+        self.executor.shutdown()
+        self.node.destroy_node()
+        self.context.try_shutdown()
+
+
 def _wait_connected(watcher: Any, sup: Any, timeout_s: float) -> None:
     from gimbal_friction.recording import topics
     n = watcher.node
@@ -111,7 +137,7 @@ def _wait_connected(watcher: Any, sup: Any, timeout_s: float) -> None:
 
 def live_study(inputs: Any, *, temperature_c: float = -40.0, profile: str = 'tracking',
                cases: Sequence[str] = ('feedforward',), short: bool = False, duration_s: float | None = None,
-               realtime_factor: float = 1.0, work_dir: Path | None = None,
+               realtime_factor: float = 1.0, publish_every_ticks: int = 2, work_dir: Path | None = None,
                log: Callable[[str], None] = lambda text: None, connect_timeout_s: float = 60.0) -> dict[str, Any]:
     """Run the live closed loop for each of ``cases`` (``feedforward``, ``none``) and compare with offline.
 
@@ -124,8 +150,6 @@ def live_study(inputs: Any, *, temperature_c: float = -40.0, profile: str = 'tra
     import tempfile
 
     from domain_coordinator import domain_id
-
-    from gimbal_friction.demo import Watcher
 
     cfg: SimConfig = inputs.sim
     if duration_s is None:
@@ -151,7 +175,7 @@ def live_study(inputs: Any, *, temperature_c: float = -40.0, profile: str = 'tra
                 for name in LIVE_NODES:
                     more = ['-p', f'output_dir:={work_dir / "residuals"}'] if name == 'residual_logger' else []
                     sup.start(name, [*args, *more])
-                watcher = Watcher(did)
+                watcher = _GraphProbe(did)
                 _wait_connected(watcher, sup, connect_timeout_s)
                 for case in cases:
                     record = work_dir / f'run_{case}.npz'
@@ -163,14 +187,15 @@ def live_study(inputs: Any, *, temperature_c: float = -40.0, profile: str = 'tra
                         '-p', f'duration_s:={float(duration_s)}', '-p', 'exit_when_done:=true',
                         '-p', f'use_feedforward:={use}', '-p', 'wait_for_subscribers:=3',
                         '-p', f'wait_for_feedforward:={use}', '-p', f'realtime_factor:={float(realtime_factor)}',
-                        '-p', f'record_path:={record}'])
+                        '-p', f'record_path:={record}', '-p', f'publish_every_ticks:={int(publish_every_ticks)}'])
                     deadline = time.monotonic() + connect_timeout_s + 3.0 * duration_s / realtime_factor + 30.0
                     while proc.poll() is None:
                         sup.check_alive()
                         if time.monotonic() > deadline:
                             msg = f'gimbal_sim ({case}) did not finish in time; see {work_dir / "logs"}'
                             raise GimbalFrictionError(msg)
-                        watcher.spin(0.2)
+                        with contextlib.suppress(subprocess.TimeoutExpired):
+                            proc.wait(0.2)
                     if proc.returncode != 0 or not record.exists():
                         tail = (work_dir / 'logs' / f'gimbal_sim_{case}.log').read_text(errors='replace')
                         last = ' | '.join(tail.strip().splitlines()[-2:])
@@ -190,7 +215,8 @@ def live_study(inputs: Any, *, temperature_c: float = -40.0, profile: str = 'tra
         if tmp is not None:
             tmp.cleanup()
     out: dict[str, Any] = {'temperature_c': float(temperature_c), 'profile': profile, 'duration_s': duration_s,
-                           'realtime_factor': realtime_factor, 'cases': list(cases)}
+                           'realtime_factor': realtime_factor, 'publish_every_ticks': publish_every_ticks,
+                           'cases': list(cases)}
     for case, (batch, meta, _) in runs.items():
         (m,) = batch_metrics(batch)
         rec = {'case': case, 'temperature_c': float(temperature_c), 'profile': profile, **m._asdict(),
@@ -205,7 +231,7 @@ def live_study(inputs: Any, *, temperature_c: float = -40.0, profile: str = 'tra
     age = meta['latency'].get('feedforward_age_p50_ticks', math.nan)
     latency_ticks = int(round(age)) if math.isfinite(age) else 0
     nominal_ticks = cfg.latency_ticks
-    replayed = _offline_twin(inputs, batch, compare, 0, extra['applied_age'])
+    replayed = _offline_twin(inputs, batch, compare, 0, extra['feedforward_age'])
     fixed = _offline_twin(inputs, batch, compare, latency_ticks)
     nominal = _offline_twin(inputs, batch, compare, nominal_ticks)
     live_rms = next(r['rate_error_rms_rad_s'] for r in records if r['case'] == compare)
@@ -223,30 +249,31 @@ def live_study(inputs: Any, *, temperature_c: float = -40.0, profile: str = 'tra
 
 
 def _offline_twin(inputs: Any, live: BatchResult, case: str, latency_ticks: int,
-                  applied_age: np.ndarray | None = None) -> float:
+                  ages: np.ndarray | None = None) -> float:
     """LOS rate error RMS [rad/s] of the same run offline: the feedforward ``latency_ticks`` old at every tick, or,
-    with ``applied_age``, exactly as old as the live run applied it at each tick (its timing replayed)."""
+    with ``ages``, exactly as old as the live run had it at each tick (its timing replayed, the controller's
+    ``feedforward_timeout_s`` included)."""
     cfg = live.config.replace(feedforward_latency_s=latency_ticks * live.config.controller_period_s)
     ff: FeedforwardSetup = inputs.feedforward
     comps: dict[str, Compensator] = {}
     if case == 'feedforward':
-        comps['feedforward'] = ff.compensator(inputs.axis) if applied_age is None else _replayed(
-            ff.compensator(inputs.axis), applied_age)
+        comps['feedforward'] = ff.compensator(inputs.axis) if ages is None else _replayed(
+            ff.compensator(inputs.axis), ages, cfg.timeout_ticks)
     res = simulate(cfg, inputs.axis, live.profile, [Run(case, live.runs[0].temperature_c, live.runs[0].seed)],
                    comps)
     return float(batch_metrics(res)[0].rate_error_rms_rad_s)
 
 
-def _replayed(comp: Compensator, age: np.ndarray) -> Compensator:
+def _replayed(comp: Compensator, age: np.ndarray, timeout_ticks: int) -> Compensator:
     """``comp`` applied with the per-tick age of a live run: at tick k the torque computed at tick k − age[k]
-    (none, 0 N·m, where the live run had received none yet)."""
+    (0 N·m where the live run had received none yet or it was older than ``timeout_ticks``)."""
     history: list[np.ndarray] = []
 
     def torque(inputs: ControllerInputs) -> np.ndarray:
         history.append(np.asarray(comp.torque(inputs), dtype=float))
         k = len(history) - 1
         a = int(age[k]) if k < age.shape[0] else -1
-        return history[k - a] if 0 <= a <= k else np.zeros_like(history[k])
+        return history[k - a] if 0 <= a <= min(k, timeout_ticks) else np.zeros_like(history[k])
 
     return Compensator(torque, delayed=False)
 
@@ -282,8 +309,6 @@ def _parameter_files(inputs: Any, work_dir: Path) -> list[Path]:
 
 def _supervisor(env: dict[str, str], log_dir: Path) -> Any:
     """The demo's supervisor, starting ``gimbal_sim`` runs under their own names and letting them exit."""
-    import subprocess
-
     from gimbal_friction.demo import Supervisor, _exe
 
     class LoopSupervisor(Supervisor):

@@ -27,7 +27,7 @@ its tick and measures
 >>> run.on_feedforward(0.003, out.stamp_ns, wall_s=0.0004)
 True
 >>> _ = run.step(wall_s=0.001)
->>> run.applied_age[:2].tolist(), [round(x, 6) for x in run.transport_latency_s]
+>>> run.feedforward_age[:2].tolist(), [round(x, 6) for x in run.transport_latency_s]
 ([-1, 1], [0.0004])
 """
 
@@ -108,7 +108,9 @@ class RealtimeRun:
         n = self.loop.ticks
         self._ff_nm = 0.0
         self._ff_tick = -1
-        self.applied_age = np.full(n, -1, dtype=np.int64)   #: ticks since the applied torque's joint state (-1: none)
+        #: per tick, ticks since the joint state of the latest feedforward received (-1: none yet); it is applied
+        #: when 0 <= age <= config.timeout_ticks
+        self.feedforward_age = np.full(n, -1, dtype=np.int64)
         self.publish_wall_s = np.full(n, math.nan)          #: wall time each tick's messages were published [s]
         self.transport_latency_s: list[float] = []         #: per feedforward received [s]
         self.received = 0        #: feedforward messages received for this run
@@ -139,7 +141,7 @@ class RealtimeRun:
         k = self.loop.k
         age = k - self._ff_tick if self._ff_tick >= 0 else -1
         fresh = 0 <= age <= self.config.timeout_ticks
-        self.applied_age[k] = age if fresh else -1
+        self.feedforward_age[k] = age
         if age > self.config.timeout_ticks:
             self.timed_out += 1
         return np.full(inputs.temperature_c.shape, self._ff_nm if fresh else 0.0)
@@ -186,8 +188,9 @@ class RealtimeRun:
         return self.loop.result()
 
     def latency_summary(self) -> dict[str, float]:
-        """Transport latency p50/p95/max [s] and the applied age p50/p95 [ticks] (NaN before any feedforward)."""
-        ages = self.applied_age[: self.loop.k]
+        """Transport latency p50/p95/max [s] and the age of the latest feedforward at the ticks p50/p95 [ticks]
+        (NaN before any feedforward)."""
+        ages = self.feedforward_age[: self.loop.k]
         ages = ages[ages >= 0]
         lat = self.transport_latency_s
         return {'feedforward_latency_p50_s': percentile(lat, 50.0),

@@ -60,7 +60,12 @@ def add_parser(sub: Any) -> None:
     parser.add_argument('--live-duration-s', type=float, metavar='S',
                         help='duration of a live run [s] (default the profile\'s, or the short one with --short)')
     parser.add_argument('--live-realtime-factor', type=float, default=1.0, metavar='X',
-                        help='simulated seconds per wall second of the live runs (default 1)')
+                        help='simulated seconds per wall second of the live runs (default 1; below 1 on a busy '
+                        'machine: the nodes see the same stamps, fewer messages per wall second)')
+    parser.add_argument('--live-publish-every', type=int, default=2, metavar='N',
+                        help='gimbal_sim publishes joint states / current / reference every N controller ticks '
+                        '(default 2: 500 Hz; four Python processes at 1 kHz saturate a small machine and the '
+                        'transport latency grows a long tail)')
     parser.set_defaults(func=run)
 
 
@@ -87,6 +92,10 @@ def run(args: argparse.Namespace) -> int:
     if args.latency_s is not None and not (math.isfinite(args.latency_s) and 0.0 <= args.latency_s <= 1.0):
         raise ConfigError('--latency-s', 'must lie in [0, 1] [s]', args.latency_s)
     live_cases = _names(args.live_cases, '--live-cases', ('feedforward', 'none')) if args.live else []
+    if args.live and not (0.01 <= args.live_realtime_factor <= 100.0):
+        raise ConfigError('--live-realtime-factor', 'must lie in [0.01, 100] [-]', args.live_realtime_factor)
+    if args.live and not 1 <= args.live_publish_every <= 10000:
+        raise ConfigError('--live-publish-every', 'must be an integer in [1, 10000]', args.live_publish_every)
     if args.live and args.live_profile not in PROFILES:
         raise ConfigError('--live-profile', f'must be one of {", ".join(PROFILES)}', args.live_profile)
     if args.out is not None and args.out.exists() and not args.out.is_dir():
@@ -107,7 +116,7 @@ def run(args: argparse.Namespace) -> int:
         from gimbal_friction.loop_live import live_study
         live = live_study(inputs, temperature_c=args.live_temperature, profile=args.live_profile,
                           cases=live_cases, short=args.short, duration_s=args.live_duration_s,
-                          realtime_factor=args.live_realtime_factor,
+                          realtime_factor=args.live_realtime_factor, publish_every_ticks=args.live_publish_every,
                           work_dir=(args.out / 'live') if args.out is not None else None,
                           log=lambda text: print(text, file=sys.stderr, flush=True))
     doc = study_document(result, inputs, live=live)

@@ -67,7 +67,7 @@ def test_one_run_publishes_the_suites_inputs_takes_the_feedforward_and_exits(spa
     assert lat['feedforward_received'] > 1000 and 0.0 < lat['feedforward_latency_p50_s'] < 0.5
     applied = batch.traces.feedforward_nm[:, 0]
     assert np.count_nonzero(np.abs(applied) == 2e-3) > 1000 and np.all(np.abs(applied) <= 2e-3)
-    assert np.all(extra['applied_age'][extra['applied_age'] >= 0] >= 1)
+    assert np.all(extra['feedforward_age'][extra['feedforward_age'] >= 0] >= 1)
 
 
 def test_sigint_ends_a_run_cleanly_and_records_it(spawn, probe, tmp_path):

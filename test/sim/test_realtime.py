@@ -62,7 +62,7 @@ def test_a_feedforward_older_than_the_timeout_is_not_applied():
     settings = RealtimeSettings(profile='tracking', environment_temperature_c=20.0)
     slow = _node_loop(cfg, settings, Feedforward({JOINT: AXIS}, FeedforwardSettings()), delay_ticks=8)
     assert np.all(slow.result().traces.feedforward_nm == 0.0) and slow.timed_out > 0
-    assert np.all(slow.applied_age == -1)
+    assert np.all(slow.feedforward_age[9:] >= 8)
     # offline: a latency beyond the timeout applies nothing either
     off = simulate(cfg.replace(feedforward_latency_s=0.008), AXIS, make_profile(cfg, 'tracking'),
                    [Run('feedforward', 20.0)], {'feedforward': suite_feedforward(AXIS)})
