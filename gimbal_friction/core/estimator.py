@@ -595,8 +595,12 @@ class EstimatorLogic:
         alive = np.ones(c_stamp.shape[0], dtype=bool)
         wi = np.flatnonzero(waits)
         if wi.size > WAIT_LENGTH:
-            alive[wi] = _simulate_wait_buffer(c_pos[wi], decide_pos[wi])
-            counters.reject(name, R_UNPAIRED, int(np.count_nonzero(~alive)))
+            # the buffer overflows only if more than WAIT_LENGTH wait at once: occupancy at each arrival
+            entry, leave = c_pos[wi], np.sort(decide_pos[wi])
+            occupancy = np.arange(wi.size) - np.searchsorted(leave, entry, side='left')
+            if int(occupancy.max()) >= WAIT_LENGTH:
+                alive[wi] = _simulate_wait_buffer(entry, decide_pos[wi])
+                counters.reject(name, R_UNPAIRED, int(np.count_nonzero(~alive)))
         pending = alive & ~decided
         state.waiting = _Waiting(c_stamp[pending], c_cur[pending], c_pos[pending], c_t[pending], c_time[pending])
         go = np.flatnonzero(alive & decided)

@@ -92,7 +92,7 @@ def test_replay_numbers_equal_the_nodes_message_by_message():
         else:
             measured += node_est.on_current(int(cur.stamp_ns[i]), ['elevation'], [float(cur.effort['elevation'][i])],
                                             log_ns)
-    np.testing.assert_allclose([t[0] for t in res.feedforward.torques_nm[:len(torques)]], torques, rtol=1e-12,
+    np.testing.assert_allclose(res.feedforward.commands_nm[:len(torques), 0], torques, rtol=1e-12,
                                atol=1e-18)
     offline = res.measurements.records()[:len(measured)]
     assert len(measured) > 5000
@@ -103,7 +103,7 @@ def test_replay_numbers_equal_the_nodes_message_by_message():
     rows = res.rows
     assert np.array_equal(rows.measured_nm, res.measurements.friction_nm)
     k = np.searchsorted(res.feedforward.stamp_ns, res.measurements.stamp_ns)
-    np.testing.assert_array_equal(rows.predicted_nm, [t[0] for t in (res.feedforward.torques_nm[i] for i in k)])
+    np.testing.assert_array_equal(rows.predicted_nm, res.feedforward.commands_nm[k, 0])
     np.testing.assert_allclose(rows.residual_nm, rows.measured_nm - rows.predicted_nm, rtol=0, atol=0)
     assert np.array_equal(rows.current_a, res.measurements.current_a)    # as measured, not reconstructed
 
