@@ -299,7 +299,7 @@ class _Segment(NamedTuple):
     b0: float      # bearing temperature at t0 [°C]
 
 
-def _lag_step(b0: float, c0: float, rate: float, dt: Any, tau: float) -> Any:
+def _lag_step(b0: Any, c0: Any, rate: Any, dt: Any, tau: float) -> Any:
     """Exact first-order lag ``tau db/dt = c − b`` over a linear input ``c = c0 + rate t`` after ``dt`` [s]."""
     dt = np.asarray(dt, dtype=float)
     c = c0 + rate * dt

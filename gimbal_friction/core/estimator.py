@@ -202,8 +202,8 @@ class EstimatorSettings:
              'must be an integer in [1, 10000]'),
             ('stamp_reset_s', 0.0 < self.stamp_reset_s <= 1e6, 'must lie in (0, 1e6] [s]'),
             ('acceleration_window_s', 1e-4 <= self.acceleration_window_s <= 10.0, 'must lie in [1e-4, 10] [s]'),
-            ('observer_min_speed_rad_s', 0.0 < self.observer_min_speed_rad_s <= 100.0, 'must lie in (0, 100] '
-             '[rad/s]'),
+            ('observer_min_speed_rad_s', 0.0 < self.observer_min_speed_rad_s <= 100.0,
+             'must lie in (0, 100] [rad/s]'),
             ('observer_max_accel_rad_s2', 0.0 < self.observer_max_accel_rad_s2 <= 1e6,
              'must lie in (0, 1e6] [rad/s^2]'),
             ('observer_max_accel_noise_rad_s2', 0.0 < self.observer_max_accel_noise_rad_s2 <= 1e6,

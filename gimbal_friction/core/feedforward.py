@@ -176,7 +176,7 @@ class BagTorques(NamedTuple):
     temperature_c: NDArray[np.float64]  #: temperature used per message [°C] (NaN: zero policy)
     source: NDArray[np.int8]          #: SOURCE_* per message
 
-    def __len__(self) -> int:  # type: ignore[override]
+    def __len__(self) -> int:
         """Number of output messages [-]."""
         return int(self.msg_index.shape[0])
 
