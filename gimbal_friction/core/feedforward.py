@@ -49,6 +49,7 @@ from gimbal_friction.core.inputs import (
     J_MISMATCH,
     J_NONE,
     J_UNKNOWN,
+    JointIndex,
     effective_time,
     index_joints,
     is_fresh,
@@ -219,6 +220,7 @@ class Feedforward:
         self.tables = {name: FrictionTable(p, s.temperature_min_c, s.temperature_max_c, s.table_step_c)
                        for name, p in self.axes.items()}
         self.counters = FeedforwardCounters()
+        self._index_cache: dict[tuple[tuple[str, ...], int], JointIndex] = {}
         self.last_temperature_c = math.nan   #: latest valid temperature [°C] (NaN: none)
         self.last_temperature_time_s = math.nan  #: its time [s]
 
@@ -292,7 +294,12 @@ class Feedforward:
         (stamp, or arrival if the stamp is zero). None (reason counted) when the message is unusable."""
         c = self.counters
         bucket = c.joint_state_rejected
-        idx = index_joints(names, (len(velocities),), self.order)
+        key = (tuple(names), len(velocities))
+        idx = self._index_cache.get(key)
+        if idx is None:  # the same names in every message: index them once
+            idx = index_joints(names, (len(velocities),), self.order)
+            if len(self._index_cache) < 64:
+                self._index_cache[key] = idx
         if idx.mismatch:
             c.add(bucket, J_MISMATCH)
             return None
