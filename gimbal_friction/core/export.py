@@ -74,6 +74,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from gimbal_friction.core.errors import ConfigError, GimbalFrictionError, ModelDomainError
 from gimbal_friction.core.feedforward import FeedforwardSettings
+from gimbal_friction.core.friction import PALMGREN_THRESHOLD_CST_RPM
 from gimbal_friction.core.model import FrictionResult, friction_torque, viscosity_cst
 from gimbal_friction.core.params import AxisParams
 from gimbal_friction.core.thermal import loose_fit_temperature
@@ -83,7 +84,7 @@ Array = NDArray[np.float64]
 
 #: ν n at which Palmgren's Eq. (9) switches branch, [cSt·rpm] (:func:`~gimbal_friction.core.friction.
 #: viscous_torque_Palmgren_1959`; ``test_export.py`` checks the model switches exactly here)
-PALMGREN_SWITCH_CST_RPM = 2000.0
+PALMGREN_SWITCH_CST_RPM = PALMGREN_THRESHOLD_CST_RPM
 #: relative jump of M_L where Eq. (9) switches branch: 160 / 2000^(2/3) − 1, [-]
 PALMGREN_JUMP = 160.0 / PALMGREN_SWITCH_CST_RPM ** (2.0 / 3.0) - 1.0
 #: default largest |velocity| of the table, [rad/s] (573 °/s: above the slew rates of seeker gimbals)

@@ -89,7 +89,7 @@ from scipy.special import stdtrit
 
 from gimbal_friction.core.direction import ARRAY, asymmetry_weight, direction_asymmetry, direction_factor
 from gimbal_friction.core.errors import ConfigError, FitError, GimbalFrictionError
-from gimbal_friction.core.friction import viscous_torque_Palmgren_1959
+from gimbal_friction.core.friction import PALMGREN_THRESHOLD_CST_RPM, viscous_torque_Palmgren_1959
 from gimbal_friction.core.model import friction_torque
 from gimbal_friction.core.params import AxisParams
 from gimbal_friction.core.sufficient import SufficientStats
@@ -112,7 +112,7 @@ ASYMMETRY_PARAMETERS = ('direction_asymmetry_cold', 'direction_asymmetry_warm')
 OFFSET = 'torque_offset_nm'
 OFFSET_MODES = ('auto', 'on', 'off')
 #: Palmgren's branch threshold ν·n of Eq. (9), [cSt·rpm].
-PALMGREN_THRESHOLD = 2000.0
+PALMGREN_THRESHOLD = PALMGREN_THRESHOLD_CST_RPM
 #: Losses accepted (those of :func:`scipy.optimize.least_squares`).
 LOSSES = ('linear', 'soft_l1', 'huber', 'cauchy', 'arctan')
 WEIGHTS = ('bin_se', 'relative')
