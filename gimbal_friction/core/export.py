@@ -571,8 +571,10 @@ def provenance_lines(table: ExportTable, prov: Provenance) -> list[str]:
     for name in ('velocity_threshold_rad_s', 'max_torque_nm'):
         unit = next(f.metadata['unit'] for f in dataclasses.fields(s) if f.name == name)
         lines.append(f'  {name} = {getattr(s, name)!r} [{unit}]')
-    lines.append(f'  direction factor k_dir: scale_positive = {p.scale_positive!r} (v >= 0), scale_negative = '
-                 f'{p.scale_negative!r} (v < 0)')
+    lines.append(f'  direction factor k_dir = s_d (1 + d a(T)): scale_positive = {p.scale_positive!r} (v >= 0), '
+                 f'scale_negative = {p.scale_negative!r} (v < 0), a(T) from {p.direction_asymmetry_cold!r} at '
+                 f'{p.direction_asymmetry_cold_c!r} degC to {p.direction_asymmetry_warm!r} at '
+                 f'{p.direction_asymmetry_warm_c!r} degC (linear, held outside)')
     lines.append('Feedforward: tau = clamp(tanh(v/velocity_threshold) * k_dir * M(t, |v|), +-max_torque) [N*m].')
     return [_clean(line) for line in lines]
 
@@ -662,8 +664,12 @@ def render_c_header(table: ExportTable, prov: Provenance) -> str:
 #define GF_{A}_RELATIVE_ERROR_BOUND {_fmt(table.report.relative_error_bound)}  /* [-] */
 #define GF_{A}_VELOCITY_THRESHOLD_RAD_S {_fmt(s.velocity_threshold_rad_s)}  /* v_th of tanh(v/v_th) [rad/s] */
 #define GF_{A}_MAX_TORQUE_NM {_fmt(s.max_torque_nm)}  /* feedforward clamp [N*m] */
-#define GF_{A}_SCALE_POSITIVE {_fmt(p.scale_positive)}  /* k_dir for v >= 0 [-] */
-#define GF_{A}_SCALE_NEGATIVE {_fmt(p.scale_negative)}  /* k_dir for v < 0 [-] */
+#define GF_{A}_SCALE_POSITIVE {_fmt(p.scale_positive)}  /* s_+, factor for v >= 0 [-] */
+#define GF_{A}_SCALE_NEGATIVE {_fmt(p.scale_negative)}  /* s_-, factor for v < 0 [-] */
+#define GF_{A}_ASYMMETRY_COLD {_fmt(p.direction_asymmetry_cold)}  /* a_c, CW/CCW asymmetry at the cold anchor [-] */
+#define GF_{A}_ASYMMETRY_WARM {_fmt(p.direction_asymmetry_warm)}  /* a_w, at the warm anchor [-] */
+#define GF_{A}_ASYMMETRY_COLD_C {_fmt(p.direction_asymmetry_cold_c)}  /* cold anchor [degC] */
+#define GF_{A}_ASYMMETRY_WARM_C {_fmt(p.direction_asymmetry_warm_c)}  /* warm anchor [degC] */
 
 /* temperature breakpoints [degC], increasing */
 static const double gf_{a}_temperature_c[GF_{A}_N] = {{
@@ -729,10 +735,14 @@ static inline double gf_{a}_friction_nm(double temperature_c, double speed_rad_s
     return M[lo] + w * (M[hi] - M[lo]);
 }}
 
+/* k_dir = s_d (1 + d a(T)), a(T) linear between the anchors and held outside (gimbal_friction.core.direction) */
 static inline double gf_{a}_direction_factor(double temperature_c, double velocity_rad_s)
 {{
-    (void)temperature_c;  /* constant in temperature for now */
-    return velocity_rad_s >= 0.0 ? GF_{A}_SCALE_POSITIVE : GF_{A}_SCALE_NEGATIVE;
+    double w = (temperature_c - GF_{A}_ASYMMETRY_COLD_C) / (GF_{A}_ASYMMETRY_WARM_C - GF_{A}_ASYMMETRY_COLD_C);
+    double a;
+    w = w < 0.0 ? 0.0 : (w > 1.0 ? 1.0 : w);
+    a = GF_{A}_ASYMMETRY_COLD + (GF_{A}_ASYMMETRY_WARM - GF_{A}_ASYMMETRY_COLD) * w;
+    return velocity_rad_s >= 0.0 ? GF_{A}_SCALE_POSITIVE * (1.0 + a) : GF_{A}_SCALE_NEGATIVE * (1.0 - a);
 }}
 
 static inline double gf_{a}_feedforward_nm(double temperature_c, double velocity_rad_s)
@@ -778,6 +788,10 @@ def ros_parameters(table: ExportTable) -> dict[str, object]:
         'max_torque_nm': float(s.max_torque_nm),
         'direction_factor_positive': float(p.scale_positive),
         'direction_factor_negative': float(p.scale_negative),
+        'direction_asymmetry_cold': float(p.direction_asymmetry_cold),
+        'direction_asymmetry_warm': float(p.direction_asymmetry_warm),
+        'direction_asymmetry_cold_c': float(p.direction_asymmetry_cold_c),
+        'direction_asymmetry_warm_c': float(p.direction_asymmetry_warm_c),
     }
 
 
