@@ -393,7 +393,7 @@ def test_c_feedforward_is_the_nodes_rule(tmp_path):
     # direction factors: same |v| both ways differs by k_+(T) / k_-(T) where the clamp does not bite, and the
     # asymmetry changes with temperature as the core's rule says
     for temp in (-50.0, 20.0, 70.0):
-        probe_t, probe_v = np.array([temp, temp]), np.array([0.02, -0.02])
+        probe_t, probe_v = np.array([temp, temp]), np.array([0.002, -0.002])
         _, ff = _run_c(tmp_path, [tb], probe_t, probe_v, 'elevation')
         expected = direction_factor(params, temp, 1.0, SCALAR) / direction_factor(params, temp, -1.0, SCALAR)
         assert -ff[0] / ff[1] == pytest.approx(expected, rel=1e-12)
