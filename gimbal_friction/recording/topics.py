@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from gimbal_friction.core.residual_row import RESIDUAL_FIELDS_V1
+
 TEMPERATURE = '/gimbal/temperature'
 JOINT_STATES = '/joint_states'
 MOTOR_CURRENT = '/gimbal/motor_current'
@@ -26,17 +28,12 @@ CHAMBER_TOPICS = {
     MOTOR_CURRENT: JOINT_STATE_TYPE,
 }
 
-#: data[] layout of RESIDUAL_DETAIL (SI units; torques in N*m, temperature in degC as sensor_msgs/Temperature)
-RESIDUAL_FIELDS = (
-    'stamp_s',          # stamp of the measured sample [s]
-    'temperature_c',    # bearing temperature used for the prediction [degC]
-    'position_rad',     # joint position [rad]
-    'velocity_rad_s',   # joint velocity [rad/s]
-    'current_a',        # motor current [A]
-    'measured_nm',      # measured friction, signed [N*m]
-    'predicted_nm',     # model feedforward, signed [N*m]
-    'm_rolling_nm',     # model M_R magnitude [N*m]
-    'm_sliding_nm',     # model M_S magnitude [N*m]
-    'm_viscous_nm',     # model M_L magnitude [N*m]
-    'residual_nm',      # measured - predicted [N*m]
-)
+#: the MCAP profile, schema encoding and message encoding of every file the suite writes (CONTRACT.md)
+MCAP_PROFILE = 'ros2'
+SCHEMA_ENCODING = 'ros2msg'
+MESSAGE_ENCODING = 'cdr'
+
+#: layout 1 of RESIDUAL_DETAIL's data[] (11 columns, read only). The row is defined once, in
+#: :mod:`gimbal_friction.core.residual_row` (``RESIDUAL_FIELDS``, 12 columns); this name stays for the writers not
+#: yet switched to it and goes with them.
+RESIDUAL_FIELDS = RESIDUAL_FIELDS_V1
