@@ -33,7 +33,7 @@ from gimbal_friction.recording.errors import LIBRARY_READ_ERRORS, RecordingError
 
 if TYPE_CHECKING:
     import os
-    from collections.abc import Iterator
+    from collections.abc import Generator, Iterator
 
     from numpy.typing import NDArray
 
@@ -174,7 +174,7 @@ class McapScanner:
 
     # -- public --------------------------------------------------------------------------------------------------
 
-    def blocks(self) -> Iterator[MessageBlock]:
+    def blocks(self) -> Generator[MessageBlock, None, None]:
         """The messages of the file, one block per chunk (or run of unchunked messages), in file order."""
         try:
             stream = self.path.open('rb')

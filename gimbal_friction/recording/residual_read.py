@@ -51,6 +51,7 @@ __all__ = [
     'ReadReport',
     'ResidualArrays',
     'ResidualLog',
+    'file_write_order',
     'iter_residual_log',
     'iter_residual_rows',
     'read_residual_log',
@@ -142,10 +143,11 @@ def residual_log_files(path: str | os.PathLike[str]) -> list[Path]:
     if not files:
         msg = f'not a residual log: {where} (no .mcap files)'
         raise RecordingError(msg)
-    return sorted(files, key=_write_order)
+    return sorted(files, key=file_write_order)
 
 
-def _write_order(p: Path) -> tuple[str, int, str]:
+def file_write_order(p: Path) -> tuple[str, int, str]:
+    """Sort key of log files: ``name_2`` before ``name_10`` (rotation index as a number)."""
     match = _FILE_INDEX.match(p.stem)
     if match is None:  # pragma: no cover - the pattern matches every string
         return (p.stem, -1, p.name)
