@@ -323,16 +323,25 @@ def recover_db3(src: str | os.PathLike[str], dst: str | os.PathLike[str]) -> Fil
                 for table, _ in tables:
                     salvage = _Salvage(con, table)
                     rows = 0
+                    invalid = 0
                     for batch in salvage.batches():
                         marks = ','.join('?' * len(batch[0]))
-                        out.executemany(f'INSERT INTO "{table}" VALUES ({marks})', batch)
-                        rows += len(batch)
+                        before = out.total_changes
+                        # rows read from damaged pages may break the table's constraints (NULLs, duplicates)
+                        out.executemany(f'INSERT OR IGNORE INTO "{table}" VALUES ({marks})', batch)
+                        done = out.total_changes - before
+                        rows += done
+                        invalid += len(batch) - done
                     copied[table] = rows
+                    invalid += salvage.invalid
                     damaged += salvage.gaps
-                    if salvage.gaps or salvage.tail_lost:
-                        problems.append(f'{source.name}: table {table}: {salvage.describe()}')
+                    described = salvage.describe()
+                    if invalid:
+                        described = ', '.join(x for x in (described, f'{invalid} invalid rows dropped') if x)
+                    if described:
+                        problems.append(f'{source.name}: table {table}: {described}')
                     if table == 'messages':
-                        lost += salvage.lost
+                        lost += salvage.lost  # rowids skipped (invalid cells are those rows, damaged)
                         unknown = unknown or salvage.tail_lost
                 for sql in indexes:
                     out.execute(sql)
@@ -364,6 +373,11 @@ def _open_readonly(source: Path, stack: contextlib.ExitStack) -> sqlite3.Connect
         msg = f'recover: cannot open {source}: {err}'
         raise RecordingError(msg) from err
     stack.callback(con.close)
+    try:  # accept a file shorter than its header says (cut short): read the pages it has
+        con.execute('PRAGMA writable_schema=ON')
+    except sqlite3.Error as err:
+        msg = f'recover: cannot read {source}: {err}'
+        raise RecordingError(msg) from err
     return con
 
 
@@ -376,6 +390,7 @@ class _Salvage:
         self.gaps = 0
         self.lost = 0
         self.tail_lost = False
+        self.invalid = 0
         self.last: int | None = None
 
     def _query(self, after: int | None, limit: int | None = None) -> sqlite3.Cursor:
@@ -383,30 +398,33 @@ class _Salvage:
         tail = '' if limit is None else f' LIMIT {int(limit)}'
         return self.con.execute(f'SELECT rowid, * FROM "{self.table}"{where} ORDER BY rowid{tail}')
 
-    def _readable_from(self, after: int) -> int | None:
-        """The smallest ``x > after`` from which rows can be read again (None: no readable row after ``after``)."""
+    def _readable_from(self, bad: int) -> int | None:
+        """The smallest ``x > bad`` from which a row can be read again (None: no readable row after ``bad``).
 
-        def ok(x: int) -> bool | None:  # True: readable from x; None: readable and no row; False: error
+        Probes ``x = bad + 1, + 2, + 4, ...`` (a probe reads the first row at or after ``x``), then bisects back
+        between the last failing probe and the first that reads.
+        """
+
+        def ok(x: int) -> bool | None:  # True: a row at or after x is read; None: no row there; False: error
             try:
                 return True if self._query(x - 1, 1).fetchone() is not None else None
             except sqlite3.Error:
                 return False
 
-        bad = after + 1
+        lo = bad  # known unreadable
         step = 1
-        probe = bad
         while True:
+            probe = lo + step
             state = ok(probe)
             if state is None:
                 return None
             if state:
                 break
-            bad = probe
-            probe += step
+            lo = probe
             step *= 2
             if step > 1 << 62:
                 return None
-        lo, hi = bad, probe  # ok(lo) is False, ok(hi) is True
+        hi = probe
         while hi - lo > 1:
             mid = (lo + hi) // 2
             if ok(mid) is False:
@@ -416,25 +434,43 @@ class _Salvage:
         return hi
 
     def batches(self) -> Iterator[list[tuple[Any, ...]]]:
-        """The table's rows (without the rowid column), a batch at a time."""
+        """The table's rows (without the rowid column), a batch at a time.
+
+        After an error the rows are read one at a time from the last row read, to find the first that cannot be
+        read; reading resumes at the next readable row, and goes back to batches after a batch worth of rows.
+        """
         after: int | None = None
+        careful = 0  # rows still to read one at a time
         while True:
             try:
                 cursor = self._query(after)
                 while True:
-                    rows = cursor.fetchmany(_ROWS_PER_FETCH)
+                    rows = cursor.fetchmany(1 if careful else _ROWS_PER_FETCH)
                     if not rows:
                         return
-                    self.last = after = int(rows[-1][0])
-                    yield [tuple(r[1:]) for r in rows]
+                    careful = max(0, careful - len(rows))
+                    good = []
+                    for row in rows:
+                        rowid = row[0]
+                        previous = 0 if self.last is None else self.last
+                        if not isinstance(rowid, int) or rowid <= previous:  # out of order: a damaged page's cell
+                            self.invalid += 1
+                            continue
+                        self.lost += rowid - previous - 1  # rosbag2 numbers rows from 1 without gaps
+                        self.last = after = rowid
+                        good.append(tuple(row[1:]))
+                    if good:
+                        yield good
             except sqlite3.Error:
+                if not careful:  # find the exact row: read one at a time from the last row read
+                    careful = _ROWS_PER_FETCH
+                    continue
                 start = 0 if after is None else after
-                resume = self._readable_from(start)
+                resume = self._readable_from(start + 1)  # the row after `after` cannot be read
                 if resume is None:
                     self.tail_lost = True
                     return
                 self.gaps += 1
-                self.lost += max(0, resume - start - 1)
                 after = resume - 1
 
     def describe(self) -> str:
