@@ -22,6 +22,7 @@ SUBCOMMANDS = {
     'replay': 'replay_cmd',
     'report': 'report_cmd',
     'refit': 'refit_cmd',
+    'recover': 'recover_cmd',
 }
 
 #: options whose values may start with '-' (negative temperatures): '--temperature -40,0' is rewritten.
