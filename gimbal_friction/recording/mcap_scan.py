@@ -58,6 +58,8 @@ OP_MESSAGE_INDEX = 0x07
 OP_STATISTICS = 0x0B
 OP_DATA_END = 0x0F
 _KNOWN_OPCODES = frozenset(range(0x01, 0x10))
+#: records of a summary section (schemas, channels, chunk/attachment/metadata indexes, statistics, offsets, footer)
+_SUMMARY_OPCODES = frozenset({0x02, 0x03, 0x04, 0x08, 0x0A, 0x0B, 0x0D, 0x0E})
 #: a message record before its data: opcode, record length, channel id, sequence, log time, publish time
 MESSAGE_RECORD_HEAD = np.dtype([('opcode', 'u1'), ('length', '<u8'), ('channel', '<u2'), ('sequence', '<u4'),
                                 ('log_time', '<u8'), ('publish_time', '<u8')])
@@ -171,6 +173,7 @@ class McapScanner:
         self.report = ScanReport(self.path)
         self.schemas: dict[int, SchemaRecord] = {}
         self.channels: dict[int, ChannelRecord] = {}
+        self._data_end: int | None = None  # where the summary (or the footer) starts, for a complete file
 
     # -- public --------------------------------------------------------------------------------------------------
 
@@ -223,6 +226,7 @@ class McapScanner:
             return
         self.report.complete = True
         (summary_start,) = _U64(mm, footer + 9)
+        self._data_end = summary_start or footer
         if not summary_start:
             return
         if not len(MAGIC) <= summary_start <= footer:
@@ -282,6 +286,24 @@ class McapScanner:
                 else:
                     self._torn(pos, size, f'a record (opcode {op:#04x})')
                 break
+            if op != OP_CHUNK:
+                # a record that is not a chunk does not hold one: if it seems to, its opcode or length is damaged
+                nxt = self._resync(mm, pos + 1, end)
+                if nxt is None and op in (OP_DATA_END, OP_FOOTER) and not self._ends_here(mm, op, pos, length, size):
+                    nxt = self._resync(mm, pos + 1, size)  # an end marker where the file does not end
+                    if nxt is None:
+                        self._problem(f'{"data end" if op == OP_DATA_END else "footer"} record at byte {pos} out '
+                                      'of place; nothing readable after it')
+                        self.report.truncated = True
+                        break
+                if nxt is not None:
+                    self._skip(pos, nxt, f'record (opcode {op:#04x}) spanning a chunk')
+                    self.report.unknown_loss = True
+                    if loose:
+                        yield self._loose_block(mm, loose)
+                        loose = []
+                    pos = nxt
+                    continue
             if op == OP_MESSAGE:
                 loose.append(pos)
                 pos = end
@@ -311,6 +333,18 @@ class McapScanner:
             self._problem('ends without a footer')
         if loose:
             yield self._loose_block(mm, loose)
+
+    def _ends_here(self, mm: mmap.mmap, op: int, pos: int, length: int, size: int) -> bool:
+        """True if a data-end or footer record at ``pos`` is where such a record belongs."""
+        if op == OP_FOOTER:
+            return length == 20 and pos + 9 + 20 + len(MAGIC) == size
+        if length != 4:
+            return False
+        end = pos + 9 + 4
+        if self._data_end is not None:
+            return end == self._data_end
+        # a file without a valid footer (its end was cut): the summary section follows a data end
+        return end >= size or mm[end] in _SUMMARY_OPCODES
 
     def _torn(self, pos: int, size: int, what: str) -> None:
         self.report.truncated = True

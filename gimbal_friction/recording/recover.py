@@ -184,6 +184,9 @@ def _copy_mcap(
     compression: str | None,
 ) -> FileRecovery:
     first = next(blocks, None)  # reads the header (and the summary of a complete file)
+    if first is None and scan.report.profile is None:
+        msg = f'recover: {source} holds no MCAP record (empty, or cut before its header): nothing to recover'
+        raise RecordingError(msg)
     chosen = compression if compression is not None else (scan.report.compression or 'zstd')
     kept = 0
     orphans = 0
