@@ -17,15 +17,21 @@ import signal
 import subprocess
 import sys
 import uuid
+from collections.abc import Callable, Iterator
 from pathlib import Path
-from typing import Callable, Iterator, NamedTuple
+from typing import NamedTuple
 
 import pytest
 
 from gimbal_friction.recording.bag import write_chamber_bag
 from gimbal_friction.recording.cdr import make_joint_state, make_temperature
-from gimbal_friction.recording.topics import JOINT_STATE_TYPE, JOINT_STATES, MOTOR_CURRENT, TEMPERATURE, \
-    TEMPERATURE_TYPE
+from gimbal_friction.recording.topics import (
+    JOINT_STATE_TYPE,
+    JOINT_STATES,
+    MOTOR_CURRENT,
+    TEMPERATURE,
+    TEMPERATURE_TYPE,
+)
 
 ROOT = Path(__file__).resolve().parents[2]
 SAMPLE = ROOT / 'bags' / 'chamber_sample'
@@ -139,3 +145,18 @@ def read_only_dir(tmp_path: Path) -> Iterator[Path]:
         blocker = tmp_path / 'a_file'
         blocker.write_text('not a folder')
         yield blocker
+
+
+class Helpers:
+    """What the robustness tests share (a fixture, since a conftest is not importable by name)."""
+
+    ROOT = ROOT
+    SAMPLE = SAMPLE
+    run = staticmethod(run_cli)
+    refused = staticmethod(one_line_error)
+    chamber = staticmethod(chamber_messages)
+
+
+@pytest.fixture
+def rb() -> type[Helpers]:
+    return Helpers

@@ -13,7 +13,6 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from rosbags.highlevel import AnyReader
 
-from conftest import SAMPLE, one_line_error, run_cli
 from gimbal_friction.recording.cdr import make_float64_multi_array
 from gimbal_friction.recording.mcap_scan import McapScanner
 from gimbal_friction.recording.recover import recover_mcap
@@ -21,6 +20,8 @@ from gimbal_friction.recording.residual_log import ResidualLogWriter
 from gimbal_friction.recording.residual_read import read_residual_rows
 from gimbal_friction.recording.topics import FLOAT64_MULTI_ARRAY_TYPE, RESIDUAL_DETAIL
 
+ROOT = Path(__file__).resolve().parents[2]
+SAMPLE = ROOT / 'bags' / 'chamber_sample'
 T0 = 1_700_000_000_000_000_000  # [ns]
 
 
@@ -78,8 +79,8 @@ def test_random_corruption_never_raises_and_keeps_every_intact_chunk(
     src.write_bytes(bytes(damaged))
     dst = src.with_name(src.stem + '_fixed.mcap')
     result = recover_mcap(src, dst)  # never raises on a file that starts like MCAP
-    intact = sum(n for a, b, n in chunks
-                 if all(e <= a or s >= b for s, e in hits) and (cut is None or b <= cut) and bytes(damaged[a:b]) == raw[a:b])
+    untouched = [all(e <= a or s >= b for s, e in hits) and (cut is None or b <= cut) for a, b, _ in chunks]
+    intact = sum(n for (_, _, n), ok in zip(chunks, untouched, strict=True) if ok)
     assert result.messages >= intact
     with AnyReader([dst]) as reader:
         assert reader.message_count == result.messages
@@ -91,14 +92,14 @@ def test_random_corruption_never_raises_and_keeps_every_intact_chunk(
     dst.unlink()
 
 
-def test_recover_cli_on_a_killed_log_folder_and_what_it_prints(tmp_path: Path) -> None:
+def test_recover_cli_on_a_killed_log_folder_and_what_it_prints(tmp_path: Path, rb) -> None:
     folder = residual_log(tmp_path / 'log', 800, chunk_size=1024, max_bytes=6000)
     (folder / 'metadata.yaml').unlink()
     files = sorted(folder.glob('*.mcap'))
     last = files[-1].read_bytes()
     files[-1].write_bytes(last[: len(last) // 2])  # killed mid-chunk
     (folder / 'residuals_99.mcap').write_bytes(b'')  # killed right after rotating
-    run = run_cli('recover', str(folder), '--out', str(tmp_path / 'fixed'))
+    run = rb.run('recover', str(folder), '--out', str(tmp_path / 'fixed'))
     assert run.code == 0, run.err
     kept = len(read_residual_rows(folder)[0])
     assert f'kept {kept} messages' in run.out and 'lost' in run.out
@@ -106,11 +107,11 @@ def test_recover_cli_on_a_killed_log_folder_and_what_it_prints(tmp_path: Path) -
     assert len(read_residual_rows(tmp_path / 'fixed')[0]) == kept
     with AnyReader([tmp_path / 'fixed']) as reader:
         assert reader.message_count == kept
-    doc = json.loads(run_cli('recover', str(folder), '--out', str(tmp_path / 'again'), '--format', 'json').out)
+    doc = json.loads(rb.run('recover', str(folder), '--out', str(tmp_path / 'again'), '--format', 'json').out)
     assert doc['kept'] == kept and doc['kind'] == 'folder' and len(doc['files']) == len(files)
 
 
-def test_a_damaged_chunk_in_a_residual_log_costs_only_that_chunk(tmp_path: Path) -> None:
+def test_a_damaged_chunk_in_a_residual_log_costs_only_that_chunk(tmp_path: Path, rb) -> None:
     folder = residual_log(tmp_path / 'log', 600, chunk_size=1500)
     (path,) = folder.glob('*.mcap')
     a, b, n = chunks_of(path)[2]
@@ -120,14 +121,14 @@ def test_a_damaged_chunk_in_a_residual_log_costs_only_that_chunk(tmp_path: Path)
     rows, report = read_residual_rows(folder)
     assert len(rows) == 600 - n and report.bad_chunks == 1 and report.lost_messages == n
     assert int(rows.stamp_s[-1]) == 599  # the chunks after the damage are used (refit, report, fleet)
-    run = run_cli('report', '--residuals', str(folder), '--out', str(tmp_path / 'rep'))
+    run = rb.run('report', '--residuals', str(folder), '--out', str(tmp_path / 'rep'))
     assert run.code == 0, run.err  # a note, not a refusal
-    assert run.err.strip() == f'note: residual logs: 1 files, {600 - n} residual rows; 1 damaged chunks skipped ' \
-                              f'({n} messages lost)'
+    assert run.err.strip() == (f'note: residual logs: 1 files, {600 - n} residual rows; 1 damaged chunks skipped '
+                               f'({n} messages lost)')
 
 
 @pytest.mark.parametrize('damage', ['cut', 'corrupt', 'empty'])
-def test_replay_of_a_damaged_bag_is_one_line_pointing_to_recover(tmp_path: Path, damage: str) -> None:
+def test_replay_of_a_damaged_bag_is_one_line_pointing_to_recover(tmp_path: Path, damage: str, rb) -> None:
     bag = tmp_path / 'bag'
     shutil.copytree(SAMPLE, bag)
     (mcap_file,) = bag.glob('*.mcap')
@@ -141,32 +142,32 @@ def test_replay_of_a_damaged_bag_is_one_line_pointing_to_recover(tmp_path: Path,
     else:
         data = bytearray()
     mcap_file.write_bytes(bytes(data))
-    line = one_line_error(run_cli('replay', str(bag), '--out', str(tmp_path / 'out')), 'replay')
+    line = rb.refused(rb.run('replay', str(bag), '--out', str(tmp_path / 'out')), 'replay')
     assert f'gimbal-friction recover {bag} --out' in line
     assert not (tmp_path / 'out' / 'residuals').exists() or not any((tmp_path / 'out' / 'residuals').iterdir())
-    fixed = run_cli('recover', str(bag), '--out', str(tmp_path / 'fixed'))
+    fixed = rb.run('recover', str(bag), '--out', str(tmp_path / 'fixed'))
     if damage == 'empty':
-        line = one_line_error(fixed, 'recover')
+        line = rb.refused(fixed, 'recover')
         assert 'nothing could be read' in line
     else:
         assert fixed.code == 0, fixed.err
-        run = run_cli('replay', str(tmp_path / 'fixed'), '--out', str(tmp_path / 'out2'), '--format', 'json')
+        run = rb.run('replay', str(tmp_path / 'fixed'), '--out', str(tmp_path / 'out2'), '--format', 'json')
         assert run.code == 0, run.err
         assert json.loads(run.out)['messages_in'] > 1000
 
 
-def test_recover_refusals_are_one_line(tmp_path: Path) -> None:
+def test_recover_refusals_are_one_line(tmp_path: Path, rb) -> None:
     (tmp_path / 'junk.mcap').write_bytes(b'PK\x03\x04' * 100)
-    assert 'not an MCAP file' in one_line_error(run_cli('recover', str(tmp_path / 'junk.mcap'), '--out',
+    assert 'not an MCAP file' in rb.refused(rb.run('recover', str(tmp_path / 'junk.mcap'), '--out',
                                                         str(tmp_path / 'o.mcap')), 'recover')
-    assert 'no such file' in one_line_error(run_cli('recover', str(tmp_path / 'nope'), '--out',
+    assert 'no such file' in rb.refused(rb.run('recover', str(tmp_path / 'nope'), '--out',
                                                     str(tmp_path / 'o')), 'recover')
     (tmp_path / 'empty.mcap').write_bytes(b'')
-    assert 'no MCAP record' in one_line_error(run_cli('recover', str(tmp_path / 'empty.mcap'), '--out',
+    assert 'no MCAP record' in rb.refused(rb.run('recover', str(tmp_path / 'empty.mcap'), '--out',
                                                       str(tmp_path / 'o2.mcap')), 'recover')
-    assert 'exists already' in one_line_error(run_cli('recover', str(SAMPLE), '--out', str(tmp_path)), 'recover')
+    assert 'exists already' in rb.refused(rb.run('recover', str(SAMPLE), '--out', str(tmp_path)), 'recover')
     (tmp_path / 'bad.db3').write_bytes(b'SQLite format 3\x00' + bytes(200))
-    one_line_error(run_cli('recover', str(tmp_path / 'bad.db3'), '--out', str(tmp_path / 'o.db3')), 'recover')
+    rb.refused(rb.run('recover', str(tmp_path / 'bad.db3'), '--out', str(tmp_path / 'o.db3')), 'recover')
     assert not (tmp_path / 'o.mcap').exists() and not (tmp_path / 'o.db3').exists()
 
 

@@ -10,46 +10,47 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from conftest import SAMPLE, one_line_error, run_cli
 from gimbal_friction.recording.cdr import make_float64_multi_array
 from gimbal_friction.recording.errors import RecordingError
 from gimbal_friction.recording.residual_log import ResidualLogWriter
 from gimbal_friction.recording.residual_read import read_residual_rows
 from gimbal_friction.recording.topics import FLOAT64_MULTI_ARRAY_TYPE, RESIDUAL_DETAIL
 
+ROOT = Path(__file__).resolve().parents[2]
+SAMPLE = ROOT / 'bags' / 'chamber_sample'
 T0 = 1_700_000_000_000_000_000  # [ns]
 FULL = (errno.ENOSPC, errno.EFBIG)
 
 
-def test_replay_onto_a_full_disk_then_recover_what_reached_it(tmp_path: Path, full_disk) -> None:
+def test_replay_onto_a_full_disk_then_recover_what_reached_it(tmp_path: Path, full_disk, rb) -> None:
     disk = full_disk(512 * 1024)
     out = disk.folder / 'out'
-    line = one_line_error(run_cli('replay', str(SAMPLE), '--out', str(out), preexec=disk.preexec), 'replay')
+    line = rb.refused(rb.run('replay', str(SAMPLE), '--out', str(out), preexec=disk.preexec), 'replay')
     assert ('No space left on device' if disk.kind == 'tmpfs' else 'File too large') in line
     assert str(out / 'residuals') in line
     rows, report = read_residual_rows(out / 'residuals')  # the flushed chunks read back as they are
     assert len(rows) > 0 and report.truncated_files
-    fixed = run_cli('recover', str(out / 'residuals'), '--out', str(tmp_path / 'fixed'))
+    fixed = rb.run('recover', str(out / 'residuals'), '--out', str(tmp_path / 'fixed'))
     assert fixed.code == 0, fixed.err
     assert len(read_residual_rows(tmp_path / 'fixed')[0]) == len(rows)
 
 
-def test_recover_onto_a_full_disk_leaves_nothing_behind(tmp_path: Path, full_disk) -> None:
+def test_recover_onto_a_full_disk_leaves_nothing_behind(tmp_path: Path, full_disk, rb) -> None:
     disk = full_disk(256 * 1024)
     target = disk.folder / 'fixed'
-    line = one_line_error(run_cli('recover', str(SAMPLE), '--out', str(target), preexec=disk.preexec), 'recover')
+    line = rb.refused(rb.run('recover', str(SAMPLE), '--out', str(target), preexec=disk.preexec), 'recover')
     assert 'writing' in line
     assert not target.exists() and not [p for p in disk.folder.iterdir() if p.name.startswith('.fixed')]
 
 
-def test_report_onto_a_full_disk(full_disk) -> None:
+def test_report_onto_a_full_disk(full_disk, rb) -> None:
     disk = full_disk(64 * 1024)
-    line = one_line_error(run_cli('report', '--out', str(disk.folder / 'rep'), preexec=disk.preexec), 'report')
+    line = rb.refused(rb.run('report', '--out', str(disk.folder / 'rep'), preexec=disk.preexec), 'report')
     assert 'cannot write' in line
 
 
 @pytest.mark.parametrize('command', ['replay', 'recover', 'report', 'refit'])
-def test_read_only_outputs_are_one_line(tmp_path: Path, read_only_dir: Path, command: str) -> None:
+def test_read_only_outputs_are_one_line(tmp_path: Path, read_only_dir: Path, command: str, rb) -> None:
     out = read_only_dir / 'out'
     if command == 'replay':
         args = ['replay', str(SAMPLE), '--out', str(out)]
@@ -59,9 +60,9 @@ def test_read_only_outputs_are_one_line(tmp_path: Path, read_only_dir: Path, com
         args = ['report', '--out', str(out)]
     else:
         log = tmp_path / 'log'
-        assert run_cli('replay', str(SAMPLE), '--out', str(log), '--no-inputs').code == 0
+        assert rb.run('replay', str(SAMPLE), '--out', str(log), '--no-inputs').code == 0
         args = ['refit', str(log / 'residuals'), '--out', str(out / 'refit.yaml')]
-    line = one_line_error(run_cli(*args), command)
+    line = rb.refused(rb.run(*args), command)
     assert str(read_only_dir) in line
     assert any(x in line for x in ('Read-only file system', 'Not a directory', 'is not a folder')), line
 
