@@ -160,3 +160,103 @@ class Helpers:
 @pytest.fixture
 def rb() -> type[Helpers]:
     return Helpers
+
+
+# -- real ROS nodes (marked ``ros``): each test on its own ROS_DOMAIN_ID, loopback only, stopped with SIGINT --------
+
+
+@pytest.fixture
+def ros_env(tmp_path: Path) -> Iterator[tuple[int, dict[str, str]]]:
+    from domain_coordinator import domain_id
+
+    with domain_id() as did:
+        yield did, dict(os.environ, ROS_DOMAIN_ID=str(did), ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST',
+                        ROS_LOG_DIR=str(tmp_path / 'roslog'), PYTHONUNBUFFERED='1')
+
+
+class NodeProcess:
+    """A node executable as its own process (its output in a file)."""
+
+    def __init__(self, exe: str, args: list[str], env: dict[str, str], log: Path) -> None:
+        path = Path(sys.executable).parent / exe
+        cmd = [str(path)] if path.exists() else [sys.executable, '-m', f'gimbal_friction.nodes.{exe}']
+        self.log = log
+        self._fh = log.open('wb')
+        self.proc = subprocess.Popen([*cmd, *args], env=env, stdout=self._fh, stderr=subprocess.STDOUT,
+                                     start_new_session=True)
+
+    def output(self) -> str:
+        return self.log.read_text(errors='replace')
+
+    def wait(self, timeout: float = 30.0) -> tuple[int, str]:
+        code = self.proc.wait(timeout)
+        self._fh.close()
+        return code, self.output()
+
+    def stop(self, sig: int = signal.SIGINT) -> tuple[int, str]:
+        if self.proc.poll() is None:
+            self.proc.send_signal(sig)
+            try:
+                self.proc.wait(10)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait()
+        self._fh.close()
+        return self.proc.returncode, self.output()
+
+
+@pytest.fixture
+def spawn(ros_env: tuple[int, dict[str, str]], tmp_path: Path) -> Iterator[Callable[..., NodeProcess]]:
+    procs: list[NodeProcess] = []
+
+    def start(exe: str, *args: str) -> NodeProcess:
+        procs.append(NodeProcess(exe, list(args), ros_env[1], tmp_path / f'{exe}_{len(procs)}.log'))
+        return procs[-1]
+
+    yield start
+    for p in procs:
+        p.stop()
+
+
+class Probe:
+    """A test-side node on a private context in the test's domain."""
+
+    def __init__(self, domain: int) -> None:
+        import rclpy
+        from rclpy.executors import SingleThreadedExecutor
+        from rclpy.node import Node
+
+        self.context = rclpy.Context()
+        rclpy.init(context=self.context, domain_id=domain)
+        self.node = Node('probe', context=self.context)
+        self.executor = SingleThreadedExecutor(context=self.context)
+        self.executor.add_node(self.node)
+        self.pubs: dict[str, object] = {}
+
+    def publisher(self, msg_type: object, topic: str, depth: int = 1000) -> object:
+        if topic not in self.pubs:
+            self.pubs[topic] = self.node.create_publisher(msg_type, topic, depth)
+        return self.pubs[topic]
+
+    def spin_until(self, cond: Callable[[], bool], timeout: float = 30.0, what: str = 'condition') -> None:
+        import time
+
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            if cond():
+                return
+            self.executor.spin_once(timeout_sec=0.05)
+        if not cond():
+            raise AssertionError(f'timed out after {timeout:.0f} s waiting for {what}')
+
+    def close(self) -> None:
+        self.executor.shutdown()
+        self.node.destroy_node()
+        self.context.try_shutdown()
+
+
+@pytest.fixture
+def probe(ros_env: tuple[int, dict[str, str]]) -> Iterator[Probe]:
+    p = Probe(ros_env[0])
+    yield p
+    p.close()
