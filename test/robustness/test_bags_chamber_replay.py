@@ -35,6 +35,7 @@ def test_only_the_inputs_are_published_by_default(tmp_path: Path, spawn, probe, 
     node = spawn('chamber_replay', '--ros-args', '-p', f'bag:={bag}', '-p', 'loop:=true', '-p', 'rate:=0.2')
     published = wait_for_publishers(probe, 'chamber_replay', set(topics.CHAMBER_TOPICS))
     assert '/diagnostics' not in published and '/add/_service_event' not in published
+    probe.spin_until(lambda: 'not published' in node.output(), what='the playing log lines')
     code, out = node.stop()
     assert code == 0, out
     assert playing(out) == set(topics.CHAMBER_TOPICS)
@@ -47,6 +48,7 @@ def test_other_topics_by_name_or_star_and_excluded_ones(tmp_path: Path, spawn, p
                  '-p', "topics:=['*']", '-p', f"exclude_topics:=['{topics.TEMPERATURE}']")
     published = wait_for_publishers(probe, 'chamber_replay', {'/diagnostics', topics.JOINT_STATES})
     assert published['/diagnostics'] == ['diagnostic_msgs/msg/DiagnosticArray']
+    probe.spin_until(lambda: 'not published' in node.output(), what='the playing log lines')
     code, out = node.stop()
     assert code == 0, out
     # acme_msgs and the service event type are not installed; /rosout was asked for with '*'

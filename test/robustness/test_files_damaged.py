@@ -58,7 +58,7 @@ def log_file(tmp_path_factory: pytest.TempPathFactory) -> tuple[bytes, list[tupl
     return path.read_bytes(), chunks_of(path)
 
 
-@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(data=st.data())
 def test_random_corruption_never_raises_and_keeps_every_intact_chunk(
     tmp_path: Path, log_file: tuple[bytes, list[tuple[int, int, int]]], data: st.DataObject
