@@ -214,4 +214,5 @@ def render_parameter_file(model: Mapping[str, Any] | None = None, axes_overrides
         body['axis'] = {a: {k: _yaml_value(v) for k, v in vals.items()} for a, vals in axes_overrides.items()}
     doc = {WILDCARD: {'ros__parameters': body}}
     lines = ''.join(f'# {line}\n' if line else '#\n' for line in header.splitlines())
-    return lines + yaml.safe_dump(doc, sort_keys=False, default_flow_style=False)
+    text: str = yaml.safe_dump(doc, sort_keys=False, default_flow_style=False)
+    return lines + text

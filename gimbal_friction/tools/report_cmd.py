@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 from gimbal_friction.config import axis_params, load_parameters
 from gimbal_friction.core.errors import GimbalFrictionError
@@ -104,9 +104,10 @@ def _fig13(args: argparse.Namespace, axis: str, params: Any) -> tuple[list[dict[
         compared = axis_params(load_parameters([*args.config, args.compare]), axis)
         models[f'with {args.compare.name}'] = compared
         for r in summary:  # the compared model at each plateau, signed like the measurement, at the model speed
-            m = float(friction_torque(compared, float(r['temperature_c'])).m_total_nmm)
-            k = compared.scale_positive if r['sign'] > 0 else compared.scale_negative
-            r['compare_nmm'] = float(r['sign']) * k * m
+            sign = float(cast('float', r['sign']))
+            m = float(friction_torque(compared, float(cast('float', r['temperature_c']))).m_total_nmm)
+            k = compared.scale_positive if sign > 0 else compared.scale_negative
+            r['compare_nmm'] = sign * k * m
     path = plot_model_vs_measured(summary, models, args.out / 'fig13_model_vs_measured.png',
                                   title=f'{axis}: model vs measured by direction (paper Fig. 13)')
     return summary, path
