@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import inspect
 import json
 import time
 from pathlib import Path
@@ -84,6 +85,8 @@ def run(args: argparse.Namespace) -> int:
         progress(int(frac * 1000), 1000, f'{stage:<22}')
 
     extra = {'joint_map': joint_map} if joint_map else {}  # replay_bag(..., joint_map={recorded: configured})
+    if joint_map and 'joint_map' not in inspect.signature(replay_bag).parameters:  # until replay_bag takes it
+        raise ConfigError('--joint', 'joint mapping is not supported by this build of replay yet', args.joint)
     result = replay_bag(args.bag, out, config_paths=args.config, topic_map=topic_map or None,
                         log_inputs=not args.no_inputs, progress=show, **extra)
     elapsed = time.perf_counter() - t0
