@@ -2,7 +2,15 @@
 
     ros2 launch gimbal_friction gimbal_friction.launch.py [params_file:=/path/extra.yaml] [log_dir:=/tmp/res]
 
-Without a ROS install (PyPI wheels only) use the plain supervisor instead: ``python -m gimbal_friction.suite``.
+Without a ROS install (PyPI wheels only: no ``launch``, no ``ros2 run``) start the three executables the same way
+(each on PATH after ``pip install``, or in ``install/gimbal_friction/lib/gimbal_friction/`` after ``colcon build``):
+
+    friction_feedforward --ros-args --params-file config/gimbal_friction.yaml
+    friction_estimator   --ros-args --params-file config/gimbal_friction.yaml
+    residual_logger      --ros-args --params-file config/gimbal_friction.yaml -p output_dir:=residuals
+
+or run ``python -m gimbal_friction.demo``, which starts them as processes, plays a chamber-test bag into them with
+``chamber_replay`` and stops them cleanly.
 """
 
 import os

@@ -25,6 +25,7 @@ SUBCOMMANDS = {
     'refit': 'refit_cmd',
     'export': 'export_cmd',
     'fleet': 'fleet_cmd',
+    'recover': 'recover_cmd',
 }
 
 #: options whose values may start with '-' (negative temperatures): '--temperature -40,0' is rewritten.
