@@ -28,7 +28,13 @@ from numpy.typing import NDArray
 from gimbal_friction.config import all_axis_params, load_parameters
 from gimbal_friction.core.arrays import ChamberArrays
 from gimbal_friction.core.estimator import EstimatorCounters, EstimatorLogic, EstimatorSettings
-from gimbal_friction.core.feedforward import BagTorques, Feedforward, FeedforwardCounters, FeedforwardSettings
+from gimbal_friction.core.feedforward import (
+    SOURCE_MEASURED,
+    BagTorques,
+    Feedforward,
+    FeedforwardCounters,
+    FeedforwardSettings,
+)
 from gimbal_friction.core.inputs import effective_time
 from gimbal_friction.core.measurement import MEASUREMENT_FIELDS, MeasurementArrays, detail_matrix
 from gimbal_friction.core.params import AxisParams
@@ -63,6 +69,7 @@ class ReplayResult(NamedTuple):
     residual_dir: Path | None
     messages_in: int
     messages_out: int
+    findings: list[str]                #: one line per reason the replay matched little or nothing
 
     @property
     def estimate(self) -> MeasurementArrays:
@@ -103,9 +110,14 @@ def _flat_feedforward(ff: BagTorques) -> tuple[NDArray[np.str_], NDArray[np.int6
 
 
 def replay_bag(bag_path: str | Path, out_dir: str | Path | None, *, config_paths: Sequence[Path] = (),
-               topic_map: Mapping[str, str] | None = None, log_inputs: bool = True,
-               progress: Progress | None = None) -> ReplayResult:
+               topic_map: Mapping[str, str] | None = None, joint_map: Mapping[str, str] | None = None,
+               log_inputs: bool = True, progress: Progress | None = None) -> ReplayResult:
     """Run the three nodes' logic over a chamber-test bag; write ``out_dir/residuals/`` (if given).
+
+    ``topic_map`` maps contract topics to the bag's (``{'/joint_states': '/robot/joint_states'}``), ``joint_map``
+    recorded joint names to configured ones (``{'joint_2': 'elevation'}``). ``findings`` of the result says, one
+    line each, why the bag matched little or nothing (an axis not in the bag, no velocity, zero stamps, the
+    estimator's reasons, no temperature plateau).
 
     Raises:
         RecordingError: the bag is missing, not a bag, lacks a contract topic or has a wrong type (named).
@@ -116,7 +128,8 @@ def replay_bag(bag_path: str | Path, out_dir: str | Path | None, *, config_paths
             progress(stage, frac)
 
     axes, ff_settings, est_settings = node_settings(list(config_paths))
-    bag = open_chamber_bag(bag_path, dict(topic_map) if topic_map else None)
+    bag = open_chamber_bag(bag_path, dict(topic_map) if topic_map else None,
+                           joint_map=dict(joint_map) if joint_map else None)
     report('reading bag', 0.0)
     arrays, raw = _read_inputs(bag, log_inputs and out_dir is not None)
     report('reading bag', 1.0)
@@ -145,8 +158,29 @@ def replay_bag(bag_path: str | Path, out_dir: str | Path | None, *, config_paths
                 messages_out = b
                 report('writing residual log', b / total)
         report('writing residual log', 1.0)
+    findings = bag.describe(arrays).findings(list(axes)) + _findings(ff, measured, est_logic, summary)
     return ReplayResult(ff, measured, rows, ff_logic.counters, est_logic.counters, summary, residual_dir,
-                        bag.message_count, messages_out)
+                        bag.message_count, messages_out, findings)
+
+
+def _findings(ff: BagTorques, measured: MeasurementArrays, est: EstimatorLogic,
+              summary: list[dict[str, Any]]) -> list[str]:
+    """What the nodes' logic says about a bag that matched little: the estimator's reasons, the temperature."""
+    out: list[str] = []
+    if len(ff) and not np.any(ff.source == SOURCE_MEASURED):
+        out.append('no joint state had a fresh valid temperature (|stamp difference| <= temperature_timeout_s): '
+                   'the feedforward used its stale policy throughout')
+    for joint in est.order:
+        if est.counters.accepted.get(joint, 0):
+            continue
+        reasons = sorted(est.counters.rejected.get(joint, {}).items(), key=lambda kv: -kv[1])[:4]
+        why = ', '.join(f'{r} {n}x' for r, n in reasons) or 'no current paired with a joint state'
+        out.append(f'no friction sample of {joint!r} was accepted ({why}); the settings of friction_estimator '
+                   f'(method, commanded_speed_rad_s, position window) must match the test')
+    if len(measured) and not summary:
+        out.append('samples were accepted but no temperature plateau qualified for the summary (the bearing '
+                   'temperature never held within 1 degC/min over 30 s while they were taken)')
+    return out
 
 
 class _RawInputs(NamedTuple):

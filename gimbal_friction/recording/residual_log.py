@@ -10,8 +10,8 @@ writer leaves nothing readable in that case.
 Messages go through ``mcap.writer.Writer.add_message``; :meth:`ResidualLogWriter.write_raw_many` appends whole runs
 of messages through :mod:`.mcap_bulk` when the installed mcap allows it (same bytes, faster).
 
-Reading moved to :mod:`.residual_read`; ``read_residual_log``, ``iter_residual_log``, ``residual_log_files`` and
-``recover_mcap`` are still importable from here for callers not yet switched.
+Reading is :mod:`.residual_read` (``read_residual_rows``, ``iter_residual_rows``, ``iter_residual_log``),
+recovery :mod:`.recover`.
 
 Times: ``log_time_ns`` is the log (receive, or for ``replay`` the bag's) time [ns]. Sizes in bytes [B].
 """
@@ -40,16 +40,6 @@ from gimbal_friction.core.units import NS_PER_S
 from gimbal_friction.recording import mcap_bulk
 from gimbal_friction.recording.cdr import default_typestore
 from gimbal_friction.recording.errors import RecordingError
-from gimbal_friction.recording.recover import RecoveryResult, recover_mcap
-from gimbal_friction.recording.residual_read import (
-    RESIDUAL_LOG_TOPICS,
-    LogMessage,
-    ResidualArrays,
-    ResidualLog,
-    iter_residual_log,
-    read_residual_log,
-    residual_log_files,
-)
 from gimbal_friction.recording.topics import MCAP_PROFILE, MESSAGE_ENCODING, SCHEMA_ENCODING
 
 if TYPE_CHECKING:
@@ -63,18 +53,9 @@ __all__ = [
     'DEFAULT_CHUNK_SIZE',
     'MESSAGE_ENCODING',
     'PROFILE',
-    'RESIDUAL_LOG_TOPICS',
     'SCHEMA_ENCODING',
-    'LogMessage',
-    'RecoveryResult',
-    'ResidualArrays',
-    'ResidualLog',
     'ResidualLogStats',
     'ResidualLogWriter',
-    'iter_residual_log',
-    'read_residual_log',
-    'recover_mcap',
-    'residual_log_files',
 ]
 
 PROFILE = MCAP_PROFILE
@@ -403,7 +384,7 @@ class ResidualLogWriter:
         """Finish the open file, then write the folder's ``metadata.yaml``. Idempotent.
 
         After a failed write or flush, the files are only closed (no footer, no metadata.yaml): their completed
-        chunks stay readable with :func:`read_residual_log`.
+        chunks stay readable with :func:`~.residual_read.read_residual_rows`.
 
         Raises:
             RecordingError: finishing the file or writing metadata.yaml failed.

@@ -16,7 +16,6 @@ Times: ``log_time_ns`` is the log time [ns]; row fields carry their units in the
 
 from __future__ import annotations
 
-import math
 import os
 import re
 from dataclasses import dataclass, field
@@ -52,12 +51,9 @@ __all__ = [
     'RESIDUAL_LOG_TOPICS',
     'LogMessage',
     'ReadReport',
-    'ResidualArrays',
-    'ResidualLog',
     'file_write_order',
     'iter_residual_log',
     'iter_residual_rows',
-    'read_residual_log',
     'read_residual_rows',
     'read_temperature_stream',
     'residual_log_files',
@@ -351,13 +347,13 @@ def iter_residual_rows(
         pending.append(rows)
         held += len(rows)
         while held >= chunk_rows:
-            whole = _concatenate(pending)
-            yield _select(whole, np.arange(chunk_rows))
-            rest = _select(whole, np.arange(chunk_rows, held))
+            whole = ResidualRows.concatenate(pending)
+            yield whole.select(np.arange(chunk_rows))
+            rest = whole.select(np.arange(chunk_rows, held))
             pending = [rest] if len(rest) else []
             held = len(rest)
     if held:
-        yield _concatenate(pending)
+        yield ResidualRows.concatenate(pending)
 
 
 def read_residual_rows(
@@ -373,7 +369,7 @@ def read_residual_rows(
     """
     report = ReadReport()
     parts = list(iter_residual_rows(paths, chunk_rows=1 << 62, report=report))
-    return _concatenate(parts), report
+    return ResidualRows.concatenate(parts), report
 
 
 # ----------------------------------------------------------------------------------------------------------------
@@ -446,78 +442,3 @@ def iter_residual_log(
 # layout 1 arrays (deprecated: for callers not yet switched to read_residual_rows)
 
 
-class ResidualArrays(NamedTuple):
-    """Deprecated: the ``residual_detail`` rows under the names of layout 1, sorted by log time.
-
-    Use :func:`read_residual_rows` (:class:`~gimbal_friction.core.residual_row.ResidualRows`). A layout-1 row fills
-    every field; a layout-2 row fills the fields of the same name and leaves the model components NaN.
-    """
-
-    log_time_ns: NDArray[np.int64]
-    joint: NDArray[np.str_]
-    stamp_s: NDArray[np.float64]
-    temperature_c: NDArray[np.float64]
-    position_rad: NDArray[np.float64]
-    velocity_rad_s: NDArray[np.float64]
-    current_a: NDArray[np.float64]
-    measured_nm: NDArray[np.float64]
-    predicted_nm: NDArray[np.float64]
-    m_rolling_nm: NDArray[np.float64]
-    m_sliding_nm: NDArray[np.float64]
-    m_viscous_nm: NDArray[np.float64]
-    residual_nm: NDArray[np.float64]
-
-    def __len__(self) -> int:
-        """Number of rows [-] (not the number of fields)."""
-        return int(self.log_time_ns.shape[0])
-
-
-class ResidualLog(NamedTuple):
-    """Deprecated: what :func:`read_residual_log` found."""
-
-    detail: ResidualArrays
-    files: tuple[Path, ...]
-    truncated_files: tuple[Path, ...]
-    topic_counts: dict[str, int]
-
-
-def read_residual_log(folders: str | os.PathLike[str] | Iterable[str | os.PathLike[str]]) -> ResidualLog:
-    """Deprecated (use :func:`read_residual_rows`): the rows as layout-1 arrays, sorted by log time.
-
-    A row of another width than the two layouts is padded with NaN or cut to layout 1, as before.
-    """
-    report = ReadReport()
-    decoder = _Decoder()
-    n_fields = len(RESIDUAL_FIELDS_V1)
-    v2 = {name: i for i, name in enumerate(
-        ('stamp_s', 'temperature_c', 'position_rad', 'velocity_rad_s', 'current_a', 'measured_nm', 'predicted_nm',
-         'residual_nm'))}
-    tables: list[NDArray[np.float64]] = []
-    logs: list[NDArray[np.int64]] = []
-    joints: list[NDArray[np.str_]] = []
-    for scan, topics, block in _scan_folders(folders, report):
-        pieces = _detail_pieces(scan, topics, block, decoder, report)
-        if not pieces:
-            continue
-        parts = []
-        for piece in pieces:
-            m, k = piece.values.shape
-            table = np.full((m, n_fields), math.nan)
-            if k == _WIDTHS[0]:
-                for j, name in enumerate(RESIDUAL_FIELDS_V1):
-                    if name in v2:
-                        table[:, j] = piece.values[:, v2[name]]
-            else:
-                table[:, : min(k, n_fields)] = piece.values[:, :n_fields]
-            parts.append(table)
-        order = np.argsort(np.concatenate([p.position for p in pieces]), kind='stable')  # file order
-        tables.append(np.vstack(parts)[order])
-        logs.append(np.concatenate([p.log_time_ns for p in pieces])[order])
-        joints.append(np.concatenate([np.full(p.values.shape[0], p.label) for p in pieces])[order])
-    log_time = np.concatenate(logs) if logs else np.zeros(0, dtype=np.int64)
-    order = np.argsort(log_time, kind='stable')
-    table = np.vstack(tables)[order] if tables else np.empty((0, n_fields))
-    columns = {name: np.ascontiguousarray(table[:, i]) for i, name in enumerate(RESIDUAL_FIELDS_V1)}
-    joint = np.concatenate(joints)[order] if joints else np.empty(0, dtype=np.str_)
-    detail = ResidualArrays(log_time_ns=log_time[order], joint=joint, **columns)
-    return ResidualLog(detail, tuple(report.files), tuple(report.truncated_files), dict(report.topic_counts))

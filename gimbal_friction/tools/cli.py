@@ -14,6 +14,7 @@ from collections.abc import Sequence
 from typing import NoReturn
 
 from gimbal_friction.core.errors import GimbalFrictionError
+from gimbal_friction.tools._common import os_error_text
 
 #: subcommand -> module under gimbal_friction.tools
 SUBCOMMANDS = {
@@ -74,6 +75,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         return int(args.func(args))
     except GimbalFrictionError as err:
         print(f'gimbal-friction {args.command}: error: {err}', file=sys.stderr)
+        return 1
+    except OSError as err:  # a full or read-only disk, a vanished file: one line, never a traceback
+        print(f'gimbal-friction {args.command}: error: {os_error_text(err)}', file=sys.stderr)
         return 1
     except KeyboardInterrupt:
         print(f'gimbal-friction {args.command}: interrupted', file=sys.stderr)

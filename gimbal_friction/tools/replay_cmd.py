@@ -3,15 +3,15 @@
 from __future__ import annotations
 
 import argparse
-import inspect
 import json
+import sys
 import time
 from pathlib import Path
 from typing import Any
 
 from gimbal_friction.core.errors import ConfigError
 from gimbal_friction.recording.topics import CHAMBER_TOPICS
-from gimbal_friction.tools._common import add_common, print_json, progress
+from gimbal_friction.tools._common import add_common, print_json, progress, write_text_atomic
 
 SUMMARY_FIELDS = ('temperature_c', 'direction', 'measured_mean_nmm', 'predicted_nmm', 'residual_nmm', 'samples')
 
@@ -84,14 +84,13 @@ def run(args: argparse.Namespace) -> int:
         stages.setdefault(stage, len(stages))
         progress(int(frac * 1000), 1000, f'{stage:<22}')
 
-    extra = {'joint_map': joint_map} if joint_map else {}  # replay_bag(..., joint_map={recorded: configured})
-    if joint_map and 'joint_map' not in inspect.signature(replay_bag).parameters:  # until replay_bag takes it
-        raise ConfigError('--joint', 'joint mapping is not supported by this build of replay yet', args.joint)
     result = replay_bag(args.bag, out, config_paths=args.config, topic_map=topic_map or None,
-                        log_inputs=not args.no_inputs, progress=show, **extra)
+                        joint_map=joint_map or None, log_inputs=not args.no_inputs, progress=show)
     elapsed = time.perf_counter() - t0
     summary = [{k: r[k] for k in ('joint', *SUMMARY_FIELDS, 'sign', 'measured_std_nmm')} for r in result.summary]
-    (out / 'summary.json').write_text(json.dumps(summary, indent=1) + '\n', encoding='utf-8')
+    write_text_atomic(out / 'summary.json', json.dumps(summary, indent=1) + '\n')
+    for line in result.findings:  # why a bag matched little or nothing, one line each
+        print(f'note: {line}', file=sys.stderr)
     est = result.measurements
     info = {
         'bag': str(args.bag), 'residuals': str(result.residual_dir), 'summary': str(out / 'summary.json'),
@@ -99,6 +98,7 @@ def run(args: argparse.Namespace) -> int:
         'feedforward_outputs': len(result.feedforward), 'accepted_samples': len(est),
         'rejected': result.estimator_counters.as_dict().get('rejected', {}), 'seconds': round(elapsed, 3),
         'messages_per_s': round(result.messages_in / elapsed, 1) if elapsed > 0 else None,
+        'notes': result.findings,
     }
     if args.format == 'json':
         print_json({**info, 'plateaus': summary})

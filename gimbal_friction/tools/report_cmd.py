@@ -88,7 +88,7 @@ def summary_table(summary: list[dict[str, Any]]) -> str:
 
 
 def _fig13(args: argparse.Namespace, axis: str, params: Any) -> tuple[list[dict[str, Any]], Path]:
-    from gimbal_friction.config import axis_params, load_parameters
+    from gimbal_friction.config import load_parameters
     from gimbal_friction.core.direction import SCALAR, direction_factor
     from gimbal_friction.core.residuals import plateau_summary, steady_temperature
     from gimbal_friction.plots import plot_model_vs_measured

@@ -18,17 +18,12 @@ import yaml
 from gimbal_friction.core.direction import direction_factor
 from gimbal_friction.core.errors import ConfigError, GimbalFrictionError
 from gimbal_friction.core.export import (
-    CSV_FIELDS,
     PALMGREN_JUMP,
     PALMGREN_SWITCH_CST_RPM,
-    ROS_NODE,
     ExportOptions,
     Provenance,
     build_table,
     c_identifier,
-    render_c_header,
-    render_csv,
-    render_ros_yaml,
 )
 from gimbal_friction.core.feedforward import Feedforward, FeedforwardSettings
 from gimbal_friction.core.friction import viscous_torque_Palmgren_1959
@@ -38,6 +33,7 @@ from gimbal_friction.core.table import FrictionTable
 from gimbal_friction.core.thermal import loose_fit_temperature
 from gimbal_friction.core.units import rad_s_from_rpm, rpm_from_rad_s
 from gimbal_friction.core.xp import SCALAR
+from gimbal_friction.export_formats import CSV_FIELDS, ROS_NODE, render_c_header, render_csv, render_ros_yaml
 
 BOUND = 1e-4
 PROV = Provenance('gimbal-friction export test', '2025-01-01T00:00:00+00:00',

@@ -31,7 +31,6 @@ from gimbal_friction.recording.recover import recover_mcap
 from gimbal_friction.recording.residual_log import ResidualLogWriter
 from gimbal_friction.recording.residual_read import (
     iter_residual_log,
-    read_residual_log,
     read_residual_rows,
     residual_log_files,
 )
@@ -108,10 +107,6 @@ def test_layout_1_rows_are_read_and_the_old_arrays_still_work(tmp_path: Path) ->
     np.testing.assert_array_equal(rows.predicted_nm[:20], 6 + 100.0 * i)
     assert np.isnan(rows.torque_constant_nm_per_a[:20]).all() and (rows.method[:20] == 0).all()
     check_rows(ResidualRows(*(np.asarray(c)[20:] for c in tuple.__iter__(rows))), np.arange(20, 24))
-    old = read_residual_log(folder).detail  # deprecated arrays: layout-1 names, sorted by log time
-    np.testing.assert_array_equal(old.m_viscous_nm[:20], 9 + 100.0 * i)
-    np.testing.assert_array_equal(old.residual_nm[20:], 7 + 100.0 * np.arange(20, 24))  # by name from layout 2
-    assert np.isnan(old.m_viscous_nm[20:]).all()
 
 
 def test_round_trip(tmp_path: Path) -> None:
