@@ -1,7 +1,8 @@
 """``residual_logger`` (the real node, real DDS) killed with SIGKILL at random moments: what it received more than one
 flush interval before the kill is on disk, and ``gimbal-friction recover`` makes the killed folder a complete log.
 
-The test depends only on the node's contract: its input topics (joint states, feedforward, measured friction) and
+The test depends only on the node's contract: its input topics (joint states, feedforward, measured friction and
+its detail) and
 its parameters ``output_dir`` and ``flush_period_s``. The loss bound is checked against the wall clock with a margin
 for a shared machine (MARGIN_S): what was published at least FLUSH_S + MARGIN_S before the kill must be recovered.
 """
@@ -35,6 +36,21 @@ def joint_state(i: int, effort: float) -> object:
     return msg
 
 
+def measured_detail(i: int, friction: float) -> object:
+    """The estimator's measured_detail of sample ``i`` (MEASUREMENT_FIELDS)."""
+    from std_msgs.msg import Float64MultiArray, MultiArrayDimension
+
+    from gimbal_friction.core.measurement import MEASUREMENT_FIELDS
+
+    values = {'stamp_sec': 1000 + i // 1000, 'stamp_nanosec': (i % 1000) * 1_000_000, 'position_rad': 0.01,
+              'velocity_rad_s': 0.05, 'current_a': friction / 0.05, 'temperature_c': 20.0, 'temperature_fresh': 1.0,
+              'friction_nm': friction, 'torque_constant_nm_per_a': 0.05}
+    n = len(MEASUREMENT_FIELDS)
+    msg = Float64MultiArray(data=[float(values.get(f, 0.0)) for f in MEASUREMENT_FIELDS])
+    msg.layout.dim = [MultiArrayDimension(label='elevation', size=n, stride=n)]
+    return msg
+
+
 def sample_index(stamp_ns: int) -> int:
     return int(round((stamp_ns - 1000 * 1_000_000_000) / 1_000_000))
 
@@ -42,12 +58,14 @@ def sample_index(stamp_ns: int) -> int:
 @pytest.mark.parametrize('seed', [1, 2])
 def test_sigkill_loses_at_most_one_flush_interval(tmp_path: Path, spawn, probe, rb, seed: int) -> None:
     from sensor_msgs.msg import JointState
+    from std_msgs.msg import Float64MultiArray
 
     rng = np.random.default_rng(seed)
     kill_after_s = float(rng.uniform(2.0, 3.5))  # a random moment, several flush intervals in
     folder = tmp_path / 'log'
     node = spawn('residual_logger', '--ros-args', '-p', f'output_dir:={folder}', '-p', f'flush_period_s:={FLUSH_S}')
     pubs = {t: probe.publisher(JointState, t) for t in (topics.JOINT_STATES, topics.FEEDFORWARD, topics.MEASURED)}
+    pubs[topics.MEASURED_DETAIL] = probe.publisher(Float64MultiArray, topics.MEASURED_DETAIL)
     for topic, pub in pubs.items():
         probe.spin_until(lambda pub=pub: pub.get_subscription_count() >= 1, what=f'the logger on {topic}')
     sent_at: list[float] = []  # wall time of each sample's publication [s]
@@ -58,6 +76,7 @@ def test_sigkill_loses_at_most_one_flush_interval(tmp_path: Path, spawn, probe, 
             pubs[topics.JOINT_STATES].publish(joint_state(i, 0.0))
             pubs[topics.FEEDFORWARD].publish(joint_state(i, 3e-3))
             pubs[topics.MEASURED].publish(joint_state(i, 3.1e-3))
+            pubs[topics.MEASURED_DETAIL].publish(measured_detail(i, 3.1e-3))
             sent_at.append(time.monotonic())
             i += 1
         probe.executor.spin_once(timeout_sec=0.001)
