@@ -16,10 +16,11 @@ or run ``python -m gimbal_friction.demo``, which starts them as processes, plays
 import os
 
 from ament_index_python.packages import get_package_share_directory
-from launch import LaunchDescription
 from launch.actions import DeclareLaunchArgument
 from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
+
+from launch import LaunchDescription
 
 EXECUTABLES = ('friction_feedforward', 'friction_estimator', 'residual_logger')
 

@@ -45,7 +45,7 @@ def build_parser() -> OneLineParser:
                            '(Yu & Shang 2017): model, calibration, bag replay and refit.')
     sub = parser.add_subparsers(dest='command', metavar='COMMAND', parser_class=OneLineParser)
     sub.required = True
-    for name, module in SUBCOMMANDS.items():
+    for module in SUBCOMMANDS.values():
         mod = importlib.import_module(f'gimbal_friction.tools.{module}')
         mod.add_parser(sub)
     return parser
