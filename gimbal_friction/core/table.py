@@ -25,7 +25,7 @@ from gimbal_friction.core.errors import ModelDomainError
 from gimbal_friction.core.friction import viscous_torque_Palmgren_1959
 from gimbal_friction.core.model import friction_torque
 from gimbal_friction.core.params import AxisParams
-from gimbal_friction.core.thermal import thermal_expansion_Eq11
+from gimbal_friction.core.thermal import loose_fit_temperature, thermal_expansion_Eq11
 from gimbal_friction.core.units import NM_PER_NMM, NMM_PER_NM, RAD_S_PER_RPM, RPM_PER_RAD_S
 from gimbal_friction.core.viscosity import nu_Walther
 from gimbal_friction.core.xp import ARRAY, SCALAR
@@ -64,7 +64,9 @@ class FrictionTable:
     params : AxisParams
         Model parameters of the axis.
     t_min, t_max : float
-        Temperature range of the table, [°C]. Outside it the temperature is clamped to the edge.
+        Temperature range of the table, [°C]. Outside it the temperature is clamped to the edge. The grid is
+        shifted (by less than a step, down) so that a node sits on the loose-fit temperature, where the contact
+        torques have a kink.
     step : float
         Grid step, [°C].
 
@@ -80,6 +82,11 @@ class FrictionTable:
             raise ModelDomainError('table range must be finite with t_max > t_min')
         if not (math.isfinite(step) and step > 0.0):
             raise ModelDomainError('table step must be > 0 degC')
+        # the contact torques have a kink at the loose-fit temperature (MODEL.md §3): put a grid node on it, so
+        # linear interpolation stays exact to the grid's error there too (the table starts up to a step lower)
+        kink = loose_fit_temperature(params)
+        if t_min < kink < t_max:
+            t_min = kink - step * math.ceil((kink - t_min) / step - 1e-9)
         n = int(round((t_max - t_min) / step)) + 1
         if n > 1_000_000:
             raise ModelDomainError(f'table of {n} points is too large; use a coarser step')

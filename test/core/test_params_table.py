@@ -86,3 +86,16 @@ def test_table_clamps_outside_and_scalar_equals_array():
     np.testing.assert_allclose(arr, one, rtol=1e-13)   # one rule, floats or arrays
     assert table.torque_nm(-40.0, 2 * math.pi / 180) == pytest.approx(1e-3 * table.torque_nmm(-40.0, 1 / 3),
                                                                        rel=1e-12)
+
+
+def test_table_is_exact_to_the_grid_at_the_loose_fit_kink():
+    """A grid node sits on the loose-fit temperature (the contact torques' kink): no interpolation across it."""
+    from gimbal_friction.core.thermal import loose_fit_temperature
+    table = FrictionTable(P0)
+    kink = loose_fit_temperature(P0)
+    assert table.t_min <= -60.0 and table.t_min > -60.0 - table.step
+    assert abs((kink - table.t_min) / table.step - round((kink - table.t_min) / table.step)) < 1e-9
+    t = np.linspace(kink - 0.3, kink + 0.3, 601)
+    exact = friction_torque(P0, t, 1 / 3).m_total_nmm * 1e-3
+    got = table.magnitude_nm(t, np.full(t.size, 2 * math.pi / 180), ARRAY)
+    assert np.max(np.abs(got / exact - 1)) < 1e-6
