@@ -6,17 +6,26 @@
 ``sim:=true`` also starts ``gimbal_sim``, a simulated gimbal axis in closed loop that publishes the suite's input
 topics and adds its feedforward (config/gimbal_sim.yaml; no hardware needed).
 
-Without a ROS install (PyPI wheels only) use the plain supervisor instead: ``python -m gimbal_friction.suite``.
+Without a ROS install (PyPI wheels only: no ``launch``, no ``ros2 run``) start the three executables the same way
+(each on PATH after ``pip install``, or in ``install/gimbal_friction/lib/gimbal_friction/`` after ``colcon build``):
+
+    friction_feedforward --ros-args --params-file config/gimbal_friction.yaml
+    friction_estimator   --ros-args --params-file config/gimbal_friction.yaml
+    residual_logger      --ros-args --params-file config/gimbal_friction.yaml -p output_dir:=residuals
+
+or run ``python -m gimbal_friction.demo``, which starts them as processes, plays a chamber-test bag into them with
+``chamber_replay`` and stops them cleanly.
 """
 
 import os
 
 from ament_index_python.packages import get_package_share_directory
-from launch import LaunchDescription
 from launch.actions import DeclareLaunchArgument
 from launch.conditions import IfCondition
 from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
+
+from launch import LaunchDescription
 
 EXECUTABLES = ('friction_feedforward', 'friction_estimator', 'residual_logger')
 

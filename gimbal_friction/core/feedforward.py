@@ -49,6 +49,7 @@ from gimbal_friction.core.inputs import (
     J_MISMATCH,
     J_NONE,
     J_UNKNOWN,
+    JointIndex,
     effective_time,
     index_joints,
     is_fresh,
@@ -168,17 +169,25 @@ class BagTorques(NamedTuple):
     """The feedforward of every joint-state message of a bag (what the node would have published)."""
 
     msg_index: NDArray[np.int64]      #: joint-state message of each output message
-    names: list[tuple[str, ...]]      #: joints of each output message (configured order)
+    joints: tuple[str, ...]           #: the configured joints (columns of ``present`` and ``commands_nm``)
+    present: NDArray[np.bool_]        #: (messages, joints): the joint is in the output message
     stamp_ns: NDArray[np.int64]       #: header stamp, as received [ns]
     log_time_ns: NDArray[np.int64]    #: arrival (log) time of the joint state [ns]
-    torques_nm: list[NDArray[np.float64]]  #: per output message, torques of its joints [N·m]
-    commands_nm: NDArray[np.float64]  #: (messages, configured joints) in configured order [N·m]
+    commands_nm: NDArray[np.float64]  #: (messages, joints) torques in configured order, 0 where absent [N·m]
     temperature_c: NDArray[np.float64]  #: temperature used per message [°C] (NaN: zero policy)
     source: NDArray[np.int8]          #: SOURCE_* per message
 
     def __len__(self) -> int:
         """Number of output messages [-]."""
         return int(self.msg_index.shape[0])
+
+    def names(self, k: int) -> list[str]:
+        """Joints of output message ``k`` (configured order)."""
+        return [j for j, p in zip(self.joints, self.present[k].tolist(), strict=True) if p]
+
+    def torques(self, k: int) -> list[float]:
+        """Torques of output message ``k`` [N·m], as published (effort of the JointState)."""
+        return self.commands_nm[k][self.present[k]].tolist()
 
 
 class Feedforward:
@@ -211,6 +220,7 @@ class Feedforward:
         self.tables = {name: FrictionTable(p, s.temperature_min_c, s.temperature_max_c, s.table_step_c)
                        for name, p in self.axes.items()}
         self.counters = FeedforwardCounters()
+        self._index_cache: dict[tuple[tuple[str, ...], int], JointIndex] = {}
         self.last_temperature_c = math.nan   #: latest valid temperature [°C] (NaN: none)
         self.last_temperature_time_s = math.nan  #: its time [s]
 
@@ -284,7 +294,12 @@ class Feedforward:
         (stamp, or arrival if the stamp is zero). None (reason counted) when the message is unusable."""
         c = self.counters
         bucket = c.joint_state_rejected
-        idx = index_joints(names, (len(velocities),), self.order)
+        key = (tuple(names), len(velocities))
+        idx = self._index_cache.get(key)
+        if idx is None:  # the same names in every message: index them once
+            idx = index_joints(names, (len(velocities),), self.order)
+            if len(self._index_cache) < 64:
+                self._index_cache[key] = idx
         if idx.mismatch:
             c.add(bucket, J_MISMATCH)
             return None
@@ -367,8 +382,5 @@ class Feedforward:
         out = np.flatnonzero(present.any(axis=1))
         c.add(c.joint_state_rejected, J_NONE, int(n_msg - out.size))
         c.published += int(out.size)
-        order = np.asarray(self.order)
-        names = [tuple(order[row].tolist()) for row in present[out]]
-        torques = [commands[i][present[i]] for i in out.tolist()]
-        return BagTorques(out.astype(np.int64), names, js_stamp[out], js_log[out], torques, commands[out],
+        return BagTorques(out.astype(np.int64), self.order, present[out], js_stamp[out], js_log[out], commands[out],
                           t_used[out], source[out])

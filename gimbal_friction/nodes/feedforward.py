@@ -188,13 +188,15 @@ class FrictionFeedforward(Node):
         return out
 
     def on_joint_state(self, msg: JointState) -> None:
-        now = self._now_s()
         if self.settings.max_rate_hz > 0.0:
+            now = self._now_s()
             if now - self._last_publish < 1.0 / self.settings.max_rate_hz:
                 self._rate_limited += 1
                 return
             self._last_publish = now
-        time_s = effective_time(stamp_to_s(msg.header.stamp), now)
+        stamp_s = stamp_to_s(msg.header.stamp)
+        # the receive time is needed only for an unstamped message (reading the clock costs a few µs)
+        time_s = effective_time(stamp_s, self._now_s() if stamp_s == 0.0 else 0.0)
         names = list(msg.name)
         out = self.ff.message(names, self._velocities(msg, time_s), time_s)
         self._last_time_s = time_s

@@ -11,8 +11,14 @@ from hypothesis import strategies as st
 
 from gimbal_friction.core.arrays import chamber_arrays
 from gimbal_friction.core.errors import ConfigError, ModelDomainError
-from gimbal_friction.core.feedforward import SOURCE_FALLBACK, SOURCE_HOLD_LAST, SOURCE_MEASURED, SOURCE_ZERO, \
-    Feedforward, FeedforwardSettings
+from gimbal_friction.core.feedforward import (
+    SOURCE_FALLBACK,
+    SOURCE_HOLD_LAST,
+    SOURCE_MEASURED,
+    SOURCE_ZERO,
+    Feedforward,
+    FeedforwardSettings,
+)
 from gimbal_friction.core.model import friction_torque
 from gimbal_friction.core.params import AxisParams
 
