@@ -34,7 +34,6 @@ def test_a_short_live_study_agrees_with_offline_and_reports_the_latency(tmp_path
     assert (out / 'live' / 'run_feedforward.npz').exists()
     assert 'live vs offline' in (out / 'loop_study.txt').read_text()
     # the live estimator (observer) and residual logger: rows paired with the live feedforward of their stamp
-    from gimbal_friction.tools.refit_cmd import iter_rows
-    rows = list(iter_rows([out / "live" / "residuals"]))
-    assert sum(len(r) for r in rows) > 200
-    assert all(set(r.method.tolist()) == {1} and np.isfinite(r.predicted_nm).all() for r in rows)
+    from gimbal_friction.recording.residual_read import read_residual_rows
+    rows, _ = read_residual_rows(out / 'live' / 'residuals')
+    assert len(rows) > 200 and set(rows.method.tolist()) == {1} and np.isfinite(rows.predicted_nm).all()
