@@ -35,12 +35,12 @@ import numpy as np
 from gimbal_friction.config import _read_yaml, axis_names, axis_params, load_parameters
 from gimbal_friction.core.errors import ConfigError
 from gimbal_friction.core.estimator import EstimatorSettings
-from gimbal_friction.core.feedforward import FeedforwardSettings
+from gimbal_friction.core.feedforward import FeedforwardSettings, check_velocity_source
 from gimbal_friction.core.measurement import MeasurementArrays, detail_matrix
 from gimbal_friction.core.params import AxisParams
 from gimbal_friction.core.residual_row import ResidualRows
 from gimbal_friction.core.settings import settings_from_parameters
-from gimbal_friction.sim.compensation import CASES, EXTRA_CASES, VELOCITY_SOURCES
+from gimbal_friction.sim.compensation import CASES, EXTRA_CASES
 from gimbal_friction.sim.config import SECTION, SimConfig
 from gimbal_friction.sim.study import (
     DEFAULT_REFIT_FIT,
@@ -62,7 +62,6 @@ RECORD_FIELDS = ('case', 'temperature_c', 'profile', 'rate_error_rms_rad_s', 'ra
                  'duration_s', 'mode')
 #: Velocity sources the study accepts from the parameter files (``auto`` = reference when fresh, else measured; the
 #: simulated reference is always fresh).
-STUDY_VELOCITY_SOURCES = (*VELOCITY_SOURCES, 'auto')
 
 
 class StudyInputs(NamedTuple):
@@ -100,16 +99,15 @@ def load_study_inputs(config_paths: Sequence[str | Path] = (), axis: str | None 
     name = axis if axis is not None else axis_names(params)[0]
     ax = axis_params(params, name)
     ff_settings = settings_from_parameters(FeedforwardSettings, params)
-    source = params.get('velocity_source', 'measured')
-    if source not in STUDY_VELOCITY_SOURCES:
-        raise ConfigError('velocity_source', f'must be one of {", ".join(STUDY_VELOCITY_SOURCES)}', source)
+    source = str(params.get('velocity_source', 'auto'))
+    check_velocity_source(source)
     est = settings_from_parameters(EstimatorSettings, params)
     sim = _sim_config(config_paths)
     if latency_s is not None:
         sim = sim.replace(feedforward_latency_s=latency_s)
     if seed is not None:
         sim = sim.replace(seed=seed)
-    return StudyInputs(sim, name, ax, FeedforwardSetup(ff_settings, 'reference' if source == 'auto' else source),
+    return StudyInputs(sim, name, ax, FeedforwardSetup(ff_settings, source),
                        est)
 
 

@@ -9,7 +9,7 @@ import pytest
 from gimbal_friction.config import render_parameter_file
 from gimbal_friction.controller import load_feedforward
 from gimbal_friction.core.errors import ConfigError
-from gimbal_friction.core.feedforward import Feedforward
+from gimbal_friction.core.feedforward import Feedforward, FeedforwardSettings
 from gimbal_friction.core.model import friction_torque
 from gimbal_friction.core.params import AxisParams
 
@@ -21,7 +21,7 @@ def test_defaults_follow_the_model_and_the_node_rules():
     assert isinstance(ff, Feedforward) and ff.order == ('elevation',)
     assert ff.update_temperature(-40.0, 10.0) is None
     assert ff.torque_nm('elevation', V, 10.0) == pytest.approx(float(friction_torque(AxisParams(), -40.0).m_total_nmm)
-                                                              * 1e-3 * math.tanh(V / 0.005), rel=2e-5)
+                                                              * 1e-3 * math.tanh(V / FeedforwardSettings().velocity_threshold_rad_s), rel=2e-5)
     # the node's stale policy (fallback 20 degC after the 5 s timeout), on the caller's clock
     stale = ff.torque_nm('elevation', V, 16.0)
     assert stale == pytest.approx(float(friction_torque(AxisParams(), 20.0).m_total_nmm) * 1e-3, rel=2e-5)

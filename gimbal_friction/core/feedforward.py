@@ -66,6 +66,9 @@ STALE_POLICIES = ('hold_last', 'fallback_temperature', 'zero')
 #: where the temperature of an output came from (codes of :func:`temperature_used`)
 SOURCE_MEASURED, SOURCE_HOLD_LAST, SOURCE_FALLBACK, SOURCE_ZERO = 0, 1, 2, 3
 SOURCE_NAMES = ('measured', 'hold_last', 'fallback_temperature', 'zero')
+#: Velocities the torque may use (the node's ``velocity_source``): the joint state's, the reference's, or the
+#: reference while it is fresh and the joint state's otherwise.
+VELOCITY_SOURCES = ('measured', 'reference', 'auto')
 NON_FINITE_VELOCITY = 'non-finite velocity'
 
 
@@ -73,8 +76,9 @@ NON_FINITE_VELOCITY = 'non-finite velocity'
 class FeedforwardSettings:
     """Settings of the feedforward (ROS parameters of ``friction_feedforward``; units in the names)."""
 
-    velocity_threshold_rad_s: float = setting(0.005, 'rad/s', 'v_th of the smooth sign tanh(v/v_th); the '
-                                              "paper's test speed 1/3 rpm is 0.0349 rad/s")
+    velocity_threshold_rad_s: float = setting(0.002, 'rad/s', 'v_th of the smooth sign tanh(v/v_th); keep it '
+                                              'above ~5x the velocity noise; the paper\'s test speed 1/3 rpm is '
+                                              '0.0349 rad/s')
     max_torque_nm: float = setting(0.02, 'N*m', "output clamp on the torque magnitude (the paper's largest friction is "
                                    '3.2e-3 N*m)')
     temperature_timeout_s: float = setting(5.0, 's', 'a temperature whose stamp differs from the joint-state stamp '
@@ -123,6 +127,28 @@ def feedforward_torque_nm(magnitude_nm: Any, velocity_rad_s: Any, k_dir: Any, v_
     """``clamp(tanh(v/v_th) · k_dir · M, ±τ_max)``: the feedforward torque [N·m] from the model magnitude
     ``magnitude_nm`` [N·m] at velocity ``velocity_rad_s`` [rad/s]."""
     return xp.clip(smooth_sign(velocity_rad_s, v_th, xp) * k_dir * magnitude_nm, -max_torque_nm, max_torque_nm)
+
+
+def velocity_used(source: str, measured_rad_s: Any, reference_rad_s: Any, reference_fresh: Any, xp: Any) -> Any:
+    """The velocity [rad/s] the torque uses under ``velocity_source`` = ``source`` (:data:`VELOCITY_SOURCES`).
+
+    ``measured``: the joint state's velocity (relative to the base); ``reference``: the reference joint velocity
+    while it is fresh, else 0 (no torque); ``auto``: the reference while it is fresh, else the measured one.
+
+    >>> velocity_used('auto', 0.1, 0.2, True, SCALAR), velocity_used('auto', 0.1, 0.2, False, SCALAR)
+    (0.2, 0.1)
+    >>> velocity_used('reference', 0.1, 0.2, False, SCALAR)
+    0.0
+    """
+    if source == 'measured':
+        return measured_rad_s
+    return xp.where(reference_fresh, reference_rad_s, measured_rad_s if source == 'auto' else 0.0)
+
+
+def check_velocity_source(source: str) -> None:
+    """Raise :class:`ConfigError` unless ``source`` is one of :data:`VELOCITY_SOURCES`."""
+    if source not in VELOCITY_SOURCES:
+        raise ConfigError('velocity_source', f'must be one of {", ".join(VELOCITY_SOURCES)}', source)
 
 
 def temperature_used(last_c: Any, fresh: Any, settings: FeedforwardSettings, xp: Any) -> tuple[Any, Any]:

@@ -38,6 +38,8 @@ from gimbal_friction.core.feedforward import (
     SOURCE_ZERO,
     Feedforward,
     FeedforwardSettings,
+    check_velocity_source,
+    velocity_used,
 )
 from gimbal_friction.core.inputs import effective_time, is_fresh
 from gimbal_friction.core.settings import setting, settings_from
@@ -60,7 +62,6 @@ from gimbal_friction.nodes._common import (
 )
 from gimbal_friction.recording import topics
 
-VELOCITY_SOURCES = ('measured', 'reference')
 REFERENCE_VELOCITY = '/gimbal/reference_velocity'
 #: subscription depth of the joint states: a burst of this many messages is buffered, not dropped
 JOINT_STATE_DEPTH = 1000
@@ -70,17 +71,16 @@ JOINT_STATE_DEPTH = 1000
 class NodeSettings:
     """Node-level parameters of friction_feedforward (besides FeedforwardSettings and the model)."""
 
-    velocity_source: str = setting('measured', '-', 'velocity used for the torque: measured (joint_states '
-                                   'velocity, relative to the base) or reference (reference_velocity topic)')
+    velocity_source: str = setting('auto', '-', 'velocity used for the torque: measured (joint_states velocity, '
+                                   'relative to the base), reference (reference_velocity topic; 0 N*m when it is '
+                                   'stale) or auto (reference while fresh, else measured)')
     reference_timeout_s: float = setting(0.5, 's', 'a reference velocity whose stamp differs from the joint '
                                          'state\'s by more than this is not used (0 N*m)')
     max_rate_hz: float = setting(0.0, 'Hz', 'publish at most this often; 0 = for every joint-state message')
     diagnostics_period_s: float = setting(1.0, 's', 'period of /diagnostics')
 
     def validate(self) -> None:
-        if self.velocity_source not in VELOCITY_SOURCES:
-            raise ConfigError('velocity_source', f'must be one of {", ".join(VELOCITY_SOURCES)}',
-                              self.velocity_source)
+        check_velocity_source(self.velocity_source)
         if not 0.0 < self.reference_timeout_s <= 3600.0:
             raise ConfigError('reference_timeout_s', 'must lie in (0, 3600] [s]', self.reference_timeout_s)
         if not 0.0 <= self.max_rate_hz <= 1e6:
@@ -178,13 +178,16 @@ class FrictionFeedforward(Node):
                 self._reference[name] = (float(v), time_s)
 
     def _velocities(self, msg: JointState, time_s: float) -> list[float]:
-        if self.settings.velocity_source == 'measured':
-            return list(msg.velocity)
+        source = self.settings.velocity_source
+        measured = list(msg.velocity)
+        if source == 'measured' or (source == 'auto' and len(measured) != len(msg.name)):
+            return measured   # (a length mismatch is refused by Feedforward.message)
         timeout = self.settings.reference_timeout_s
         out = []
-        for name in msg.name:
+        for i, name in enumerate(msg.name):
             v, t = self._reference.get(name, (math.nan, math.nan))
-            out.append(v if is_fresh(time_s, t, timeout, SCALAR) else 0.0)
+            m = measured[i] if i < len(measured) else math.nan
+            out.append(velocity_used(source, m, v, is_fresh(time_s, t, timeout, SCALAR), SCALAR))
         return out
 
     def on_joint_state(self, msg: JointState) -> None:

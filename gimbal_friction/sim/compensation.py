@@ -37,7 +37,14 @@ from typing import Any, NamedTuple
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from gimbal_friction.core.feedforward import Feedforward, FeedforwardSettings, temperature_used
+from gimbal_friction.core.feedforward import (
+    VELOCITY_SOURCES,
+    Feedforward,
+    FeedforwardSettings,
+    check_velocity_source,
+    temperature_used,
+    velocity_used,
+)
 from gimbal_friction.core.inputs import is_fresh, temperature_valid
 from gimbal_friction.core.params import AxisParams
 from gimbal_friction.core.xp import ARRAY
@@ -57,8 +64,6 @@ CASE_IDEAL = 'ideal'
 CONSTANT_TUNING_C = 20.0
 #: Joint name of the simulated axis (the suite's default axis).
 JOINT = 'elevation'
-#: Velocity sources of the feedforward (the node's ``velocity_source``).
-VELOCITY_SOURCES = ('measured', 'reference')
 
 
 class ControllerInputs(NamedTuple):
@@ -85,13 +90,8 @@ class Compensator(NamedTuple):
 
 
 def _velocity(inputs: ControllerInputs, source: str) -> Array:
-    return inputs.joint_velocity_rad_s if source == 'measured' else inputs.reference_velocity_rad_s
-
-
-def _check_source(velocity_source: str) -> None:
-    if velocity_source not in VELOCITY_SOURCES:
-        msg = f'velocity_source must be one of {", ".join(VELOCITY_SOURCES)}, not {velocity_source!r}'
-        raise ValueError(msg)
+    # the simulated reference is computed at the tick it is used: always fresh ('auto' = 'reference')
+    return velocity_used(source, inputs.joint_velocity_rad_s, inputs.reference_velocity_rad_s, True, ARRAY)
 
 
 class _TermsCache:
@@ -132,7 +132,7 @@ def constant_coulomb(axis: AxisParams, settings: FeedforwardSettings | None = No
     >>> round(float(x[0]) * 1e3, 3)   # N*mm: the +20 degC level whatever the temperature
     1.046
     """
-    _check_source(velocity_source)
+    check_velocity_source(velocity_source)
     ff = Feedforward({JOINT: axis}, settings if settings is not None else FeedforwardSettings())
     cache = _TermsCache(ff, JOINT)
 
@@ -166,7 +166,7 @@ def suite_feedforward(axis: AxisParams, settings: FeedforwardSettings | None = N
     >>> [round(float(v) * 1e3, 3) for v in x]   # 10 s later the temperature is stale: fallback +20 degC
     [-1.046, -1.046]
     """
-    _check_source(velocity_source)
+    check_velocity_source(velocity_source)
     s = settings if settings is not None else FeedforwardSettings()
     ff = Feedforward({JOINT: axis}, s)
     cache = _TermsCache(ff, JOINT)

@@ -41,7 +41,7 @@ from numpy.typing import NDArray
 
 from gimbal_friction.core.errors import ConfigError, GimbalFrictionError
 from gimbal_friction.core.estimator import EstimatorLogic, EstimatorSettings
-from gimbal_friction.core.feedforward import FeedforwardSettings
+from gimbal_friction.core.feedforward import FeedforwardSettings, check_velocity_source
 from gimbal_friction.core.measurement import METHOD_OBSERVER, METHOD_STEADY_STATE, MeasurementArrays
 from gimbal_friction.core.params import AxisParams
 from gimbal_friction.core.refit import FIT_PARAMETERS, RefitResult, refit_stats
@@ -53,7 +53,6 @@ from gimbal_friction.sim.compensation import (
     CASES,
     EXTRA_CASES,
     JOINT,
-    VELOCITY_SOURCES,
     Compensator,
     constant_coulomb,
     suite_feedforward,
@@ -92,7 +91,7 @@ class FeedforwardSetup(NamedTuple):
     """How the suite's feedforward is configured (the ``friction_feedforward`` parameters the study uses)."""
 
     settings: FeedforwardSettings = FeedforwardSettings()
-    velocity_source: str = 'measured'   #: the node's ``velocity_source``: measured or reference
+    velocity_source: str = 'measured'   #: the node's ``velocity_source`` (VELOCITY_SOURCES)
 
     def compensator(self, params: AxisParams, velocity_source: str | None = None) -> Compensator:
         """The feedforward of ``params`` (case (c) or (d)), on ``velocity_source`` (default the configured one)."""
@@ -263,9 +262,7 @@ def _check(temperatures: Sequence[float], profiles: Sequence[str], cases: Sequen
     for t in temps:
         if not (math.isfinite(t) and -60.0 <= t <= 120.0):
             raise ConfigError('temperatures', 'must lie in [-60, 120] [degC]', t)
-    if feedforward.velocity_source not in VELOCITY_SOURCES:
-        raise ConfigError('velocity_source', f'must be one of {", ".join(VELOCITY_SOURCES)}',
-                          feedforward.velocity_source)
+    check_velocity_source(feedforward.velocity_source)
     feedforward.settings.validate()
     if estimator_method not in ESTIMATOR_METHODS:
         raise ConfigError('estimator_method', f'must be one of {", ".join(ESTIMATOR_METHODS)}', estimator_method)
