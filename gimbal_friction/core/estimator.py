@@ -84,7 +84,7 @@ from gimbal_friction.core.arrays import (
     chamber_arrays,
     single_message_arrays,
 )
-from gimbal_friction.core.errors import ConfigError
+from gimbal_friction.core.errors import ConfigError, check_rules
 from gimbal_friction.core.inputs import effective_time, is_fresh, temperature_valid
 from gimbal_friction.core.kt import friction_from_current_Eq23
 from gimbal_friction.core.measurement import METHOD_OBSERVER, METHOD_STEADY_STATE, Measurement, MeasurementArrays
@@ -209,9 +209,7 @@ class EstimatorSettings:
             ('observer_max_accel_noise_rad_s2', 0.0 < self.observer_max_accel_noise_rad_s2 <= 1e6,
              'must lie in (0, 1e6] [rad/s^2]'),
         ]
-        for name, ok, rule in checks:
-            if not ok:
-                raise ConfigError(name, rule, getattr(self, name))
+        check_rules(self, checks)
 
 
 @dataclass

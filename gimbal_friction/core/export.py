@@ -71,7 +71,7 @@ from typing import NamedTuple
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from gimbal_friction.core.errors import ConfigError, GimbalFrictionError, ModelDomainError
+from gimbal_friction.core.errors import GimbalFrictionError, ModelDomainError, check_rules
 from gimbal_friction.core.feedforward import FeedforwardSettings
 from gimbal_friction.core.friction import PALMGREN_THRESHOLD_CST_RPM
 from gimbal_friction.core.model import FrictionResult, friction_torque, viscosity_cst
@@ -127,12 +127,7 @@ class ExportOptions:
             ('random_points', 100 <= self.random_points <= 1_000_000, 'must lie in [100, 1000000]'),
             ('max_breakpoints', 3 <= self.max_breakpoints <= 100_000, 'must lie in [3, 100000]'),
         ]
-        for name, ok, rule in checks:
-            value = getattr(self, name)
-            if isinstance(value, float) and not math.isfinite(value):
-                raise ConfigError(name, 'must be a finite number', value)
-            if not ok:
-                raise ConfigError(name, rule, value)
+        check_rules(self, checks)
 
 
 class Provenance(NamedTuple):

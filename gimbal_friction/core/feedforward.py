@@ -43,7 +43,7 @@ from numpy.typing import NDArray
 
 from gimbal_friction.core.arrays import ChamberArrays
 from gimbal_friction.core.direction import direction_factor
-from gimbal_friction.core.errors import ConfigError
+from gimbal_friction.core.errors import ConfigError, check_rules
 from gimbal_friction.core.inputs import (
     J_DUPLICATE,
     J_MISMATCH,
@@ -108,12 +108,7 @@ class FeedforwardSettings:
              <= self.temperature_max_c, 'must lie within [temperature_min_c, temperature_max_c] [degC]'),
             ('table_step_c', 0.001 <= self.table_step_c <= 5.0, 'must lie in [0.001, 5] [degC]'),
         ]
-        for name, ok, rule in checks:
-            value = getattr(self, name)
-            if isinstance(value, float) and not math.isfinite(value):
-                raise ConfigError(name, 'must be a finite number', value)
-            if not ok:
-                raise ConfigError(name, rule, value)
+        check_rules(self, checks)
 
 
 # ---------------------------------------------------------------------------------------------------- the rules

@@ -80,7 +80,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
-from gimbal_friction.core.errors import ConfigError
+from gimbal_friction.core.errors import ConfigError, check_rules
 from gimbal_friction.core.settings import setting, settings_from
 
 #: Profiles the simulator knows (see :mod:`gimbal_friction.sim.profiles`).
@@ -309,9 +309,7 @@ class SimConfig:
             for item in items:
                 if isinstance(item, float) and not math.isfinite(item):
                     raise ConfigError(f.name, 'must be finite', value)
-        for name, ok, rule in self._rules():
-            if not ok:
-                raise ConfigError(name, rule, getattr(self, name))
+        check_rules(self, self._rules())
 
     def _rules(self) -> list[tuple[str, bool, str]]:
         s = self
@@ -443,12 +441,7 @@ class RealtimeSettings:
             ('run_seed', self.run_seed >= 0, 'must be an integer >= 0'),
             ('diagnostics_period_s', 0.05 <= self.diagnostics_period_s <= 60.0, 'must lie in [0.05, 60] [s]'),
         ]
-        for name, ok, rule in checks:
-            value = getattr(self, name)
-            if isinstance(value, float) and not math.isfinite(value):
-                raise ConfigError(name, 'must be a finite number', value)
-            if not ok:
-                raise ConfigError(name, rule, value)
+        check_rules(self, checks)
 
     @classmethod
     def from_mapping(cls, values: Mapping[str, Any], *, base: RealtimeSettings | None = None) -> RealtimeSettings:

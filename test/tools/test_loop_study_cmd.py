@@ -41,7 +41,7 @@ def test_json_has_one_record_per_case_temperature_and_profile_with_the_contract_
     assert rms[('ideal', -40.0)] <= rms[('feedforward', -40.0)] < rms[('none', -40.0)]
     assert {g['goal'] for g in doc['goals']} >= {'c_vs_a_cold', 'c_vs_a_all', 'c_vs_b_cold', 'd_near_e_cold',
                                                  'c_reversal'}
-    assert doc['settings']['velocity_source'] == 'measured' and doc['refit']['accepted_by_method']['observer'] > 0
+    assert doc['settings']['velocity_source'] == 'auto' and doc['refit']['accepted_by_method']['observer'] > 0
 
 
 def test_out_holds_the_document_the_table_the_figures_and_the_residual_log(study_out, capsys):
