@@ -40,11 +40,12 @@ from typing import Any
 import numpy as np
 
 from gimbal_friction.config import all_axis_params, load_parameters
-from gimbal_friction.core.export import ExportOptions, Provenance, build_table, c_identifier, render_c_header
+from gimbal_friction.core.export import ExportOptions, Provenance, build_table, c_identifier
 from gimbal_friction.core.feedforward import FeedforwardSettings
 from gimbal_friction.core.model import friction_torque, viscosity_cst
 from gimbal_friction.core.table import FrictionTable
 from gimbal_friction.core.units import rpm_from_rad_s
+from gimbal_friction.export_formats import render_c_header
 
 DRIVER = r'''
 #define _POSIX_C_SOURCE 199309L

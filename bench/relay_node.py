@@ -13,7 +13,7 @@ Run: ``.venv/bin/python bench/relay_node.py [--ros-args ...]``
 from __future__ import annotations
 
 import sys
-from typing import Sequence
+from collections.abc import Sequence
 
 from rclpy.node import Node
 from rclpy.qos import QoSProfile

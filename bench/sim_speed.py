@@ -71,7 +71,7 @@ def main(argv: list[str] | None = None) -> int:
 
     def comps() -> dict[str, Compensator]:
         ff = suite_feedforward(axis)
-        return {'constant': constant_coulomb(axis, prof.nominal_speed_rad_s), 'feedforward': ff, 'refit': ff}
+        return {'constant': constant_coulomb(axis), 'feedforward': ff, 'refit': ff}
 
     one = [Run('feedforward', -40.0)]
     c1, cb = comps(), comps()   # built outside the timing (the table build is a one-off 0.06 s)

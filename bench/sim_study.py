@@ -1,14 +1,22 @@
-"""Run the closed-loop study (default or short) and print its numbers, the goals of issue 9 and the wall time.
+"""Run the closed-loop study (default or short) under several feedforward wirings and print the numbers, the goals
+of issue 9 and the wall time.
 
 Not a test: prints, asserts nothing. The wall time is put beside the simulated seconds of the study (simulated
 run-seconds per wall second), since absolute times drift on a shared machine.
 
+Wirings (the ``friction_feedforward`` settings the study's cases (b), (c) and (d) run with):
+
+- ``defaults``: the packaged defaults (``velocity_source: measured``, ``velocity_threshold_rad_s: 0.005``);
+- ``v_th 0.002``: the measured velocity with a narrower smooth sign;
+- ``reference``: the reference joint velocity (``/gimbal/reference_velocity``), v_th 0.005;
+- ``recommended``: the reference joint velocity and v_th 0.002.
+
 Usage (repository root, project venv)::
 
-    .venv/bin/python bench/sim_study.py                 # default study (3 profiles x 5 cases x 6 plateaus)
-    .venv/bin/python bench/sim_study.py --short         # the short CI profile
-    .venv/bin/python bench/sim_study.py --extra         # also the optional feedforward_reference case
-    .venv/bin/python bench/sim_study.py --json          # one JSON document (records, goals, notes, timing)
+    .venv/bin/python bench/sim_study.py                       # default study, every wiring (about a minute)
+    .venv/bin/python bench/sim_study.py --wiring recommended  # one wiring
+    .venv/bin/python bench/sim_study.py --short               # the short CI profile
+    .venv/bin/python bench/sim_study.py --json                # one JSON document
 """
 
 from __future__ import annotations
@@ -19,7 +27,17 @@ import sys
 import time
 from typing import Any
 
-from gimbal_friction.sim import CASES, DEFAULT_TEMPERATURES, PROFILES, SimConfig, goal_checks, run_study
+from gimbal_friction.core.feedforward import FeedforwardSettings
+from gimbal_friction.loop_study import load_study_inputs, study
+from gimbal_friction.sim import goal_checks
+from gimbal_friction.sim.study import FeedforwardSetup
+
+WIRINGS = {
+    'defaults': None,
+    'v_th 0.002': FeedforwardSetup(FeedforwardSettings(velocity_threshold_rad_s=0.002), 'measured'),
+    'reference': FeedforwardSetup(FeedforwardSettings(), 'reference'),
+    'recommended': FeedforwardSetup(FeedforwardSettings(velocity_threshold_rad_s=0.002), 'reference'),
+}
 
 
 def _progress(stage: str, fraction: float) -> None:
@@ -42,43 +60,45 @@ def _table(records: list[dict[str, Any]], key: str, scale: float, unit: str) -> 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument('--short', action='store_true', help='short CI durations')
-    parser.add_argument('--extra', action='store_true', help='also run the feedforward_reference case')
+    parser.add_argument('--wiring', action='append', choices=list(WIRINGS), help='wiring(s) to run (default all)')
     parser.add_argument('--json', action='store_true', help='print one JSON document')
     args = parser.parse_args(argv)
-    cases = list(CASES) + (['feedforward_reference'] if args.extra else [])
-    t0 = time.perf_counter()
-    res = run_study(SimConfig(), short=args.short, cases=cases, progress=_progress)
-    wall = time.perf_counter() - t0
-    sys.stderr.write('\n')
-    cfg = res.config
-    run_seconds = sum(r['duration_s'] for r in res.records)
-    goals = goal_checks(res.records)
+    base = load_study_inputs()
+    out: dict[str, Any] = {}
+    for name in args.wiring or list(WIRINGS):
+        ff = WIRINGS[name]
+        inputs = base if ff is None else base._replace(feedforward=ff)
+        t0 = time.perf_counter()
+        res = study(inputs, short=args.short, progress=_progress)
+        wall = time.perf_counter() - t0
+        sys.stderr.write('\n')
+        run_seconds = sum(r['duration_s'] for r in res.records)
+        goals = goal_checks(res.records)
+        out[name] = {'records': res.records, 'goals': goals, 'notes': res.notes, 'wall_s': wall,
+                     'stages_s': res.wall_s, 'simulated_run_seconds': run_seconds}
+        if args.json:
+            continue
+        s = inputs.feedforward
+        print(f'=== wiring {name}: velocity_source {s.velocity_source}, v_th {s.settings.velocity_threshold_rad_s:g} '
+              f'rad/s; {"short" if args.short else "default"} study')
+        print(f'wall time {wall:.1f} s for {run_seconds:.0f} simulated run-seconds '
+              f'({run_seconds / wall:.1f} run-s per wall-s); stages: ' +
+              ', '.join(f'{k} {v:.1f} s' for k, v in res.wall_s.items()))
+        for note in res.notes:
+            print('note:', note)
+        print(_table(res.records, 'rate_error_rms_rad_s', 1e3, 'mrad/s'))
+        print(_table(res.records, 'reversal_error_peak_rad', 1e3, 'mrad'))
+        print(_table(res.records, 'position_error_rms_rad', 1e6, 'urad'))
+        print(f'current margin: min {min(r["current_margin"] for r in res.records):.3f}')
+        met = sum(g['met'] for g in goals)
+        print(f'goals: {met} of {len(goals)} met')
+        for g in goals:
+            if not g['met']:
+                print(f'  NOT met {g["goal"]:14s} {g["profile"]:9s} {g["temperature_c"]:+5.0f} degC  value '
+                      f'{g["value"]:+8.3f} target {g["target"]:g}')
+        print()
     if args.json:
-        doc = {'records': res.records, 'goals': goals, 'notes': res.notes, 'wall_s': wall, 'stages_s': res.wall_s,
-               'simulated_run_seconds': run_seconds}
-        print(json.dumps(doc, indent=1))
-        return 0
-    print(f'study: {"short" if args.short else "default"}; profiles {", ".join(PROFILES)}; '
-          f'plateaus {", ".join(f"{t:g}" for t in DEFAULT_TEMPERATURES)} degC; durations '
-          f'{cfg.tracking_duration_s:g}/{cfg.scan_duration_s:g}/{cfg.pointing_duration_s:g} s')
-    print(f'wall time {wall:.1f} s for {run_seconds:.0f} simulated run-seconds '
-          f'({run_seconds / wall:.1f} run-s per wall-s); stages: ' +
-          ', '.join(f'{k} {v:.1f} s' for k, v in res.wall_s.items()))
-    for note in res.notes:
-        print('note:', note)
-    print()
-    print(_table(res.records, 'rate_error_rms_rad_s', 1e3, 'mrad/s'))
-    print()
-    print(_table(res.records, 'position_error_rms_rad', 1e6, 'urad'))
-    print()
-    print(_table(res.records, 'reversal_error_peak_rad', 1e6, 'urad'))
-    print()
-    print(_table(res.records, 'current_margin', 1.0, '-'))
-    print()
-    print('goals (value: reduction for c_vs_*, ratio for d_near_e_cold and c_reversal):')
-    for g in goals:
-        print(f'  {g["goal"]:14s} {g["profile"]:9s} {g["temperature_c"]:+5.0f} degC  value {g["value"]:+8.3f} '
-              f'target {g["target"]:g}  {"met" if g["met"] else "NOT met"}')
+        print(json.dumps(out, indent=1))
     return 0
 
 

@@ -45,6 +45,29 @@ def packaged_defaults_text() -> str:
     return resources.files('gimbal_friction').joinpath('data', DEFAULTS_RESOURCE).read_text(encoding='utf-8')
 
 
+def yaml_error_text(err: yaml.YAMLError) -> str:
+    """A YAML error on one line: what is wrong and where (PyYAML's own message spans several lines).
+
+    >>> try:
+    ...     yaml.safe_load('a: [1, 2' + chr(10) + 'b: 3')
+    ... except yaml.YAMLError as err:
+    ...     print(yaml_error_text(err))
+    line 2, column 2: expected ',' or ']', but got ':' (while parsing a flow sequence that starts at line 1)
+    """
+    problem = getattr(err, 'problem', None)
+    mark = getattr(err, 'problem_mark', None)
+    context = getattr(err, 'context', None)
+    context_mark = getattr(err, 'context_mark', None)
+    if problem is None:
+        return ' '.join(str(err).split())
+    where = f'line {mark.line + 1}, column {mark.column + 1}: ' if mark is not None else ''
+    text = f'{where}{" ".join(str(problem).split())}'
+    if context:
+        at = f' that starts at line {context_mark.line + 1}' if context_mark is not None else ''
+        text += f' ({" ".join(str(context).split())}{at})'
+    return text
+
+
 def _read_yaml(source: str | Path, text: str | None = None) -> dict[str, Any]:
     try:
         if text is None:
@@ -53,8 +76,11 @@ def _read_yaml(source: str | Path, text: str | None = None) -> dict[str, Any]:
     except OSError as err:
         msg = f'cannot read parameter file: {err.strerror}'
         raise ConfigError(str(source), msg) from None
+    except UnicodeDecodeError:
+        msg = 'not a parameter file: not UTF-8 text (a binary file?)'
+        raise ConfigError(str(source), msg) from None
     except yaml.YAMLError as err:
-        msg = f'not valid YAML: {str(err).splitlines()[0]}'
+        msg = f'not valid YAML: {yaml_error_text(err)}'
         raise ConfigError(str(source), msg) from None
     if data is None:
         return {}
@@ -193,7 +219,8 @@ def render_parameter_file(model: Mapping[str, Any] | None = None, axes_overrides
         body['axis'] = {a: {k: _yaml_value(v) for k, v in vals.items()} for a, vals in axes_overrides.items()}
     doc = {WILDCARD: {'ros__parameters': body}}
     lines = ''.join(f'# {line}\n' if line else '#\n' for line in header.splitlines())
-    return lines + str(yaml.safe_dump(doc, sort_keys=False, default_flow_style=False))
+    text: str = yaml.safe_dump(doc, sort_keys=False, default_flow_style=False)
+    return lines + text
 
 
 # ---------------------------------------------------------------------------------------------------- the nodes' view
@@ -350,7 +377,7 @@ def ros_parameter_sections(text: str, source: str) -> list[tuple[str, dict[str, 
     try:
         root = yaml.compose(text, Loader=yaml.SafeLoader)
     except yaml.YAMLError as err:
-        raise ConfigError(source, f'not valid YAML: {str(err).splitlines()[0]}') from None
+        raise ConfigError(source, f'not valid YAML: {yaml_error_text(err)}') from None
     out: list[tuple[str, dict[str, Any]]] = []
 
     def walk(node: Any, namespace: list[str]) -> None:
@@ -435,7 +462,7 @@ def _rule_value(text: str, where: str) -> Any:
     try:
         node = yaml.compose(text, Loader=yaml.SafeLoader)
     except yaml.YAMLError as err:
-        raise ConfigError(where, f'not a valid value: {str(err).splitlines()[0]}') from None
+        raise ConfigError(where, f'not a valid value: {yaml_error_text(err)}') from None
     if node is None:
         raise ConfigError(where, 'has no value')
     if isinstance(node, yaml.MappingNode):

@@ -24,9 +24,10 @@ import signal
 import subprocess
 import sys
 import time
+from collections.abc import Iterator, Sequence
 from importlib import resources
 from pathlib import Path
-from typing import Any, Iterator, Sequence
+from typing import Any
 
 from gimbal_friction.recording import topics
 
@@ -225,7 +226,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     except (RuntimeError, OSError) as err:
         print(f'demo: error: {err}', file=sys.stderr)
         return 1
-    except Exception as err:  # noqa: BLE001 - GimbalFrictionError from the bag reader and tools
+    except Exception as err:
         from gimbal_friction.core.errors import GimbalFrictionError
         if isinstance(err, GimbalFrictionError):
             print(f'demo: error: {err}', file=sys.stderr)

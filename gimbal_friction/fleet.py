@@ -38,7 +38,7 @@ from gimbal_friction.core.model import friction_torque, viscosity_cst
 from gimbal_friction.core.params import AxisParams
 from gimbal_friction.core.refit import RefitResult, refit_stats
 from gimbal_friction.core.sufficient import SufficientStats
-from gimbal_friction.core.units import RPM_PER_RAD_S
+from gimbal_friction.core.units import NS_PER_S, RPM_PER_RAD_S
 from gimbal_friction.recording.topics import RESIDUAL_DETAIL, TEMPERATURE
 
 #: Default parameters of a fleet refit: the lubricant and the contact friction (preload).
@@ -196,7 +196,7 @@ def unit_stats_from_bag(path: str, config_paths: Sequence[str], direction: str) 
             ok &= (v > 0.0) if direction == 'cw' else (v < 0.0)
         sign = np.sign(v[ok])
         out[joint] = SufficientStats.from_arrays(t[ok], np.abs(v[ok]) * RPM_PER_RAD_S, f[ok] * sign, sign,
-                                                 time=est.stamp_ns[sel][ok] * 1e-9)
+                                                 time=est.stamp_ns[sel][ok] / NS_PER_S)
     return out
 
 

@@ -2,15 +2,17 @@
 
 from __future__ import annotations
 
-import dataclasses
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any
 
 import numpy as np
 
+from gimbal_friction.core.direction import direction_factor
 from gimbal_friction.core.errors import GimbalFrictionError
 from gimbal_friction.core.model import FrictionResult, friction_torque
 from gimbal_friction.core.params import AxisParams
+from gimbal_friction.core.xp import ARRAY
 
 #: Paper test means, Sec. 6 / Fig. 13: (temperature [°C], |torque| [N·mm]) per direction.
 PAPER_TEST_CW = ((-40.0, 3.19), (60.0, 1.05))
@@ -59,7 +61,7 @@ def plot_components(result: FrictionResult, path: Path, *, title: str = '', pape
 
 
 def _family(params: AxisParams, t: np.ndarray, field: str, values: Sequence[float]) -> list[FrictionResult]:
-    return [friction_torque(dataclasses.replace(params, **{field: v}), t) for v in values]
+    return [friction_torque(params.replace(**{field: v}), t) for v in values]
 
 
 def _family_plot(path: Path, t: np.ndarray, results: list[FrictionResult], labels: list[str], quantity: str,
@@ -121,15 +123,22 @@ def plot_model_vs_measured(summary: Sequence[dict[str, Any]], models: dict[str, 
     plt = _pyplot()
     fig, ax = plt.subplots(figsize=(7.5, 4.8))
     temps = [float(r['temperature_c']) for r in summary] or [-40.0, 60.0]
-    t = np.linspace(min(min(temps), -40.0), max(max(temps), 60.0), 301)
+    t = np.linspace(min(*temps, -40.0), max(*temps, 60.0), 301)
     for (label, params), style in zip(models.items(), ('-', '--', ':', '-.')):
-        ax.plot(t, friction_torque(params, t).m_total_nmm, style, lw=2, label=f'model: {label}')
+        m = friction_torque(params, t).m_total_nmm
+        cw, ccw = (direction_factor(params, t, np.full(t.shape, d), ARRAY) * m for d in (1.0, -1.0))
+        if np.allclose(cw, ccw):
+            ax.plot(t, cw, style, lw=2, label=f'model: {label}')
+        else:  # a per-direction term: both curves
+            ax.plot(t, cw, style, lw=2, color='tab:blue', label=f'model CW: {label}')
+            ax.plot(t, ccw, style, lw=2, color='k', label=f'model |CCW|: {label}')
     for direction, marker, color in (('cw', 's', 'tab:blue'), ('ccw', '^', 'k')):
         rows = [r for r in summary if r['direction'] == direction]
         if rows:
             ax.errorbar([float(r['temperature_c']) for r in rows], [abs(float(r['measured_mean_nmm'])) for r in rows],
                         yerr=[float(r.get('measured_std_nmm', 0.0)) for r in rows], fmt=marker, color=color,
-                        capsize=3, label=f'measured mean ± std, {direction.upper()}' + (' (|.|)' if direction == 'ccw' else ''))
+                        capsize=3,
+                        label=f'measured mean ± std, {direction.upper()}' + (' (|.|)' if direction == 'ccw' else ''))
     ax.plot(*zip(*PAPER_TEST_CW), 'x', color='tab:red', label='paper test mean, CW')
     ax.set_xlabel('temperature [°C]')
     ax.set_ylabel('friction torque of the axis [N·mm]')

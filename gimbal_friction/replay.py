@@ -28,7 +28,13 @@ from numpy.typing import NDArray
 from gimbal_friction.config import all_axis_params, load_parameters
 from gimbal_friction.core.arrays import ChamberArrays
 from gimbal_friction.core.estimator import EstimatorCounters, EstimatorLogic, EstimatorSettings
-from gimbal_friction.core.feedforward import BagTorques, Feedforward, FeedforwardCounters, FeedforwardSettings
+from gimbal_friction.core.feedforward import (
+    SOURCE_MEASURED,
+    BagTorques,
+    Feedforward,
+    FeedforwardCounters,
+    FeedforwardSettings,
+)
 from gimbal_friction.core.inputs import effective_time
 from gimbal_friction.core.measurement import MEASUREMENT_FIELDS, MeasurementArrays, detail_matrix
 from gimbal_friction.core.params import AxisParams
@@ -63,6 +69,7 @@ class ReplayResult(NamedTuple):
     residual_dir: Path | None
     messages_in: int
     messages_out: int
+    findings: list[str]                #: one line per reason the replay matched little or nothing
 
     @property
     def estimate(self) -> MeasurementArrays:
@@ -96,17 +103,21 @@ def replay_arrays(arrays: ChamberArrays, axes: dict[str, AxisParams], ff_setting
 
 def _flat_feedforward(ff: BagTorques) -> tuple[NDArray[np.str_], NDArray[np.int64], NDArray[np.float64]]:
     """(joint, effective stamp, torque) of every joint of every feedforward message."""
-    counts = np.array([len(n) for n in ff.names], dtype=np.int64)
-    joint = np.array([j for names in ff.names for j in names], dtype=str)
-    stamp = np.repeat(effective_time(ff.stamp_ns, ff.log_time_ns), counts)
-    torque = np.concatenate(ff.torques_nm) if ff.torques_nm else np.empty(0)
-    return joint, stamp, torque
+    rows, cols = np.nonzero(ff.present)
+    joint = np.asarray(ff.joints, dtype=str)[cols] if rows.size else np.empty(0, dtype=str)
+    stamp = effective_time(ff.stamp_ns, ff.log_time_ns)[rows]
+    return joint, stamp, ff.commands_nm[rows, cols]
 
 
 def replay_bag(bag_path: str | Path, out_dir: str | Path | None, *, config_paths: Sequence[Path] = (),
-               topic_map: Mapping[str, str] | None = None, log_inputs: bool = True,
-               progress: Progress | None = None) -> ReplayResult:
+               topic_map: Mapping[str, str] | None = None, joint_map: Mapping[str, str] | None = None,
+               log_inputs: bool = True, progress: Progress | None = None) -> ReplayResult:
     """Run the three nodes' logic over a chamber-test bag; write ``out_dir/residuals/`` (if given).
+
+    ``topic_map`` maps contract topics to the bag's (``{'/joint_states': '/robot/joint_states'}``), ``joint_map``
+    recorded joint names to configured ones (``{'joint_2': 'elevation'}``). ``findings`` of the result says, one
+    line each, why the bag matched little or nothing (an axis not in the bag, no velocity, zero stamps, the
+    estimator's reasons, no temperature plateau).
 
     Raises:
         RecordingError: the bag is missing, not a bag, lacks a contract topic or has a wrong type (named).
@@ -117,7 +128,8 @@ def replay_bag(bag_path: str | Path, out_dir: str | Path | None, *, config_paths
             progress(stage, frac)
 
     axes, ff_settings, est_settings = node_settings(list(config_paths))
-    bag = open_chamber_bag(bag_path, dict(topic_map) if topic_map else None)
+    bag = open_chamber_bag(bag_path, dict(topic_map) if topic_map else None,
+                           joint_map=dict(joint_map) if joint_map else None)
     report('reading bag', 0.0)
     arrays, raw = _read_inputs(bag, log_inputs and out_dir is not None)
     report('reading bag', 1.0)
@@ -146,8 +158,29 @@ def replay_bag(bag_path: str | Path, out_dir: str | Path | None, *, config_paths
                 messages_out = b
                 report('writing residual log', b / total)
         report('writing residual log', 1.0)
+    findings = bag.describe(arrays).findings(list(axes)) + _findings(ff, measured, est_logic, summary)
     return ReplayResult(ff, measured, rows, ff_logic.counters, est_logic.counters, summary, residual_dir,
-                        bag.message_count, messages_out)
+                        bag.message_count, messages_out, findings)
+
+
+def _findings(ff: BagTorques, measured: MeasurementArrays, est: EstimatorLogic,
+              summary: list[dict[str, Any]]) -> list[str]:
+    """What the nodes' logic says about a bag that matched little: the estimator's reasons, the temperature."""
+    out: list[str] = []
+    if len(ff) and not np.any(ff.source == SOURCE_MEASURED):
+        out.append('no joint state had a fresh valid temperature (|stamp difference| <= temperature_timeout_s): '
+                   'the feedforward used its stale policy throughout')
+    for joint in est.order:
+        if est.counters.accepted.get(joint, 0):
+            continue
+        reasons = sorted(est.counters.rejected.get(joint, {}).items(), key=lambda kv: -kv[1])[:4]
+        why = ', '.join(f'{r} {n}x' for r, n in reasons) or 'no current paired with a joint state'
+        out.append(f'no friction sample of {joint!r} was accepted ({why}); the settings of friction_estimator '
+                   f'(method, commanded_speed_rad_s, position window) must match the test')
+    if len(measured) and not summary:
+        out.append('samples were accepted but no temperature plateau qualified for the summary (the bearing '
+                   'temperature never held within 1 degC/min over 30 s while they were taken)')
+    return out
 
 
 class _RawInputs(NamedTuple):
@@ -181,14 +214,15 @@ def _read_inputs(bag: ChamberBag, log_inputs: bool) -> tuple[ChamberArrays, _Raw
                               datas)
 
 
-def _by_layout(keys: list[Any], serialize: Callable[[NDArray[np.int64], Any], list[bytes]]) -> list[bytes]:
+def _by_layout(keys: NDArray[np.int64], serialize: Callable[[NDArray[np.int64], int], list[bytes]]) -> list[bytes]:
     """``serialize(rows, key)`` per distinct key (one CDR layout each), put back in the order of ``keys``."""
-    out: list[bytes] = [b''] * len(keys)
-    groups: dict[Any, list[int]] = {}
-    for i, key in enumerate(keys):
-        groups.setdefault(key, []).append(i)
-    for key, rows in groups.items():
-        for k, data in zip(rows, serialize(np.asarray(rows, dtype=np.int64), key), strict=True):
+    uniq = np.unique(keys)
+    if uniq.size == 1:
+        return serialize(np.arange(keys.shape[0], dtype=np.int64), int(uniq[0]))
+    out: list[bytes] = [b''] * keys.shape[0]
+    for key in uniq.tolist():
+        rows = np.flatnonzero(keys == key)
+        for k, data in zip(rows.tolist(), serialize(rows, key), strict=True):
             out[k] = data
     return out
 
@@ -198,8 +232,10 @@ def _log_stream(ff: BagTorques, measured: MeasurementArrays, measured_log: NDArr
                                                  list[bytes]]:
     """Every message of the residual log in log-time order (ties: feedforward, measurement, its detail, residual,
     its detail, then inputs): topics, topic ids, log times [ns], CDR bytes."""
-    ff_datas = _by_layout(list(ff.names), lambda r, names: split_rows(joint_state_cdr_rows(
-        ff.stamp_ns[r], list(names), effort=np.vstack([ff.torques_nm[i] for i in r.tolist()]))))
+    joints = np.asarray(ff.joints)
+    patterns = ff.present @ (1 << np.arange(len(ff.joints), dtype=np.int64)) if len(ff) else np.empty(0, np.int64)
+    ff_datas = _by_layout(patterns, lambda r, _: split_rows(joint_state_cdr_rows(
+        ff.stamp_ns[r], joints[ff.present[r[0]]].tolist(), effort=ff.commands_nm[r][:, ff.present[r[0]]])))
     n = len(measured)
     joints = measured.joint.tolist()
     stamps = np.asarray(measured.stamp_ns, dtype=np.int64)
@@ -215,12 +251,16 @@ def _log_stream(ff: BagTorques, measured: MeasurementArrays, measured_log: NDArr
         out[3::4] = split_rows(float64_multi_array_cdr_rows(r_detail[r], joint))
         return out
 
-    m_datas: list[bytes] = [b''] * (4 * n)
-    for joint in sorted(set(joints)):
-        sel = np.flatnonzero(measured.joint == joint)
-        datas = measured_rows(sel, joint)
-        for q, k in enumerate(sel.tolist()):
-            m_datas[4 * k: 4 * k + 4] = datas[4 * q: 4 * q + 4]
+    names = sorted(set(joints))
+    if len(names) == 1:
+        m_datas = measured_rows(np.arange(n, dtype=np.int64), names[0])
+    else:
+        m_datas = [b''] * (4 * n)
+        for joint in names:
+            sel = np.flatnonzero(measured.joint == joint)
+            datas = measured_rows(sel, joint)
+            for q, k in enumerate(sel.tolist()):
+                m_datas[4 * k: 4 * k + 4] = datas[4 * q: 4 * q + 4]
     log_topics = list(_GENERATED_TOPICS)
     ids = [np.zeros(len(ff_datas), dtype=np.int64), np.tile(np.arange(1, 5, dtype=np.int64), n)]
     logs = [np.asarray(ff.log_time_ns, dtype=np.int64), np.repeat(measured_log, 4)]

@@ -59,11 +59,11 @@ from gimbal_friction.core.direction import ARRAY, direction_factor
 from gimbal_friction.core.errors import ConfigError
 from gimbal_friction.core.params import AxisParams
 from gimbal_friction.core.table import FrictionTable
+from gimbal_friction.core.units import NM_PER_NMM, NS_PER_S, rad_s_from_rpm, rpm_from_rad_s
 from gimbal_friction.recording import topics
 
 Array = NDArray[np.float64]
 
-RPM_TO_RAD_S = 2.0 * math.pi / 60.0
 
 #: Paper Sec. 6: mean |CCW| / |CW| friction at −40 °C (2.45 / 3.19 N·mm).
 PAPER_COLD_RATIO = 2.45 / 3.19
@@ -241,7 +241,7 @@ class SynthConfig:
     @property
     def speed_rad_s(self) -> float:
         """Sweep speed [rad/s]."""
-        return self.speed_rpm * RPM_TO_RAD_S
+        return rad_s_from_rpm(self.speed_rpm)
 
     def truth_params(self, joint: str | None = None) -> AxisParams:
         """Validated truth model parameters of ``joint`` (default: the first joint).
@@ -299,7 +299,7 @@ class _Segment(NamedTuple):
     b0: float      # bearing temperature at t0 [°C]
 
 
-def _lag_step(b0: float, c0: float, rate: float, dt: Any, tau: float) -> Any:
+def _lag_step(b0: Any, c0: Any, rate: Any, dt: Any, tau: float) -> Any:
     """Exact first-order lag ``tau db/dt = c − b`` over a linear input ``c = c0 + rate t`` after ``dt`` [s]."""
     dt = np.asarray(dt, dtype=float)
     c = c0 + rate * dt
@@ -451,7 +451,7 @@ class SynthData(NamedTuple):
 
     def seconds(self, stamp_ns: NDArray[np.int64]) -> Array:
         """Stamps converted to seconds from the first sample."""
-        return (np.asarray(stamp_ns, dtype=np.int64) - self.config.start_ns).astype(float) * 1e-9
+        return (np.asarray(stamp_ns, dtype=np.int64) - self.config.start_ns).astype(float) / NS_PER_S
 
 
 def _sample_times(rate_hz: float, duration_s: float) -> Array:
@@ -515,7 +515,7 @@ def generate(cfg: SynthConfig | None = None) -> SynthData:
         kt, i0 = cfg.motor_constants(joint)
         pos, vel, acc = sweep(cfg, tc, phases[j])
         pos_c[:, j], vel_c[:, j], acc_c[:, j] = pos, vel, acc
-        m_nm = 1e-3 * table.evaluate(bearing_c, np.abs(vel) / RPM_TO_RAD_S)[2]
+        m_nm = NM_PER_NMM * table.evaluate(bearing_c, rpm_from_rad_s(np.abs(vel)))[2]
         model[:, j] = m_nm
         pos_deg = np.degrees(pos)
         ripple = np.zeros_like(pos)

@@ -7,8 +7,14 @@ from pathlib import Path
 import pytest
 import yaml
 
-from gimbal_friction.config import all_axis_params, axis_names, axis_params, load_parameters, \
-    packaged_defaults_text, render_parameter_file
+from gimbal_friction.config import (
+    all_axis_params,
+    axis_names,
+    axis_params,
+    load_parameters,
+    packaged_defaults_text,
+    render_parameter_file,
+)
 from gimbal_friction.core.errors import ConfigError
 from gimbal_friction.core.params import AxisParams
 

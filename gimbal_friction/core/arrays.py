@@ -48,7 +48,7 @@ class JointStateArrays(NamedTuple):
     effort: dict[str, NDArray[np.float64]]
     """Effort per joint name [N*m], or motor current [A] on ``/gimbal/motor_current``."""
 
-    def __len__(self) -> int:  # type: ignore[override]
+    def __len__(self) -> int:
         """Number of messages [-] (not the number of fields)."""
         return int(self.log_time_ns.shape[0])
 
@@ -117,9 +117,9 @@ def joint_state_arrays(messages: Sequence[tuple[int, int, Sequence[str], Sequenc
             if needed and all(math.isnan(x) for x in needed):
                 not_a_number[name] = not_a_number.get(name, 0) + 1
         for name, col in cols.items():
-            i = first.get(name)
+            k = first.get(name)
             for f, (field_values, need) in enumerate(zip((pos, vel, eff), fields)):
-                col[f].append(float(field_values[i]) if (i is not None and need and i < len(field_values))
+                col[f].append(float(field_values[k]) if (k is not None and need and k < len(field_values))
                               else math.nan)
         logs.append(int(log_ns))
         stamps.append(int(stamp_ns))

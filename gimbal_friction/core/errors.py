@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import math
+from collections.abc import Iterable
+
 
 class GimbalFrictionError(Exception):
     """Root of every error raised on purpose by gimbal_friction."""
@@ -28,3 +31,24 @@ class ModelDomainError(GimbalFrictionError):
 
 class FitError(GimbalFrictionError):
     """A fit could not be made or did not converge (too few points, non-finite data, divergence)."""
+
+
+def check_rules(obj: object, checks: Iterable[tuple[str, bool, str]]) -> None:
+    """Raise :class:`ConfigError` for the first broken rule of ``obj``'s settings.
+
+    ``checks`` holds ``(name, ok, rule)``: the attribute, whether its rule holds and the rule in words (with the
+    unit). A float attribute that is not finite is refused as such before its own rule is looked at.
+
+    >>> class S:
+    ...     step = float('nan')
+    >>> check_rules(S(), [('step', S.step > 0, 'must be > 0 [s]')])
+    Traceback (most recent call last):
+    ...
+    gimbal_friction.core.errors.ConfigError: parameter 'step' = nan: must be a finite number
+    """
+    for name, ok, rule in checks:
+        value = getattr(obj, name)
+        if isinstance(value, float) and not math.isfinite(value):
+            raise ConfigError(name, 'must be a finite number', value)
+        if not ok:
+            raise ConfigError(name, rule, value)

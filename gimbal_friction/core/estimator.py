@@ -84,7 +84,7 @@ from gimbal_friction.core.arrays import (
     chamber_arrays,
     single_message_arrays,
 )
-from gimbal_friction.core.errors import ConfigError
+from gimbal_friction.core.errors import ConfigError, check_rules
 from gimbal_friction.core.inputs import effective_time, is_fresh, temperature_valid
 from gimbal_friction.core.kt import friction_from_current_Eq23
 from gimbal_friction.core.measurement import METHOD_OBSERVER, METHOD_STEADY_STATE, Measurement, MeasurementArrays
@@ -202,16 +202,14 @@ class EstimatorSettings:
              'must be an integer in [1, 10000]'),
             ('stamp_reset_s', 0.0 < self.stamp_reset_s <= 1e6, 'must lie in (0, 1e6] [s]'),
             ('acceleration_window_s', 1e-4 <= self.acceleration_window_s <= 10.0, 'must lie in [1e-4, 10] [s]'),
-            ('observer_min_speed_rad_s', 0.0 < self.observer_min_speed_rad_s <= 100.0, 'must lie in (0, 100] '
-             '[rad/s]'),
+            ('observer_min_speed_rad_s', 0.0 < self.observer_min_speed_rad_s <= 100.0,
+             'must lie in (0, 100] [rad/s]'),
             ('observer_max_accel_rad_s2', 0.0 < self.observer_max_accel_rad_s2 <= 1e6,
              'must lie in (0, 1e6] [rad/s^2]'),
             ('observer_max_accel_noise_rad_s2', 0.0 < self.observer_max_accel_noise_rad_s2 <= 1e6,
              'must lie in (0, 1e6] [rad/s^2]'),
         ]
-        for name, ok, rule in checks:
-            if not ok:
-                raise ConfigError(name, rule, getattr(self, name))
+        check_rules(self, checks)
 
 
 @dataclass
@@ -595,8 +593,12 @@ class EstimatorLogic:
         alive = np.ones(c_stamp.shape[0], dtype=bool)
         wi = np.flatnonzero(waits)
         if wi.size > WAIT_LENGTH:
-            alive[wi] = _simulate_wait_buffer(c_pos[wi], decide_pos[wi])
-            counters.reject(name, R_UNPAIRED, int(np.count_nonzero(~alive)))
+            # the buffer overflows only if more than WAIT_LENGTH wait at once: occupancy at each arrival
+            entry, leave = c_pos[wi], np.sort(decide_pos[wi])
+            occupancy = np.arange(wi.size) - np.searchsorted(leave, entry, side='left')
+            if int(occupancy.max()) >= WAIT_LENGTH:
+                alive[wi] = _simulate_wait_buffer(entry, decide_pos[wi])
+                counters.reject(name, R_UNPAIRED, int(np.count_nonzero(~alive)))
         pending = alive & ~decided
         state.waiting = _Waiting(c_stamp[pending], c_cur[pending], c_pos[pending], c_t[pending], c_time[pending])
         go = np.flatnonzero(alive & decided)

@@ -43,12 +43,13 @@ from numpy.typing import NDArray
 
 from gimbal_friction.core.arrays import ChamberArrays
 from gimbal_friction.core.direction import direction_factor
-from gimbal_friction.core.errors import ConfigError
+from gimbal_friction.core.errors import ConfigError, check_rules
 from gimbal_friction.core.inputs import (
     J_DUPLICATE,
     J_MISMATCH,
     J_NONE,
     J_UNKNOWN,
+    JointIndex,
     effective_time,
     index_joints,
     is_fresh,
@@ -65,6 +66,9 @@ STALE_POLICIES = ('hold_last', 'fallback_temperature', 'zero')
 #: where the temperature of an output came from (codes of :func:`temperature_used`)
 SOURCE_MEASURED, SOURCE_HOLD_LAST, SOURCE_FALLBACK, SOURCE_ZERO = 0, 1, 2, 3
 SOURCE_NAMES = ('measured', 'hold_last', 'fallback_temperature', 'zero')
+#: Velocities the torque may use (the node's ``velocity_source``): the joint state's, the reference's, or the
+#: reference while it is fresh and the joint state's otherwise.
+VELOCITY_SOURCES = ('measured', 'reference', 'auto')
 NON_FINITE_VELOCITY = 'non-finite velocity'
 
 
@@ -72,8 +76,9 @@ NON_FINITE_VELOCITY = 'non-finite velocity'
 class FeedforwardSettings:
     """Settings of the feedforward (ROS parameters of ``friction_feedforward``; units in the names)."""
 
-    velocity_threshold_rad_s: float = setting(0.005, 'rad/s', 'v_th of the smooth sign tanh(v/v_th); the '
-                                              "paper's test speed 1/3 rpm is 0.0349 rad/s")
+    velocity_threshold_rad_s: float = setting(0.002, 'rad/s', 'v_th of the smooth sign tanh(v/v_th); keep it '
+                                              'above ~5x the velocity noise; the paper\'s test speed 1/3 rpm is '
+                                              '0.0349 rad/s')
     max_torque_nm: float = setting(0.02, 'N*m', "output clamp on the torque magnitude (the paper's largest friction is "
                                    '3.2e-3 N*m)')
     temperature_timeout_s: float = setting(5.0, 's', 'a temperature whose stamp differs from the joint-state stamp '
@@ -103,12 +108,7 @@ class FeedforwardSettings:
              <= self.temperature_max_c, 'must lie within [temperature_min_c, temperature_max_c] [degC]'),
             ('table_step_c', 0.001 <= self.table_step_c <= 5.0, 'must lie in [0.001, 5] [degC]'),
         ]
-        for name, ok, rule in checks:
-            value = getattr(self, name)
-            if isinstance(value, float) and not math.isfinite(value):
-                raise ConfigError(name, 'must be a finite number', value)
-            if not ok:
-                raise ConfigError(name, rule, value)
+        check_rules(self, checks)
 
 
 # ---------------------------------------------------------------------------------------------------- the rules
@@ -122,6 +122,28 @@ def feedforward_torque_nm(magnitude_nm: Any, velocity_rad_s: Any, k_dir: Any, v_
     """``clamp(tanh(v/v_th) · k_dir · M, ±τ_max)``: the feedforward torque [N·m] from the model magnitude
     ``magnitude_nm`` [N·m] at velocity ``velocity_rad_s`` [rad/s]."""
     return xp.clip(smooth_sign(velocity_rad_s, v_th, xp) * k_dir * magnitude_nm, -max_torque_nm, max_torque_nm)
+
+
+def velocity_used(source: str, measured_rad_s: Any, reference_rad_s: Any, reference_fresh: Any, xp: Any) -> Any:
+    """The velocity [rad/s] the torque uses under ``velocity_source`` = ``source`` (:data:`VELOCITY_SOURCES`).
+
+    ``measured``: the joint state's velocity (relative to the base); ``reference``: the reference joint velocity
+    while it is fresh, else 0 (no torque); ``auto``: the reference while it is fresh, else the measured one.
+
+    >>> velocity_used('auto', 0.1, 0.2, True, SCALAR), velocity_used('auto', 0.1, 0.2, False, SCALAR)
+    (0.2, 0.1)
+    >>> velocity_used('reference', 0.1, 0.2, False, SCALAR)
+    0.0
+    """
+    if source == 'measured':
+        return measured_rad_s
+    return xp.where(reference_fresh, reference_rad_s, measured_rad_s if source == 'auto' else 0.0)
+
+
+def check_velocity_source(source: str) -> None:
+    """Raise :class:`ConfigError` unless ``source`` is one of :data:`VELOCITY_SOURCES`."""
+    if source not in VELOCITY_SOURCES:
+        raise ConfigError('velocity_source', f'must be one of {", ".join(VELOCITY_SOURCES)}', source)
 
 
 def temperature_used(last_c: Any, fresh: Any, settings: FeedforwardSettings, xp: Any) -> tuple[Any, Any]:
@@ -168,17 +190,25 @@ class BagTorques(NamedTuple):
     """The feedforward of every joint-state message of a bag (what the node would have published)."""
 
     msg_index: NDArray[np.int64]      #: joint-state message of each output message
-    names: list[tuple[str, ...]]      #: joints of each output message (configured order)
+    joints: tuple[str, ...]           #: the configured joints (columns of ``present`` and ``commands_nm``)
+    present: NDArray[np.bool_]        #: (messages, joints): the joint is in the output message
     stamp_ns: NDArray[np.int64]       #: header stamp, as received [ns]
     log_time_ns: NDArray[np.int64]    #: arrival (log) time of the joint state [ns]
-    torques_nm: list[NDArray[np.float64]]  #: per output message, torques of its joints [N·m]
-    commands_nm: NDArray[np.float64]  #: (messages, configured joints) in configured order [N·m]
+    commands_nm: NDArray[np.float64]  #: (messages, joints) torques in configured order, 0 where absent [N·m]
     temperature_c: NDArray[np.float64]  #: temperature used per message [°C] (NaN: zero policy)
     source: NDArray[np.int8]          #: SOURCE_* per message
 
     def __len__(self) -> int:
         """Number of output messages [-]."""
         return int(self.msg_index.shape[0])
+
+    def names(self, k: int) -> list[str]:
+        """Joints of output message ``k`` (configured order)."""
+        return [j for j, p in zip(self.joints, self.present[k].tolist(), strict=True) if p]
+
+    def torques(self, k: int) -> list[float]:
+        """Torques of output message ``k`` [N·m], as published (effort of the JointState)."""
+        return self.commands_nm[k][self.present[k]].tolist()
 
 
 class Feedforward:
@@ -211,6 +241,7 @@ class Feedforward:
         self.tables = {name: FrictionTable(p, s.temperature_min_c, s.temperature_max_c, s.table_step_c)
                        for name, p in self.axes.items()}
         self.counters = FeedforwardCounters()
+        self._index_cache: dict[tuple[tuple[str, ...], int], JointIndex] = {}
         self.last_temperature_c = math.nan   #: latest valid temperature [°C] (NaN: none)
         self.last_temperature_time_s = math.nan  #: its time [s]
 
@@ -284,7 +315,12 @@ class Feedforward:
         (stamp, or arrival if the stamp is zero). None (reason counted) when the message is unusable."""
         c = self.counters
         bucket = c.joint_state_rejected
-        idx = index_joints(names, (len(velocities),), self.order)
+        key = (tuple(names), len(velocities))
+        idx = self._index_cache.get(key)
+        if idx is None:  # the same names in every message: index them once
+            idx = index_joints(names, (len(velocities),), self.order)
+            if len(self._index_cache) < 64:
+                self._index_cache[key] = idx
         if idx.mismatch:
             c.add(bucket, J_MISMATCH)
             return None
@@ -367,8 +403,5 @@ class Feedforward:
         out = np.flatnonzero(present.any(axis=1))
         c.add(c.joint_state_rejected, J_NONE, int(n_msg - out.size))
         c.published += int(out.size)
-        order = np.asarray(self.order)
-        names = [tuple(order[row].tolist()) for row in present[out]]
-        torques = [commands[i][present[i]] for i in out.tolist()]
-        return BagTorques(out.astype(np.int64), names, js_stamp[out], js_log[out], torques, commands[out],
+        return BagTorques(out.astype(np.int64), self.order, present[out], js_stamp[out], js_log[out], commands[out],
                           t_used[out], source[out])

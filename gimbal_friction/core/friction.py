@@ -14,6 +14,9 @@ from scipy.integrate import dblquad
 
 from gimbal_friction.core.xp import ARRAY
 
+#: Palmgren's branch threshold ν·n of Eq. (9), [cSt·rpm]: above it M_L grows as (ν n)^(2/3), below it is constant
+PALMGREN_THRESHOLD_CST_RPM = 2000.0
+
 Array = NDArray[np.float64]
 
 
@@ -135,7 +138,7 @@ def viscous_torque_Palmgren_1959(s0: float, nu0: Any, n: Any, d_m: Any, xp: Any 
         nu0, n, d_m = (np.asarray(x, dtype=float) for x in (nu0, n, d_m))
     vn = nu0 * xp.abs(n)
     dm3 = d_m * d_m * d_m
-    return xp.where(vn >= 2000.0, 1e-7 * s0 * xp.cbrt(vn) ** 2 * dm3, 160e-7 * s0 * dm3)
+    return xp.where(vn >= PALMGREN_THRESHOLD_CST_RPM, 1e-7 * s0 * xp.cbrt(vn) ** 2 * dm3, 160e-7 * s0 * dm3)
 
 
 def total_torque_Eq10(M_R: ArrayLike, M_S: ArrayLike, M_L: ArrayLike) -> Array:

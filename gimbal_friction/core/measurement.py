@@ -85,7 +85,7 @@ class MeasurementArrays(NamedTuple):
     inertia_kg_m2: NDArray[np.float64]     #: J applied [kg·m²] (0: steady state)
     method: NDArray[np.int8]               #: METHOD_STEADY_STATE or METHOD_OBSERVER
 
-    def __len__(self) -> int:  # type: ignore[override]
+    def __len__(self) -> int:
         """Number of samples [-] (not the number of fields)."""
         return int(self.stamp_ns.shape[0])
 

@@ -7,7 +7,6 @@
 
 from __future__ import annotations
 
-import math
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -152,7 +151,3 @@ def friction_torque(p: AxisParams, t_c: ArrayLike, speed_rpm: ArrayLike | None =
         raise ModelDomainError(msg)
     return result
 
-
-def rpm_from_rad_s(omega: float) -> float:
-    """Shaft speed [rpm] from angular velocity [rad/s]."""
-    return omega * 60.0 / (2.0 * math.pi)

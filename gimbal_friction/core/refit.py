@@ -89,11 +89,12 @@ from scipy.special import stdtrit
 
 from gimbal_friction.core.direction import ARRAY, asymmetry_weight, direction_asymmetry, direction_factor
 from gimbal_friction.core.errors import ConfigError, FitError, GimbalFrictionError
-from gimbal_friction.core.friction import viscous_torque_Palmgren_1959
+from gimbal_friction.core.friction import PALMGREN_THRESHOLD_CST_RPM, viscous_torque_Palmgren_1959
 from gimbal_friction.core.model import friction_torque
 from gimbal_friction.core.params import AxisParams
 from gimbal_friction.core.sufficient import SufficientStats
 from gimbal_friction.core.thermal import radial_coupling
+from gimbal_friction.core.units import NM_PER_NMM
 from gimbal_friction.core.viscosity import _abscissa, nu_Walther, nu_Walther_fitting_jacobian
 
 Array = NDArray[np.float64]
@@ -111,7 +112,7 @@ ASYMMETRY_PARAMETERS = ('direction_asymmetry_cold', 'direction_asymmetry_warm')
 OFFSET = 'torque_offset_nm'
 OFFSET_MODES = ('auto', 'on', 'off')
 #: Palmgren's branch threshold ν·n of Eq. (9), [cSt·rpm].
-PALMGREN_THRESHOLD = 2000.0
+PALMGREN_THRESHOLD = PALMGREN_THRESHOLD_CST_RPM
 #: Losses accepted (those of :func:`scipy.optimize.least_squares`).
 LOSSES = ('linear', 'soft_l1', 'huber', 'cauchy', 'arctan')
 WEIGHTS = ('bin_se', 'relative')
@@ -542,13 +543,13 @@ class _Problem:
 
     def residuals(self, names: Sequence[str], theta: Array) -> Array:
         v = self._to_values(names, theta)
-        tau = self.model.torque_nmm(v)[self.used] * 1e-3
+        tau = self.model.torque_nmm(v)[self.used] * NM_PER_NMM
         g = self.groups
         return (self.y_mean - _group_mean(g.of[self.used], g.size, self.pts.weight[self.used], tau)) / self.se
 
     def jacobian(self, names: Sequence[str], theta: Array) -> Array:
         v = self._to_values(names, theta)
-        raw = self.model.jacobian_nmm(v, names)[self.used] * 1e-3
+        raw = self.model.jacobian_nmm(v, names)[self.used] * NM_PER_NMM
         if 'walther_a' in names and 'walther_b' in names:  # d/db at fixed a' = d/db raw − x_ref d/da raw
             ia, ib = names.index('walther_a'), names.index('walther_b')
             raw[:, ib] = raw[:, ib] - self.x_ref * raw[:, ia]
@@ -812,7 +813,7 @@ def refit_stats(base: AxisParams, stats: SufficientStats, *, fit: Sequence[str] 
         msg = f'the base model cannot be evaluated at the data: {err}'
         raise FitError(msg) from None
     v0 = model.values()
-    tau0 = model.torque_nmm(v0) * 1e-3
+    tau0 = model.torque_nmm(v0) * NM_PER_NMM
     idx = groups.of[used]
     y_mean = _group_mean(idx, groups.size, pts.weight[used], pts.y[used])
     if weights == 'bin_se':
@@ -1025,8 +1026,8 @@ def _result(base: AxisParams, stats: SufficientStats, problem: _Problem, groups:
     except ConfigError as err:
         msg = f'the refitted parameters are not valid: {err}'
         raise FitError(msg) from None
-    tau1 = model.torque_nmm(sol.values) * 1e-3
-    fric1 = model.torque_nmm(sol.values, offset=False) * 1e-3
+    tau1 = model.torque_nmm(sol.values) * NM_PER_NMM
+    fric1 = model.torque_nmm(sol.values, offset=False) * NM_PER_NMM
     upper1 = model.upper_branch(sol.values)
     nu0 = model.viscosity_cst(v0)
     nu1 = model.viscosity_cst(sol.values)

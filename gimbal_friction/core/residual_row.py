@@ -66,7 +66,7 @@ class ResidualRows(NamedTuple):
     no_load_current_a: NDArray[np.float64]
     method: NDArray[np.int8]
 
-    def __len__(self) -> int:  # type: ignore[override]
+    def __len__(self) -> int:
         """Number of rows [-] (not the number of fields)."""
         return int(self.stamp_s.shape[0])
 

@@ -17,6 +17,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from gimbal_friction.core.residual_row import ResidualRows
 from gimbal_friction.core.statistics import GroupStatistics
+from gimbal_friction.core.units import nmm_from_nm
 
 #: residual or torque magnitudes above this are not credible for a gimbal bearing and are not logged [N·m]
 MAX_CREDIBLE_TORQUE_NM = 100.0
@@ -164,11 +165,11 @@ def plateau_summary(temperature_c: ArrayLike, velocity_rad_s: ArrayLike, measure
                 n = int(sel.sum())
                 if n < min_samples:
                     continue
-                m_mean = float(meas[sel].mean()) * 1e3
+                m_mean = nmm_from_nm(float(meas[sel].mean()))
                 p_sel = pred[sel]
-                p_mean = float(np.nanmean(p_sel)) * 1e3 if np.any(np.isfinite(p_sel)) else math.nan
+                p_mean = nmm_from_nm(float(np.nanmean(p_sel))) if np.any(np.isfinite(p_sel)) else math.nan
                 out.append({'joint': j, 'temperature_c': round(float(t[sel].mean()), 3), 'direction': name,
                             'sign': int(sign), 'measured_mean_nmm': m_mean,
-                            'measured_std_nmm': float(meas[sel].std(ddof=1)) * 1e3 if n > 1 else 0.0,
+                            'measured_std_nmm': nmm_from_nm(float(meas[sel].std(ddof=1))) if n > 1 else 0.0,
                             'predicted_nmm': p_mean, 'residual_nmm': m_mean - p_mean, 'samples': n})
     return out

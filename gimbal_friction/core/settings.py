@@ -22,11 +22,11 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any, TypeVar
 
-from gimbal_friction.core.errors import ConfigError
+from gimbal_friction.core.errors import ConfigError, check_rules
 
 T = TypeVar('T')
 
-__all__ = ['VELOCITY_SOURCES', 'EstimatorNodeSettings', 'FeedforwardNodeSettings', 'LoggerSettings', 'setting',
+__all__ = ['EstimatorNodeSettings', 'FeedforwardNodeSettings', 'LoggerSettings', 'setting',
            'settings_from', 'settings_from_parameters']
 
 
@@ -86,22 +86,14 @@ def settings_from_parameters(cls: type[T], params: Mapping[str, Any]) -> T:
     return settings_from(cls, {k: v for k, v in params.items() if k in names})
 
 
-def _check_ranges(obj: Any, rules: list[tuple[str, bool, str]]) -> None:
-    for name, ok, rule in rules:
-        if not ok:
-            raise ConfigError(name, rule, getattr(obj, name))
-
-
 # ---------------------------------------------------------------------------------------------------- node settings
-VELOCITY_SOURCES = ('measured', 'reference')
-
-
 @dataclass(frozen=True)
 class FeedforwardNodeSettings:
     """Node-level parameters of friction_feedforward (besides FeedforwardSettings and the model)."""
 
-    velocity_source: str = setting('measured', '-', 'velocity used for the torque: measured (joint_states '
-                                   'velocity, relative to the base) or reference (reference_velocity topic)')
+    velocity_source: str = setting('auto', '-', 'velocity used for the torque: measured (joint_states velocity, '
+                                   'relative to the base), reference (reference_velocity topic; 0 N*m when it is '
+                                   'stale) or auto (reference while fresh, else measured)')
     reference_timeout_s: float = setting(0.5, 's', 'a reference velocity whose stamp differs from the joint '
                                          'state\'s by more than this is not used (0 N*m)')
     max_rate_hz: float = setting(0.0, 'Hz', 'publish at most this often; 0 = for every joint-state message')
@@ -109,9 +101,9 @@ class FeedforwardNodeSettings:
 
     def validate(self) -> None:
         """Raises ConfigError naming the setting and the rule it breaks."""
-        _check_ranges(self, [
-            ('velocity_source', self.velocity_source in VELOCITY_SOURCES,
-             f'must be one of {", ".join(VELOCITY_SOURCES)}'),
+        from gimbal_friction.core.feedforward import check_velocity_source  # (it imports this module)
+        check_velocity_source(self.velocity_source)
+        check_rules(self, [
             ('reference_timeout_s', 0.0 < self.reference_timeout_s <= 3600.0, 'must lie in (0, 3600] [s]'),
             ('max_rate_hz', 0.0 <= self.max_rate_hz <= 1e6, 'must lie in [0, 1e6] [Hz]'),
             ('diagnostics_period_s', 0.05 <= self.diagnostics_period_s <= 60.0, 'must lie in [0.05, 60] [s]'),
@@ -130,7 +122,7 @@ class EstimatorNodeSettings:
 
     def validate(self) -> None:
         """Raises ConfigError naming the setting and the rule it breaks."""
-        _check_ranges(self, [
+        check_rules(self, [
             ('batch_period_s', 0.001 <= self.batch_period_s <= 1.0, 'must lie in [0.001, 1] [s]'),
             ('statistics_period_s', 0.05 <= self.statistics_period_s <= 3600.0, 'must lie in [0.05, 3600] [s]'),
             ('diagnostics_period_s', 0.05 <= self.diagnostics_period_s <= 3600.0, 'must lie in [0.05, 3600] [s]'),

@@ -25,7 +25,7 @@ from gimbal_friction.core.errors import ModelDomainError
 from gimbal_friction.core.friction import viscous_torque_Palmgren_1959
 from gimbal_friction.core.model import friction_torque
 from gimbal_friction.core.params import AxisParams
-from gimbal_friction.core.thermal import thermal_expansion_Eq11
+from gimbal_friction.core.thermal import loose_fit_temperature, thermal_expansion_Eq11
 from gimbal_friction.core.units import NM_PER_NMM, NMM_PER_NM, RAD_S_PER_RPM, RPM_PER_RAD_S
 from gimbal_friction.core.viscosity import nu_Walther
 from gimbal_friction.core.xp import ARRAY, SCALAR
@@ -64,7 +64,9 @@ class FrictionTable:
     params : AxisParams
         Model parameters of the axis.
     t_min, t_max : float
-        Temperature range of the table, [°C]. Outside it the temperature is clamped to the edge.
+        Temperature range of the table, [°C]. Outside it the temperature is clamped to the edge. The grid starts
+        up to a step below ``t_min`` so that a node sits on the loose-fit temperature, where the contact torques
+        have a kink.
     step : float
         Grid step, [°C].
 
@@ -80,15 +82,22 @@ class FrictionTable:
             raise ModelDomainError('table range must be finite with t_max > t_min')
         if not (math.isfinite(step) and step > 0.0):
             raise ModelDomainError('table step must be > 0 degC')
-        n = int(round((t_max - t_min) / step)) + 1
+        # the contact torques have a kink at the loose-fit temperature (MODEL.md §3): put a grid node on it, so
+        # linear interpolation stays exact to the grid's error there too (the grid starts up to a step lower)
+        t0 = float(t_min)
+        kink = loose_fit_temperature(params)
+        if t_min < kink < t_max:
+            t0 = kink - step * math.ceil((kink - t_min) / step - 1e-9)
+        n = int(math.ceil((t_max - t0) / step - 1e-9)) + 1
         if n > 1_000_000:
             raise ModelDomainError(f'table of {n} points is too large; use a coarser step')
         self.params = params
         self.t_min = float(t_min)
+        self.t_max = float(t_max)
         self.step = float(step)
         self.n = max(n, 2)
-        self.t_max = self.t_min + (self.n - 1) * self.step
-        self.grid = self.t_min + self.step * np.arange(self.n)
+        self.t0 = t0      #: temperature of the first grid node [°C] (≤ t_min)
+        self.grid = self.t0 + self.step * np.arange(self.n)
         contact = friction_torque(params, self.grid, 0.0)
         # a lubricant cannot have a negative viscosity (Walther constants fitted elsewhere, a typo); Palmgren's
         # (nu n)^(2/3) would turn it into a positive torque without a word
@@ -116,7 +125,7 @@ class FrictionTable:
         slowly, like a simulation over many runs, computes them once per temperature)."""
         p = self.params
         t = xp.clip(t_c, self.t_min, self.t_max)
-        m_rs = interp_uniform(self._m_rs[xp], t, self.t_min, self.step, self.n, xp)
+        m_rs = interp_uniform(self._m_rs[xp], t, self.t0, self.step, self.n, xp)
         nu = nu_Walther(t + p.kelvin_offset_k, p.walther_a, p.walther_b, p.viscosity_offset_cst, p.viscosity_model,
                         xp)
         d_m = thermal_expansion_Eq11(p.pitch_diameter_mm, p.steel_cte_per_c, t - p.reference_temperature_c, xp)
@@ -154,5 +163,5 @@ class FrictionTable:
         t = np.clip(np.asarray(t_c, dtype=float), self.t_min, self.t_max)
         n = np.asarray(speed_rpm, dtype=float)
         total = self.magnitude_nm(t, n * RAD_S_PER_RPM, ARRAY) * NMM_PER_NM
-        m_rs = interp_uniform(self._m_rs[ARRAY], t, self.t_min, self.step, self.n, ARRAY)
+        m_rs = interp_uniform(self._m_rs[ARRAY], t, self.t0, self.step, self.n, ARRAY)
         return m_rs, total - m_rs, total

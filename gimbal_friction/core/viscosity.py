@@ -218,7 +218,7 @@ def fit_Walther(t_c: ArrayLike, nu_cst: ArrayLike, model: str = 'walther_improve
         raise FitError(msg)
     a1, b1, c1 = (float(v) for v in res.x)
     fit = nu_Walther(T, a1, b1, c1, model)
-    err = viscosity_errors_pct(fit, nu)
+    err_pct = viscosity_errors_pct(fit, nu)
     dof = max(t.size - 3, 1)
     s2 = float(res.fun @ res.fun) / dof
     try:
@@ -226,5 +226,5 @@ def fit_Walther(t_c: ArrayLike, nu_cst: ArrayLike, model: str = 'walther_improve
         se = tuple(float(v) for v in np.sqrt(np.abs(np.diag(cov))))
     except np.linalg.LinAlgError:
         se = (math.inf, math.inf, math.inf)
-    return ViscosityFit(model, a1, b1, c1, T, nu, fit, err, float(np.sqrt(np.mean(err**2))),
-                        float(np.max(np.abs(err))), (se[0], se[1], se[2]))
+    return ViscosityFit(model, a1, b1, c1, T, nu, fit, err_pct, float(np.sqrt(np.mean(err_pct**2))),
+                        float(np.max(np.abs(err_pct))), (se[0], se[1], se[2]))

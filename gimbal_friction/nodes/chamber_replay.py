@@ -1,13 +1,22 @@
 """``chamber_replay``: plays a recorded chamber-test bag into the ROS graph with its recorded timing.
 
-For machines without ``ros2 bag play``. Reads any bag with the contract's topics (rosbag2 MCAP or sqlite3, or a
-bare .mcap; whatever wrote it) and publishes every message, in log-time order, as recorded (raw CDR) on the
-contract topic names (remappable with ``--ros-args -r``), pacing by the log-time differences divided by ``rate``.
+For machines without ``ros2 bag play``. Reads any bag with the contract's topics (rosbag2 MCAP or sqlite3 folder,
+or a bare .mcap / .db3; whatever wrote it) and publishes its messages, in log-time order, as recorded (raw CDR) on
+the contract topic names (remappable with ``--ros-args -r``), pacing by the log-time differences divided by
+``rate``.
+
+By default only the three input topics (``/gimbal/temperature``, ``/joint_states``, ``/gimbal/motor_current``) are
+published: a bag recorded with ``ros2 bag record --all`` also holds ``/rosout``, ``/diagnostics``, ``/tf``, service
+events, ..., which must not be replayed into a live graph. ``topics`` adds others by name (or ``'*'``: every topic
+whose message type is installed), ``exclude_topics`` removes some. Joint names are not rewritten: the messages are
+republished byte for byte (``gimbal-friction replay --joint`` maps joint names offline).
 
 Parameters: ``bag`` (path, required), ``rate`` (playback rate factor, default 1.0), ``loop`` (bool),
 ``start_offset_s`` (skip the first seconds of the bag), ``topic_map`` (list of ``contract_topic=bag_topic``),
+``topics`` (list: topics to publish besides the inputs, ``'*'`` for all), ``exclude_topics`` (list),
 ``wait_for_subscribers`` (wait until ``/joint_states`` has this many subscribers before playing, default 0) and
-``wait_timeout_s``. Exits 0 at the end of the bag (unless looping), 1 with a one-line reason on a bad bag.
+``wait_timeout_s``. Exits 0 at the end of the bag (unless looping), 1 with a one-line reason on a bad bag or
+parameter (a bag cut short names ``gimbal-friction recover``).
 """
 
 from __future__ import annotations
@@ -29,11 +38,20 @@ from gimbal_friction.core.errors import ConfigError, GimbalFrictionError
 from gimbal_friction.recording import topics
 from gimbal_friction.recording.bag import open_chamber_bag
 
+#: ``topics`` entry meaning every topic of the bag whose message type is installed
+ALL_TOPICS = '*'
+_KINDS = {float: 'number', int: 'integer', bool: 'boolean (true or false)', str: 'string', list: 'list of strings'}
+
 
 def message_class(msgtype: str) -> Any:
-    """rclpy message class of ``pkg/msg/Type``."""
-    pkg, _, name = msgtype.split('/')
-    return getattr(importlib.import_module(f'{pkg}.msg'), name)
+    """rclpy message class of ``pkg/msg/Type`` (None if the package is not installed)."""
+    pkg, _, name = msgtype.partition('/msg/')
+    if not pkg or not name:
+        return None
+    try:
+        return getattr(importlib.import_module(f'{pkg}.msg'), name, None)
+    except ImportError:
+        return None
 
 
 def parse_topic_map(items: Sequence[str]) -> dict[str, str]:
@@ -50,39 +68,83 @@ def parse_topic_map(items: Sequence[str]) -> dict[str, str]:
     return out
 
 
+def select_topics(available: dict[str, str], include: Sequence[str], exclude: Sequence[str]) -> tuple[
+        list[str], list[str]]:
+    """The topics to publish: the chamber inputs, plus ``include`` (``'*'``: all), minus ``exclude``.
+
+    Args:
+        available: every topic of the bag (contract name) -> message type.
+        include: extra topic names, or ``'*'``.
+        exclude: topic names not to publish.
+
+    Returns:
+        (topics to publish, topics of ``'*'`` left out because their message type is not installed).
+
+    Raises:
+        ConfigError: a named topic is not in the bag, or its message type is not installed.
+    """
+    for name in [*include, *exclude]:
+        if name != ALL_TOPICS and name not in available:
+            raise ConfigError('topics' if name in include else 'exclude_topics',
+                              f'no topic {name} in the bag (topics: {", ".join(sorted(available))})', name)
+    chosen = list(topics.CHAMBER_TOPICS)
+    skipped = []
+    if ALL_TOPICS in include:
+        for name, msgtype in available.items():
+            if name in chosen:
+                continue
+            if message_class(msgtype) is None:
+                skipped.append(name)
+            else:
+                chosen.append(name)
+    for name in include:
+        if name != ALL_TOPICS and name not in chosen:
+            if message_class(available[name]) is None:
+                raise ConfigError('topics', f'message type {available[name] or "(several)"} of {name} is not '
+                                  'installed', name)
+            chosen.append(name)
+    return [t for t in chosen if t not in exclude], skipped
+
+
 class ChamberReplay(Node):
     """Publishes a bag's messages with recorded timing."""
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__('chamber_replay', **kwargs)
-        d = self.declare_parameter
-        d('bag', '', ParameterDescriptor(description='chamber-test bag: rosbag2 folder or .mcap file'))
-        d('rate', 1.0, ParameterDescriptor(description='playback rate factor [-] (2 = twice as fast)'))
-        d('loop', False, ParameterDescriptor(description='start again at the end of the bag'))
-        d('start_offset_s', 0.0, ParameterDescriptor(description='skip this much of the bag [s]'))
-        d('topic_map', [''], ParameterDescriptor(description="'contract_topic=bag_topic' remaps of bag topics"))
-        d('wait_for_subscribers', 0, ParameterDescriptor(description='wait for this many subscribers on '
-                                                         '/joint_states before playing [-]'))
-        d('wait_timeout_s', 30.0, ParameterDescriptor(description='give up waiting for subscribers after [s]'))
-        get = self.get_parameter
-        self.bag_path = str(get('bag').value)
-        self.rate = float(get('rate').value)
-        self.loop = bool(get('loop').value)
-        self.start_offset_s = float(get('start_offset_s').value)
-        self.wait_for = int(get('wait_for_subscribers').value)
-        self.wait_timeout_s = float(get('wait_timeout_s').value)
+        self.bag_path = str(self._param('bag', '', 'chamber-test bag: rosbag2 folder, .mcap or .db3 file'))
+        self.rate = float(self._param('rate', 1.0, 'playback rate factor [-] (2 = twice as fast)'))
+        self.loop = bool(self._param('loop', False, 'start again at the end of the bag'))
+        self.start_offset_s = float(self._param('start_offset_s', 0.0, 'skip this much of the bag [s]'))
+        topic_map = self._param('topic_map', [''], "'contract_topic=bag_topic' remaps of bag topics")
+        include = self._param('topics', [''], "topics to publish besides the three inputs; '*' = every topic "
+                              'whose message type is installed')
+        exclude = self._param('exclude_topics', [''], 'topics not to publish')
+        self.wait_for = int(self._param('wait_for_subscribers', 0, 'wait for this many subscribers on '
+                                        '/joint_states before playing [-]'))
+        self.wait_timeout_s = float(self._param('wait_timeout_s', 30.0, 'give up waiting for subscribers after [s]'))
         if not self.bag_path:
             raise ConfigError('bag', 'is required (--ros-args -p bag:=/path/to/bag)')
         if not (math.isfinite(self.rate) and self.rate > 0.0):
             raise ConfigError('rate', 'must be > 0', self.rate)
         if not (math.isfinite(self.start_offset_s) and self.start_offset_s >= 0.0):
             raise ConfigError('start_offset_s', 'must be >= 0 [s]', self.start_offset_s)
-        topic_map = parse_topic_map([x for x in get('topic_map').value if x])
-        self.bag = open_chamber_bag(self.bag_path, topic_map or None)
+        self.bag = open_chamber_bag(self.bag_path, parse_topic_map([x for x in topic_map if x]) or None)
+        available = {name: info.msgtype for name, info in self.bag.topics.items()}
+        self.topics, self.skipped = select_topics(available, [x for x in include if x], [x for x in exclude if x])
         self.pubs = {}
-        for topic, info in self.bag.topics.items():
-            self.pubs[topic] = self.create_publisher(message_class(info.msgtype), topic, QoSProfile(depth=100))
+        for topic in self.topics:
+            self.pubs[topic] = self.create_publisher(message_class(available[topic]), topic, QoSProfile(depth=100))
         self.published = 0
+
+    def _param(self, name: str, default: Any, description: str) -> Any:
+        """Declare a parameter; a value of the wrong type is a ConfigError (one line), not an rclpy traceback."""
+        try:
+            return self.declare_parameter(name, default, ParameterDescriptor(description=description)).value
+        except Exception as err:  # rclpy's InvalidParameterTypeException / InvalidParameterValueException
+            if type(err).__module__.startswith('rclpy') and 'Parameter' in type(err).__name__:
+                kind = _KINDS.get(type(default), type(default).__name__)
+                raise ConfigError(name, f'must be a {kind} ({str(err).splitlines()[0]})') from None
+            raise
 
     def wait_for_subscribers(self, executor: Any) -> bool:
         if self.wait_for <= 0:
@@ -98,7 +160,7 @@ class ChamberReplay(Node):
     def play_once(self) -> None:
         start_ns = self.bag.start_ns + int(self.start_offset_s * 1e9)
         t0 = time.monotonic()
-        for raw in self.bag.iter_raw():
+        for raw in self.bag.iter_raw(self.topics):
             if raw.log_time_ns < start_ns:
                 continue
             target = t0 + (raw.log_time_ns - start_ns) * 1e-9 / self.rate
@@ -116,7 +178,7 @@ def main(args: Sequence[str] | None = None) -> None:
     argv = list(sys.argv if args is None else args)
     try:
         rclpy.init(args=argv)
-    except Exception as err:
+    except Exception as err:  # invalid --ros-args / params file
         print(f'chamber_replay: error: cannot start: {str(err).splitlines()[0]}', file=sys.stderr)
         sys.exit(1)
     node = None
@@ -129,8 +191,11 @@ def main(args: Sequence[str] | None = None) -> None:
         if not node.wait_for_subscribers(executor):
             raise ConfigError('wait_for_subscribers', f'fewer than {node.wait_for} subscribers on /joint_states '
                               f'after {node.wait_timeout_s:g} s')
-        info = ', '.join(f'{t} ({i.count})' for t, i in node.bag.topics.items())
+        info = ', '.join(f'{t} ({node.bag.topics[t].messages})' for t in node.topics)
         node.get_logger().info(f'playing {node.bag_path} at {node.rate:g}x: {info}')
+        ignored = sorted(set(node.bag.topics) - set(node.topics))
+        if ignored:
+            node.get_logger().info(f'not published: {", ".join(ignored)} (add them with -p topics:=[...])')
         t_start = time.monotonic()
         while rclpy.ok():
             node.play_once()

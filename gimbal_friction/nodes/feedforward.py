@@ -38,6 +38,7 @@ from gimbal_friction.core.feedforward import (
     SOURCE_ZERO,
     Feedforward,
     FeedforwardSettings,
+    velocity_used,
 )
 from gimbal_friction.core.inputs import effective_time, is_fresh
 from gimbal_friction.core.settings import FeedforwardNodeSettings, settings_from
@@ -173,23 +174,28 @@ class FrictionFeedforward(Node):
                 self._reference[name] = (float(v), time_s)
 
     def _velocities(self, msg: JointState, time_s: float) -> list[float]:
-        if self.settings.velocity_source == 'measured':
-            return list(msg.velocity)
+        source = self.settings.velocity_source
+        measured = list(msg.velocity)
+        if source == 'measured' or (source == 'auto' and len(measured) != len(msg.name)):
+            return measured   # (a length mismatch is refused by Feedforward.message)
         timeout = self.settings.reference_timeout_s
         out = []
-        for name in msg.name:
+        for i, name in enumerate(msg.name):
             v, t = self._reference.get(name, (math.nan, math.nan))
-            out.append(v if is_fresh(time_s, t, timeout, SCALAR) else 0.0)
+            m = measured[i] if i < len(measured) else math.nan
+            out.append(velocity_used(source, m, v, is_fresh(time_s, t, timeout, SCALAR), SCALAR))
         return out
 
     def on_joint_state(self, msg: JointState) -> None:
-        now = self._now_s()
         if self.settings.max_rate_hz > 0.0:
+            now = self._now_s()
             if now - self._last_publish < 1.0 / self.settings.max_rate_hz:
                 self._rate_limited += 1
                 return
             self._last_publish = now
-        time_s = effective_time(stamp_to_s(msg.header.stamp), now)
+        stamp_s = stamp_to_s(msg.header.stamp)
+        # the receive time is needed only for an unstamped message (reading the clock costs a few µs)
+        time_s = effective_time(stamp_s, self._now_s() if stamp_s == 0.0 else 0.0)
         names = list(msg.name)
         out = self.ff.message(names, self._velocities(msg, time_s), time_s)
         self._last_time_s = time_s

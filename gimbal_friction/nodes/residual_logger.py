@@ -71,7 +71,8 @@ from gimbal_friction.nodes._common import (
 )
 from gimbal_friction.recording import topics
 from gimbal_friction.recording.cdr import float64_multi_array_cdr_rows, joint_state_cdr_rows, split_rows
-from gimbal_friction.recording.residual_log import ResidualLogWriter, residual_log_files
+from gimbal_friction.recording.residual_log import ResidualLogWriter
+from gimbal_friction.recording.residual_read import residual_log_files
 
 #: subscription depth: a burst of this many messages is buffered, not dropped
 DEPTH = 1000

@@ -1,45 +1,84 @@
-"""Fast CDR serialization of ``sensor_msgs/JointState`` and ``std_msgs/Float64MultiArray``, one or many at a time.
+"""CDR (XCDR1) of the suite's standard messages: encode *and* decode, message builders, the type store.
 
-The bytes are those of ``rosbags`` ``typestore.serialize_cdr`` (XCDR1, little endian, encapsulation header
-``00 01 00 00`` included): alignment is counted from the byte after the 4-byte header; a string is a uint32
-length (NUL included), its UTF-8 bytes and a NUL; a sequence is a uint32 count, then its elements, a float64
-sequence aligned to 8 only when it is not empty; no trailing padding. ``test/recording/test_cdr.py`` checks
-byte equality with the type store on random messages.
+Encoding (one message or a batch): ``sensor_msgs/JointState`` and ``std_msgs/Float64MultiArray``. The bytes are
+those of ``rosbags`` ``typestore.serialize_cdr`` (little endian, encapsulation header ``00 01 00 00`` included):
+alignment is counted from the byte after the 4-byte header; a string is a uint32 length (NUL included), its UTF-8
+bytes and a NUL; a sequence is a uint32 count, then its elements, a float64 sequence aligned to 8 only when it is
+not empty; no trailing padding. ``test/recording/test_cdr.py`` checks byte equality with the type store on random
+messages. The ``*_cdr_rows`` functions serialize a batch whose messages share one layout (same frame_id, names,
+value counts; only stamps and values differ) with numpy: a template row is filled column-wise, so the cost per
+message is a few array assignments rather than a message object and a serializer call. :func:`split_rows` turns
+the rows into one ``bytes`` per message.
 
-The ``*_cdr_rows`` functions serialize a batch whose messages share one layout (same frame_id, names, value
-counts; only stamps and values differ) with numpy: a template row is filled column-wise, so the cost per message
-is a few array assignments rather than a message object and a serializer call. :func:`split_rows` turns the rows
-into one ``bytes`` per message.
+Decoding (the reverse, for the readers): :class:`JointStateColumns` collects JointState messages into per-joint
+arrays, :func:`temperature_from_cdr` reads a Temperature, :func:`float64_multi_array_rows` decodes a batch of
+Float64MultiArray messages in bulk (messages of one layout -- label, value count -- are read as one numpy block).
+Anything that is not plain little-endian CDR falls back to the type store.
+
+Builders (``make_header``, ``make_temperature``, ``make_joint_state``, ``make_float64_multi_array``) return rosbags
+message objects of :func:`default_typestore`, the store matching the ROS 2 wheels of this project.
 
 Times: ``stamp_ns`` [ns] is split as ``make_header`` does (floor: ``sec, nanosec = divmod(stamp_ns, 1e9)``).
 """
 
 from __future__ import annotations
 
+import functools
+import math
 import struct
 from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
+from rosbags.typesys import Stores, get_typestore
+
+from gimbal_friction.core.arrays import JointStateArrays
+from gimbal_friction.core.units import NS_PER_S, split_stamp
+from gimbal_friction.recording.topics import FLOAT64_MULTI_ARRAY_TYPE, JOINT_STATE_TYPE, TEMPERATURE_TYPE
 
 if TYPE_CHECKING:
-    from collections.abc import Sequence
+    from collections.abc import Mapping, Sequence
 
     from numpy.typing import ArrayLike, NDArray
+    from rosbags.typesys.store import Msg, Typestore
 
 __all__ = [
     'CDR_HEADER',
+    'DEFAULT_STORE',
+    'JointStateColumns',
+    'MultiArrayLayout',
+    'MultiArrayRows',
+    'default_typestore',
     'float64_multi_array_cdr',
     'float64_multi_array_cdr_rows',
+    'float64_multi_array_layout',
+    'float64_multi_array_rows',
     'joint_state_cdr',
     'joint_state_cdr_rows',
+    'make_float64_multi_array',
+    'make_header',
+    'make_joint_state',
+    'make_temperature',
     'split_rows',
+    'temperature_from_cdr',
 ]
 
+#: the type store matching the ROS 2 wheels of this project (ROS2_SETUP.md §6)
+DEFAULT_STORE = Stores.ROS2_KILTED
 #: encapsulation header of plain little-endian CDR
 CDR_HEADER = b'\x00\x01\x00\x00'
-_NS_PER_S = 1_000_000_000
+_NS_PER_S = NS_PER_S
 _INT32_MIN, _INT32_MAX = -(2**31), 2**31 - 1
 _U32 = struct.Struct('<I')
+
+
+@functools.lru_cache(maxsize=1)
+def default_typestore() -> Typestore:
+    """The shared ``rosbags`` type store of :data:`DEFAULT_STORE`.
+
+    Shared and cached: use it to build, serialize and deserialize standard messages, do not ``register`` types
+    into it (make your own with ``get_typestore(DEFAULT_STORE)`` for that).
+    """
+    return get_typestore(DEFAULT_STORE)
 
 
 class _Builder:
@@ -89,7 +128,7 @@ def _f64(values: ArrayLike | None) -> NDArray[np.float64]:
 
 
 def _split_stamp(stamp_ns: int) -> tuple[int, int]:
-    sec, nanosec = divmod(int(stamp_ns), _NS_PER_S)
+    sec, nanosec = split_stamp(stamp_ns)
     if not _INT32_MIN <= sec <= _INT32_MAX:
         msg = f'stamp {stamp_ns} ns: seconds do not fit in int32'
         raise ValueError(msg)
@@ -175,7 +214,9 @@ class _Layout(NamedTuple):
 
 def _layout(builder: _Builder, fields: dict[str, tuple[str, int]]) -> _Layout:
     """A structured dtype over the template row: ``fields`` maps a builder offset name to (column, count)."""
-    names, formats, offsets = [], [], []
+    names: list[str] = []
+    formats: list[object] = []
+    offsets: list[int] = []
     for key, (column, count) in fields.items():
         if key == 'stamp':
             names += ['sec', 'nanosec']
@@ -243,7 +284,8 @@ def joint_state_cdr_rows(
     n = sec.shape[0]
     cols = {key: _columns(v, n, key) for key, v in (('position', position), ('velocity', velocity),
                                                      ('effort', effort))}
-    builder = _joint_state(0, names, *(np.zeros(c.shape[1]) for c in cols.values()), frame_id)
+    zeros = [np.zeros(c.shape[1]) for c in cols.values()]
+    builder = _joint_state(0, names, zeros[0], zeros[1], zeros[2], frame_id)
     fields = {'stamp': ('stamp', 0), **{key: (key, c.shape[1]) for key, c in cols.items()}}
     layout = _layout(builder, fields)
     raw, rec = _rows(layout, n)
@@ -289,4 +331,446 @@ def split_rows(rows: NDArray[np.uint8]) -> list[bytes]:
     n = rows.shape[0]
     if n == 0:
         return []
-    return np.ascontiguousarray(rows).view(f'V{rows.shape[1]}').reshape(n).tolist()  # void keeps NULs
+    out: list[bytes] = np.ascontiguousarray(rows).view(f'V{rows.shape[1]}').reshape(n).tolist()  # void keeps NULs
+    return out
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# message builders (rosbags message objects of the default type store)
+
+
+def make_header(stamp_ns: int, frame_id: str = '') -> Msg:
+    """A ``std_msgs/Header`` with ``stamp`` = ``stamp_ns`` [ns] (floor-split into sec and nanosec)."""
+    types = default_typestore().types
+    sec, nanosec = split_stamp(stamp_ns)
+    stamp = types['builtin_interfaces/msg/Time'](sec=sec, nanosec=nanosec)
+    return types['std_msgs/msg/Header'](stamp=stamp, frame_id=frame_id)
+
+
+def make_temperature(
+    stamp_ns: int, temperature_c: float, frame_id: str = 'gimbal', variance: float = 0.0
+) -> Msg:
+    """A ``sensor_msgs/Temperature``: ``temperature_c`` [degC] at ``stamp_ns`` [ns], ``variance`` [degC^2]."""
+    cls = default_typestore().types[TEMPERATURE_TYPE]
+    return cls(header=make_header(stamp_ns, frame_id), temperature=float(temperature_c), variance=float(variance))
+
+
+def _contiguous_f64(values: ArrayLike | None) -> NDArray[np.float64]:
+    """A 1-D contiguous float64 array (empty for None)."""
+    if values is None:
+        return np.empty(0, dtype=np.float64)
+    return np.ascontiguousarray(np.asarray(values, dtype=np.float64).reshape(-1))
+
+
+def make_joint_state(
+    stamp_ns: int,
+    names: Sequence[str],
+    position: ArrayLike | None = None,
+    velocity: ArrayLike | None = None,
+    effort: ArrayLike | None = None,
+    frame_id: str = '',
+) -> Msg:
+    """A ``sensor_msgs/JointState``; a field left as None is an empty array (ROS: "not provided").
+
+    Args:
+        stamp_ns: ``header.stamp`` [ns].
+        names: joint names.
+        position: joint positions [rad], one per name, or None.
+        velocity: joint velocities [rad/s], one per name, or None.
+        effort: efforts [N*m] (or motor currents [A]), one per name, or None.
+        frame_id: ``header.frame_id``.
+    """
+    cls = default_typestore().types[JOINT_STATE_TYPE]
+    return cls(
+        header=make_header(stamp_ns, frame_id),
+        name=[str(x) for x in names],
+        position=_contiguous_f64(position),
+        velocity=_contiguous_f64(velocity),
+        effort=_contiguous_f64(effort),
+    )
+
+
+def make_float64_multi_array(values: ArrayLike, label: str) -> Msg:
+    """A ``std_msgs/Float64MultiArray`` holding ``values`` as one row, ``layout.dim[0].label`` = ``label``."""
+    types = default_typestore().types
+    data = _contiguous_f64(values)
+    dim = types['std_msgs/msg/MultiArrayDimension'](label=str(label), size=data.shape[0], stride=data.shape[0])
+    layout = types['std_msgs/msg/MultiArrayLayout'](dim=[dim], data_offset=0)
+    return types[FLOAT64_MULTI_ARRAY_TYPE](layout=layout, data=data)
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# decoding
+
+
+_UNPACK_STAMP = struct.Struct('<iI').unpack_from  # stamp.sec, stamp.nanosec
+_UNPACK_U32 = _U32.unpack_from
+_UNPACK_F64 = struct.Struct('<d').unpack_from
+_EMPTY = b''
+
+
+def _align(pos: int, size: int) -> int:
+    """``pos`` (an absolute offset in a message) moved up to a multiple of ``size`` after the 4-byte header."""
+    return 4 + ((pos - 4 + size - 1) & ~(size - 1))
+
+
+def _plain_le(raw: bytes) -> bool:
+    """True for plain little-endian CDR (encapsulation ``00 01``)."""
+    return len(raw) >= 4 and raw[0] == 0 and raw[1] == 1
+
+
+def temperature_from_cdr(raw: bytes) -> tuple[int, float] | None:
+    """``(header.stamp [ns], temperature [degC])`` of a plain little-endian ``sensor_msgs/Temperature``.
+
+    Layout: int32 sec, uint32 nanosec, string frame_id, float64 temperature, float64 variance. None if the bytes
+    are not plain little-endian CDR or do not hold the whole message (decode those with the type store).
+    """
+    if not _plain_le(raw):
+        return None
+    try:
+        sec, nanosec = _UNPACK_STAMP(raw, 4)
+        (flen,) = _UNPACK_U32(raw, 12)
+        pos = _align(16 + flen, 8)
+        if pos + 16 > len(raw):
+            return None
+        (value,) = _UNPACK_F64(raw, pos)
+    except struct.error:
+        return None
+    return sec * _NS_PER_S + nanosec, float(value)
+
+
+class MultiArrayLayout(NamedTuple):
+    """Where the values of a ``std_msgs/Float64MultiArray`` start, and what precedes them."""
+
+    label: str
+    """``layout.dim[0].label`` ('' without dimensions)."""
+    size: int
+    """Number of float64 values [-]."""
+    data_start: int
+    """Offset of the first value in the message (encapsulation header included) [B]."""
+
+
+def float64_multi_array_layout(raw: bytes) -> MultiArrayLayout | None:
+    """Parse the layout of a plain little-endian Float64MultiArray (everything before its values).
+
+    Layout: uint32 n_dims, per dimension (string label, uint32 size, uint32 stride), uint32 data_offset, uint32
+    count, then (aligned to 8 when not empty) the float64 values, which end the message. None if the bytes are not
+    plain little-endian CDR or not one such message.
+
+    >>> layout = float64_multi_array_layout(float64_multi_array_cdr([1.0, 2.0], 'elevation'))
+    >>> layout.label, layout.size, layout.data_start
+    ('elevation', 2, 44)
+    """
+    if not _plain_le(raw):
+        return None
+    try:
+        (n_dims,) = _UNPACK_U32(raw, 4)
+        pos = 8
+        label = ''
+        for i in range(n_dims):
+            pos = _align(pos, 4)
+            (slen,) = _UNPACK_U32(raw, pos)
+            pos += 4
+            if slen < 1 or pos + slen > len(raw) or raw[pos + slen - 1] != 0:
+                return None
+            if i == 0:
+                label = raw[pos : pos + slen - 1].decode('utf-8')
+            pos = _align(pos + slen, 4) + 8  # size, stride
+        pos = _align(pos, 4) + 4  # data_offset
+        pos = _align(pos, 4)
+        (count,) = _UNPACK_U32(raw, pos)
+        pos += 4
+        if count:
+            pos = _align(pos, 8)
+    except (struct.error, UnicodeDecodeError):
+        return None
+    if pos + 8 * count != len(raw):
+        return None
+    return MultiArrayLayout(label, int(count), pos)
+
+
+class MultiArrayRows(NamedTuple):
+    """A batch of Float64MultiArray messages decoded in blocks of one layout (see :func:`float64_multi_array_rows`)."""
+
+    blocks: list[tuple[NDArray[np.intp], str, NDArray[np.float64]]]
+    """``(message indexes, label, values (m, count))`` per layout met."""
+    others: NDArray[np.intp]
+    """Indexes of the messages that are not plain little-endian CDR of this type (decode them with the type store)."""
+
+
+#: distinct layouts decoded as blocks per batch; past this, each remaining message is parsed on its own
+_MAX_LAYOUTS = 32
+
+
+def float64_multi_array_rows(buffer: bytes, starts: ArrayLike, lengths: ArrayLike) -> MultiArrayRows:
+    """Decode the Float64MultiArray messages ``buffer[starts[i] : starts[i] + lengths[i]]`` in bulk.
+
+    Messages of one layout (same bytes before the values: label, dimensions, count) are read as one numpy block:
+    the layout is parsed once, the other messages are checked to start with the same bytes, and their values are
+    viewed as ``<f8``. The cost per message is a few array operations, not a message object.
+
+    Args:
+        buffer: bytes holding the messages (e.g. a decompressed MCAP chunk).
+        starts: (n,) offset of each message in ``buffer`` [B].
+        lengths: (n,) length of each message [B].
+    """
+    u8 = np.frombuffer(buffer, dtype=np.uint8)
+    start = np.asarray(starts, dtype=np.int64).reshape(-1)
+    length = np.asarray(lengths, dtype=np.int64).reshape(-1)
+    blocks: list[tuple[NDArray[np.intp], str, NDArray[np.float64]]] = []
+    others: list[NDArray[np.intp]] = []
+    if start.shape[0] == 0:
+        return MultiArrayRows(blocks, np.zeros(0, dtype=np.intp))
+    if int((start + length).max()) > u8.shape[0] or int(start.min()) < 0:
+        msg = 'message bounds outside the buffer'
+        raise ValueError(msg)
+    for size in np.unique(length).tolist():
+        pending = np.flatnonzero(length == size)
+        while pending.shape[0]:
+            if len(blocks) >= _MAX_LAYOUTS:  # many layouts (unusual): one message at a time
+                blocks.extend(_one_by_one(u8, start, size, pending, others))
+                break
+            first = int(start[pending[0]])
+            raw = bytes(u8[first : first + size])
+            layout = float64_multi_array_layout(raw)
+            if layout is None:
+                others.append(pending[:1])
+                pending = pending[1:]
+                continue
+            head = np.frombuffer(raw, dtype=np.uint8, count=layout.data_start)
+            same = (u8[start[pending, None] + np.arange(layout.data_start)] == head).all(axis=1)
+            members = pending[same]
+            blocks.append((members, layout.label, _values(u8, start[members] + layout.data_start, layout.size)))
+            pending = pending[~same]
+    rest = np.concatenate(others) if others else np.zeros(0, dtype=np.intp)
+    return MultiArrayRows(blocks, np.sort(rest))
+
+
+def _values(u8: NDArray[np.uint8], data_start: NDArray[np.int64], count: int) -> NDArray[np.float64]:
+    """(m, count) float64 values starting at ``data_start`` in ``u8``."""
+    if count == 0:
+        return np.empty((data_start.shape[0], 0), dtype=np.float64)
+    raw = u8[data_start[:, None] + np.arange(8 * count)]  # a new C-contiguous (m, 8 count) array
+    out: NDArray[np.float64] = raw.view('<f8').astype(np.float64, copy=False).reshape(-1, count)
+    return out
+
+
+def _one_by_one(
+    u8: NDArray[np.uint8], start: NDArray[np.int64], size: int, pending: NDArray[np.intp],
+    others: list[NDArray[np.intp]],
+) -> list[tuple[NDArray[np.intp], str, NDArray[np.float64]]]:
+    """Each message of ``pending`` (all ``size`` bytes long) parsed on its own."""
+    out = []
+    for k in pending.tolist():
+        first = int(start[k])
+        layout = float64_multi_array_layout(bytes(u8[first : first + size]))
+        if layout is None:
+            others.append(np.array([k], dtype=np.intp))
+            continue
+        values = _values(u8, np.array([first + layout.data_start], dtype=np.int64), layout.size)
+        out.append((np.array([k], dtype=np.intp), layout.label, values))
+    return out
+
+
+class JointStateColumns:
+    """Collects ``sensor_msgs/JointState`` messages as raw float64 bytes; :meth:`finish` makes per-joint arrays.
+
+    Per message it keeps the log time, the stamp, the index of its name list and, per field, the value count and
+    the values' bytes. :meth:`finish` scatters them into per-joint arrays with NaN where a value is missing.
+    """
+
+    def __init__(self) -> None:
+        self.log_time: list[int] = []
+        self.stamp: list[int] = []
+        self.name_index: list[int] = []
+        self.counts: tuple[list[int], list[int], list[int]] = ([], [], [])
+        self.values: tuple[list[bytes], list[bytes], list[bytes]] = ([], [], [])
+        self.name_sets: list[tuple[str, ...]] = []
+        self._by_names: dict[tuple[str, ...], int] = {}
+        self._by_raw_names: dict[bytes, int] = {}
+        # cached layout of the last parsed message: bytes from frame_id length to the end of the names
+        self._layout_prefix = b''
+        self._layout_pos = 0
+        self._layout_index = 0
+
+    def __len__(self) -> int:
+        """Messages collected [-]."""
+        return len(self.log_time)
+
+    def _names_index(self, names: tuple[str, ...]) -> int:
+        index = self._by_names.get(names)
+        if index is None:
+            index = len(self.name_sets)
+            self.name_sets.append(names)
+            self._by_names[names] = index
+        return index
+
+    def add_cdr(self, log_time: int, raw: bytes) -> bool:
+        """Parse one CDR-encoded JointState; False (and nothing stored) if it needs the type store.
+
+        Layout (XCDR1, offsets relative to the byte after the 4-byte encapsulation header; sequences of float64
+        are aligned to 8 only when non-empty, as rosbags and Fast CDR do): int32 sec, uint32 nanosec,
+        string frame_id, string[] name, float64[] position, velocity, effort. The bytes from frame_id to the end
+        of the names are usually the same from message to message, so their parse is cached.
+        """
+        if not isinstance(raw, bytes):
+            raw = bytes(raw)
+        try:
+            if raw[1] != 1 or raw[0] != 0:  # plain CDR, little endian only
+                return False
+            if self._layout_prefix and raw.startswith(self._layout_prefix, 12):
+                pos = self._layout_pos
+                index = self._layout_index
+            else:
+                pos, index = self._parse_layout(raw)
+            sec, nanosec = _UNPACK_STAMP(raw, 4)
+            # position
+            pos = (pos + 3) & ~3
+            (n_pos,) = _UNPACK_U32(raw, pos + 4)
+            pos += 4
+            if n_pos:
+                pos = (pos + 7) & ~7
+                end = pos + 8 * n_pos
+                b_pos = raw[pos + 4 : end + 4]
+                pos = end
+            else:
+                b_pos = _EMPTY
+            # velocity
+            pos = (pos + 3) & ~3
+            (n_vel,) = _UNPACK_U32(raw, pos + 4)
+            pos += 4
+            if n_vel:
+                pos = (pos + 7) & ~7
+                end = pos + 8 * n_vel
+                b_vel = raw[pos + 4 : end + 4]
+                pos = end
+            else:
+                b_vel = _EMPTY
+            # effort
+            pos = (pos + 3) & ~3
+            (n_eff,) = _UNPACK_U32(raw, pos + 4)
+            pos += 4
+            if n_eff:
+                pos = (pos + 7) & ~7
+                end = pos + 8 * n_eff
+                b_eff = raw[pos + 4 : end + 4]
+                pos = end
+            else:
+                b_eff = _EMPTY
+            if pos + 4 > len(raw):  # a value slice ran past the end
+                return False
+        except (struct.error, ValueError, IndexError):
+            return False
+        self.log_time.append(log_time)
+        self.stamp.append(sec * _NS_PER_S + nanosec)
+        self.name_index.append(index)
+        counts = self.counts
+        values = self.values
+        counts[0].append(n_pos)
+        counts[1].append(n_vel)
+        counts[2].append(n_eff)
+        values[0].append(b_pos)
+        values[1].append(b_vel)
+        values[2].append(b_eff)
+        return True
+
+    def _parse_layout(self, raw: bytes) -> tuple[int, int]:
+        """Parse frame_id and the names; cache them; return (payload offset after the names, name-set index)."""
+        (flen,) = _UNPACK_U32(raw, 12)
+        pos = (12 + flen + 3) & ~3
+        names_start = pos
+        (n_names,) = _UNPACK_U32(raw, pos + 4)
+        pos += 4
+        for _ in range(n_names):
+            pos = (pos + 3) & ~3
+            (slen,) = _UNPACK_U32(raw, pos + 4)
+            pos += 4 + slen
+        if pos + 4 > len(raw):
+            msg = 'names run past the end of the message'
+            raise ValueError(msg)
+        names_key = raw[names_start + 4 : pos + 4]
+        index = self._by_raw_names.get(names_key)
+        if index is None:
+            index = self._names_index(self._parse_names(raw, names_start, n_names))
+            self._by_raw_names[names_key] = index
+        self._layout_prefix = raw[12 : pos + 4]
+        self._layout_pos = pos
+        self._layout_index = index
+        return pos, index
+
+    @staticmethod
+    def _parse_names(raw: bytes, names_start: int, n_names: int) -> tuple[str, ...]:
+        pos = names_start + 4
+        names = []
+        for _ in range(n_names):
+            pos = (pos + 3) & ~3
+            (slen,) = _UNPACK_U32(raw, pos + 4)
+            if slen < 1:
+                msg = 'string without terminator'
+                raise ValueError(msg)
+            names.append(bytes(raw[pos + 8 : pos + 8 + slen - 1]).decode('utf-8'))
+            pos += 4 + slen
+        return tuple(names)
+
+    def add_message(self, log_time: int, message: object) -> None:
+        """Store one JointState decoded by the type store."""
+        stamp = message.header.stamp  # type: ignore[attr-defined]
+        self.log_time.append(log_time)
+        self.stamp.append(stamp.sec * _NS_PER_S + stamp.nanosec)
+        self.name_index.append(self._names_index(tuple(message.name)))  # type: ignore[attr-defined]
+        for field, attr in enumerate(('position', 'velocity', 'effort')):
+            arr = np.asarray(getattr(message, attr), dtype='<f8').reshape(-1)
+            self.counts[field].append(int(arr.shape[0]))
+            self.values[field].append(arr.tobytes())
+
+    def finish(self, rename: Mapping[str, str] | None = None) -> JointStateArrays:
+        """Assemble the per-joint arrays; ``rename`` maps a recorded joint name to the name to report it under.
+
+        Raises:
+            ValueError: after renaming, two joints would have the same name.
+        """
+        n_msgs = len(self.log_time)
+        order: dict[str, int] = {}
+        for names in self.name_sets:
+            for name in names:
+                order.setdefault(name, len(order))
+        n_joints = len(order)
+        # lookup: (name set, value position) -> joint column, -1 past the names of that set
+        width = max((len(x) for x in self.name_sets), default=0)
+        lookup = np.full((max(len(self.name_sets), 1), width + 1), -1, dtype=np.int64)
+        for row, names in enumerate(self.name_sets):
+            lookup[row, : len(names)] = [order[x] for x in names]
+        name_index = np.asarray(self.name_index, dtype=np.int64)
+        reported = _renamed(tuple(order), rename or {})
+        fields = []
+        for field in range(3):
+            counts = np.asarray(self.counts[field], dtype=np.int64)
+            flat = np.frombuffer(b''.join(self.values[field]), dtype='<f8')
+            out = np.full((n_msgs, n_joints), math.nan, dtype=np.float64)
+            if flat.size and n_joints:
+                msg_of_value = np.repeat(np.arange(n_msgs), counts)
+                starts = np.cumsum(counts) - counts
+                slot = np.arange(flat.size) - starts[msg_of_value]
+                slot = np.minimum(slot, width)  # values beyond the names: column -1, dropped
+                column = lookup[name_index[msg_of_value], slot]
+                keep = column >= 0
+                out[msg_of_value[keep], column[keep]] = flat[keep]
+            fields.append({reported[col]: np.ascontiguousarray(out[:, col]) for col in range(n_joints)})
+        return JointStateArrays(
+            log_time_ns=np.asarray(self.log_time, dtype=np.int64),
+            stamp_ns=np.asarray(self.stamp, dtype=np.int64),
+            names=reported,
+            position=fields[0],
+            velocity=fields[1],
+            effort=fields[2],
+        )
+
+
+def _renamed(names: tuple[str, ...], rename: Mapping[str, str]) -> tuple[str, ...]:
+    out = tuple(rename.get(name, name) for name in names)
+    if len(set(out)) != len(out):
+        clash = next(x for x in out if out.count(x) > 1)
+        recorded = [n for n, x in zip(names, out, strict=True) if x == clash]
+        msg = f'joints {" and ".join(map(repr, recorded))} would both be named {clash!r}'
+        raise ValueError(msg)
+    return out

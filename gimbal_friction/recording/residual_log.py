@@ -1,10 +1,17 @@
-"""The residual log: a folder of MCAP files written directly with ``mcap``, readable after a crash.
+"""The residual log writer: a folder of MCAP files written with mcap's public writer API, readable after a crash.
 
 CONTRACT.md "Bags and logs": ROS 2 profile, ``ros2msg`` schemas, CDR messages, standard message types only,
 rotated by size or duration; closed cleanly, the folder also has a rosbag2 ``metadata.yaml`` (version 9) so
 ``ros2 bag info`` and ``rosbags.highlevel.AnyReader`` open it. Chunks are small and flushed on a timer, so a
-process killed with SIGKILL leaves files whose completed chunks are read back by :func:`read_residual_log`
-(ROS2_SETUP.md §6: the rosbags writer leaves nothing readable in that case).
+process killed with SIGKILL leaves files whose completed chunks are read back by :mod:`.residual_read`, and
+rewritten into complete files by ``gimbal-friction recover`` (:mod:`.recover`); ROS2_SETUP.md §6: the rosbags
+writer leaves nothing readable in that case.
+
+Messages go through ``mcap.writer.Writer.add_message``; :meth:`ResidualLogWriter.write_raw_many` appends whole runs
+of messages through :mod:`.mcap_bulk` when the installed mcap allows it (same bytes, faster).
+
+Reading is :mod:`.residual_read` (``read_residual_rows``, ``iter_residual_rows``, ``iter_residual_log``),
+recovery :mod:`.recover`.
 
 Times: ``log_time_ns`` is the log (receive, or for ``replay`` the bag's) time [ns]. Sizes in bytes [B].
 """
@@ -12,8 +19,6 @@ Times: ``log_time_ns`` is the log (receive, or for ``replay`` the bag's) time [n
 from __future__ import annotations
 
 import contextlib
-import io
-import itertools
 import math
 import operator
 import os
@@ -22,39 +27,24 @@ import struct
 import threading
 import time
 from pathlib import Path
-from typing import TYPE_CHECKING, BinaryIO, NamedTuple
+from typing import TYPE_CHECKING, BinaryIO, NamedTuple, cast
 
 import numpy as np
 import yaml
-from mcap.exceptions import EndOfFile, InvalidMagic, McapError, RecordLengthLimitExceeded
-from mcap.opcode import Opcode
-from mcap.records import Channel, Header, Message, MessageIndex, Schema
-from mcap.stream_reader import StreamReader
 from mcap.writer import CompressionType
 from mcap.writer import Writer as McapWriter
 from rosbags.serde import SerdeError
-from rosbags.typesys import TypesysError, get_types_from_msg, get_typestore
+from rosbags.typesys import TypesysError
 
-from gimbal_friction.recording.bag import DEFAULT_STORE, default_typestore
+from gimbal_friction.core.units import NS_PER_S
+from gimbal_friction.recording import mcap_bulk
+from gimbal_friction.recording.cdr import default_typestore
 from gimbal_friction.recording.errors import RecordingError
-from gimbal_friction.core.residual_row import RESIDUAL_FIELDS_V1, ResidualRows, rows_from_detail
-from gimbal_friction.recording.topics import FLOAT64_MULTI_ARRAY_TYPE, RESIDUAL, RESIDUAL_DETAIL, TEMPERATURE
-
-try:  # the chunk builder of mcap's writer (internal; see _BulkChunk)
-    from mcap._chunk_builder import ChunkBuilder
-except ImportError:  # pragma: no cover - another mcap layout: write_raw_many uses add_message
-    ChunkBuilder = None  # type: ignore[assignment,misc]
-
-try:  # chunk decompression errors of a torn last chunk
-    from zstandard import ZstdError as _ZstdError
-except ImportError:  # pragma: no cover - zstandard is a dependency of mcap's zstd support
-    _ZstdError = RuntimeError  # type: ignore[assignment,misc]
+from gimbal_friction.recording.topics import MCAP_PROFILE, MESSAGE_ENCODING, SCHEMA_ENCODING
 
 if TYPE_CHECKING:
-    from collections.abc import Callable, Iterable, Iterator, Sequence
+    from collections.abc import Callable, Sequence
     from types import TracebackType
-
-    from mcap.data_stream import RecordBuilder
 
     from numpy.typing import ArrayLike, NDArray
     from rosbags.typesys.store import Typestore
@@ -63,36 +53,22 @@ __all__ = [
     'DEFAULT_CHUNK_SIZE',
     'MESSAGE_ENCODING',
     'PROFILE',
-    'RESIDUAL_LOG_TOPICS',
     'SCHEMA_ENCODING',
-    'LogMessage',
-    'RecoveryResult',
-    'ResidualArrays',
-    'ResidualLog',
     'ResidualLogStats',
     'ResidualLogWriter',
-    'iter_residual_log',
-    'read_residual_log',
-    'recover_mcap',
-    'residual_log_files',
 ]
 
-PROFILE = 'ros2'
-SCHEMA_ENCODING = 'ros2msg'
-MESSAGE_ENCODING = 'cdr'
+PROFILE = MCAP_PROFILE
 #: default chunk size [B]: small, so little is lost when the process is killed
 DEFAULT_CHUNK_SIZE = 64 * 1024
-#: a folder (or file) is a residual log if it holds at least one of these topics
-RESIDUAL_LOG_TOPICS = (RESIDUAL, RESIDUAL_DETAIL)
 LIBRARY = 'gimbal_friction residual_log (mcap-python)'
 
-_NS_PER_S = 1_000_000_000
 _COMPRESSION = {'none': CompressionType.NONE, 'lz4': CompressionType.LZ4, 'zstd': CompressionType.ZSTD}
 #: channel metadata as rosbag2 (version 9) writes it; '[]' = no recorded QoS offers (a YAML sequence)
 _NO_QOS = '[]'
-#: errors met when a file ends inside a record or a chunk (torn tail after SIGKILL or a full disk)
-_TAIL_ERRORS = (EndOfFile, RecordLengthLimitExceeded, struct.error, ValueError, EOFError, _ZstdError, RuntimeError)
-_FILE_INDEX = re.compile(r'^(?P<stem>.*?)(?:_(?P<index>\d+))?$')
+_CDR_HEADS = frozenset({b'\x00\x00', b'\x00\x01'})  # CDR big or little endian (what write_raw accepts)
+_CDR_HEAD = operator.itemgetter(slice(0, 2))  # the first two bytes of a message
+_MESSAGE_OVERHEAD = mcap_bulk.MESSAGE_OVERHEAD
 
 
 # ----------------------------------------------------------------------------------------------------------------
@@ -112,78 +88,6 @@ class ResidualLogStats(NamedTuple):
     """File being written, None once closed."""
     files: tuple[Path, ...]
     """Every file of this log so far, in order."""
-
-
-class LogMessage(NamedTuple):
-    """One decoded message of a residual log."""
-
-    topic: str
-    msgtype: str
-    log_time_ns: int
-    """Log time [ns]."""
-    msg: object
-    """rosbags message dataclass."""
-
-
-class ResidualArrays(NamedTuple):
-    """The ``/gimbal/friction/residual_detail`` rows of a residual log, sorted by log time.
-
-    One array per field of :data:`~.topics.RESIDUAL_FIELDS` (same names, same SI units), plus the log time and
-    the joint name of each row. A row shorter than RESIDUAL_FIELDS is padded with NaN.
-    """
-
-    log_time_ns: NDArray[np.int64]
-    """Log time [ns]."""
-    joint: NDArray[np.str_]
-    """Joint name (``layout.dim[0].label``)."""
-    stamp_s: NDArray[np.float64]
-    """Stamp of the measured sample [s]."""
-    temperature_c: NDArray[np.float64]
-    """Bearing temperature used for the prediction [degC]."""
-    position_rad: NDArray[np.float64]
-    """Joint position [rad]."""
-    velocity_rad_s: NDArray[np.float64]
-    """Joint velocity [rad/s]."""
-    current_a: NDArray[np.float64]
-    """Motor current [A]."""
-    measured_nm: NDArray[np.float64]
-    """Measured friction, signed [N*m]."""
-    predicted_nm: NDArray[np.float64]
-    """Model feedforward, signed [N*m]."""
-    m_rolling_nm: NDArray[np.float64]
-    """Model M_R magnitude [N*m]."""
-    m_sliding_nm: NDArray[np.float64]
-    """Model M_S magnitude [N*m]."""
-    m_viscous_nm: NDArray[np.float64]
-    """Model M_L magnitude [N*m]."""
-    residual_nm: NDArray[np.float64]
-    """Measured - predicted [N*m]."""
-
-    def __len__(self) -> int:  # type: ignore[override]
-        """Number of rows [-] (not the number of fields)."""
-        return int(self.log_time_ns.shape[0])
-
-
-class ResidualLog(NamedTuple):
-    """What :func:`read_residual_log` found."""
-
-    detail: ResidualRows | None
-    """The residual detail rows of every file."""
-    files: tuple[Path, ...]
-    """Files read, in order."""
-    truncated_files: tuple[Path, ...]
-    """Files without a valid end (killed writer); their completed chunks were read."""
-    topic_counts: dict[str, int]
-    """Messages per topic over all files [-]."""
-
-
-class RecoveryResult(NamedTuple):
-    """Outcome of :func:`recover_mcap`."""
-
-    messages: int
-    """Messages copied [-]."""
-    truncated: bool
-    """True if the source ended without a footer (or with a torn record)."""
 
 
 class _FileInfo(NamedTuple):
@@ -295,7 +199,7 @@ class ResidualLogWriter:
         self.chunk_size = int(chunk_size)
         self.flush_interval_s = flush_interval_s
         self.max_bytes = max_bytes
-        self.max_duration_ns = None if max_duration_s is None else round(max_duration_s * _NS_PER_S)
+        self.max_duration_ns = None if max_duration_s is None else round(max_duration_s * NS_PER_S)
         self.fsync = fsync
         self._compression = _COMPRESSION[compression]
         self._typestore = typestore or default_typestore()
@@ -415,17 +319,19 @@ class ResidualLogWriter:
         if logs.min() < 0:
             msg = f'residual log: log time {int(logs.min())} ns is negative'
             raise RecordingError(msg)
-        if set(map(type, datas)) != {bytes}:
-            datas = [d if isinstance(d, bytes) else bytes(d) for d in datas]
-        heads = set(map(_CDR_HEAD, datas))
+        blobs: Sequence[bytes] = (
+            cast('Sequence[bytes]', datas) if set(map(type, datas)) == {bytes}
+            else [d if isinstance(d, bytes) else bytes(d) for d in datas]
+        )
+        heads = set(map(_CDR_HEAD, blobs))
         if not heads <= _CDR_HEADS:
-            k = next(k for k, d in enumerate(datas) if d[:2] not in _CDR_HEADS or len(d) < 4)
-            msg = f'residual log: {pairs[ids[k]][0]} message is not plain CDR (encapsulation header {datas[k][:4]!r})'
+            k = next(k for k, d in enumerate(blobs) if d[:2] not in _CDR_HEADS or len(d) < 4)
+            msg = f'residual log: {pairs[ids[k]][0]} message is not plain CDR (encapsulation header {blobs[k][:4]!r})'
             raise RecordingError(msg)
-        lengths = np.fromiter(map(len, datas), dtype=np.int64, count=n)
+        lengths = np.fromiter(map(len, blobs), dtype=np.int64, count=n)
         if lengths.min() < 4:
             k = int(np.argmax(lengths < 4))
-            msg = f'residual log: {pairs[ids[k]][0]} message is not plain CDR (encapsulation header {datas[k][:4]!r})'
+            msg = f'residual log: {pairs[ids[k]][0]} message is not plain CDR (encapsulation header {blobs[k][:4]!r})'
             raise RecordingError(msg)
         canonical: dict[tuple[str, str], int] = {}
         remap = np.array([canonical.setdefault(pair, k) for k, pair in enumerate(pairs)], dtype=np.int64)
@@ -445,11 +351,11 @@ class ResidualLogWriter:
                 self._msgdef(msgtype)  # refuse unknown types before touching the file
             current = self._file
             assert current is not None
-            if self.flush_interval_s is not None or _BulkChunk.of(current.writer) is None:
-                for k, t, log_ns in zip(range(n), ids.tolist(), logs.tolist()):
-                    self._add(pairs[t][0], pairs[t][1], log_ns, datas[k])
+            if self.flush_interval_s is not None or mcap_bulk.bulk_chunk(current.writer) is None:
+                for k, t, log_ns in zip(range(n), ids.tolist(), logs.tolist(), strict=True):
+                    self._add(pairs[t][0], pairs[t][1], log_ns, blobs[k])
                 return
-            self._add_many(pairs, ids, logs, datas, lengths, used)
+            self._add_many(pairs, ids, logs, blobs, lengths, used)
 
     def flush(self) -> None:
         """Write the open chunk out and flush the file (``os.fsync`` too with ``fsync=True``).
@@ -464,7 +370,7 @@ class ResidualLogWriter:
             current = self._file
             assert current is not None
             try:
-                _flush_writer(current.writer)
+                current.writer.flush()  # type: ignore[no-untyped-call]
                 if self.fsync:
                     os.fsync(current.stream.fileno())
             except OSError as err:
@@ -478,7 +384,7 @@ class ResidualLogWriter:
         """Finish the open file, then write the folder's ``metadata.yaml``. Idempotent.
 
         After a failed write or flush, the files are only closed (no footer, no metadata.yaml): their completed
-        chunks stay readable with :func:`read_residual_log`.
+        chunks stay readable with :func:`~.residual_read.read_residual_rows`.
 
         Raises:
             RecordingError: finishing the file or writing metadata.yaml failed.
@@ -593,7 +499,7 @@ class ResidualLogWriter:
 
     def _finish(self, current: _OpenFile) -> None:
         """Finish (footer, summary) and close one file; OSError propagates."""
-        current.writer.finish()
+        current.writer.finish()  # type: ignore[no-untyped-call]
         current.stream.flush()
         if self.fsync:
             os.fsync(current.stream.fileno())
@@ -703,10 +609,10 @@ class ResidualLogWriter:
                 tell = current.stream.tell()
             except OSError as err:
                 self._fail(current.path, 'writing', err)
-            bulk = _BulkChunk.of(current.writer)
+            bulk = mcap_bulk.bulk_chunk(current.writer)
             assert bulk is not None
             # end of the run: the message that fills the chunk (included) ...
-            room = self.chunk_size - bulk.count()
+            room = self.chunk_size - bulk.pending()
             stop = min(n, i + max(room, 0) // _MESSAGE_OVERHEAD + 2)
             over = np.flatnonzero(csum[i + 1 : stop + 1] - csum[i] > room)
             j = i + int(over[0]) + 1 if over.shape[0] else stop
@@ -749,7 +655,7 @@ class ResidualLogWriter:
     def _append_run(
         self,
         current: _OpenFile,
-        bulk: _BulkChunk,
+        bulk: mcap_bulk.BulkChunk,
         pairs: list[tuple[str, str]],
         ids: NDArray[np.int64],
         logs: NDArray[np.int64],
@@ -760,7 +666,6 @@ class ResidualLogWriter:
         m = ids.shape[0]
         channel = np.zeros(m, dtype=np.int64)
         sequence = np.zeros(m, dtype=np.int64)
-        runs = []  # (channel id, mask), in order of first appearance (as add_message meets them)
         present, first = np.unique(ids, return_index=True)
         for t in present[np.argsort(first)].tolist():
             topic, msgtype = pairs[t]
@@ -771,18 +676,10 @@ class ResidualLogWriter:
             channel[mask] = channel_id
             sequence[mask] = (base + np.arange(1, count + 1, dtype=np.int64)) & 0xFFFFFFFF
             current.sequence[channel_id] = (base + count) & 0xFFFFFFFF
-            runs.append((channel_id, mask))
             self._topic_types[topic] = msgtype
             self._topic_counts[topic] = self._topic_counts.get(topic, 0) + count
-        header = np.empty(m, dtype=_MESSAGE_HEADER)
-        header['opcode'] = _OPCODE_MESSAGE
-        header['length'] = offsets[1:] - offsets[:-1] - 9  # record length after opcode and length
-        header['channel'] = channel
-        header['sequence'] = sequence
-        header['log_time'] = logs
-        header['publish_time'] = logs
         try:
-            bulk.append(header, datas, logs, runs, offsets[:-1])
+            bulk.append(channel, sequence, logs, datas, offsets)
         except OSError as err:
             self._fail(current.path, 'writing', err)
         log_min, log_max = int(logs.min()), int(logs.max())
@@ -846,150 +743,6 @@ class ResidualLogWriter:
         tmp.replace(path)
 
 
-#: bytes of a message record besides its data: opcode, length, channel id, sequence, log and publish time
-_MESSAGE_OVERHEAD = 31
-_OPCODE_MESSAGE = 0x05
-_MESSAGE_HEADER = np.dtype([('opcode', 'u1'), ('length', '<u8'), ('channel', '<u2'), ('sequence', '<u4'),
-                            ('log_time', '<u8'), ('publish_time', '<u8')])
-assert _MESSAGE_HEADER.itemsize == _MESSAGE_OVERHEAD
-_MESSAGE_RECORD_HEAD = np.dtype(f'V{_MESSAGE_OVERHEAD}')
-_CDR_HEADS = frozenset({b'\x00\x00', b'\x00\x01'})  # CDR big or little endian (what write_raw accepts)
-_CDR_HEAD = operator.itemgetter(slice(0, 2))  # the first two bytes of a message
-
-
-class _PackedMessageIndex(MessageIndex):
-    """A ``MessageIndex`` whose (log time, offset) entries are kept packed (``<u8`` pairs), as it writes them.
-
-    :meth:`add_packed` appends a block of entries; tuples that ``ChunkBuilder.add_message`` appends to
-    ``records`` meanwhile are packed first, so the entries stay in order. Writes the bytes of ``MessageIndex``.
-    """
-
-    def __init__(self, channel_id: int, records: list[tuple[int, int]]) -> None:
-        super().__init__(channel_id=channel_id, records=records)
-        self.packed: list[bytes] = []
-
-    def _pack_records(self) -> None:
-        records = self.records
-        if records:
-            self.packed.append(struct.pack(f'<{2 * len(records)}Q', *itertools.chain.from_iterable(records)))
-            records.clear()
-
-    def add_packed(self, entries: bytes) -> None:
-        self._pack_records()
-        self.packed.append(entries)
-
-    def write(self, stream: RecordBuilder) -> None:
-        self._pack_records()
-        entries = b''.join(self.packed)
-        stream.start_record(Opcode.MESSAGE_INDEX)
-        stream.write2(self.channel_id)
-        stream.write4(len(entries))
-        stream.write(entries)
-        stream.finish_record()
-
-
-class _BulkChunk:
-    """Appends message records to the open chunk of an ``mcap`` writer, as ``Writer.add_message`` would.
-
-    Goes below mcap's public API (pinned mcap 1.6.0: ``Writer`` keeps a ``ChunkBuilder`` whose ``RecordBuilder``
-    writes to a ``BytesIO``, per-channel ``MessageIndex`` records and a ``Statistics`` record). :meth:`of` checks
-    that structure and returns None for a writer that does not have it (another mcap version, no chunking);
-    callers then use ``add_message``. The result is the file ``add_message`` would have written, byte for byte
-    (``test/recording/test_residual_log_bulk.py``).
-    """
-
-    def __init__(self, writer: McapWriter, builder: ChunkBuilder, stats: object) -> None:
-        self._writer = writer
-        self._builder = builder
-        self._stats = stats
-
-    @staticmethod
-    def of(writer: McapWriter) -> _BulkChunk | None:
-        builder = getattr(writer, '_Writer__chunk_builder', None)
-        stats = getattr(writer, '_Writer__statistics', None)
-        finalize = getattr(writer, '_Writer__maybe_finalize_chunk', None)
-        if ChunkBuilder is None or not isinstance(builder, ChunkBuilder) or not callable(finalize):
-            return None
-        record_writer = getattr(builder, 'record_writer', None)
-        if not isinstance(getattr(record_writer, '_buffer', None), io.BytesIO):
-            return None
-        if not isinstance(getattr(builder, 'message_indices', None), dict) or not all(
-            isinstance(getattr(builder, name, None), int)
-            for name in ('num_messages', 'message_start_time', 'message_end_time')
-        ):
-            return None
-        if not isinstance(getattr(stats, 'channel_message_counts', None), dict) or not all(
-            isinstance(getattr(stats, name, None), int)
-            for name in ('message_count', 'message_start_time', 'message_end_time')
-        ):
-            return None
-        return _BulkChunk(writer, builder, stats)
-
-    def count(self) -> int:
-        """Bytes in the open chunk [B]."""
-        return int(self._builder.count)
-
-    def append(
-        self,
-        header: np.ndarray,
-        datas: Sequence[bytes],
-        logs: NDArray[np.int64],
-        channels: list[tuple[int, NDArray[np.bool_]]],
-        offsets: NDArray[np.int64],
-    ) -> None:
-        """Append message records (``header[k]`` + ``datas[k]``); ``channels`` in order of first appearance."""
-        builder = self._builder
-        stats = self._stats
-        buffer = builder.record_writer._buffer  # noqa: SLF001
-        start = buffer.tell()
-        m = header.shape[0]
-        parts: list[bytes] = [b''] * (2 * m)
-        parts[0::2] = header.view(_MESSAGE_RECORD_HEAD).tolist()  # bytes objects (a void dtype keeps NULs)
-        parts[1::2] = datas
-        buffer.write(b''.join(parts))
-        positions = offsets + start
-        indices = builder.message_indices
-        for channel_id, mask in channels:
-            index = indices.get(channel_id)
-            if not isinstance(index, _PackedMessageIndex):  # new, or begun by add_message (same place in the dict)
-                index = indices[channel_id] = _PackedMessageIndex(channel_id, [] if index is None else index.records)
-            entries = np.empty((int(mask.sum()), 2), dtype='<u8')
-            entries[:, 0] = logs[mask]
-            entries[:, 1] = positions[mask]
-            index.add_packed(entries.tobytes())
-            counts = stats.channel_message_counts  # type: ignore[attr-defined]
-            counts[channel_id] = counts.get(channel_id, 0) + int(mask.sum())
-        log_min, log_max = int(logs.min()), int(logs.max())
-        if builder.num_messages == 0:
-            builder.message_start_time = log_min
-        else:
-            builder.message_start_time = min(builder.message_start_time, log_min)
-        builder.message_end_time = max(builder.message_end_time, log_max)
-        builder.num_messages += m
-        if stats.message_count == 0:  # type: ignore[attr-defined]
-            stats.message_start_time = log_min  # type: ignore[attr-defined]
-        else:
-            stats.message_start_time = min(stats.message_start_time, log_min)  # type: ignore[attr-defined]
-        stats.message_end_time = max(stats.message_end_time, log_max)  # type: ignore[attr-defined]
-        stats.message_count += m  # type: ignore[attr-defined]
-
-    def maybe_finalize(self) -> None:
-        """Write the chunk out if it is full (as ``add_message`` does after each message)."""
-        self._writer._Writer__maybe_finalize_chunk()  # type: ignore[attr-defined]  # noqa: SLF001
-
-
-def _flush_writer(writer: McapWriter) -> None:
-    """End the open chunk (if it holds messages), write it out and flush the stream; OSError propagates."""
-    flush = getattr(writer, 'flush', None)
-    if flush is not None:  # mcap >= 1.2: public
-        flush()
-        return
-    # older mcap: the same steps through the name-mangled internals  # pragma: no cover
-    writer._Writer__finalize_chunk()  # type: ignore[attr-defined]  # noqa: SLF001
-    writer._Writer__flush()  # type: ignore[attr-defined]  # noqa: SLF001
-    writer._Writer__stream.flush()  # type: ignore[attr-defined]  # noqa: SLF001
-
-
 def _open_exclusive(path: Path) -> BinaryIO:
     """Create ``path`` for writing; fail if it exists."""
     return path.open('xb')
@@ -998,338 +751,3 @@ def _open_exclusive(path: Path) -> BinaryIO:
 def _is_log_file(path: Path, prefix: str) -> bool:
     """True for ``<prefix>_<index>.mcap``."""
     return path.suffix == '.mcap' and re.fullmatch(re.escape(prefix) + r'_\d+', path.stem) is not None
-
-
-# ----------------------------------------------------------------------------------------------------------------
-# reading
-
-
-def residual_log_files(path: str | os.PathLike[str]) -> list[Path]:
-    """The MCAP files of a residual-log folder in write order (``name_2`` before ``name_10``); a file: itself.
-
-    Raises:
-        RecordingError: the path does not exist or holds no ``.mcap`` file ("not a residual log: ...").
-    """
-    where = Path(path)
-    if where.is_file():
-        if where.suffix != '.mcap':
-            msg = f'not a residual log: {where} (not an .mcap file)'
-            raise RecordingError(msg)
-        return [where]
-    if not where.is_dir():
-        msg = f'not a residual log: {where} (no such file or directory)'
-        raise RecordingError(msg)
-    try:
-        files = [p for p in where.iterdir() if p.suffix == '.mcap' and p.is_file()]
-    except OSError as err:
-        msg = f'not a residual log: {where} ({err})'
-        raise RecordingError(msg) from err
-    if not files:
-        msg = f'not a residual log: {where} (no .mcap files)'
-        raise RecordingError(msg)
-
-    def key(p: Path) -> tuple[str, int, str]:
-        match = _FILE_INDEX.match(p.stem)
-        assert match is not None
-        index = match.group('index')
-        return (match.group('stem'), -1 if index is None else int(index), p.name)
-
-    return sorted(files, key=key)
-
-
-class _Scan:
-    """Streams the messages of one MCAP file, complete or torn; remembers how it ended."""
-
-    def __init__(self, path: Path) -> None:
-        self.path = path
-        self.truncated = False
-        self.header: Header | None = None
-        self.schemas: dict[int, Schema] = {}
-        self.channels: dict[int, Channel] = {}
-
-    def records(self) -> Iterator[Schema | Channel | Message]:
-        """Schema, Channel and Message records in file order, stopping cleanly at a torn tail.
-
-        Every record of a chunk is parsed (and its CRC checked) before the first is yielded, so a torn chunk
-        contributes nothing.
-        """
-        try:
-            stream = self.path.open('rb')
-        except OSError as err:
-            msg = f'cannot open {self.path}: {err}'
-            raise RecordingError(msg) from err
-        with stream:
-            reader = StreamReader(stream, validate_crcs=True)
-            records = iter(reader.records)
-            while True:
-                try:
-                    record = next(records)
-                except StopIteration:
-                    return
-                except InvalidMagic as err:
-                    if self.header is None:
-                        msg = f'not an MCAP file: {self.path} ({err})'
-                        raise RecordingError(msg) from err
-                    self.truncated = True  # torn end magic
-                    return
-                except _TAIL_ERRORS:
-                    self.truncated = True
-                    return
-                except (McapError, OSError) as err:
-                    msg = f'cannot read {self.path}: {err}'
-                    raise RecordingError(msg) from err
-                if isinstance(record, Header):
-                    self.header = record
-                elif isinstance(record, Schema):
-                    self.schemas[record.id] = record
-                    yield record
-                elif isinstance(record, Channel):
-                    self.channels[record.id] = record
-                    yield record
-                elif isinstance(record, Message):
-                    yield record
-                # a Footer ends the records; the next step checks the end magic (torn if it is short)
-
-
-class _Decoder:
-    """Deserializes CDR with a private type store, registering types a file defines that the store lacks."""
-
-    def __init__(self) -> None:
-        self.store = get_typestore(DEFAULT_STORE)
-
-    def ensure(self, schema: Schema | None, msgtype: str, where: Path) -> None:
-        if msgtype in self.store.types:
-            return
-        if schema is None or schema.encoding != SCHEMA_ENCODING:
-            msg = f'{where}: message type {msgtype!r} is unknown and the file has no ros2msg schema for it'
-            raise RecordingError(msg)
-        try:
-            self.store.register(get_types_from_msg(schema.data.decode('utf-8'), msgtype))
-        except (TypesysError, UnicodeDecodeError) as err:
-            msg = f'{where}: cannot parse the schema of {msgtype!r}: {err}'
-            raise RecordingError(msg) from err
-
-    def decode(self, data: bytes, msgtype: str, topic: str, log_time: int, where: Path) -> object:
-        try:
-            return self.store.deserialize_cdr(data, msgtype)
-        except (SerdeError, TypesysError, KeyError) as err:
-            msg = f'{where}: cannot decode {topic} message at log time {log_time} ns: {err}'
-            raise RecordingError(msg) from err
-
-
-class _ReadReport:
-    """Collects what a read went through."""
-
-    def __init__(self) -> None:
-        self.files: list[Path] = []
-        self.truncated: list[Path] = []
-        self.topic_counts: dict[str, int] = {}
-
-
-def _as_paths(folders: str | os.PathLike[str] | Iterable[str | os.PathLike[str]]) -> list[Path]:
-    if isinstance(folders, (str, os.PathLike)):
-        return [Path(folders)]
-    paths = [Path(x) for x in folders]
-    if not paths:
-        msg = 'not a residual log: no folder given'
-        raise RecordingError(msg)
-    return paths
-
-
-def _iter_log(
-    folders: str | os.PathLike[str] | Iterable[str | os.PathLike[str]],
-    topics: Iterable[str] | None,
-    report: _ReadReport,
-) -> Iterator[LogMessage]:
-    wanted = None if topics is None else ({topics} if isinstance(topics, str) else set(topics))
-    decoder = _Decoder()
-    for folder in _as_paths(folders):
-        files = residual_log_files(folder)
-        seen: set[str] = set()
-        for path in files:
-            scan = _Scan(path)
-            report.files.append(path)
-            for record in scan.records():
-                if not isinstance(record, Message):
-                    continue
-                channel = scan.channels.get(record.channel_id)
-                if channel is None:
-                    msg = f'{path}: message on unknown channel {record.channel_id}'
-                    raise RecordingError(msg)
-                topic = channel.topic
-                seen.add(topic)
-                report.topic_counts[topic] = report.topic_counts.get(topic, 0) + 1
-                if wanted is not None and topic not in wanted:
-                    continue
-                if channel.message_encoding != MESSAGE_ENCODING:
-                    msg = f'{path}: topic {topic} has message encoding {channel.message_encoding!r}, not cdr'
-                    raise RecordingError(msg)
-                schema = scan.schemas.get(channel.schema_id)
-                msgtype = schema.name if schema is not None else ''
-                decoder.ensure(schema, msgtype, path)
-                msg_obj = decoder.decode(record.data, msgtype, topic, record.log_time, path)
-                yield LogMessage(topic, msgtype, record.log_time, msg_obj)
-            seen.update(x.topic for x in scan.channels.values())
-            if scan.truncated:
-                report.truncated.append(path)
-        if not seen.intersection(RESIDUAL_LOG_TOPICS):
-            have = ', '.join(sorted(seen)) or 'no topics'
-            need = ' or '.join(RESIDUAL_LOG_TOPICS)
-            msg = f'not a residual log: {folder} (holds {have}; expected {need})'
-            raise RecordingError(msg)
-
-
-def iter_residual_log(
-    folders: str | os.PathLike[str] | Iterable[str | os.PathLike[str]],
-    topics: Iterable[str] | None = None,
-) -> Iterator[LogMessage]:
-    """Decoded messages of one or more residual-log folders (or single ``.mcap`` files), in file order.
-
-    Files are read in write order (``residuals_0``, ``residuals_1``, ...); a file without a footer (killed
-    writer) yields the messages of its completed chunks. The check that a folder holds a residual topic is made
-    once its files are read, so the error comes after that folder's messages.
-
-    Args:
-        folders: folder(s) or file(s).
-        topics: only these topics (default: all).
-
-    Raises:
-        RecordingError: no MCAP files, none of :data:`RESIDUAL_LOG_TOPICS`, unreadable or undecodable data.
-    """
-    yield from _iter_log(folders, topics, _ReadReport())
-
-
-def read_residual_rows(
-    folders: str | os.PathLike[str] | Iterable[str | os.PathLike[str]],
-) -> tuple[ResidualRows, ResidualLog]:
-    """The residual rows of one or more residual-log folders (sorted by log time), and what was read.
-
-    Raises:
-        RecordingError: see :func:`iter_residual_log`; or rows of an unknown layout.
-    """
-    report = _ReadReport()
-    log_times: list[int] = []
-    joints: list[str] = []
-    rows: list[np.ndarray] = []
-    for item in _iter_log(folders, [RESIDUAL_DETAIL], report):
-        if item.msgtype != FLOAT64_MULTI_ARRAY_TYPE:
-            msg = f'{RESIDUAL_DETAIL} has type {item.msgtype}, expected {FLOAT64_MULTI_ARRAY_TYPE}'
-            raise RecordingError(msg)
-        data = np.asarray(item.msg.data, dtype=np.float64)  # type: ignore[attr-defined]
-        dims = item.msg.layout.dim  # type: ignore[attr-defined]
-        log_times.append(item.log_time_ns)
-        joints.append(dims[0].label if len(dims) else '')
-        rows.append(data)
-    order = np.argsort(np.asarray(log_times, dtype=np.int64), kind='stable')
-    widths = {r.shape[0] for r in rows}
-    if len(widths) > 1:
-        msg = f'residual log rows of mixed layouts ({sorted(widths)} values)'
-        raise RecordingError(msg)
-    try:
-        table = np.vstack(rows)[order] if rows else np.empty((0, len(RESIDUAL_FIELDS_V1) + 1))
-        detail = rows_from_detail(np.asarray(joints, dtype=np.str_)[order] if joints else np.empty(0, dtype=str),
-                                  table)
-    except ValueError as err:
-        raise RecordingError(f'residual log: {err}') from None
-    log = ResidualLog(detail=None, files=tuple(report.files), truncated_files=tuple(report.truncated),
-                      topic_counts=dict(report.topic_counts))
-    return detail, log
-
-
-def read_temperature_stream(
-    folders: str | os.PathLike[str] | Iterable[str | os.PathLike[str]],
-) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """The bearing temperatures logged as inputs: times [s] (stamp, or log time if the stamp is zero) and values
-    [°C]; empty arrays if the inputs were not logged."""
-    times: list[float] = []
-    values: list[float] = []
-    for item in _iter_log(folders, [TEMPERATURE], _ReadReport()):
-        stamp = item.msg.header.stamp  # type: ignore[attr-defined]
-        ns = stamp.sec * _NS_PER_S + stamp.nanosec
-        times.append((ns or item.log_time_ns) / _NS_PER_S)
-        values.append(float(item.msg.temperature))  # type: ignore[attr-defined]
-    return np.asarray(times, dtype=np.float64), np.asarray(values, dtype=np.float64)
-
-
-def read_residual_log(
-    folders: str | os.PathLike[str] | Iterable[str | os.PathLike[str]],
-) -> ResidualLog:
-    """:func:`read_residual_rows` as one record (``detail`` = the rows)."""
-    rows, log = read_residual_rows(folders)
-    return log._replace(detail=rows)
-
-
-def recover_mcap(
-    src: str | os.PathLike[str],
-    dst: str | os.PathLike[str],
-    *,
-    chunk_size: int = DEFAULT_CHUNK_SIZE,
-    compression: str = 'zstd',
-) -> RecoveryResult:
-    """Rewrite an MCAP file, torn or not, into a valid one holding every message of its completed chunks.
-
-    Schemas, channels (with metadata), log/publish times and sequence numbers are kept; the profile comes from
-    the source header.
-
-    Args:
-        src: MCAP file to read.
-        dst: file to create; must not exist.
-        chunk_size: chunk size of the new file [B].
-        compression: ``'zstd'``, ``'lz4'`` or ``'none'``.
-
-    Raises:
-        RecordingError: ``dst`` exists, ``src`` is not MCAP, or I/O fails.
-    """
-    source = Path(src)
-    target = Path(dst)
-    if compression not in _COMPRESSION:
-        msg = f'compression {compression!r}: expected one of {sorted(_COMPRESSION)}'
-        raise RecordingError(msg)
-    if target.exists():
-        msg = f'recover_mcap: {target} exists already, not overwriting'
-        raise RecordingError(msg)
-    if not source.is_file():
-        msg = f'recover_mcap: {source} is not a file'
-        raise RecordingError(msg)
-    scan = _Scan(source)
-    count = 0
-    try:
-        with target.open('xb') as stream:
-            writer = McapWriter(stream, chunk_size=chunk_size, compression=_COMPRESSION[compression])
-            started = False
-            schema_ids: dict[int, int] = {}
-            channel_ids: dict[int, int] = {}
-            for record in scan.records():
-                if not started:
-                    header = scan.header
-                    profile = header.profile if header is not None else PROFILE
-                    library = f'{LIBRARY} recover_mcap' + (f' from {header.library}' if header else '')
-                    writer.start(profile=profile, library=library)
-                    started = True
-                if isinstance(record, Schema):  # the summary repeats schemas and channels: keep the first
-                    if record.id not in schema_ids:
-                        schema_ids[record.id] = writer.register_schema(record.name, record.encoding, record.data)
-                elif isinstance(record, Channel):
-                    if record.id in channel_ids:
-                        continue
-                    schema_id = schema_ids.get(record.schema_id, 0)
-                    channel_ids[record.id] = writer.register_channel(
-                        record.topic, record.message_encoding, schema_id, record.metadata
-                    )
-                elif record.channel_id in channel_ids:
-                    writer.add_message(
-                        channel_ids[record.channel_id], record.log_time, record.data, record.publish_time,
-                        record.sequence,
-                    )
-                    count += 1
-            if not started:
-                writer.start(profile=scan.header.profile if scan.header else PROFILE, library=LIBRARY)
-            writer.finish()
-    except RecordingError:
-        with contextlib.suppress(OSError):
-            target.unlink()
-        raise
-    except OSError as err:
-        msg = f'recover_mcap: writing {target}: {err}'
-        raise RecordingError(msg) from err
-    return RecoveryResult(messages=count, truncated=scan.truncated)

@@ -36,3 +36,8 @@ CHAMBER_TOPICS = {
 #: data[] layouts of RESIDUAL_DETAIL and MEASURED_DETAIL: defined once, in the core
 RESIDUAL_FIELDS = _RESIDUAL_FIELDS
 MEASUREMENT_FIELDS = _MEASUREMENT_FIELDS
+
+#: the MCAP profile, schema encoding and message encoding of every file the suite writes (CONTRACT.md)
+MCAP_PROFILE = 'ros2'
+SCHEMA_ENCODING = 'ros2msg'
+MESSAGE_ENCODING = 'cdr'

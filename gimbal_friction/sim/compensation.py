@@ -1,65 +1,77 @@
 """Friction compensations the closed loop can run with, and the hook they plug into.
 
 At every controller tick the simulator hands a compensation what the real feedforward node would receive
-(:class:`ControllerInputs`: the *measured* bearing temperature, the resolver's joint angle and rate relative to
-the base, the reference joint velocity, the gyro) as arrays over the runs of its case, and adds the torque
-[N·m] it returns, as current τ/K_T, to the controller's output, delayed by the transport latency for the
-cases that run as a separate node (:class:`Compensator` ``delayed``).
+(:class:`ControllerInputs`: the latest bearing temperature the sensor published and its stamp, the resolver's joint
+angle and rate relative to the base, the reference joint velocity, the gyro) as arrays over the runs of its case,
+and adds the torque [N·m] it returns, as current τ/K_T, to the controller's output, delayed by the transport
+latency for the cases that run as a separate node (:class:`Compensator` ``delayed``).
 
 Cases of the loop study (issue 9):
 
 ``none``
     no compensation.
 ``constant``
-    :func:`constant_coulomb`: a temperature-blind Coulomb compensation tuned at +20 °C (what users do today):
-    the configured model's M(+20 °C, profile speed) × the smooth sign tanh(v/v_th) of the joint's relative
-    rate. It lives in the seeker controller, so no transport latency.
+    :func:`constant_coulomb`: a temperature-blind Coulomb compensation tuned at +20 °C (what users do today): the
+    suite's own torque rule evaluated at +20 °C whatever the temperature, on the same velocity as the feedforward.
+    It lives in the seeker controller, so no transport latency.
 ``feedforward``
-    :func:`suite_feedforward`: the suite's feedforward with its defaults (velocity source ``measured``,
-    v_th = 0.005 rad/s, clamp 0.02 N·m), delayed by the transport latency.
+    :func:`suite_feedforward`: the suite's feedforward (:class:`~gimbal_friction.core.feedforward.Feedforward`,
+    its torque rule and its temperature rules, as configured), delayed by the transport latency.
 ``refit``
     the same feedforward with parameters refitted from the residuals the suite's estimator collected in the
     same simulation (see :mod:`gimbal_friction.sim.study`).
 ``ideal``
     the truth friction torque of the current true state, without delay (handled inside the plant).
 
-An optional extra case, ``feedforward_reference`` (not in the default study), runs the suite's feedforward with
-``velocity_source: reference`` (the node's option): the torque follows the reference joint velocity instead of
-the measured one, so it is not a feedback through the friction (see the study notes in the README draft).
+Optional cases (not in the default study) run the feedforward on one velocity source whatever the configuration:
+``feedforward_measured`` (the joint state's velocity) and ``feedforward_reference`` (the reference joint velocity,
+``/gimbal/reference_velocity``), for before/after comparisons of the wiring.
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from gimbal_friction.core.feedforward import FeedforwardSettings
+from gimbal_friction.core.feedforward import (
+    VELOCITY_SOURCES,
+    Feedforward,
+    FeedforwardSettings,
+    check_velocity_source,
+    temperature_used,
+    velocity_used,
+)
+from gimbal_friction.core.inputs import is_fresh, temperature_valid
 from gimbal_friction.core.params import AxisParams
-from gimbal_friction.sim.truth import ModelMagnitude, TemperatureTerms
+from gimbal_friction.core.xp import ARRAY
 
 Array = NDArray[np.float64]
 
-__all__ = ['CASES', 'CASE_IDEAL', 'CASE_NONE', 'EXTRA_CASES', 'Compensator', 'ControllerInputs', 'TorqueHook',
-           'constant_coulomb', 'suite_feedforward']
+__all__ = ['CASES', 'CASE_IDEAL', 'CASE_NONE', 'EXTRA_CASES', 'JOINT', 'VELOCITY_SOURCES', 'Compensator',
+           'ControllerInputs', 'TorqueHook', 'constant_coulomb', 'suite_feedforward']
 
 #: The cases of the loop study, in report order.
 CASES = ('none', 'constant', 'feedforward', 'refit', 'ideal')
 #: Optional cases the study also knows (not run by default).
-EXTRA_CASES = ('feedforward_reference',)
+EXTRA_CASES = ('feedforward_measured', 'feedforward_reference')
 CASE_NONE = 'none'
 CASE_IDEAL = 'ideal'
 #: Temperature a constant (temperature-blind) compensation is tuned at [°C].
 CONSTANT_TUNING_C = 20.0
+#: Joint name of the simulated axis (the suite's default axis).
+JOINT = 'elevation'
 
 
 class ControllerInputs(NamedTuple):
     """What a compensation receives at a controller tick, as arrays over its runs (shape (runs,))."""
 
-    time_s: float                     #: controller time [s]
-    temperature_c: Array              #: measured bearing temperature (sensor, held between samples) [°C]
+    time_s: float                     #: controller time = stamp of the joint state of this tick [s]
+    temperature_c: Array              #: latest bearing temperature the sensor published [°C] (NaN: none yet)
+    temperature_time_s: Array         #: its stamp [s] (NaN: none yet)
     joint_position_rad: Array         #: resolver: gimbal angle relative to the base [rad]
     joint_velocity_rad_s: Array       #: resolver (RDC): gimbal rate relative to the base [rad/s]
     reference_velocity_rad_s: Array   #: reference joint velocity: commanded LOS rate − base rate estimate [rad/s]
@@ -77,74 +89,108 @@ class Compensator(NamedTuple):
     delayed: bool = True
 
 
-def _smooth_sign(v: Array, v_th: float) -> Array:
-    return np.asarray(np.tanh(v / v_th))
+def _velocity(inputs: ControllerInputs, source: str) -> Array:
+    # the simulated reference is computed at the tick it is used: always fresh ('auto' = 'reference')
+    return velocity_used(source, inputs.joint_velocity_rad_s, inputs.reference_velocity_rad_s, True, ARRAY)
 
 
-def constant_coulomb(axis: AxisParams, speed_rad_s: float,
-                     settings: FeedforwardSettings | None = None) -> Compensator:
-    """Case (b): constant Coulomb compensation M(+20 °C, ``speed_rad_s``) × tanh(v / v_th), not delayed.
+class _TermsCache:
+    """The table's temperature terms of the last temperatures asked for (they change at the sensor's rate)."""
+
+    def __init__(self, ff: Feedforward, joint: str) -> None:
+        self.table = ff.tables[joint]
+        self.at: Array | None = None
+        self.terms: Any = None
+
+    def get(self, t_c: Array) -> Any:
+        if self.at is None or self.at.shape != t_c.shape or not np.array_equal(self.at, t_c):
+            self.at = np.array(t_c, dtype=float)
+            self.terms = self.table.temperature_terms(self.at, ARRAY)
+        return self.terms
+
+
+def constant_coulomb(axis: AxisParams, settings: FeedforwardSettings | None = None, *,
+                     velocity_source: str = 'measured') -> Compensator:
+    """Case (b): the suite's torque rule at a fixed +20 °C (temperature-blind), not delayed.
+
+    τ = clamp(tanh(v / v_th) k_dir M(+20 °C, |v|), ±τ_max) (:meth:`Feedforward.rule`): below about 2.4 rad/s the
+    model at +20 °C does not depend on speed (Palmgren's lower branch, ν n < 2000), so this is the Coulomb
+    compensation a user tunes at room temperature.
 
     Parameters
     ----------
     axis : AxisParams
         Configured model (the user tuned the constant on it at +20 °C).
-    speed_rad_s : float
-        The profile's speed the constant is tuned at [rad/s] (at +20 °C the model does not depend on speed below
-        ≈ 2.4 rad/s: ν n < 2000, the lower Palmgren branch).
     settings : FeedforwardSettings, optional
-        For the smooth-sign width v_th (the suite's default 0.005 rad/s).
+        For the smooth-sign width v_th and the clamp (the suite's defaults).
+    velocity_source : str
+        ``measured`` (the resolver's joint rate) or ``reference`` (the reference joint velocity).
 
-    >>> hook = constant_coulomb(AxisParams(), 0.0349).torque
-    >>> x = hook(ControllerInputs(0.0, np.array([-40.0]), np.zeros(1), np.array([0.1]), np.zeros(1), np.zeros(1)))
+    >>> hook = constant_coulomb(AxisParams()).torque
+    >>> x = hook(ControllerInputs(0.0, np.array([-40.0]), np.zeros(1), np.zeros(1), np.array([0.1]), np.zeros(1),
+    ...                           np.zeros(1)))
     >>> round(float(x[0]) * 1e3, 3)   # N*mm: the +20 degC level whatever the temperature
     1.046
     """
-    s = settings if settings is not None else FeedforwardSettings()
-    mm = ModelMagnitude(axis)
-    level = float(mm.magnitude_nm(mm.terms(np.array([CONSTANT_TUNING_C])), np.array([speed_rad_s]))[0])
-    v_th = s.velocity_threshold_rad_s
+    check_velocity_source(velocity_source)
+    ff = Feedforward({JOINT: axis}, settings if settings is not None else FeedforwardSettings())
+    cache = _TermsCache(ff, JOINT)
 
     def torque(inputs: ControllerInputs) -> Array:
-        return level * _smooth_sign(inputs.joint_velocity_rad_s, v_th)
+        v = _velocity(inputs, velocity_source)
+        t = np.full(v.shape, CONSTANT_TUNING_C)
+        return np.asarray(ff.rule(JOINT, v, t, ARRAY, terms=cache.get(t)), dtype=float)
 
     return Compensator(torque, delayed=False)
 
 
 def suite_feedforward(axis: AxisParams, settings: FeedforwardSettings | None = None, *,
                       velocity_source: str = 'measured') -> Compensator:
-    """Case (c)/(d): the suite's feedforward rule over arrays of runs, delayed by the transport latency.
+    """Case (c)/(d): the suite's feedforward over arrays of runs, delayed by the transport latency.
 
-    τ = clamp(tanh(v / v_th) · k_dir · M(t, |v|), ±max_torque_nm) with M the tabulated model of ``axis`` at the
-    measured temperature t, k_dir = ``scale_positive`` / ``scale_negative``, v the joint's relative rate from the
-    resolver (``velocity_source='measured'``, the node's default) or the reference joint velocity
-    (``'reference'``). Temperatures are always fresh in the simulation, so the stale policy never acts.
+    The torque is :meth:`Feedforward.rule` of a :class:`~gimbal_friction.core.feedforward.Feedforward` of ``axis``
+    and ``settings``; the temperature is chosen by the node's rules on the sensor's stamps: a published sample is
+    kept if valid (:func:`~gimbal_friction.core.inputs.temperature_valid`), it is used while fresh for the joint
+    state's stamp (:func:`~gimbal_friction.core.inputs.is_fresh`), otherwise the stale policy decides
+    (:func:`~gimbal_friction.core.feedforward.temperature_used`; ``zero`` gives 0 N·m). The velocity is the
+    resolver's joint rate relative to the base (``velocity_source='measured'``) or the reference joint velocity
+    (``'reference'``), as the node's ``velocity_source``.
 
     >>> hook = suite_feedforward(AxisParams()).torque
-    >>> x = hook(ControllerInputs(0.0, np.array([-40.0, 20.0]), np.zeros(2), np.full(2, -0.0349066),
+    >>> x = hook(ControllerInputs(0.0, np.array([-40.0, 20.0]), np.zeros(2), np.zeros(2), np.full(2, -0.0349066),
     ...                           np.zeros(2), np.zeros(2)))
     >>> [round(float(v) * 1e3, 3) for v in x]   # N*mm, tanh(7) = 0.999998
     [-3.143, -1.046]
+    >>> x = hook(ControllerInputs(10.0, np.array([-40.0, 20.0]), np.zeros(2), np.zeros(2), np.full(2, -0.0349066),
+    ...                           np.zeros(2), np.zeros(2)))
+    >>> [round(float(v) * 1e3, 3) for v in x]   # 10 s later the temperature is stale: fallback +20 degC
+    [-1.046, -1.046]
     """
-    # replaced by core feedforward at integration: the lead's xp-generic rule of core/feedforward.py takes this
-    # adapter's place (same inputs, same torque); until then it restates the node's rule over arrays.
+    check_velocity_source(velocity_source)
     s = settings if settings is not None else FeedforwardSettings()
-    if velocity_source not in ('measured', 'reference'):
-        msg = f'velocity_source must be measured or reference, not {velocity_source!r}'
-        raise ValueError(msg)
-    mm = ModelMagnitude(axis, s.temperature_min_c, s.temperature_max_c, s.table_step_c)
-    v_th, limit = s.velocity_threshold_rad_s, s.max_torque_nm
-    k_pos, k_neg = axis.scale_positive, axis.scale_negative
-    cache: list[TemperatureTerms] = []
+    ff = Feedforward({JOINT: axis}, s)
+    cache = _TermsCache(ff, JOINT)
+    state: dict[str, Array] = {}
 
     def torque(inputs: ControllerInputs) -> Array:
-        t = inputs.temperature_c
-        if not cache or cache[0].temperature_c.shape != t.shape or not np.array_equal(cache[0].temperature_c, t):
-            cache[:] = [mm.terms(t)]
-            cache[0] = cache[0]._replace(temperature_c=np.array(t, dtype=float))
-        v = inputs.joint_velocity_rad_s if velocity_source == 'measured' else inputs.reference_velocity_rad_s
-        k = np.where(v >= 0.0, k_pos, k_neg)
-        tau = _smooth_sign(v, v_th) * k * mm.magnitude_nm(cache[0], v)
-        return np.clip(tau, -limit, limit)
+        t_in = np.asarray(inputs.temperature_c, dtype=float)
+        stamp = np.asarray(inputs.temperature_time_s, dtype=float)
+        if not state or state['last_c'].shape != t_in.shape:
+            state['last_c'] = np.full(t_in.shape, math.nan)
+            state['last_time'] = np.full(t_in.shape, math.nan)
+            state['seen'] = np.full(t_in.shape, math.nan)
+        new = np.isfinite(stamp) & ~(stamp == state['seen'])
+        if new.any():   # a newly published sample: kept if valid (a rejected one leaves the last valid one)
+            state['seen'] = np.where(new, stamp, state['seen'])
+            valid, _ = temperature_valid(np.where(new, t_in, math.nan), s.temperature_min_c, s.temperature_max_c)
+            state['last_c'] = np.where(valid, t_in, state['last_c'])
+            state['last_time'] = np.where(valid, stamp, state['last_time'])
+        fresh = is_fresh(inputs.time_s, state['last_time'], s.temperature_timeout_s, ARRAY)
+        t_used, _ = temperature_used(state['last_c'], fresh, s, ARRAY)
+        t_used = np.broadcast_to(np.asarray(t_used, dtype=float), t_in.shape)
+        zero = np.isnan(t_used)
+        t_eval = np.where(zero, s.fallback_temperature_c, t_used)
+        tau = ff.rule(JOINT, _velocity(inputs, velocity_source), t_eval, ARRAY, terms=cache.get(t_eval))
+        return np.where(zero, 0.0, tau)
 
     return Compensator(torque, delayed=True)

@@ -13,20 +13,24 @@ see ``config/gimbal_sim.yaml``) with :meth:`SimConfig.from_mapping`, so the (lat
 ``loop-study`` CLI accept and refuse the same values. Every refusal is a
 :class:`~gimbal_friction.core.errors.ConfigError` naming the parameter and the rule:
 
->>> SimConfig.from_mapping({'inertia_kg_m2': -1.0})
+>>> SimConfig.from_mapping({'inertia_truth_ratio': -1.0})
 Traceback (most recent call last):
 ...
-gimbal_friction.core.errors.ConfigError: parameter 'inertia_kg_m2' = -1.0: must be > 0 [kg*m^2]
+gimbal_friction.core.errors.ConfigError: parameter 'inertia_truth_ratio' = -1.0: must lie in (0, 100] [-]
 >>> c = SimConfig.from_mapping({'gimbal_sim': {'ros__parameters': {'rate_bandwidth_hz': 30}}})
 >>> c.rate_bandwidth_hz, c.rate_loop_hz
 (30.0, 1000.0)
 
 Defaults and why (the seeker is the paper's gimbaled-mirror seeker, elevation axis)
 -----------------------------------------------------------------------------------
-Inertia ``J = 1.0e-4 kg·m²``. Assumed load: an aluminium (6061, 2700 kg/m³) flat mirror 60 mm in diameter and
-8 mm thick, rotating about a diameter: m = 61 g, J = m(r²/4 + t²/12) = 1.4e-5 kg·m²; its inner frame / yoke and the
-shaft between the two 26 mm bearings (≈ 100 g at a radius of gyration of ≈ 25 mm): 6e-5 kg·m²; the rotor of a
-frameless torque motor sized for the 17 mm shaft: ≈ 1e-5 kg·m². Sum ≈ 8.5e-5, rounded up to 1.0e-4 kg·m². The
+Inertia. The configured J is the axis parameter ``inertia_kg_m2`` of
+:class:`~gimbal_friction.core.params.AxisParams` (default 1.0e-4 kg·m²; the seeker's controller gains and the
+estimator's observer use it); the plant's true J is that times ``inertia_truth_ratio`` (default 1: the configured J
+is right), so the number has one default. Why 1.0e-4 kg·m²; assumed load: an aluminium (6061, 2700 kg/m³) flat
+mirror 60 mm in diameter and 8 mm thick, rotating about a diameter: m = 61 g, J = m(r²/4 + t²/12) = 1.4e-5 kg·m²;
+its inner frame / yoke and the shaft between the two 26 mm bearings (≈ 100 g at a radius of gyration of ≈ 25 mm):
+6e-5 kg·m²; the rotor of a frameless torque motor sized for the 17 mm shaft: ≈ 1e-5 kg·m². Sum ≈ 8.5e-5, rounded
+up to 1.0e-4 kg·m². The
 friction-to-inertia ratio T_F/J (Stockum 1988, the paper's Sec. 3) is then 10 rad/s² at +20 °C and 39 rad/s² at
 −40 °C (truth), which is why a light mirror axis is so sensitive to friction.
 
@@ -36,7 +40,7 @@ current loop of ``current_loop_time_constant_s = 0.2 ms`` (≈ 800 Hz bandwidth,
 
 Controller (the seeker's own, sampled at ``rate_loop_hz = 1000``): a rate PI on the LOS gyro with crossover
 ``rate_bandwidth_hz = 40`` and its integral corner at ``rate_integral_hz = 8`` (a fifth of the crossover); gains
-from the bandwidths with the nominal J and K_T: K_p = 2π·40 = 251 1/s, current = J (K_p e + K_p ω_i ∫e) / K_T. With
+from the bandwidths with the configured J and K_T: K_p = 2π·40 = 251 1/s, current = J (K_p e + K_p ω_i ∫e) / K_T. With
 the 0.5 ms hold, 0.2 ms current loop the phase margin is ≈ 68°. A mirror seeker's rate loop runs at a few tens
 of Hz (bounded by the mirror/yoke's first structural mode at a few hundred Hz); the outer track loop runs on the
 imaging tracker's boresight error at the frame rate ``track_loop_hz = 100`` with crossover
@@ -46,7 +50,8 @@ Sensors: a tactical-grade (FOG-class) rate gyro on the LOS, white noise ``gyro_n
 1 kHz sample (angle random walk 0.02 °/√h) and bias 5e-6 rad/s (1 °/h); a precision resolver with an RDC,
 angle noise 5e-6 rad (1 arcsec), velocity noise 2e-4 rad/s behind the RDC's 1 ms velocity filter; the
 tracker's boresight error with 5e-6 rad noise; a bearing-housing temperature sensor at 10 Hz, 0.1 °C noise,
-5 s own lag; motor current sensing with 2 mA noise (as the synthetic chamber bag).
+5 s own lag (``temperature_stop_s`` makes it fall silent during a run, to see the stale-temperature rules at
+work); motor current sensing with 2 mA noise (as the synthetic chamber bag).
 
 Truth friction beyond the model: LuGre (Canudas de Wit et al. 1995) with bristle stiffness
 ``sigma0_nm_per_rad = 100`` (pre-sliding displacement at the Coulomb level F_C/σ0 ≈ 10 µrad at +20 °C,
@@ -57,7 +62,8 @@ sliding level by ≈ 3 v_s = 0.006 rad/s, well below the paper's 0.0349 rad/s te
 sliding values) and breakaway ratio F_S/F_C = 1.5 (the 1995 paper's example); position ripple 6 % at 3.4° and
 3 % at 0.85° (as the synthetic chamber bag), doubled at −40 °C ("its fluctuation was much more severe at −40 ℃");
 lubricant ``walther_a`` shifted by +0.015 (the synthetic chamber bag's truth: +46 % viscosity at −40 °C) and the
-paper's measured CW/CCW means (3.19 / −2.45 N·mm at −40 °C, 1.05 / −1.34 N·mm at +60 °C) as direction factors.
+paper's measured CW/CCW means (3.19 / −2.45 N·mm at −40 °C, 1.05 / −1.34 N·mm at +60 °C) as a direction asymmetry
+and a mean factor (see :mod:`gimbal_friction.sim.truth`).
 
 Thermal: bearing temperature lags the environment with 30 s (as the synthetic chamber bag).
 
@@ -68,12 +74,14 @@ Base motion: missile body rate 0.05 rad/s at 0.5 Hz (airframe weaving / autopilo
 from __future__ import annotations
 
 import dataclasses
+import json
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
-from gimbal_friction.core.errors import ConfigError
+from gimbal_friction.core.errors import ConfigError, check_rules
+from gimbal_friction.core.settings import setting, settings_from
 
 #: Profiles the simulator knows (see :mod:`gimbal_friction.sim.profiles`).
 PROFILES = ('tracking', 'scan', 'pointing')
@@ -97,8 +105,8 @@ class SimConfig:
     """
 
     # --- plant
-    inertia_kg_m2: float = _p(1.0e-4, 'kg*m^2', 'moment of inertia J of the gimbal axis (mirror + inner frame + '
-                              'shaft + motor rotor)', 'plant')
+    inertia_truth_ratio: float = _p(1.0, '-', 'true inertia of the plant over the configured one (AxisParams '
+                                    'inertia_kg_m2, used by the controller and the estimator)', 'plant')
     disturbance_torque_nm: float = _p(0.0, 'N*m', 'constant external disturbance torque tau_dist (unbalance, '
                                       'cable)', 'plant')
     plant_substeps: int = _p(4, '-', 'plant integration steps per controller tick (LuGre pre-sliding stiffness)',
@@ -135,6 +143,8 @@ class SimConfig:
     temperature_bias_c: float = _p(0.0, 'degC', 'constant error of the temperature sensor', 'sensors')
     temperature_sensor_time_constant_s: float = _p(5.0, 's', 'first-order lag of the sensor behind the '
                                                    'bearing temperature', 'sensors')
+    temperature_stop_s: float = _p(-1.0, 's', 'the temperature sensor publishes nothing from this time of a run on '
+                                   '(a failed sensor or link: the stale-temperature rules act); < 0: never', 'sensors')
     # --- thermal
     thermal_time_constant_s: float = _p(30.0, 's', 'first-order lag of the bearing temperature behind the '
                                         'environment', 'thermal')
@@ -165,8 +175,8 @@ class SimConfig:
                                  'truth')
     asymmetry_enabled: bool = _p(True, '-', 'direction factors from the measured CW/CCW means (false: both '
                                  'directions follow the model)', 'truth')
-    asymmetry_temperatures_c: tuple[float, ...] = _p((-40.0, 60.0), 'degC', 'temperatures of the measured means '
-                                                     '(paper Sec. 6)', 'truth')
+    asymmetry_temperatures_c: tuple[float, ...] = _p((-40.0, 60.0), 'degC', '[cold, warm] temperatures of the '
+                                                     'measured means (paper Sec. 6)', 'truth')
     asymmetry_cw_nmm: tuple[float, ...] = _p((3.19, 1.05), 'N*mm', 'measured mean friction moving positive '
                                              '(CW) at those temperatures (paper Sec. 6)', 'truth')
     asymmetry_ccw_nmm: tuple[float, ...] = _p((2.45, 1.34), 'N*mm', 'measured mean |friction| moving negative '
@@ -174,6 +184,9 @@ class SimConfig:
     # --- feedforward transport
     feedforward_latency_s: float = _p(1.0e-3, 's', 'transport latency of the feedforward (node) cases, rounded '
                                       'to whole controller ticks', 'feedforward')
+    feedforward_timeout_s: float = _p(0.02, 's', 'the seeker controller adds a feedforward only while it is at most '
+                                      'this old (its stamp vs the tick; older: 0 N*m): a stalled link must not '
+                                      'apply a torque of the past', 'feedforward')
     # --- profiles
     tracking_speed_rpm: float = _p(1.0 / 3.0, 'rpm', 'tracking profile: LOS speed (paper test: 1/3 rpm)',
                                    'profiles')
@@ -211,6 +224,11 @@ class SimConfig:
     def latency_ticks(self) -> int:
         """Feedforward transport latency in whole controller ticks [-]."""
         return int(round(self.feedforward_latency_s * self.rate_loop_hz))
+
+    @property
+    def timeout_ticks(self) -> int:
+        """Oldest feedforward the controller applies, in whole controller ticks [-]."""
+        return int(math.floor(self.feedforward_timeout_s * self.rate_loop_hz + 1e-9))
 
     @property
     def rate_kp_per_s(self) -> float:
@@ -254,9 +272,12 @@ class SimConfig:
         """
         values = _section(values)
         fields = {f.name: f for f in dataclasses.fields(cls)}
+        node = {f.name for f in dataclasses.fields(RealtimeSettings)}
         start = base if base is not None else cls()
         kwargs: dict[str, Any] = {}
         for name, value in values.items():
+            if name in node:   # the gimbal_sim node's own settings share the section
+                continue
             if name not in fields:
                 close = [n for n in fields if n.split('_')[0] == str(name).split('_')[0]]
                 hint = f' (did you mean {close[0]!r}?)' if close else ''
@@ -288,9 +309,7 @@ class SimConfig:
             for item in items:
                 if isinstance(item, float) and not math.isfinite(item):
                     raise ConfigError(f.name, 'must be finite', value)
-        for name, ok, rule in self._rules():
-            if not ok:
-                raise ConfigError(name, rule, getattr(self, name))
+        check_rules(self, self._rules())
 
     def _rules(self) -> list[tuple[str, bool, str]]:
         s = self
@@ -298,7 +317,7 @@ class SimConfig:
         n_rip = len(s.ripple_amplitudes)
         cold = 1.0 + s.ripple_cold_gain
         return [
-            ('inertia_kg_m2', s.inertia_kg_m2 > 0.0, 'must be > 0 [kg*m^2]'),
+            ('inertia_truth_ratio', 0.0 < s.inertia_truth_ratio <= 100.0, 'must lie in (0, 100] [-]'),
             ('plant_substeps', 1 <= s.plant_substeps <= 1000, 'must be an integer in [1, 1000]'),
             ('current_limit_a', s.current_limit_a > 0.0, 'must be > 0 [A]'),
             ('current_loop_time_constant_s', s.current_loop_time_constant_s >= 0.0, 'must be >= 0 [s]'),
@@ -339,15 +358,16 @@ class SimConfig:
             ('ripple_cold_gain', s.ripple_cold_gain >= 0.0, 'must be >= 0 [-]'),
             ('ripple_amplitudes', all(a >= 0.0 for a in s.ripple_amplitudes) and sum(s.ripple_amplitudes) * cold < 1.0,
              'must be >= 0 with sum x (1 + ripple_cold_gain) < 1 (friction keeps its sign)'),
-            ('asymmetry_temperatures_c', len(s.asymmetry_temperatures_c) >= 1
-             and all(b > a for a, b in zip(s.asymmetry_temperatures_c, s.asymmetry_temperatures_c[1:], strict=False)),
-             'must be one or more increasing temperatures [degC]'),
+            ('asymmetry_temperatures_c', len(s.asymmetry_temperatures_c) == 2
+             and s.asymmetry_temperatures_c[0] < s.asymmetry_temperatures_c[-1],
+             'must be [cold, warm] with cold < warm [degC]'),
             ('asymmetry_cw_nmm', len(s.asymmetry_cw_nmm) == len(s.asymmetry_temperatures_c)
              and all(x > 0.0 for x in s.asymmetry_cw_nmm), 'must give one value > 0 per asymmetry temperature [N*mm]'),
             ('asymmetry_ccw_nmm', len(s.asymmetry_ccw_nmm) == len(s.asymmetry_temperatures_c)
              and all(x > 0.0 for x in s.asymmetry_ccw_nmm),
              'must give one magnitude > 0 per asymmetry temperature [N*mm]'),
             ('feedforward_latency_s', 0.0 <= s.feedforward_latency_s <= 1.0, 'must lie in [0, 1] [s]'),
+            ('feedforward_timeout_s', 0.0 < s.feedforward_timeout_s <= 10.0, 'must lie in (0, 10] [s]'),
             ('tracking_speed_rpm', 0.0 < s.tracking_speed_rpm <= 100.0, 'must lie in (0, 100] [rpm]'),
             ('tracking_travel_deg', len(s.tracking_travel_deg) == 2
              and s.tracking_travel_deg[0] < s.tracking_travel_deg[1], 'must be [low, high] with low < high [deg]'),
@@ -371,6 +391,69 @@ class SimConfig:
         low, high = (*self.tracking_travel_deg, 0.0, 0.0)[:2]
         speed_deg_s = self.tracking_speed_rpm * 6.0
         return speed_deg_s * self.tracking_reversal_s < (high - low)
+
+
+@dataclass(frozen=True)
+class RealtimeSettings:
+    """Parameters of the ``gimbal_sim`` node besides the simulator's (:class:`SimConfig`) and the model's."""
+
+    joint: str = setting('', '-', 'simulated axis: a configured joint name (empty: the first configured axis)')
+    environment_temperature_c: float = setting(20.0, 'degC', 'environment (chamber) temperature of the run; the '
+                                               'bearing starts soaked at it (see initial_bearing_offset_c)')
+    profile: str = setting('tracking', '-', 'reference motion: tracking (1/3 rpm with reversals), scan (sine) or '
+                           'pointing (fixed target under base motion)')
+    duration_s: float = setting(0.0, 's', 'length of one run; 0: the profile\'s configured <profile>_duration_s')
+    repeat: bool = setting(True, '-', 'start a new run (soaked again) when one ends; false: stop stepping')
+    exit_when_done: bool = setting(False, '-', 'end the process after the first run (used by loop-study --live)')
+    use_feedforward: bool = setting(True, '-', 'add the effort of /gimbal/friction/feedforward for the joint to the '
+                                    'controller output (false: no compensation)')
+    realtime_factor: float = setting(1.0, '-', 'simulated seconds per wall-clock second (below 1 on a busy '
+                                     'machine); stamps are always the simulated sample times')
+    publish_every_ticks: int = setting(1, '-', 'publish /joint_states, /gimbal/motor_current and '
+                                       '/gimbal/reference_velocity every this many controller ticks')
+    los_error_every_ticks: int = setting(10, '-', 'publish /gimbal_sim/los_error every this many controller '
+                                         'ticks')
+    publish_reference_velocity: bool = setting(True, '-', 'publish the reference joint velocity (commanded LOS rate '
+                                               '- base rate estimate) on /gimbal/reference_velocity')
+    wait_for_subscribers: int = setting(0, '-', 'before a run starts, wait until /joint_states has this many '
+                                        'subscribers')
+    wait_for_feedforward: bool = setting(False, '-', 'before a run starts, wait until /gimbal/friction/feedforward '
+                                         'has a publisher (with use_feedforward)')
+    start_timeout_s: float = setting(60.0, 's', 'give up waiting for subscribers / the feedforward after this')
+    record_path: str = setting('', '-', 'write the traces and latencies of each run to this .npz file when it '
+                               'ends (empty: do not)')
+    run_seed: int = setting(0, '-', 'noise stream of the run (with the simulator\'s seed; the offline study uses 0)')
+    diagnostics_period_s: float = setting(1.0, 's', 'period of /diagnostics')
+
+    def validate(self) -> None:
+        """Raises ConfigError naming the setting and the rule it breaks."""
+        checks = [
+            ('environment_temperature_c', -60.0 <= self.environment_temperature_c <= 120.0,
+             'must lie in [-60, 120] [degC]'),
+            ('profile', self.profile in PROFILES, f'must be one of {", ".join(PROFILES)}'),
+            ('duration_s', 0.0 <= self.duration_s <= 86400.0, 'must lie in [0, 86400] [s]'),
+            ('realtime_factor', 0.01 <= self.realtime_factor <= 100.0, 'must lie in [0.01, 100] [-]'),
+            ('publish_every_ticks', 1 <= self.publish_every_ticks <= 10000, 'must be an integer in [1, 10000]'),
+            ('los_error_every_ticks', 1 <= self.los_error_every_ticks <= 100000,
+             'must be an integer in [1, 100000]'),
+            ('wait_for_subscribers', 0 <= self.wait_for_subscribers <= 100, 'must be an integer in [0, 100]'),
+            ('start_timeout_s', 0.0 < self.start_timeout_s <= 3600.0, 'must lie in (0, 3600] [s]'),
+            ('run_seed', self.run_seed >= 0, 'must be an integer >= 0'),
+            ('diagnostics_period_s', 0.05 <= self.diagnostics_period_s <= 60.0, 'must lie in [0.05, 60] [s]'),
+        ]
+        check_rules(self, checks)
+
+    @classmethod
+    def from_mapping(cls, values: Mapping[str, Any], *, base: RealtimeSettings | None = None) -> RealtimeSettings:
+        """The node settings of a ``gimbal_sim`` section (as :meth:`SimConfig.from_mapping`; the simulator's own
+        parameters are ignored), validated.
+
+        Raises:
+            ConfigError: wrong type or a value that breaks a rule.
+        """
+        values = _section(values)
+        names = {f.name for f in dataclasses.fields(cls)}
+        return settings_from(cls, {k: v for k, v in values.items() if k in names}, base)
 
 
 def _section(values: Mapping[str, Any]) -> Mapping[str, Any]:
@@ -415,9 +498,52 @@ def _coerce(name: str, value: Any, current: Any) -> Any:
     raise ConfigError(name, 'has an unsupported type', value)  # pragma: no cover - every field is one of the above
 
 
-def parameter_specs() -> list[dict[str, Any]]:
-    """Name, default, unit, description and group of every simulator parameter (for the YAML, node, docs)."""
+def parameter_specs(*, node: bool = False) -> list[dict[str, Any]]:
+    """Name, default, unit, description and group of every simulator parameter (for the YAML, node, docs);
+    with ``node`` also the ``gimbal_sim`` node's settings (group ``node``)."""
     out = []
     for f in dataclasses.fields(SimConfig):
         out.append({'name': f.name, 'default': f.default, **f.metadata})
+    if node:
+        for f in dataclasses.fields(RealtimeSettings):
+            out.append({'name': f.name, 'default': f.default, 'group': 'node', **f.metadata})
     return out
+
+
+_FILE_HEADER = """\
+# gimbal_sim parameters: the closed-loop gimbal-axis simulator (gimbal_friction.sim), a ROS 2 parameters file
+# section read by the gimbal_sim node and by gimbal-friction loop-study (--config, layered key by key).
+# Model parameters of the axis (K_T, I_0, J = inertia_kg_m2, bearing, lubricant) are NOT repeated here: they come
+# from config/gimbal_friction.yaml (/** model.*, axis.<joint>.*); the truth friction is that model with the
+# lubricant shifted by lubricant_walther_a_shift, plus LuGre pre-sliding/breakaway, position ripple and the paper's
+# measured CW/CCW means. Units are in the names and the comments; every value is SI except where named.
+# Why each default: see the docstring of gimbal_friction/sim/config.py. The 'node' group is read by the gimbal_sim
+# node only. This file is generated by gimbal_friction.sim.config.parameter_file_text() (tested to match).
+"""
+
+
+def _yaml_scalar(value: Any) -> str:
+    if isinstance(value, bool):
+        return 'true' if value else 'false'
+    if isinstance(value, str):
+        return json.dumps(value)
+    if isinstance(value, tuple):
+        return '[' + ', '.join(_yaml_scalar(v) for v in value) + ']'
+    text = repr(value)
+    if isinstance(value, float) and 'e' in text and '.' not in text:
+        text = text.replace('e', '.0e')   # YAML 1.1 (and rcl) read 5e-06 as a string, 5.0e-06 as a double
+    return text
+
+
+def parameter_file_text() -> str:
+    """Text of ``config/gimbal_sim.yaml``: every parameter (simulator and node) with its default, unit and
+    description, grouped."""
+    lines = [_FILE_HEADER.rstrip('\n'), f'{SECTION}:', '  ros__parameters:']
+    group = None
+    for spec in parameter_specs(node=True):
+        if spec['group'] != group:
+            group = spec['group']
+            lines.append(f'    # --- {group}')
+        entry = f'    {spec["name"]}: {_yaml_scalar(spec["default"])}'
+        lines.append(f'{entry:<58s} # [{spec["unit"]}] {spec["description"]}')
+    return '\n'.join(lines) + '\n'

@@ -79,8 +79,11 @@ class Traces(NamedTuple):
     bearing_temperature_c: Array      #: true bearing temperature [°C]
     gyro_rate_rad_s: Array            #: gyro reading [rad/s]
     rate_command_rad_s: Array         #: rate command of the outer loop ω_c [rad/s]
+    reference_velocity_rad_s: Array   #: reference joint velocity ω_c − (gyro − resolver rate) [rad/s]
     friction_nm: Array                #: truth friction torque F at the end of the tick [N·m]
     feedforward_nm: Array             #: compensation torque applied at the tick (after the latency) [N·m]
+    feedforward_computed_nm: Array    #: compensation torque computed from this tick's inputs (what a feedforward
+    #: node publishes for this tick's joint state; applied ``latency_ticks`` later) [N·m]
 
 
 class EstimatorTrace(NamedTuple):
@@ -144,9 +147,10 @@ class Plant:
     Parameters
     ----------
     config : SimConfig
-        Inertia, disturbance, current loop, sub-steps.
+        Inertia ratio, disturbance, current loop, sub-steps.
     axis : AxisParams
-        K_T of the motor (and the configured model the truth is built from, see :class:`TruthFriction`).
+        K_T of the motor, the configured J (the plant's is ``J · inertia_truth_ratio``) and the configured model
+        the truth is built from (see :class:`TruthFriction`).
     theta, omega : array_like
         Initial angle [rad] and rate [rad/s], one per run.
     cancel_friction : array_like of bool, optional
@@ -157,7 +161,7 @@ class Plant:
                  cancel_friction: NDArray[np.bool_] | None = None) -> None:
         m = theta.shape[0]
         self.truth = TruthFriction(axis, config)
-        self.J = config.inertia_kg_m2
+        self.J = axis.inertia_kg_m2 * config.inertia_truth_ratio
         self.K_T = axis.torque_constant_nm_per_a
         self.substeps = config.plant_substeps
         self.h = config.plant_step_s
@@ -276,7 +280,8 @@ class ClosedLoop:
         self._sensor_t = self.bearing.copy()
         self._v_filter = self.plant.omega - profile.base_rate_rad_s[0, 0]
         self._boresight = np.zeros(m)
-        self._measured_t = np.zeros(m)
+        self._measured_t = np.full(m, np.nan)
+        self._measured_t_time = np.full(m, np.nan)
         self._terms = self.plant.truth.terms(self.bearing)
         self._terms_at = self.bearing.copy()
         self._bias = config.gyro_bias_rad_s + np.zeros(m)
@@ -327,26 +332,30 @@ class ClosedLoop:
         vel_meas = self._v_filter + n_vel[k]
         if k % cfg.track_every_ticks == 0:
             self._boresight = prof.target_angle_rad[k] - theta + n_track[k]
-        if k % cfg.temperature_every_ticks == 0:
+        if k % cfg.temperature_every_ticks == 0 and not 0.0 <= cfg.temperature_stop_s <= t_k:
             self._measured_t = self._sensor_t + cfg.temperature_bias_c + n_temp[k]
+            self._measured_t_time = np.full(theta.shape, t_k)
             self.sampled[k] = True
         measured_t = self._measured_t
         # ---------------------------------------------------------------- controller
         rate_cmd = prof.target_rate_rad_s[k] + cfg.track_k_per_s * self._boresight
         err = rate_cmd - gyro
-        i_raw = cfg.inertia_kg_m2 * (kp * err + self._integ) / K_T
+        i_raw = self.axis.inertia_kg_m2 * (kp * err + self._integ) / K_T
         tau_ff = np.zeros(theta.shape)
+        tau_new = np.zeros(theta.shape)
+        reference = rate_cmd - (gyro - vel_meas)
         if self._groups:
-            inputs = ControllerInputs(t_k, measured_t, joint_meas, vel_meas, rate_cmd - (gyro - vel_meas), gyro)
+            inputs = ControllerInputs(t_k, measured_t, self._measured_t_time, joint_meas, vel_meas, reference, gyro)
             for comp, idx, whole, buf in self._groups:
                 sub = inputs if whole else ControllerInputs(
-                    t_k, measured_t[idx], joint_meas[idx], vel_meas[idx], inputs.reference_velocity_rad_s[idx],
-                    gyro[idx])
+                    t_k, measured_t[idx], self._measured_t_time[idx], joint_meas[idx], vel_meas[idx],
+                    inputs.reference_velocity_rad_s[idx], gyro[idx])
                 out = np.broadcast_to(np.asarray(comp.torque(sub), dtype=float), (idx.size,))
                 if buf.shape[0] > 1:
                     buf[1:] = buf[:-1]
                 buf[0] = out
-                tau_ff[idx] = buf[-1]
+                tau_ff[idx] = buf[-1] if buf.shape[0] - 1 <= cfg.timeout_ticks else 0.0   # too old: not applied
+                tau_new[idx] = out
             i_raw = i_raw + tau_ff / K_T
         i_cmd = np.clip(i_raw, -limit, limit)
         wind = ((i_raw > limit) & (err > 0.0)) | ((i_raw < -limit) & (err < 0.0))
@@ -365,7 +374,9 @@ class ClosedLoop:
         rec['bearing_temperature_c'][k] = bearing
         rec['gyro_rate_rad_s'][k] = gyro
         rec['rate_command_rad_s'][k] = rate_cmd
+        rec['reference_velocity_rad_s'][k] = reference
         rec['feedforward_nm'][k] = tau_ff
+        rec['feedforward_computed_nm'][k] = tau_new
         # ---------------------------------------------------------------- plant
         moved = np.abs(bearing - self._terms_at) > TRUTH_TEMPERATURE_RESOLUTION_C
         if moved.any():   # per run, so a batch gives the same numbers as its runs one by one

@@ -5,10 +5,22 @@ For every profile, all cases × temperatures integrate together in one vectorise
 numbers), so differences between cases are the cases'. Each temperature is a soaked plateau (bearing =
 environment at t = 0 unless ``initial_bearing_offset_c`` says otherwise).
 
-Case (d) ``refit`` needs the residuals the suite's estimator collected in the same simulation: the runs of case
-(c) on the calibration profile (``tracking``, the paper's 1/3 rpm sweep, the motion the estimator accepts) at every
-plateau are turned into the estimator's input streams (:meth:`EstimatorTrace.chamber_arrays`), the ``refit`` hook
-returns refitted :class:`~gimbal_friction.core.params.AxisParams`, and case (d) runs the feedforward with them.
+Case (d) ``refit`` closes the suite's own loop, estimate → log → refit → better feedforward, through the very
+functions the nodes and ``gimbal-friction refit`` run:
+
+1. the case-(c) runs of every profile (``refit_profiles``) at every plateau are turned into the estimator's input
+   streams at the controller rate (:meth:`~gimbal_friction.sim.engine.EstimatorTrace.chamber_arrays`) and fed to
+   :class:`~gimbal_friction.core.estimator.EstimatorLogic` (method ``observer`` by default: friction while the
+   gimbal works, no constant-speed sweep needed; ``steady_state`` and ``both`` are offered);
+2. each measurement is paired with the feedforward computed for its joint-state stamp
+   (:func:`~gimbal_friction.core.residuals.match_predictions`) into residual rows
+   (:func:`~gimbal_friction.core.residual_row.residual_rows`, :func:`~gimbal_friction.core.residuals.credible_rows`):
+   what ``residual_logger`` logs;
+3. the rows are accumulated into sufficient statistics and refitted exactly as ``gimbal-friction refit`` does
+   (:func:`~gimbal_friction.core.sufficient.accumulate_rows`, :func:`~gimbal_friction.core.refit.refit_stats`,
+   calibration offset ``auto``), by default for ``walther_a`` and the two direction-asymmetry anchors
+   (:data:`DEFAULT_REFIT_FIT`, see :func:`refit_rows`);
+4. case (d) runs the same feedforward with the refitted parameters.
 
 Records (one per case × temperature × profile) carry at least ``case``, ``temperature_c``, ``profile``,
 ``rate_error_rms_rad_s``, ``rate_error_peak_rad_s``, ``position_error_rms_rad``, ``position_error_peak_rad``,
@@ -18,6 +30,7 @@ Records (one per case × temperature × profile) carry at least ``case``, ``temp
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 from collections.abc import Callable, Sequence
@@ -28,45 +41,61 @@ from numpy.typing import NDArray
 
 from gimbal_friction.core.errors import ConfigError, GimbalFrictionError
 from gimbal_friction.core.estimator import EstimatorLogic, EstimatorSettings
+from gimbal_friction.core.feedforward import FeedforwardSettings, check_velocity_source
+from gimbal_friction.core.measurement import METHOD_OBSERVER, METHOD_STEADY_STATE, MeasurementArrays
 from gimbal_friction.core.params import AxisParams
-from gimbal_friction.core.refit import refit_model
-from gimbal_friction.core.units import NS_PER_S, RAD_S_PER_RPM, RPM_PER_RAD_S
+from gimbal_friction.core.refit import FIT_PARAMETERS, RefitResult, refit_stats
+from gimbal_friction.core.residual_row import ResidualRows, residual_rows
+from gimbal_friction.core.residuals import credible_rows, match_predictions
+from gimbal_friction.core.sufficient import SufficientStats, accumulate_rows
+from gimbal_friction.core.units import NS_PER_S, RAD_S_PER_RPM
 from gimbal_friction.sim.compensation import (
-    CASE_IDEAL,
-    CASE_NONE,
     CASES,
     EXTRA_CASES,
+    JOINT,
     Compensator,
     constant_coulomb,
     suite_feedforward,
 )
 from gimbal_friction.sim.config import PROFILES, SimConfig
-from gimbal_friction.sim.engine import BatchResult, EstimatorTrace, Run, simulate
+from gimbal_friction.sim.engine import BatchResult, Run, simulate
 from gimbal_friction.sim.metrics import batch_metrics
 from gimbal_friction.sim.profiles import make_profile
 
 Array = NDArray[np.float64]
 
-__all__ = ['DEFAULT_TEMPERATURES', 'SHORT_DURATIONS', 'ReversalTrace', 'StudyResult', 'estimator_refit',
-           'goal_checks', 'run_study']
+__all__ = ['DEFAULT_REFIT_FIT', 'DEFAULT_TEMPERATURES', 'ESTIMATOR_METHODS', 'SHORT_DURATIONS', 'FeedforwardSetup',
+           'RefitOutcome', 'ReversalTrace', 'StudyResult', 'estimator_rows', 'goal_checks', 'refit_rows',
+           'run_study']
 
 #: Temperature plateaus of the study [°C] (the paper's chamber test).
 DEFAULT_TEMPERATURES = (-40.0, -20.0, 0.0, 20.0, 40.0, 60.0)
 #: Profile durations of the short (CI) study [s]: one reversal each after the 1 s transient.
 SHORT_DURATIONS = {'tracking': 5.5, 'scan': 2.5, 'pointing': 2.5}
-#: Profile whose case-(c) runs feed the estimator for the refit of case (d).
-CALIBRATION_PROFILE = 'tracking'
-#: Joint-state / current rate the estimator is fed at (the synthetic chamber bag's rate) [Hz].
-ESTIMATOR_RATE_HZ = 100.0
+#: Parameters refitted for case (d) by default (see :func:`refit_rows`).
+DEFAULT_REFIT_FIT = ('walther_a', 'direction_asymmetry_cold', 'direction_asymmetry_warm')
+#: Estimator methods case (d) can collect its data with.
+ESTIMATOR_METHODS = ('observer', 'steady_state', 'both')
 #: Window of the reversal traces around the first reversal after the transient [s].
 REVERSAL_TRACE_WINDOW_S = (-0.5, 1.0)
+#: Gap between the stamps of successive runs in the estimator's streams [s] (a run's stamps never overlap another's).
+RUN_GAP_S = 60.0
 
-#: Builds the feedforward compensator of case (c) (configured params) or (d) (refitted params).
-FeedforwardFactory = Callable[[AxisParams], Compensator]
-#: Refit of case (d): the estimator's inputs from the calibration runs of case (c), configured params, config.
-RefitHook = Callable[[Sequence[EstimatorTrace], AxisParams, SimConfig], AxisParams]
+#: Refit of case (d): the residual rows and the configured params -> refitted params (or the whole RefitResult).
+RefitHook = Callable[[ResidualRows, AxisParams], 'RefitResult | AxisParams']
 #: Progress: (stage, fraction of the whole study done 0..1).
 Progress = Callable[[str, float], None]
+
+
+class FeedforwardSetup(NamedTuple):
+    """How the suite's feedforward is configured (the ``friction_feedforward`` parameters the study uses)."""
+
+    settings: FeedforwardSettings = FeedforwardSettings()
+    velocity_source: str = 'measured'   #: the node's ``velocity_source`` (VELOCITY_SOURCES)
+
+    def compensator(self, params: AxisParams, velocity_source: str | None = None) -> Compensator:
+        """The feedforward of ``params`` (case (c) or (d)), on ``velocity_source`` (default the configured one)."""
+        return suite_feedforward(params, self.settings, velocity_source=velocity_source or self.velocity_source)
 
 
 class ReversalTrace(NamedTuple):
@@ -84,51 +113,102 @@ class ReversalTrace(NamedTuple):
     feedforward_nm: Array        #: compensation torque applied [N·m]
 
 
+class RefitOutcome(NamedTuple):
+    """What case (d) was built from: the estimator's measurements, the residual rows, the refit."""
+
+    measurements: MeasurementArrays   #: accepted samples of the case-(c) runs
+    rows: ResidualRows                #: residual rows (what residual_logger logs)
+    counters: dict[str, Any]          #: estimator counters summed over the runs (accepted, rejected by reason)
+    result: RefitResult | None        #: the refit (None: refused, or a hook that returned parameters only)
+    params: AxisParams | None         #: parameters of case (d) (None: refused)
+    error: str | None                 #: why the refit was refused
+
+
 class StudyResult(NamedTuple):
     """Outcome of :func:`run_study`."""
 
     records: list[dict[str, Any]]          #: one per case × temperature × profile
     reversal_traces: list[ReversalTrace]   #: per case, coldest plateau, first reversal (tracking if run, else the
     #: first profile)
-    refit_params: AxisParams | None        #: parameters of case (d) (None: not run)
+    refit: RefitOutcome | None             #: case (d)'s data and refit (None: not requested)
     notes: list[str]                       #: what happened that a reader should know (refit outcome, ...)
     wall_s: dict[str, float]               #: wall time per stage [s]
     config: SimConfig                      #: the configuration the study ran with (short durations applied)
 
+    @property
+    def refit_params(self) -> AxisParams | None:
+        """Parameters of case (d) (None: not run)."""
+        return None if self.refit is None else self.refit.params
 
-def default_feedforward(params: AxisParams) -> Compensator:
-    """Case (c)/(d) compensator: the suite's feedforward with its default settings."""
-    return suite_feedforward(params)
+
+# ---------------------------------------------------------------------------------------------- the case-(d) chain
+def _merge_counters(total: dict[str, Any], add: dict[str, Any]) -> None:
+    for key in ('accepted', 'temperature_rejected'):
+        bucket = total.setdefault(key, {})
+        for k, v in add.get(key, {}).items():
+            bucket[k] = bucket.get(k, 0) + v
+    rejected = total.setdefault('rejected', {})
+    for joint, reasons in add.get('rejected', {}).items():
+        bucket = rejected.setdefault(joint, {})
+        for k, v in reasons.items():
+            bucket[k] = bucket.get(k, 0) + v
 
 
-def estimator_refit(traces: Sequence[EstimatorTrace], axis: AxisParams, config: SimConfig) -> AxisParams:
-    """Refit the model from what the suite's estimator accepts in the calibration runs (temporary hook).
+def estimator_rows(results: Sequence[tuple[BatchResult, Sequence[int]]], axis: AxisParams,
+                   settings: EstimatorSettings, *, start_s: float = 1.0
+                   ) -> tuple[MeasurementArrays, ResidualRows, dict[str, Any]]:
+    """The estimator's measurements and the residual logger's rows for runs of simulated batches.
 
-    The traces (one per plateau) are fed at :data:`ESTIMATOR_RATE_HZ` to the estimator
-    (:func:`~gimbal_friction.core.estimator.estimate_arrays`, commanded speed = the tracking speed, other
-    settings default); the accepted steady-state samples are refitted with
-    :func:`~gimbal_friction.core.refit.refit_model` for ``walther_a`` on the positive-direction (CW) samples, as
-    the suite's main job does (``refit --direction cw``: the paper attributes the CW/CCW asymmetry to grease
-    distribution, not viscosity).
+    Each run (``(batch, run indices)``) is fed, as the node would receive it at the controller rate, to its own
+    :class:`~gimbal_friction.core.estimator.EstimatorLogic` (the run's stamps follow the previous run's after
+    :data:`RUN_GAP_S`, from ``start_s`` [s]); each measurement is paired with the feedforward computed for its
+    joint-state stamp and kept if credible, as ``residual_logger`` does.
+
+    Returns:
+        (measurements, residual rows, estimator counters summed over the runs)
+    """
+    parts_m: list[MeasurementArrays] = []
+    parts_r: list[ResidualRows] = []
+    counters: dict[str, Any] = {}
+    start_ns = int(round(start_s * NS_PER_S))
+    for batch, indices in results:
+        gap_ns = int(round((float(batch.profile.time_s[-1]) + RUN_GAP_S) * NS_PER_S))
+        for i in indices:
+            trace = batch.estimator_trace(i, start_ns=start_ns)
+            logic = EstimatorLogic({JOINT: axis}, settings)
+            m = logic.feed(trace.chamber_arrays(JOINT))
+            _merge_counters(counters, logic.counters.as_dict())
+            predicted = match_predictions(m.joint, m.stamp_ns, np.full(trace.stamp_ns.shape, JOINT),
+                                          trace.stamp_ns, batch.traces.feedforward_computed_nm[:, i])
+            rows = residual_rows(m, predicted)
+            keep = credible_rows(rows)
+            parts_m.append(m.select(keep))
+            parts_r.append(rows.select(keep))
+            start_ns += gap_ns
+    return MeasurementArrays.concatenate(parts_m), ResidualRows.concatenate(parts_r), counters
+
+
+def refit_rows(rows: ResidualRows, axis: AxisParams, fit: Sequence[str] = DEFAULT_REFIT_FIT) -> RefitResult:
+    """Refit ``axis`` to residual rows the way ``gimbal-friction refit`` does (sufficient statistics of the rows,
+    :func:`~gimbal_friction.core.refit.refit_stats`, calibration offset ``auto``).
+
+    The default parameters (:data:`DEFAULT_REFIT_FIT`): ``walther_a``, the lubricant's viscosity level, which the
+    cold plateaus determine (Palmgren's upper branch) and which the configured lubricant gets wrong; and
+    ``direction_asymmetry_cold`` / ``_warm``, the temperature-dependent CW/CCW difference, which the observer sees
+    in both directions at every plateau (the paper attributes it to grease distribution, not viscosity, so it is
+    not folded into the viscosity). The refit also holds any parameter the data cannot determine at its
+    configured value and says so.
 
     Raises:
-        GimbalFrictionError: the estimator accepted too few samples or the fit was refused.
+        FitError: too few samples, or data that determine none of the parameters.
     """
-    # replaced by the lead's estimator -> residual rows -> refit at integration (same inputs, same output)
-    settings = EstimatorSettings(commanded_speed_rad_s=config.tracking_speed_rpm * RAD_S_PER_RPM)
-    every = max(1, int(round(config.rate_loop_hz / ESTIMATOR_RATE_HZ)))
-    cols: list[list[Array]] = [[], [], [], []]
-    for trace in traces:
-        est = EstimatorLogic({'elevation': axis}, settings).feed(trace.chamber_arrays('elevation', every))
-        cw = est.direction > 0
-        cols[0].append(est.temperature_c[cw])
-        cols[1].append(np.abs(est.velocity_rad_s[cw]) * RPM_PER_RAD_S)
-        cols[2].append(est.friction_nm[cw])
-        cols[3].append(np.ones(int(np.count_nonzero(cw))))
-    t, n, y, d = (np.concatenate(c) for c in cols)
-    return refit_model(axis, t, n, y, d, fit=('walther_a',)).params
+    stats: dict[str, SufficientStats] = accumulate_rows(rows, {}, joints=[JOINT])
+    if JOINT not in stats:
+        return refit_stats(axis, SufficientStats.empty(), fit=fit)   # raises: too few samples
+    return refit_stats(axis, stats[JOINT], fit=fit)
 
 
+# ---------------------------------------------------------------------------------------------- the study
 def _short_config(config: SimConfig) -> SimConfig:
     return config.replace(**{f'{p}_duration_s': s for p, s in SHORT_DURATIONS.items()})
 
@@ -162,17 +242,51 @@ def _reversal_traces(result: BatchResult, temperature_c: float) -> list[Reversal
     return out
 
 
+def _check(temperatures: Sequence[float], profiles: Sequence[str], cases: Sequence[str],
+           feedforward: FeedforwardSetup, estimator_method: str, refit_fit: Sequence[str],
+           refit_profiles: Sequence[str] | None) -> list[float]:
+    known = CASES + EXTRA_CASES
+    for c in cases:
+        if c not in known:
+            raise ConfigError('cases', f'unknown case (choose from {", ".join(known)})', c)
+    if not cases:
+        raise ConfigError('cases', 'needs at least one case')
+    for p in (*profiles, *(refit_profiles or ())):
+        if p not in PROFILES:
+            raise ConfigError('profiles', f'unknown profile (choose from {", ".join(PROFILES)})', p)
+    if not profiles:
+        raise ConfigError('profiles', 'needs at least one profile')
+    temps = [float(t) for t in temperatures]
+    if not temps:
+        raise ConfigError('temperatures', 'needs at least one temperature')
+    for t in temps:
+        if not (math.isfinite(t) and -60.0 <= t <= 120.0):
+            raise ConfigError('temperatures', 'must lie in [-60, 120] [degC]', t)
+    check_velocity_source(feedforward.velocity_source)
+    feedforward.settings.validate()
+    if estimator_method not in ESTIMATOR_METHODS:
+        raise ConfigError('estimator_method', f'must be one of {", ".join(ESTIMATOR_METHODS)}', estimator_method)
+    for name in refit_fit:
+        if name not in FIT_PARAMETERS:
+            raise ConfigError('refit_fit', f'unknown parameter (choose from {", ".join(FIT_PARAMETERS)})', name)
+    if not refit_fit:
+        raise ConfigError('refit_fit', 'needs at least one parameter')
+    return list(dict.fromkeys(temps))
+
+
 def run_study(config: SimConfig, axis: AxisParams | None = None, *,
               temperatures: Sequence[float] = DEFAULT_TEMPERATURES, profiles: Sequence[str] = PROFILES,
               cases: Sequence[str] = CASES, short: bool = False,
-              feedforward: FeedforwardFactory = default_feedforward, refit: RefitHook | None = estimator_refit,
+              feedforward: FeedforwardSetup | None = None, estimator: EstimatorSettings | None = None,
+              estimator_method: str = 'observer', refit_fit: Sequence[str] = DEFAULT_REFIT_FIT,
+              refit_profiles: Sequence[str] | None = None, refit: RefitHook | None = None,
               progress: Progress | None = None) -> StudyResult:
     """Run the closed loop for every case × temperature × profile and measure the LOS errors.
 
     Parameters
     ----------
     config : SimConfig
-        Simulator configuration.
+        Simulator configuration (``feedforward_latency_s`` is the transport latency of cases (c) and (d)).
     axis : AxisParams, optional
         The configured model of the axis (default: the suite's defaults).
     temperatures : sequence of float
@@ -181,81 +295,87 @@ def run_study(config: SimConfig, axis: AxisParams | None = None, *,
         Any of ``tracking``, ``scan``, ``pointing``.
     cases : sequence of str
         Any of ``none``, ``constant``, ``feedforward``, ``refit``, ``ideal`` (:data:`CASES`), and the optional
-        ``feedforward_reference`` (the feedforward on the reference velocity, not part of the default study).
+        ``feedforward_measured`` / ``feedforward_reference`` (the feedforward on one velocity source).
     short : bool
         Use the short durations of :data:`SHORT_DURATIONS` (CI).
-    feedforward : callable
-        Builds the case-(c)/(d) compensator from model parameters (default: :func:`default_feedforward`).
+    feedforward : FeedforwardSetup, optional
+        The feedforward's settings and velocity source (default: the node's defaults). Case (b) uses the same
+        smooth sign and velocity.
+    estimator : EstimatorSettings, optional
+        The estimator's settings for case (d) (default: the node's); ``method`` is replaced by
+        ``estimator_method`` and ``commanded_speed_rad_s`` by the tracking speed.
+    estimator_method : str
+        ``observer`` (default: friction while the gimbal works), ``steady_state`` or ``both``.
+    refit_fit : sequence of str
+        Parameters refitted for case (d) (default :data:`DEFAULT_REFIT_FIT`).
+    refit_profiles : sequence of str, optional
+        Profiles whose case-(c) runs feed the estimator (default: the study's profiles).
     refit : callable, optional
-        The case-(d) refit (default :func:`estimator_refit`); None leaves case (d) out with a note.
+        Replaces :func:`refit_rows` (rows, configured params) -> RefitResult or AxisParams.
     progress : callable, optional
         ``progress(stage, fraction)``, fraction of the whole study done.
 
     Raises:
-        ConfigError: an unknown case or profile, no temperature, or a temperature outside [-60, 120] °C.
+        ConfigError: an unknown case, profile, method or parameter, no temperature, or a temperature outside
+            [-60, 120] °C.
     """
     axis = axis if axis is not None else AxisParams()
-    cfg = _short_config(config) if short else config
-    known = CASES + EXTRA_CASES
-    for c in cases:
-        if c not in known:
-            raise ConfigError('cases', f'unknown case (choose from {", ".join(known)})', c)
-    for p in profiles:
-        if p not in PROFILES:
-            raise ConfigError('profiles', f'unknown profile (choose from {", ".join(PROFILES)})', p)
-    temps = [float(t) for t in temperatures]
-    if not temps:
-        raise ConfigError('temperatures', 'needs at least one temperature')
-    for t in temps:
-        if not (math.isfinite(t) and -60.0 <= t <= 120.0):
-            raise ConfigError('temperatures', 'must lie in [-60, 120] [degC]', t)
-    cases = list(dict.fromkeys(cases))
+    ff = feedforward if feedforward is not None else FeedforwardSetup()
     profiles = list(dict.fromkeys(profiles))
+    cases = list(dict.fromkeys(cases))
+    temps = _check(temperatures, profiles, cases, ff, estimator_method, refit_fit, refit_profiles)
+    cfg = _short_config(config) if short else config
     notes: list[str] = []
     wall: dict[str, float] = {}
     want_refit = 'refit' in cases
-    if want_refit and refit is None:
-        notes.append('case refit left out: no refit hook')
-        cases.remove('refit')
-        want_refit = False
-    calib = CALIBRATION_PROFILE
-    figure_profile = calib if calib in profiles else profiles[0]
-    # stages: (profile, cases in that batch)
+    calib = list(dict.fromkeys(refit_profiles)) if refit_profiles else profiles
+    figure_profile = 'tracking' if 'tracking' in profiles else profiles[0]
+    # stage 1: every profile with the cases other than refit (and the feedforward runs the refit learns from);
+    # stage 2: the refit case on the study's profiles
     stages: list[tuple[str, list[str]]] = []
-    if want_refit:   # the calibration runs; all the other cases too when the calibration profile is wanted
-        first = [c for c in cases if c != 'refit'] if calib in profiles else []
-        if 'feedforward' not in first:
+    for p in dict.fromkeys([*profiles, *(calib if want_refit else [])]):
+        first = [c for c in cases if c != 'refit'] if p in profiles else []
+        if want_refit and p in calib and 'feedforward' not in first:
             first.append('feedforward')
-        stages.append((calib, first))
-    for p in profiles:
-        if want_refit and p == calib:
-            stages.append((p, ['refit']))
-        else:
-            stages.append((p, list(cases)))
+        if first:
+            stages.append((p, first))
+    if want_refit:
+        stages += [(p, ['refit']) for p in profiles]
     work = [len(cs) * len(temps) * cfg.profile_duration_s(p) for p, cs in stages]
     total, done = float(sum(work)), 0.0
     records: list[dict[str, Any]] = []
     reversal: list[ReversalTrace] = []
+    calibration: list[tuple[BatchResult, list[int]]] = []
+    outcome: RefitOutcome | None = None
     refit_params: AxisParams | None = None
     for (name, stage_cases), w in zip(stages, work, strict=True):
+        if stage_cases == ['refit'] and want_refit and outcome is None:
+            t1 = time.perf_counter()
+            if progress is not None:
+                progress('refit: estimator -> residual rows -> refit', done / total)
+            outcome = _refit(calibration, axis, cfg, estimator, estimator_method, refit_fit, refit, notes)
+            refit_params = outcome.params
+            calibration.clear()
+            wall['refit'] = time.perf_counter() - t1
+        if stage_cases == ['refit'] and refit_params is None:
+            done += w
+            continue
         t0 = time.perf_counter()
         prof = make_profile(cfg, name)
         comps: dict[str, Compensator] = {}
         for c in stage_cases:
             if c == 'constant':
-                comps[c] = constant_coulomb(axis, prof.nominal_speed_rad_s)
+                comps[c] = constant_coulomb(axis, ff.settings, velocity_source=ff.velocity_source)
             elif c == 'feedforward':
-                comps[c] = feedforward(axis)
+                comps[c] = ff.compensator(axis)
+            elif c == 'feedforward_measured':
+                comps[c] = ff.compensator(axis, 'measured')
             elif c == 'feedforward_reference':
-                comps[c] = suite_feedforward(axis, velocity_source='reference')
-            elif c == 'refit':
-                if refit_params is None:
-                    continue
-                comps[c] = feedforward(refit_params)
-        runs = [Run(c, t) for c in stage_cases if c in (CASE_NONE, CASE_IDEAL) or c in comps for t in temps]
-        if not runs:
-            continue
-        label = f'{name} ({", ".join(dict.fromkeys(r.case for r in runs))})'
+                comps[c] = ff.compensator(axis, 'reference')
+            elif c == 'refit' and refit_params is not None:
+                comps[c] = ff.compensator(refit_params)
+        runs = [Run(c, t) for c in stage_cases for t in temps]
+        label = f'{name} ({", ".join(stage_cases)})'
 
         def report(f: float, label: str = label, base: float = done, w: float = w) -> None:
             if progress is not None:
@@ -263,35 +383,56 @@ def run_study(config: SimConfig, axis: AxisParams | None = None, *,
 
         result = simulate(cfg, axis, prof, runs, comps, progress=report)
         done += w
-        is_calibration = want_refit and name == calib and 'refit' not in stage_cases
         if name in profiles:
             records.extend(r for r in _records(result, cfg.profile_duration_s(name)) if r['case'] in cases)
             if name == figure_profile:
                 reversal.extend(t for t in _reversal_traces(result, min(temps)) if t.case in cases)
+        if want_refit and name in calib and 'refit' not in stage_cases:
+            calibration.append((result, [i for i, r in enumerate(result.runs) if r.case == 'feedforward']))
         wall[label] = time.perf_counter() - t0
-        if is_calibration:
-            t1 = time.perf_counter()
-            gap_ns = int(round((cfg.profile_duration_s(name) + 60.0) * NS_PER_S))   # stamps run on across plateaus
-            traces = [result.estimator_trace(i, start_ns=j * gap_ns)
-                      for j, i in enumerate(i for i, r in enumerate(result.runs) if r.case == 'feedforward')]
-            assert refit is not None
-            try:
-                refit_params = refit(traces, axis, cfg)
-            except GimbalFrictionError as err:
-                notes.append(f'case refit left out: the refit was refused ({err})')
-                cases.remove('refit')
-            else:
-                changed = {k: v for k, v in refit_params.to_mapping().items() if axis.to_mapping()[k] != v}
-                notes.append('refit from the estimator on the calibration runs: ' +
-                             (', '.join(f'{k} {getattr(axis, k):.6g} -> {v:.6g}' for k, v in changed.items())
-                              or 'nothing changed'))
-            wall['refit'] = time.perf_counter() - t1
+    if progress is not None:
+        progress('done', 1.0)
     order = {c: i for i, c in enumerate(CASES + EXTRA_CASES)}
     records.sort(key=lambda r: (profiles.index(r['profile']), order[r['case']], r['temperature_c']))
     reversal.sort(key=lambda t: order[t.case])
-    return StudyResult(records, reversal, refit_params, notes, wall, cfg)
+    return StudyResult(records, reversal, outcome, notes, wall, cfg)
 
 
+def _refit(calibration: Sequence[tuple[BatchResult, Sequence[int]]], axis: AxisParams, cfg: SimConfig,
+           estimator: EstimatorSettings | None, method: str, fit: Sequence[str], hook: RefitHook | None,
+           notes: list[str]) -> RefitOutcome:
+    base = estimator if estimator is not None else EstimatorSettings()
+    settings = dataclasses.replace(base, method=method,
+                                   commanded_speed_rad_s=cfg.tracking_speed_rpm * RAD_S_PER_RPM)
+    measured, rows, counters = estimator_rows(calibration, axis, settings)
+    n_obs = int(np.count_nonzero(measured.method == METHOD_OBSERVER))
+    n_ss = int(np.count_nonzero(measured.method == METHOD_STEADY_STATE))
+    runs = sum(len(i) for _, i in calibration)
+    notes.append(f'refit data: estimator ({method}) on the feedforward runs ({runs} runs of '
+                 f'{", ".join(dict.fromkeys(b.profile.name for b, _ in calibration))}): {len(rows)} residual rows '
+                 f'({n_obs} observer, {n_ss} steady-state)')
+    result: RefitResult | None = None
+    try:
+        out = hook(rows, axis) if hook is not None else refit_rows(rows, axis, fit)
+    except GimbalFrictionError as err:
+        notes.append(f'case refit left out: the refit was refused ({err})')
+        return RefitOutcome(measured, rows, counters, None, None, str(err))
+    if isinstance(out, RefitResult):
+        result, params = out, out.params
+        held = [f'{k} ({v.reason})' for k, v in out.identifiability.items() if not v.identifiable]
+        if held:
+            notes.append('refit held at the configured value: ' + '; '.join(held))
+        if out.offset.estimated:
+            notes.append(f'refit calibration offset {out.offset.value_nm * 1e3:+.4f} N*mm (not in the feedforward)')
+    else:
+        params = out
+    changed = {k: v for k, v in params.to_mapping().items() if axis.to_mapping()[k] != v}
+    notes.append('refit: ' + (', '.join(f'{k} {getattr(axis, k):.6g} -> {v:.6g}' for k, v in changed.items())
+                              or 'nothing changed'))
+    return RefitOutcome(measured, rows, counters, result, params, None)
+
+
+# ---------------------------------------------------------------------------------------------- goals
 def _lookup(records: Sequence[dict[str, Any]]) -> dict[tuple[str, str, float], dict[str, Any]]:
     return {(r['profile'], r['case'], float(r['temperature_c'])): r for r in records}
 
@@ -341,4 +482,3 @@ def goal_checks(records: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
                 out.append({'goal': 'd_near_e_cold', 'profile': p, 'temperature_c': t, 'value': ratio,
                             'target': 1.2, 'met': ratio <= 1.2})
     return out
-

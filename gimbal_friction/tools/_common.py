@@ -10,8 +10,9 @@ import math
 import os
 import sys
 import tempfile
+from collections.abc import Iterable, Mapping
 from pathlib import Path
-from typing import Any, Iterable, Mapping
+from typing import Any
 
 import numpy as np
 
@@ -99,9 +100,9 @@ def csv_text(records: Iterable[Mapping[str, Any]], fields: list[str]) -> str:
 def format_table(rows: list[list[str]], header: list[str]) -> str:
     """Right-aligned plain-text table."""
     widths = [max(len(h), *(len(r[i]) for r in rows)) if rows else len(h) for i, h in enumerate(header)]
-    line = '  '.join(h.rjust(w) for h, w in zip(header, widths))
+    line = '  '.join(h.rjust(w) for h, w in zip(header, widths, strict=True))
     out = [line, '  '.join('-' * w for w in widths)]
-    out += ['  '.join(c.rjust(w) for c, w in zip(r, widths)) for r in rows]
+    out += ['  '.join(c.rjust(w) for c, w in zip(r, widths, strict=True)) for r in rows]
     return '\n'.join(out)
 
 
@@ -139,5 +140,16 @@ def write_text_atomic(path: Path, text: str) -> None:
             Path(tmp).unlink(missing_ok=True)
             raise
     except OSError as err:
-        msg = f'cannot write {path}: {err.strerror}'
+        msg = f'cannot write {path}: {os_error_text(err)}'
         raise GimbalFrictionError(msg) from None
+
+
+def os_error_text(err: OSError) -> str:
+    """An OSError as one line: the reason and the file it names (``Read-only file system: 'out/fig.png'``).
+
+    >>> import errno
+    >>> os_error_text(OSError(errno.EROFS, 'Read-only file system', 'out/fig.png'))
+    "Read-only file system: 'out/fig.png'"
+    """
+    reason = err.strerror or ' '.join(str(err).split()) or type(err).__name__
+    return f'{reason}: {err.filename!r}' if err.filename else reason

@@ -238,10 +238,10 @@ def provenance_header(fit: KtFit, axis: str, source: Path, data: CalibrationData
         f"gimbal-friction calibrate-kt: motor torque constant and no-load current of axis '{axis}' (paper Eq. 23)",
         f'source: {source.resolve()}{digest}',
         f'date: {now}',
-        f'points: {fit.n} ({fit.n_outliers} outlier(s) rejected at {OUTLIER_THRESHOLD:g} robust sigma); '
-        f'direction: {direction}',
-        f'K_T = {fit.K_T:.6g} +/- {fit.se_K_T:.2g} N*m/A, I_0 = {fit.I_0:.6g} +/- {fit.se_I_0:.2g} A, '
-        f'T_0 = {fit.T_0:.6g} +/- {fit.se_T_0:.2g} N*m (1 sigma)',
+        (f'points: {fit.n} ({fit.n_outliers} outlier(s) rejected at {OUTLIER_THRESHOLD:g} robust sigma); '
+         f'direction: {direction}'),
+        (f'K_T = {fit.K_T:.6g} +/- {fit.se_K_T:.2g} N*m/A, I_0 = {fit.I_0:.6g} +/- {fit.se_I_0:.2g} A, '
+         f'T_0 = {fit.T_0:.6g} +/- {fit.se_T_0:.2g} N*m (1 sigma)'),
         f'R^2 = {fit.r2:.6f}, residual std = {fit.residual_std:.3g} N*m',
         'layer with: gimbal-friction ... --config FILE, or ros2 run ... --ros-args --params-file FILE',
     ])

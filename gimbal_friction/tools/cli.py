@@ -14,6 +14,7 @@ from collections.abc import Sequence
 from typing import NoReturn
 
 from gimbal_friction.core.errors import GimbalFrictionError
+from gimbal_friction.tools._common import os_error_text
 
 #: subcommand -> module under gimbal_friction.tools
 SUBCOMMANDS = {
@@ -25,10 +26,12 @@ SUBCOMMANDS = {
     'refit': 'refit_cmd',
     'export': 'export_cmd',
     'fleet': 'fleet_cmd',
+    'recover': 'recover_cmd',
+    'loop-study': 'loop_study_cmd',
 }
 
 #: options whose values may start with '-' (negative temperatures): '--temperature -40,0' is rewritten.
-NEGATIVE_VALUE_OPTIONS = ('--temperature', '-t', '--plateaus')
+NEGATIVE_VALUE_OPTIONS = ('--temperature', '-t', '--plateaus', '--temperatures')
 
 
 class OneLineParser(argparse.ArgumentParser):
@@ -43,7 +46,7 @@ def build_parser() -> OneLineParser:
                            '(Yu & Shang 2017): model, calibration, bag replay and refit.')
     sub = parser.add_subparsers(dest='command', metavar='COMMAND', parser_class=OneLineParser)
     sub.required = True
-    for name, module in SUBCOMMANDS.items():
+    for module in SUBCOMMANDS.values():
         mod = importlib.import_module(f'gimbal_friction.tools.{module}')
         mod.add_parser(sub)
     return parser
@@ -73,6 +76,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         return int(args.func(args))
     except GimbalFrictionError as err:
         print(f'gimbal-friction {args.command}: error: {err}', file=sys.stderr)
+        return 1
+    except OSError as err:  # a full or read-only disk, a vanished file: one line, never a traceback
+        print(f'gimbal-friction {args.command}: error: {os_error_text(err)}', file=sys.stderr)
         return 1
     except KeyboardInterrupt:
         print(f'gimbal-friction {args.command}: interrupted', file=sys.stderr)

@@ -43,12 +43,10 @@ from gimbal_friction.core.export import (
     Provenance,
     build_table,
     c_identifier,
-    render_c_header,
-    render_csv,
-    render_ros_yaml,
 )
 from gimbal_friction.core.feedforward import FeedforwardSettings
 from gimbal_friction.core.settings import settings_from_parameters
+from gimbal_friction.export_formats import render_c_header, render_csv, render_ros_yaml
 from gimbal_friction.tools._common import add_common, format_table, print_json
 
 #: files an export directory may hold (what --force may replace)

@@ -10,8 +10,14 @@ from typing import Any
 
 from gimbal_friction.core.model import CONTRACT_FIELDS, friction_torque
 from gimbal_friction.core.thermal import loose_fit_temperature
-from gimbal_friction.tools._common import add_common_noformat, csv_text, format_table, load_axis, \
-    parse_temperature_spec, print_json
+from gimbal_friction.tools._common import (
+    add_common_noformat,
+    csv_text,
+    format_table,
+    load_axis,
+    parse_temperature_spec,
+    print_json,
+)
 
 DEFAULT_TEMPERATURES = '-40:60:10'
 

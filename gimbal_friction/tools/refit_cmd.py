@@ -1,7 +1,8 @@
 """``gimbal-friction refit``: refit the lubricant viscosity (and optionally other) parameters from residual logs.
 
 Streams one or more residual-log folders (``residual_logger`` or ``replay`` output) chunk by chunk
-(:func:`iter_rows`, bounded memory) and uses each ``residual_detail`` row's ``temperature_c``, ``velocity_rad_s``
+(:func:`~gimbal_friction.recording.residual_read.iter_residual_rows`, bounded memory) and uses each
+``residual_detail`` row's ``temperature_c``, ``velocity_rad_s``
 (speed and direction) and ``measured_nm`` (signed; friction along the motion is ``measured_nm · sign(velocity)``),
 accumulated into per-bin sufficient statistics (:mod:`gimbal_friction.core.sufficient`). Rows with a non-finite
 value or zero velocity are skipped and counted. The fit is :func:`gimbal_friction.core.refit.refit_stats` per axis
@@ -29,7 +30,7 @@ import datetime as dt
 import math
 import re
 import sys
-from collections.abc import Iterator, Sequence
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any, NamedTuple
 
@@ -49,9 +50,9 @@ from gimbal_friction.core.refit import (
     palmgren_threshold_temperature,
     refit_stats,
 )
-from gimbal_friction.core.residual_row import ResidualRows, rows_from_detail
 from gimbal_friction.core.sufficient import SufficientStats, accumulate_rows
-from gimbal_friction.recording.topics import FLOAT64_MULTI_ARRAY_TYPE, RESIDUAL_DETAIL
+from gimbal_friction.recording.residual_read import ReadReport, iter_residual_rows
+from gimbal_friction.recording.topics import RESIDUAL_DETAIL
 from gimbal_friction.tools._common import add_common, format_table, print_json, write_text_atomic
 
 DEFAULT_FIT = 'walther_a'
@@ -70,72 +71,13 @@ class AxisData(NamedTuple):
     skipped_standstill: int
 
 
-class LogReport:
-    """Files read by :func:`iter_rows` (filled while iterating)."""
-
-    def __init__(self) -> None:
-        self.files: list[Path] = []
-        self.truncated_files: list[Path] = []
-
-
-def iter_rows(logs: Sequence[Path], chunk_rows: int = CHUNK_ROWS, report: LogReport | None = None,
-              ) -> Iterator[ResidualRows]:
-    """The ``residual_detail`` rows of residual-log folders (or ``.mcap`` files) in chunks of ``chunk_rows``,
-    streamed (one chunk in memory). Reads layout 2 (12 columns) and layout 1 (11, K_T/I_0 unknown: NaN).
-
-    The one place this command reads logs; to be replaced by ``recording``'s ``iter_residual_rows``.
-
-    Raises:
-        RecordingError: not a residual log, unreadable or undecodable data.
-    """
-    from gimbal_friction.recording.residual_log import _iter_log, _ReadReport
-
-    rep = _ReadReport()
-    joints: list[str] = []
-    rows: list[np.ndarray] = []
-
-    def flush() -> Iterator[ResidualRows]:
-        by_len: dict[int, list[int]] = {}
-        for i, r in enumerate(rows):
-            by_len.setdefault(r.shape[0], []).append(i)
-        for idx in by_len.values():
-            labels = np.asarray([joints[i] for i in idx], dtype=str)
-            data = np.vstack([rows[i] for i in idx])
-            try:
-                yield rows_from_detail(labels, data)
-            except ValueError as err:
-                msg = f'{RESIDUAL_DETAIL}: {err}'
-                raise FitError(msg) from None
-            except TypeError:  # core/residual_row.py: ResidualRows._make trips over its own __len__ (layout 2)
-                yield ResidualRows(labels, *(data[:, i] for i in range(data.shape[1] - 1)),
-                                   data[:, -1].astype(np.int8))
-        joints.clear()
-        rows.clear()
-
-    try:
-        for item in _iter_log(list(logs), [RESIDUAL_DETAIL], rep):
-            if item.msgtype != FLOAT64_MULTI_ARRAY_TYPE:
-                msg = f'{RESIDUAL_DETAIL} has type {item.msgtype}, expected {FLOAT64_MULTI_ARRAY_TYPE}'
-                raise FitError(msg)
-            dims = item.msg.layout.dim  # type: ignore[attr-defined]
-            joints.append(dims[0].label if len(dims) else '')
-            rows.append(np.asarray(item.msg.data, dtype=np.float64))  # type: ignore[attr-defined]
-            if len(rows) >= chunk_rows:
-                yield from flush()
-        if rows:
-            yield from flush()
-    finally:
-        if report is not None:
-            report.files[:] = rep.files
-            report.truncated_files[:] = rep.truncated
-
-
 def read_stats(logs: Sequence[Path], *, joints: list[str] | None = None, direction: str = 'both',
-               report: LogReport | None = None, label: str = 'refit: reading') -> dict[str, AxisData]:
-    """Per-joint sufficient statistics of the logs, streamed chunk by chunk (progress on a terminal's stderr)."""
+               report: ReadReport | None = None, label: str = 'refit: reading') -> dict[str, AxisData]:
+    """Per-joint sufficient statistics of the logs, streamed chunk by chunk with bounded memory
+    (:func:`~gimbal_friction.recording.residual_read.iter_residual_rows`; progress on a terminal's stderr)."""
     stats: dict[str, SufficientStats] = {}
     done = 0
-    for chunk in iter_rows(logs, report=report):
+    for chunk in iter_residual_rows(list(logs), chunk_rows=CHUNK_ROWS, report=report):
         accumulate_rows(chunk, stats, joints=joints, direction=direction)
         done += len(chunk)
         if sys.stderr.isatty():
@@ -475,7 +417,7 @@ def run(args: argparse.Namespace) -> int:
     cfg = load_parameters(args.config)
     if args.calibration is not None:
         read_calibration_se(args.calibration)  # refuse a bad file before reading the logs
-    report = LogReport()
+    report = ReadReport()
     data_by_joint = read_stats(list(args.logs), direction=args.direction, report=report)
     where = ', '.join(str(p) for p in args.logs)
     if not data_by_joint:

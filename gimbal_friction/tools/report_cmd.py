@@ -3,12 +3,14 @@
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
+from gimbal_friction.config import axis_params, load_parameters
 from gimbal_friction.core.errors import GimbalFrictionError
 from gimbal_friction.core.model import friction_torque
-from gimbal_friction.tools._common import add_common, format_table, load_axis, print_json
+from gimbal_friction.tools._common import add_common, format_table, load_axis, os_error_text, print_json
 
 
 def add_parser(sub: Any) -> None:
@@ -31,8 +33,17 @@ def add_parser(sub: Any) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    try:
+        return _run(args)
+    except OSError as err:  # the figures' folder cannot be created or written (read-only, full, not a folder)
+        raise GimbalFrictionError(f'cannot write the report into {args.out}: {os_error_text(err)}') from None
+
+
+def _run(args: argparse.Namespace) -> int:
     from gimbal_friction.plots import model_figures
     axis, params, _ = load_axis(args)
+    if args.compare is not None:  # refuse a bad --compare file before drawing anything
+        load_parameters([*args.config, args.compare])
     files = model_figures(params, args.out)
     temps = [-40.0, -20.0, 0.0, 20.0, 40.0, 60.0]
     res = friction_torque(params, temps)
@@ -77,11 +88,14 @@ def summary_table(summary: list[dict[str, Any]]) -> str:
 
 
 def _fig13(args: argparse.Namespace, axis: str, params: Any) -> tuple[list[dict[str, Any]], Path]:
-    from gimbal_friction.config import axis_params, load_parameters
+    from gimbal_friction.config import load_parameters
+    from gimbal_friction.core.direction import SCALAR, direction_factor
     from gimbal_friction.core.residuals import plateau_summary, steady_temperature
     from gimbal_friction.plots import plot_model_vs_measured
-    from gimbal_friction.recording.residual_log import read_residual_rows, read_temperature_stream
-    d, _ = read_residual_rows(args.residuals)
+    from gimbal_friction.recording.residual_read import read_residual_rows, read_temperature_stream
+    d, report = read_residual_rows(args.residuals)
+    if report.truncated_files or report.bad_chunks or report.skipped_rows:
+        print(f'note: residual logs: {report.summary()}', file=sys.stderr)
     sel = d.joint == axis
     if not sel.any():
         raise GimbalFrictionError(f'the residual logs hold no samples of axis {axis!r}')
@@ -96,9 +110,10 @@ def _fig13(args: argparse.Namespace, axis: str, params: Any) -> tuple[list[dict[
         compared = axis_params(load_parameters([*args.config, args.compare]), axis)
         models[f'with {args.compare.name}'] = compared
         for r in summary:  # the compared model at each plateau, signed like the measurement, at the model speed
-            m = float(friction_torque(compared, float(r['temperature_c'])).m_total_nmm)
-            k = compared.scale_positive if r['sign'] > 0 else compared.scale_negative
-            r['compare_nmm'] = float(r['sign']) * k * m
+            sign = float(cast('float', r['sign']))
+            t_c = float(cast('float', r['temperature_c']))
+            m = float(friction_torque(compared, t_c).m_total_nmm)
+            r['compare_nmm'] = sign * direction_factor(compared, t_c, sign, SCALAR) * m
     path = plot_model_vs_measured(summary, models, args.out / 'fig13_model_vs_measured.png',
                                   title=f'{axis}: model vs measured by direction (paper Fig. 13)')
     return summary, path

@@ -15,19 +15,15 @@ import numpy as np
 import pytest
 import yaml
 
+from gimbal_friction.core.direction import direction_factor
 from gimbal_friction.core.errors import ConfigError, GimbalFrictionError
 from gimbal_friction.core.export import (
-    CSV_FIELDS,
     PALMGREN_JUMP,
     PALMGREN_SWITCH_CST_RPM,
-    ROS_NODE,
     ExportOptions,
     Provenance,
     build_table,
     c_identifier,
-    render_c_header,
-    render_csv,
-    render_ros_yaml,
 )
 from gimbal_friction.core.feedforward import Feedforward, FeedforwardSettings
 from gimbal_friction.core.friction import viscous_torque_Palmgren_1959
@@ -36,6 +32,8 @@ from gimbal_friction.core.params import AxisParams
 from gimbal_friction.core.table import FrictionTable
 from gimbal_friction.core.thermal import loose_fit_temperature
 from gimbal_friction.core.units import rad_s_from_rpm, rpm_from_rad_s
+from gimbal_friction.core.xp import SCALAR
+from gimbal_friction.export_formats import CSV_FIELDS, ROS_NODE, render_c_header, render_csv, render_ros_yaml
 
 BOUND = 1e-4
 PROV = Provenance('gimbal-friction export test', '2025-01-01T00:00:00+00:00',
@@ -227,7 +225,7 @@ def test_csv_has_provenance_units_and_the_grid(table):
     joined = '\n'.join(comments)
     for needle in ('gimbal-friction export test', '2025-01-01', 'axis: elevation', 'refit.yaml: ' + 'f' * 64,
                    'packaged defaults: ' + '0' * 64, 'requested 0.0001', 'walther_a = 8.6195',
-                   'ball_diameter_mm = 2.381 [mm]', 'velocity_threshold_rad_s = 0.005 [rad/s]'):
+                   'ball_diameter_mm = 2.381 [mm]', f'velocity_threshold_rad_s = {FeedforwardSettings().velocity_threshold_rad_s} [rad/s]'):
         assert needle in joined
     rows = list(csv.DictReader(io.StringIO('\n'.join(line for line in text.splitlines()
                                                      if not line.startswith('#')))))
@@ -272,7 +270,7 @@ def test_ros_yaml_loads_and_its_arrays_reproduce_the_table(table, tmp_path):
     assert len(e['temperatures_c']) == len(e['ln_switch_speed']) == len(e['torque_lower_nm'])
     assert len(e['torque_upper_nm']) == e['torque_upper_shape'][0] * e['torque_upper_shape'][1]
     assert e['relative_error_bound'] == BOUND and e['max_relative_error'] <= BOUND
-    assert e['velocity_threshold_rad_s'] == 0.005 and e['max_torque_nm'] == 0.02
+    assert e['velocity_threshold_rad_s'] == FeedforwardSettings().velocity_threshold_rad_s and e['max_torque_nm'] == 0.02
     rng = np.random.default_rng(3)
     for t, v in zip(rng.uniform(-70, 130, 300), rng.uniform(-12, 12, 300), strict=True):
         assert _lookup_from_ros_parameters(e, t, v) == pytest.approx(float(table.evaluate_nm(t, v)), rel=1e-13)
@@ -370,7 +368,8 @@ def test_c_function_agrees_with_the_python_model_at_random_points(table, tmp_pat
 def test_c_feedforward_is_the_nodes_rule(tmp_path):
     """gf_<axis>_feedforward_nm against Feedforward.torque_at (the node's rule) with direction factors
     and a clamp that bites; tolerance: the bound plus the node table's own (0.1 degC grid) error."""
-    params = AxisParams().replace(scale_positive=1.1, scale_negative=0.8)
+    params = AxisParams().replace(scale_positive=1.1, scale_negative=0.8, direction_asymmetry_cold=0.13,
+                                  direction_asymmetry_warm=-0.12)   # the per-direction term, as refitted on the paper
     settings = FeedforwardSettings(velocity_threshold_rad_s=0.01, max_torque_nm=0.0016)
     tb = build_table('elevation', params, settings, ExportOptions(relative_error=BOUND, random_points=2000))
     rng = np.random.default_rng(5)
@@ -387,10 +386,13 @@ def test_c_feedforward_is_the_nodes_rule(tmp_path):
     assert np.all(np.abs(c_ff - node) <= tol)
     assert np.sum(np.abs(c_ff) == 0.0016) > 100 and np.max(np.abs(c_ff)) == 0.0016   # the clamp bites
     assert np.all(np.sign(c_ff[v != 0]) == np.sign(v[v != 0]))
-    # direction factors: same |v| both ways differs by 1.1 / 0.8 where the clamp does not bite
-    probe_t, probe_v = np.array([20.0, 20.0]), np.array([0.02, -0.02])
-    _, ff = _run_c(tmp_path, [tb], probe_t, probe_v, 'elevation')
-    assert -ff[0] / ff[1] == pytest.approx(1.1 / 0.8, rel=1e-12)
+    # direction factors: same |v| both ways differs by k_+(T) / k_-(T) where the clamp does not bite, and the
+    # asymmetry changes with temperature as the core's rule says
+    for temp in (-50.0, 20.0, 70.0):
+        probe_t, probe_v = np.array([temp, temp]), np.array([0.002, -0.002])
+        _, ff = _run_c(tmp_path, [tb], probe_t, probe_v, 'elevation')
+        expected = direction_factor(params, temp, 1.0, SCALAR) / direction_factor(params, temp, -1.0, SCALAR)
+        assert -ff[0] / ff[1] == pytest.approx(expected, rel=1e-12)
 
 
 def test_c_edges_and_non_finite_inputs(table, tmp_path):

@@ -11,13 +11,20 @@ from hypothesis import strategies as st
 
 from gimbal_friction.core.arrays import chamber_arrays
 from gimbal_friction.core.errors import ConfigError, ModelDomainError
-from gimbal_friction.core.feedforward import SOURCE_FALLBACK, SOURCE_HOLD_LAST, SOURCE_MEASURED, SOURCE_ZERO, \
-    Feedforward, FeedforwardSettings
+from gimbal_friction.core.feedforward import (
+    SOURCE_FALLBACK,
+    SOURCE_HOLD_LAST,
+    SOURCE_MEASURED,
+    SOURCE_ZERO,
+    Feedforward,
+    FeedforwardSettings,
+)
 from gimbal_friction.core.model import friction_torque
 from gimbal_friction.core.params import AxisParams
 
 AXES = {'elevation': AxisParams(), 'azimuth': AxisParams(interference_mm=0.004, scale_negative=0.8)}
 S = 1_000_000_000
+V_TH = FeedforwardSettings().velocity_threshold_rad_s
 ODD = [math.nan, math.inf, -math.inf, 1e308, -1e-300]
 
 
@@ -27,8 +34,8 @@ def test_torque_follows_the_model_sign_and_direction_factor():
     v = 1 / 3 * 2 * math.pi / 60
     for joint, k_neg in (('elevation', 1.0), ('azimuth', 0.8)):
         m = float(friction_torque(AXES[joint], -40.0, 1 / 3).m_total_nmm) * 1e-3
-        assert ff.torque_nm(joint, v, 100.0) == pytest.approx(math.tanh(v / 0.005) * m, rel=2e-5)
-        assert ff.torque_nm(joint, -v, 100.0) == pytest.approx(-k_neg * math.tanh(v / 0.005) * m, rel=2e-5)
+        assert ff.torque_nm(joint, v, 100.0) == pytest.approx(math.tanh(v / V_TH) * m, rel=2e-5)
+        assert ff.torque_nm(joint, -v, 100.0) == pytest.approx(-k_neg * math.tanh(v / V_TH) * m, rel=2e-5)
     assert ff.torque_nm('elevation', 0.0, 100.0) == 0.0
     assert ff.torque_nm('elevation', math.nan, 100.0) == 0.0
 

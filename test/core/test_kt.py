@@ -6,8 +6,7 @@ import numpy as np
 import pytest
 
 from gimbal_friction.core.errors import FitError
-from gimbal_friction.core.kt import KtFit, fit_kt, friction_from_current_Eq23, \
-    friction_from_current_Eq23_jacobian
+from gimbal_friction.core.kt import KtFit, fit_kt, friction_from_current_Eq23, friction_from_current_Eq23_jacobian
 
 K_T_TRUE = 0.0523   # [N*m/A]
 I_0_TRUE = 0.012    # [A]
@@ -102,8 +101,8 @@ def test_standard_errors_are_calibrated():
 def test_exact_data_without_outliers():
     current = np.linspace(0.1, 1.0, 10)
     fit = fit_kt(current, 0.05 * (current - 0.02))
-    assert fit.K_T == pytest.approx(0.05, rel=1e-12)
-    assert fit.I_0 == pytest.approx(0.02, rel=1e-9)
+    assert pytest.approx(0.05, rel=1e-12) == fit.K_T
+    assert pytest.approx(0.02, rel=1e-9) == fit.I_0
     assert fit.n_outliers == 0
     assert fit.se_K_T < 1e-12
 

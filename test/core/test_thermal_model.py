@@ -43,11 +43,11 @@ def test_lame_loose_fit_gives_zero_pressure():
 def test_radial_sanity_values_delta0_minus40():
     """MODEL.md §3 sanity values (Delta = 0, -40 degC)."""
     p = P0.replace(interference_mm=0.0)
-    assert 26.0 * (21.7e-6 - 11.7e-6) * 60 == pytest.approx(0.0156)
+    assert pytest.approx(0.0156) == 26.0 * (21.7e-6 - 11.7e-6) * 60
     r = radial_coupling(p, -40.0)
     assert float(r.fit_pressure) == pytest.approx(7.7, abs=0.05)
     assert float(r.d_O2) == pytest.approx(23.8610, abs=5e-5)
-    assert 23.8891 * (1 - 11.7e-6 * 60) == pytest.approx(23.8723, abs=5e-5)
+    assert pytest.approx(23.8723, abs=5e-5) == 23.8891 * (1 - 11.7e-6 * 60)
     assert float(r.P_d) * 1e3 == pytest.approx(4.8, abs=0.05)
     assert math.degrees(float(r.alpha0)) == pytest.approx(8.2, abs=0.05)
     warm = radial_coupling(p, 40.0)

@@ -1,4 +1,4 @@
-"""Chamber-test bags: write tiny bags in tmp_path (MCAP and sqlite3), read them back, refuse bad ones."""
+"""Chamber-test bags: write tiny bags in tmp_path (MCAP and sqlite3), read them back, describe them, refuse bad ones."""
 
 from __future__ import annotations
 
@@ -11,14 +11,12 @@ from rosbags.highlevel import AnyReader
 from rosbags.rosbag2 import StoragePlugin, Writer
 
 from gimbal_friction.core.errors import GimbalFrictionError
-from gimbal_friction.recording.bag import (
-    ChamberArrays,
+from gimbal_friction.recording.bag import ChamberArrays, open_chamber_bag, write_chamber_bag
+from gimbal_friction.recording.cdr import (
     default_typestore,
     make_float64_multi_array,
     make_joint_state,
     make_temperature,
-    open_chamber_bag,
-    write_chamber_bag,
 )
 from gimbal_friction.recording.errors import RecordingError
 from gimbal_friction.recording.topics import (
@@ -112,7 +110,7 @@ def test_iter_raw_in_log_time_order_and_decodable(chamber_bag: Path) -> None:
     expected = chamber_messages()
     assert [(x.topic, x.msgtype, x.log_time_ns) for x in raw] == [(t, m, lt) for t, m, lt, _ in expected]
     store = default_typestore()
-    for item, (_, msgtype, _, msg) in zip(raw, expected):
+    for item, (_, msgtype, _, msg) in zip(raw, expected, strict=False):
         assert isinstance(item.data, (bytes, memoryview))
         decoded = store.deserialize_cdr(item.data, msgtype)
         assert decoded.header.stamp == msg.header.stamp  # type: ignore[attr-defined]
@@ -130,6 +128,14 @@ def test_iter_decoded_gives_messages(chamber_bag: Path) -> None:
     assert list(items[1].msg.effort) == [1.5]  # type: ignore[attr-defined]
     with pytest.raises(RecordingError, match='/no/such/topic'):
         list(bag.iter_decoded(['/no/such/topic']))
+
+
+def test_bare_db3_file_opens(tmp_path: Path) -> None:
+    bag_dir = write_chamber_bag(tmp_path / 'bag', chamber_messages(), storage='sqlite3')
+    (db3,) = bag_dir.glob('*.db3')
+    arrays = open_chamber_bag(db3).read_arrays()
+    np.testing.assert_array_equal(arrays.temperature.temperature_c, [-40.0, 20.0, 60.5])
+    assert len(arrays.joint_states) == 6
 
 
 def test_reader_closes_when_iteration_stops_early(chamber_bag: Path) -> None:
@@ -156,17 +162,22 @@ def test_wrong_type_is_refused_by_name(tmp_path: Path) -> None:
 
 
 def test_refusals_are_gimbal_friction_errors(tmp_path: Path) -> None:
-    with pytest.raises(GimbalFrictionError, match='not a rosbag2 bag or MCAP file'):
+    with pytest.raises(GimbalFrictionError, match=r'not a rosbag2 bag: .*no such file'):
         open_chamber_bag(tmp_path / 'nope')
     (tmp_path / 'empty_dir').mkdir()
-    with pytest.raises(RecordingError, match='not a rosbag2 bag or MCAP file: .*metadata.yaml'):
+    with pytest.raises(RecordingError, match=r'not a rosbag2 bag: .*metadata.yaml'):
         open_chamber_bag(tmp_path / 'empty_dir')
     (tmp_path / 'notes.txt').write_text('hello')
-    with pytest.raises(RecordingError, match='not a rosbag2 bag or MCAP file'):
+    with pytest.raises(RecordingError, match=r'not a rosbag2 bag: .*a .mcap or a .db3 file'):
         open_chamber_bag(tmp_path / 'notes.txt')
     (tmp_path / 'junk.mcap').write_bytes(b'definitely not mcap' * 10)
-    with pytest.raises(RecordingError, match='not a rosbag2 bag or MCAP file'):
+    with pytest.raises(RecordingError, match=r'junk.mcap: opening failed .*gimbal-friction recover'):
         open_chamber_bag(tmp_path / 'junk.mcap')
+    killed = tmp_path / 'killed'  # a recorder killed before writing metadata.yaml
+    killed.mkdir()
+    (killed / 'killed_0.mcap').write_bytes(b'\x89MCAP0\r\n')
+    with pytest.raises(RecordingError, match=r'no metadata.yaml .*gimbal-friction recover'):
+        open_chamber_bag(killed)
 
 
 def test_topic_map_remaps_bag_names(tmp_path: Path) -> None:
@@ -218,7 +229,7 @@ def random_joint_states(rng: np.random.Generator, n: int) -> list[tuple[str, str
         names = name_sets[int(rng.integers(len(name_sets)))]
         k = len(names)
 
-        def field() -> np.ndarray | None:
+        def field(k: int = k) -> np.ndarray | None:
             choice = rng.integers(4)
             if choice == 0:
                 return None
@@ -295,3 +306,107 @@ def test_message_helpers() -> None:
     store = default_typestore()
     back = store.deserialize_cdr(store.serialize_cdr(arr, FLOAT64_MULTI_ARRAY_TYPE), FLOAT64_MULTI_ARRAY_TYPE)
     np.testing.assert_array_equal(back.data, [1.0, 2.0, 3.0])  # type: ignore[attr-defined]
+
+
+def bag_with_other_topics(tmp_path: Path) -> Path:
+    """A chamber bag recorded with ``--all``: /rosout, a service event and a type no type store knows, in MCAP."""
+    from mcap.writer import Writer as McapWriter
+
+    store = default_typestore()
+    path = tmp_path / 'all.mcap'
+    with path.open('wb') as stream:
+        writer = McapWriter(stream)
+        writer.start(profile='ros2', library='test')
+        channels = {}
+        for topic, msgtype in (
+            (TEMPERATURE, TEMPERATURE_TYPE), (JOINT_STATES, JOINT_STATE_TYPE), (MOTOR_CURRENT, JOINT_STATE_TYPE),
+        ):
+            text, _ = store.generate_msgdef(msgtype, ros_version=2)
+            schema = writer.register_schema(msgtype, 'ros2msg', text.encode())
+            channels[topic] = writer.register_channel(topic, 'cdr', schema)
+        # a service event, as rosbag2 on Jazzy/Kilted records them with --all: the schema holds the raw .srv text
+        # (ros2/rosbag2#2365), which is no message definition; and a custom message type on an unrelated topic
+        event = writer.register_schema('my_pkg/srv/DoIt_Event', 'ros2msg', b'int64 a\nint64 b\n---\nint64 sum\n')
+        custom = writer.register_schema('my_pkg/msg/Blob', 'ros2msg', b'my_pkg/Inner inner\nuint8[] data\n')
+        meta = {'offered_qos_profiles': '', 'topic_type_hash': 'RIHS01_' + '0' * 64}  # as rosbag2 records them
+        channels['/do_it/_service_event'] = writer.register_channel('/do_it/_service_event', 'cdr', event, meta)
+        channels['/blob'] = writer.register_channel('/blob', 'cdr', custom, meta)
+        for topic, msgtype, t, msg in chamber_messages():
+            writer.add_message(channels[topic], t, bytes(store.serialize_cdr(msg, msgtype)), t)
+        writer.add_message(channels['/do_it/_service_event'], T0 + 1, b'\x00\x01\x00\x00garbage', T0 + 1)
+        writer.add_message(channels['/blob'], T0 + 2, b'\x00\x01\x00\x00\x01', T0 + 2)
+        writer.finish()
+    return path
+
+
+def test_other_topics_of_any_type_are_ignored_and_listed(tmp_path: Path) -> None:
+    bag = open_chamber_bag(bag_with_other_topics(tmp_path))
+    assert bag.ignored_topics == {'/do_it/_service_event': 'my_pkg/srv/DoIt_Event', '/blob': 'my_pkg/msg/Blob'}
+    assert bag.message_count == 13  # the three inputs
+    assert {x.topic for x in bag.iter_raw()} == {TEMPERATURE, JOINT_STATES, MOTOR_CURRENT}
+    seen = []
+    arrays = bag.read_arrays(raw_sink=lambda topics, *_: seen.append(tuple(topics)))
+    assert len(seen) == 13 and {t for (t,) in seen} == {TEMPERATURE, JOINT_STATES, MOTOR_CURRENT}
+    assert len(arrays.joint_states) == 6
+    assert [x.log_time_ns for x in bag.iter_raw(['/blob'])] == [T0 + 2]  # still readable by name
+    notes = bag.describe(arrays).findings(['elevation'])
+    assert any('not read' in n and '/do_it/_service_event' in n for n in notes)
+    with pytest.raises(RecordingError, match='cannot decode /blob message'):
+        list(bag.iter_decoded(['/blob']))
+
+
+def test_joint_map_renames_the_recorded_joints(tmp_path: Path) -> None:
+    path = write_chamber_bag(tmp_path / 'bag', chamber_messages())
+    bag = open_chamber_bag(path, joint_map={'azimuth': 'yaw', 'elevation': 'pitch'})
+    arrays = bag.read_arrays()
+    assert arrays.joint_states.names == ('pitch', 'yaw')
+    assert arrays.motor_current.names == ('pitch',)
+    np.testing.assert_allclose(arrays.joint_states.velocity['pitch'], [0.5, 1.5, 2.5, NAN, 4.5, 5.5])
+    described = bag.describe(arrays)
+    assert [(j.name, j.recorded_name) for j in described.streams[JOINT_STATES].joints] == [
+        ('pitch', 'elevation'), ('yaw', 'azimuth')]
+    clash = open_chamber_bag(path, joint_map={'azimuth': 'elevation'})  # 'elevation' is recorded too
+    with pytest.raises(RecordingError, match="joints 'elevation' and 'azimuth' would both be named 'elevation'"):
+        clash.read_arrays()
+    with pytest.raises(RecordingError, match='are all mapped to'):
+        open_chamber_bag(path, joint_map={'azimuth': 'x', 'elevation': 'x'})
+    with pytest.raises(RecordingError, match='non-empty'):
+        open_chamber_bag(path, joint_map={'': 'x'})
+
+
+def test_describe_explains_what_matches_nothing(tmp_path: Path) -> None:
+    msgs = []
+    for i in range(4):  # zero stamps, a robot joint name, no velocity, current on another joint
+        t = T0 + i * 1_000_000
+        msgs.append((TEMPERATURE, TEMPERATURE_TYPE, t, make_temperature(0, 20.0)))
+        msgs.append((JOINT_STATES, JOINT_STATE_TYPE, t + 1, make_joint_state(0, ['joint_2'], position=[0.1])))
+        msgs.append((MOTOR_CURRENT, JOINT_STATE_TYPE, t + 2, make_joint_state(t, ['joint_9'], effort=[1.0])))
+    path = write_chamber_bag(tmp_path / 'bag', msgs)
+    described = open_chamber_bag(path).describe()
+    js = described.streams[JOINT_STATES]
+    assert (js.messages, js.zero_stamps, js.first_log_ns, js.last_log_ns) == (4, 4, T0 + 1, T0 + 3_000_001)
+    assert js.joints[0] == ('joint_2', 'joint_2', 4, 4, 0, 0)
+    assert described.streams[MOTOR_CURRENT].zero_stamps == 0
+    notes = described.findings(['elevation'])
+    assert any("axis 'elevation' is not in /joint_states (joints seen: 'joint_2')" in n and '--joint' in n
+               for n in notes)
+    assert any('/joint_states: every header stamp is zero (4 messages)' in n for n in notes)
+    assert any('/gimbal/temperature: every header stamp is zero' in n for n in notes)
+    mapped = open_chamber_bag(path, joint_map={'joint_2': 'elevation'}).describe().findings(['elevation'])
+    assert any("carries no velocity for 'elevation' (4 messages)" in n for n in mapped)
+    assert any("/gimbal/motor_current (motor current) carries no effort for 'elevation'" in n for n in mapped)
+    assert not any('is not in' in n for n in mapped)
+    clean = open_chamber_bag(write_chamber_bag(tmp_path / 'clean', chamber_messages())).describe()
+    assert clean.findings(['elevation']) == [
+        '/joint_states: 1 of 6 messages carry no velocity for \'elevation\'']
+    assert clean.joint_names(JOINT_STATES) == ('elevation', 'azimuth')
+
+
+def test_a_truncated_or_corrupted_bag_points_to_recover(tmp_path: Path) -> None:
+    path = write_chamber_bag(tmp_path / 'bag', chamber_messages())
+    (mcap_file,) = path.glob('*.mcap')
+    data = mcap_file.read_bytes()
+    cut = tmp_path / 'cut.mcap'
+    cut.write_bytes(data[: len(data) // 2])
+    with pytest.raises(RecordingError, match=r'cut.mcap: opening failed .*`gimbal-friction recover .*cut.mcap --out'):
+        open_chamber_bag(cut)

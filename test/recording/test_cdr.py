@@ -1,19 +1,25 @@
-"""Fast CDR serializers: byte-identical to the rosbags type store, one message or a batch."""
+"""CDR: the fast serializers are byte-identical to the rosbags type store; the decoders read what it writes."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from gimbal_friction.recording.bag import default_typestore, make_float64_multi_array, make_joint_state
 from gimbal_friction.recording.cdr import (
+    default_typestore,
     float64_multi_array_cdr,
     float64_multi_array_cdr_rows,
+    float64_multi_array_layout,
+    float64_multi_array_rows,
     joint_state_cdr,
     joint_state_cdr_rows,
+    make_float64_multi_array,
+    make_joint_state,
+    make_temperature,
     split_rows,
+    temperature_from_cdr,
 )
-from gimbal_friction.recording.topics import FLOAT64_MULTI_ARRAY_TYPE, JOINT_STATE_TYPE
+from gimbal_friction.recording.topics import FLOAT64_MULTI_ARRAY_TYPE, JOINT_STATE_TYPE, TEMPERATURE_TYPE
 
 NAMES = ['elevation', 'azimuth', 'roll', 'a', 'ab', 'abc', 'abcd', 'joint_with_a_long_name', 'ü-ß', '']
 FRAMES = ['', 'g', 'gi', 'gimbal', 'gimbal_base_link', 'bâse']
@@ -146,3 +152,66 @@ def test_empty_batches():
 def test_shape_mismatch_is_refused():
     with pytest.raises(ValueError, match='shape'):
         joint_state_cdr_rows([1, 2], ['a'], effort=[1.0, 2.0, 3.0])
+
+
+def test_temperature_decoder_reads_what_the_type_store_writes():
+    store = default_typestore()
+    rng = np.random.default_rng(3)
+    for frame in [*FRAMES, 'x' * 13]:
+        stamp, value = random_stamp(rng), float(rng.normal() * 50)
+        raw = bytes(store.serialize_cdr(make_temperature(stamp, value, frame_id=frame), TEMPERATURE_TYPE))
+        assert temperature_from_cdr(raw) == (stamp, value)
+        big = bytes(store.serialize_cdr(make_temperature(stamp, value, frame_id=frame), TEMPERATURE_TYPE,
+                                        little_endian=False))
+        assert temperature_from_cdr(big) is None  # left to the type store
+        assert temperature_from_cdr(raw[:-12]) is None  # cut short
+
+
+def test_multi_array_rows_decode_a_mixed_batch_like_the_type_store():
+    rng = np.random.default_rng(4)
+    store = default_typestore()
+    datas, expected = [], []
+    for _ in range(500):
+        label = str(rng.choice(NAMES))
+        values = random_values(rng, int(rng.choice([0, 1, 11, 12, 12, 12, 40])))
+        little = rng.random() > 0.05
+        msg = make_float64_multi_array(values, label)
+        datas.append(bytes(store.serialize_cdr(msg, FLOAT64_MULTI_ARRAY_TYPE, little_endian=bool(little))))
+        expected.append((label, values, little))
+    datas.append(float64_multi_array_cdr([1.0, 2.0], dims=[('a', 2, 2), ('b', 1, 1)], data_offset=3))
+    expected.append(('a', np.array([1.0, 2.0]), True))
+    datas.append(b'\x00\x01\x00\x00\xff')  # not a message
+    expected.append(None)
+    pad = b'junk'
+    buffer = pad + b''.join(datas)
+    starts = len(pad) + np.cumsum([0] + [len(d) for d in datas[:-1]])
+    rows = float64_multi_array_rows(buffer, starts, [len(d) for d in datas])
+    seen = np.zeros(len(datas), dtype=bool)
+    for index, label, values in rows.blocks:
+        assert not seen[index].any()
+        seen[index] = True
+        for k, row in zip(index.tolist(), values, strict=True):
+            assert expected[k] is not None and expected[k][0] == label and expected[k][2]
+            np.testing.assert_array_equal(row, expected[k][1])  # bit for bit, NaN included
+    others = set(rows.others.tolist())
+    assert others == {k for k, e in enumerate(expected) if e is None or not e[2]}
+    assert not seen[list(others)].any() and seen.sum() + len(others) == len(datas)
+
+
+def test_multi_array_rows_make_one_block_per_layout():
+    labels = ['elevation', 'azimuth', 'elev']  # 'elevation' and 'azimuth' have the same length
+    datas = [float64_multi_array_cdr(np.full(12 - (i % 7 == 0), float(i)), labels[i % 3]) for i in range(300)]
+    starts = np.cumsum([0] + [len(d) for d in datas[:-1]])
+    rows = float64_multi_array_rows(b''.join(datas), starts, [len(d) for d in datas])
+    layouts = {(labels[i % 3], 12 - (i % 7 == 0)) for i in range(300)}
+    assert sorted((label, v.shape[1]) for _, label, v in rows.blocks) == sorted(layouts)
+    for index, _, values in rows.blocks:
+        np.testing.assert_array_equal(values[:, 0], index)
+
+
+def test_multi_array_layout_refuses_what_is_not_one():
+    raw = float64_multi_array_cdr(np.arange(12.0), 'elevation')
+    assert float64_multi_array_layout(raw) == ('elevation', 12, 44)
+    assert float64_multi_array_layout(raw + b'\x00' * 8) is None  # trailing bytes
+    assert float64_multi_array_layout(raw[:-1]) is None
+    assert float64_multi_array_layout(b'\x00\x00' + raw[2:]) is None  # big endian: the type store's job

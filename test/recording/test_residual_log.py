@@ -1,4 +1,4 @@
-"""Residual log: round trip, rotation, metadata.yaml, torn files, a real SIGKILL, refusals."""
+"""Residual log writer and reader: round trip, rotation, metadata.yaml, torn files, a real SIGKILL, refusals."""
 
 from __future__ import annotations
 
@@ -19,19 +19,19 @@ from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 from rosbags.highlevel import AnyReader
 
-from gimbal_friction.recording.bag import (
+from gimbal_friction.core.residual_row import RESIDUAL_FIELDS, RESIDUAL_FIELDS_V1, ResidualRows
+from gimbal_friction.recording.cdr import (
     default_typestore,
     make_float64_multi_array,
     make_joint_state,
     make_temperature,
 )
 from gimbal_friction.recording.errors import RecordingError
-from gimbal_friction.recording.residual_log import (
-    ResidualArrays,
-    ResidualLogWriter,
+from gimbal_friction.recording.recover import recover_mcap
+from gimbal_friction.recording.residual_log import ResidualLogWriter
+from gimbal_friction.recording.residual_read import (
     iter_residual_log,
-    read_residual_log,
-    recover_mcap,
+    read_residual_rows,
     residual_log_files,
 )
 from gimbal_friction.recording.topics import (
@@ -39,7 +39,6 @@ from gimbal_friction.recording.topics import (
     JOINT_STATE_TYPE,
     RESIDUAL,
     RESIDUAL_DETAIL,
-    RESIDUAL_FIELDS,
     TEMPERATURE,
     TEMPERATURE_TYPE,
 )
@@ -49,7 +48,24 @@ N_FIELDS = len(RESIDUAL_FIELDS)
 
 
 def detail_row(i: int) -> np.ndarray:
-    return np.arange(N_FIELDS, dtype=np.float64) + 100.0 * i
+    """Row i: field k holds k + 100 i, except the method (0 or 1)."""
+    row = np.arange(N_FIELDS, dtype=np.float64) + 100.0 * i
+    row[-1] = i % 2
+    return row
+
+
+class Log:
+    """What the reader gives for a folder: the rows and the report."""
+
+    def __init__(self, paths: object) -> None:
+        self.detail, self.report = read_residual_rows(paths)  # type: ignore[arg-type]
+        self.files = tuple(self.report.files)
+        self.truncated_files = tuple(self.report.truncated_files)
+        self.topic_counts = self.report.topic_counts
+
+
+def read_log(paths: object) -> Log:
+    return Log(paths)
 
 
 def write_rows(writer: ResidualLogWriter, n: int, *, start: int = 0, step_ns: int = 1_000_000) -> None:
@@ -65,15 +81,32 @@ def write_rows(writer: ResidualLogWriter, n: int, *, start: int = 0, step_ns: in
             writer.write_raw(TEMPERATURE, TEMPERATURE_TYPE, t, raw)
 
 
-def check_rows(detail: ResidualArrays, indices: np.ndarray) -> None:
-    np.testing.assert_array_equal(detail.log_time_ns, T0 + indices * 1_000_000)
-    for k, name in enumerate(RESIDUAL_FIELDS):
+def check_rows(detail: ResidualRows, indices: np.ndarray) -> None:
+    assert len(detail) == len(indices)
+    for k, name in enumerate(RESIDUAL_FIELDS[:-1]):
         np.testing.assert_array_equal(getattr(detail, name), k + 100.0 * indices)
+    np.testing.assert_array_equal(detail.method, indices % 2)
     np.testing.assert_array_equal(detail.joint, np.where(indices % 2 == 0, 'elevation', 'azimuth'))
 
 
-def test_residual_arrays_follow_residual_fields() -> None:
-    assert ResidualArrays._fields[2:] == RESIDUAL_FIELDS
+def test_rows_follow_the_core_residual_fields() -> None:
+    assert ResidualRows._fields[1:] == RESIDUAL_FIELDS
+
+
+def test_layout_1_rows_are_read_and_the_old_arrays_still_work(tmp_path: Path) -> None:
+    folder = tmp_path / 'v1'
+    with ResidualLogWriter(folder) as writer:
+        for i in range(20):
+            row = np.arange(len(RESIDUAL_FIELDS_V1), dtype=np.float64) + 100.0 * i
+            writer.write(RESIDUAL_DETAIL, FLOAT64_MULTI_ARRAY_TYPE, T0 + i, make_float64_multi_array(row, 'az'))
+        write_rows(writer, 4, start=20)  # layout 2 rows after them
+    rows, report = read_residual_rows(folder)
+    assert len(rows) == 24 and report.rows == 24 and report.skipped_rows == 0
+    i = np.arange(20)
+    np.testing.assert_array_equal(rows.residual_nm[:20], 10 + 100.0 * i)  # m_* columns of layout 1 dropped
+    np.testing.assert_array_equal(rows.predicted_nm[:20], 6 + 100.0 * i)
+    assert np.isnan(rows.torque_constant_nm_per_a[:20]).all() and (rows.method[:20] == 0).all()
+    check_rows(ResidualRows(*(np.asarray(c)[20:] for c in tuple.__iter__(rows))), np.arange(20, 24))
 
 
 def test_round_trip(tmp_path: Path) -> None:
@@ -81,7 +114,7 @@ def test_round_trip(tmp_path: Path) -> None:
     with ResidualLogWriter(folder) as writer:
         write_rows(writer, 50)
         assert writer.stats.messages == 105
-    log = read_residual_log([folder])
+    log = read_log([folder])
     assert len(log.detail) == 50
     check_rows(log.detail, np.arange(50))
     assert log.files == (folder / 'residuals_0.mcap',)
@@ -148,7 +181,7 @@ def test_rotation_by_size_gives_files_that_all_read_back(tmp_path: Path) -> None
     assert [f.name for f in files[:3]] == ['residuals_0.mcap', 'residuals_1.mcap', 'residuals_2.mcap']
     for path in files[:-1]:
         assert path.stat().st_size < 8 * 1024 + 4 * 1024  # limit + one chunk + summary
-    log = read_residual_log(folder)
+    log = read_log(folder)
     check_rows(log.detail, np.arange(400))
     meta = yaml.safe_load((folder / 'metadata.yaml').read_text())['rosbag2_bagfile_information']
     assert meta['relative_file_paths'] == [f.name for f in files]
@@ -166,7 +199,7 @@ def test_rotation_by_duration(tmp_path: Path) -> None:
         write_rows(writer, 200)  # 1 ms apart: 4 files
     files = residual_log_files(folder)
     assert len(files) == 4
-    log = read_residual_log([folder])
+    log = read_log([folder])
     check_rows(log.detail, np.arange(200))
     starts = [x['starting_time']['nanoseconds_since_epoch'] for x in yaml.safe_load(
         (folder / 'metadata.yaml').read_text())['rosbag2_bagfile_information']['files']]
@@ -178,8 +211,8 @@ def test_several_folders_read_together(tmp_path: Path) -> None:
         write_rows(writer, 10, start=10)
     with ResidualLogWriter(tmp_path / 'b') as writer:
         write_rows(writer, 10)
-    log = read_residual_log([tmp_path / 'a', tmp_path / 'b'])
-    check_rows(log.detail, np.arange(20))  # sorted by log time
+    log = read_log([tmp_path / 'a', tmp_path / 'b'])
+    check_rows(log.detail, np.r_[np.arange(10, 20), np.arange(10)])  # in file order
     assert len(log.files) == 2
 
 
@@ -196,11 +229,11 @@ def test_time_based_flush_puts_chunks_on_disk(tmp_path: Path) -> None:
     assert (writer.stats.flushed_messages, writer.stats.messages) == (12, 13)
     assert path.stat().st_size > size
     # a reader sees the flushed messages although the file is still open (no footer)
-    log = read_residual_log(folder)
+    log = read_log(folder)
     check_rows(log.detail, np.arange(6))
     assert log.truncated_files == (path,)
     writer.close()
-    assert read_residual_log(folder).truncated_files == ()
+    assert read_log(folder).truncated_files == ()
 
 
 def finished_log(tmp_path: Path, n: int = 300) -> Path:
@@ -220,9 +253,9 @@ def test_torn_files_give_their_completed_chunks(tmp_path: Path) -> None:
         (folder / 'residuals_0.mcap').write_bytes(data[:cut])
         if cut < len(data) // 3:
             with pytest.raises(RecordingError, match='not a residual log'):  # no residual topic seen yet
-                read_residual_log(folder)
+                read_log(folder)
             continue
-        log = read_residual_log(folder)
+        log = read_log(folder)
         n = len(log.detail)
         assert n >= previous
         previous = n
@@ -246,28 +279,28 @@ def test_recover_mcap_makes_a_valid_file(tmp_path: Path) -> None:
         reader = make_reader(stream, decoder_factories=[DecoderFactory()])
         assert sum(1 for _ in reader.iter_decoded_messages()) == result.messages
         assert reader.get_header().profile == 'ros2'
-    n = len(read_residual_log(fixed).detail)
-    assert n == len(read_residual_log(torn).detail)
+    n = len(read_log(fixed).detail)
+    assert n == len(read_log(torn).detail)
     with pytest.raises(RecordingError, match='exists'):
         recover_mcap(torn, fixed)
     whole = recover_mcap(src, tmp_path / 'whole.mcap')
-    assert whole == (630, False)
+    assert (whole.messages, whole.truncated, whole.lost, whole.unknown_loss) == (630, False, 0, False)
 
 
 def test_refuses_folders_that_are_not_residual_logs(tmp_path: Path) -> None:
     (tmp_path / 'empty').mkdir()
-    with pytest.raises(RecordingError, match='not a residual log: .*no .mcap files'):
-        read_residual_log([tmp_path / 'empty'])
+    with pytest.raises(RecordingError, match=r'not a residual log: .*no .mcap files'):
+        read_log([tmp_path / 'empty'])
     with pytest.raises(RecordingError, match='not a residual log'):
-        read_residual_log([tmp_path / 'missing'])
+        read_log([tmp_path / 'missing'])
     with ResidualLogWriter(tmp_path / 'other') as writer:
         writer.write(TEMPERATURE, TEMPERATURE_TYPE, T0, make_temperature(T0, 20.0))
     with pytest.raises(RecordingError, match=f'not a residual log: .*holds {TEMPERATURE}'):
-        read_residual_log([tmp_path / 'other'])
+        read_log([tmp_path / 'other'])
     (tmp_path / 'junk').mkdir()
     (tmp_path / 'junk' / 'x.mcap').write_bytes(b'not an mcap file at all')
     with pytest.raises(RecordingError, match='not an MCAP file'):
-        read_residual_log(tmp_path / 'junk')
+        read_log(tmp_path / 'junk')
 
 
 def test_writer_refusals(tmp_path: Path) -> None:
@@ -292,7 +325,7 @@ def test_writer_refusals(tmp_path: Path) -> None:
         ResidualLogWriter(tmp_path / 'a_file' / 'log')
     with pytest.raises(RecordingError, match='max_bytes'):
         ResidualLogWriter(tmp_path / 'log2', max_bytes=0)
-    assert len(read_residual_log(folder).detail) == 2
+    assert len(read_log(folder).detail) == 2
 
 
 class FullDisk:
@@ -332,14 +365,14 @@ def test_disk_full_is_a_recording_error_and_keeps_flushed_data(tmp_path: Path) -
         write_rows(writer, 1, start=70)
     writer.close()  # closes the file, writes no metadata.yaml, raises nothing more
     assert not (folder / 'metadata.yaml').exists()
-    log = read_residual_log(folder)
+    log = read_log(folder)
     assert len(log.detail) >= 20
     check_rows(log.detail, np.arange(len(log.detail)))
 
 
 KILL_SCRIPT = """
 import sys, time
-from gimbal_friction.recording.bag import make_float64_multi_array
+from gimbal_friction.recording.cdr import make_float64_multi_array
 from gimbal_friction.recording.residual_log import ResidualLogWriter
 folder, wanted = sys.argv[1], int(sys.argv[2])
 # chunks far larger than what is written: only the timed flushes put data on disk
@@ -348,7 +381,7 @@ i = 0
 told = False
 while True:
     writer.write('/gimbal/friction/residual_detail', 'std_msgs/msg/Float64MultiArray', 10**9 + i * 10**6,
-                 make_float64_multi_array([float(i)] * 11, 'elevation'))
+                 make_float64_multi_array([float(i)] * 11 + [0.0], 'elevation'))
     i += 1
     flushed = writer.stats.flushed_messages
     if not told and flushed >= wanted:
@@ -360,7 +393,7 @@ while True:
 
 def test_sigkill_leaves_the_flushed_messages_readable(tmp_path: Path) -> None:
     folder = tmp_path / 'killed'
-    proc = subprocess.Popen(  # noqa: S603 - our own interpreter and script
+    proc = subprocess.Popen(
         [sys.executable, '-c', KILL_SCRIPT, str(folder), '200'],
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
@@ -381,7 +414,7 @@ def test_sigkill_leaves_the_flushed_messages_readable(tmp_path: Path) -> None:
     flushed = int(line)
     assert proc.returncode == -signal.SIGKILL
     assert not (folder / 'metadata.yaml').exists()
-    log = read_residual_log([folder])
+    log = read_log([folder])
     assert len(log.detail) >= flushed >= 200
     assert log.truncated_files == (folder / 'residuals_0.mcap',)
     np.testing.assert_array_equal(log.detail.stamp_s, np.arange(len(log.detail), dtype=float))

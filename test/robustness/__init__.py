@@ -1,1 +1,1 @@
-"""Robustness suite (a package so that its conftest does not clash with test/ros/conftest.py)."""
+"""Robustness tests (a package, so that its conftest does not clash with test/ros/conftest.py)."""

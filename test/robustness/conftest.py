@@ -1,114 +1,282 @@
-"""Fixtures of the robustness suite.
+"""Fixtures for the robustness tests: bags and logs to damage, a full and a read-only file system, the CLI.
 
-- The live-node harness of ``test/ros/conftest.py`` (``ros_env``, ``spawn``, ``probe``: real processes on an
-  isolated ROS_DOMAIN_ID, loopback discovery, stopped with SIGINT), loaded from that file so both suites start nodes
-  the same way.
-- ``in_process``: the node classes built in this process on a private rclpy context (isolated domain, loopback),
-  their publishers replaced by recorders. Callbacks are called directly: thousands of hostile messages per second
-  through the very adapter code the executables run, without DDS in the way.
+A full or read-only file system is a small tmpfs mounted for the test when mounting is allowed (root, as on this
+machine and in CI). Where it is not, a full disk is simulated with a file-size limit (``RLIMIT_FSIZE``: writes past
+it fail with EFBIG, the process ignores SIGXFSZ) in the CLI's own process, and a read-only folder with a path under
+a regular file (creating it fails with ENOTDIR): either way the tool meets an OSError while writing, which is what
+these tests are about.
 """
 
 from __future__ import annotations
 
-import importlib.util
-import math
+import contextlib
+import io
 import os
+import resource
+import shutil
+import signal
+import subprocess
 import sys
+import traceback
+import uuid
 from collections.abc import Callable, Iterator
 from pathlib import Path
-from typing import Any
+from typing import NamedTuple
 
 import pytest
 
-rclpy = pytest.importorskip('rclpy', reason='node tests need the ros-* wheels (requirements.txt)')
+from gimbal_friction.recording.bag import write_chamber_bag
+from gimbal_friction.recording.cdr import make_joint_state, make_temperature
+from gimbal_friction.recording.topics import (
+    JOINT_STATE_TYPE,
+    JOINT_STATES,
+    MOTOR_CURRENT,
+    TEMPERATURE,
+    TEMPERATURE_TYPE,
+)
 
 ROOT = Path(__file__).resolve().parents[2]
-_spec = importlib.util.spec_from_file_location('_gimbal_friction_ros_harness', ROOT / 'test' / 'ros' / 'conftest.py')
-assert _spec is not None and _spec.loader is not None
-_harness = importlib.util.module_from_spec(_spec)
-sys.modules[_spec.name] = _harness
-_spec.loader.exec_module(_harness)
-
-ros_env = _harness.ros_env
-spawn = _harness.spawn
-probe = _harness.probe
-Probe = _harness.Probe
-NodeProcess = _harness.NodeProcess
-TIMEOUT = _harness.TIMEOUT
+SAMPLE = ROOT / 'bags' / 'chamber_sample'
+T0 = 1_700_000_000_000_000_000  # [ns]
 
 
-class Recorder:
-    """Stands in for a publisher: keeps what would have been published (serialized and read back, as a
-    subscriber would get it: the nodes reuse their message objects)."""
-
-    def __init__(self) -> None:
-        self.messages: list[Any] = []
-
-    def publish(self, msg: Any) -> None:
-        from rclpy.serialization import deserialize_message, serialize_message
-        self.messages.append(deserialize_message(serialize_message(msg), type(msg)))
-
-    def clear(self) -> None:
-        self.messages.clear()
+class Run(NamedTuple):
+    code: int
+    out: str
+    err: str
 
 
-class InProcess:
-    """Builds nodes on one private context; ``make(cls, *args, **parameters)`` returns the node with every
-    publisher (attributes named ``pub_*``) replaced by a :class:`Recorder`."""
+def run_cli(*args: str, preexec: Callable[[], None] | None = None, timeout: float = 120.0) -> Run:
+    """``gimbal-friction ARGS``: in this process (fast), or with ``preexec`` in its own (a file-size limit stays
+    there). Any exception escaping ``main`` is a failure of the tool, shown as the traceback it would print."""
+    if preexec is not None:
+        proc = subprocess.run([sys.executable, '-m', 'gimbal_friction.tools.cli', *args], capture_output=True,
+                              text=True, timeout=timeout, preexec_fn=preexec, check=False)
+        return Run(proc.returncode, proc.stdout, proc.stderr)
+    from gimbal_friction.tools.cli import main
+
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        try:
+            code = main(list(args))
+        except SystemExit as done:  # argparse: bad arguments
+            code = done.code if isinstance(done.code, int) else 1
+        except Exception:
+            traceback.print_exc()
+            code = 1
+    return Run(code, out.getvalue(), err.getvalue())
+
+
+def one_line_error(run: Run, command: str) -> str:
+    """Check the run failed with exactly one line on stderr naming the command; return that line."""
+    assert run.code != 0, run
+    lines = run.err.strip().splitlines()
+    assert len(lines) == 1, run.err
+    assert lines[0].startswith(f'gimbal-friction {command}: error: '), lines[0]
+    assert 'Traceback' not in run.err
+    return lines[0]
+
+
+def chamber_messages(n: int = 300, joint: str = 'elevation') -> list[tuple[str, str, int, object]]:
+    """A small chamber run: joint states at 1 kHz, currents at 500 Hz, temperatures at 100 Hz."""
+    msgs: list[tuple[str, str, int, object]] = []
+    for i in range(n):
+        t = T0 + i * 1_000_000
+        v = 0.05 if (i // 50) % 2 == 0 else -0.05
+        msgs.append((JOINT_STATES, JOINT_STATE_TYPE, t, make_joint_state(t, [joint], [0.001 * i], [v])))
+        if i % 2 == 0:
+            msgs.append((MOTOR_CURRENT, JOINT_STATE_TYPE, t + 1, make_joint_state(t, [joint], effort=[0.2])))
+        if i % 10 == 0:
+            msgs.append((TEMPERATURE, TEMPERATURE_TYPE, t + 2, make_temperature(t, 20.0)))
+    return msgs
+
+
+@pytest.fixture
+def small_bag(tmp_path: Path) -> Path:
+    return write_chamber_bag(tmp_path / 'bag', chamber_messages())
+
+
+class Mount:
+    """A tmpfs mounted for one test (None when mounting is not allowed here)."""
+
+    @staticmethod
+    @contextlib.contextmanager
+    def tmpfs(where: Path, size: str, *, read_only: bool = False) -> Iterator[Path | None]:
+        where.mkdir(parents=True, exist_ok=True)
+        options = f'size={size},mode=0777' + (',ro' if read_only else '')
+        mount = shutil.which('mount')
+        if mount is None or os.geteuid() != 0 or os.environ.get('GF_TEST_NO_MOUNT'):  # the env: try the fallback
+            yield None
+            return
+        done = subprocess.run([mount, '-t', 'tmpfs', '-o', options, f'gf-{uuid.uuid4().hex[:8]}', str(where)],
+                              capture_output=True, check=False)
+        if done.returncode != 0:
+            yield None
+            return
+        try:
+            yield where
+        finally:
+            subprocess.run([shutil.which('umount') or 'umount', '-l', str(where)], capture_output=True, check=False)
+
+
+class FullDisk(NamedTuple):
+    """Where to write so that the disk fills up, and how to start the process that writes."""
+
+    folder: Path
+    preexec: Callable[[], None] | None
+    kind: str
+    """``'tmpfs'`` or ``'rlimit'``."""
+
+
+def _limit_file_size(limit: int) -> Callable[[], None]:
+    def apply() -> None:
+        signal.signal(signal.SIGXFSZ, signal.SIG_IGN)  # a write past the limit fails with EFBIG, no signal
+        resource.setrlimit(resource.RLIMIT_FSIZE, (limit, limit))
+
+    return apply
+
+
+@pytest.fixture
+def full_disk(tmp_path: Path) -> Iterator[Callable[[int], FullDisk]]:
+    """``full_disk(bytes)``: a folder on a file system of about that size (tmpfs), or a file-size limit."""
+    with contextlib.ExitStack() as stack:
+
+        def make(size: int) -> FullDisk:
+            where = tmp_path / f'fs{uuid.uuid4().hex[:6]}'
+            mounted = stack.enter_context(Mount.tmpfs(where, f'{max(size // 1024, 16)}k'))
+            if mounted is not None:
+                return FullDisk(mounted, None, 'tmpfs')
+            return FullDisk(where, _limit_file_size(size), 'rlimit')
+
+        yield make
+
+
+@pytest.fixture
+def read_only_dir(tmp_path: Path) -> Iterator[Path]:
+    """A folder that cannot be written: a read-only tmpfs, else a path under a regular file."""
+    with Mount.tmpfs(tmp_path / 'ro', '64k', read_only=True) as mounted:
+        if mounted is not None:
+            yield mounted
+            return
+        blocker = tmp_path / 'a_file'
+        blocker.write_text('not a folder')
+        yield blocker
+
+
+class Helpers:
+    """What the robustness tests share (a fixture, since a conftest is not importable by name)."""
+
+    ROOT = ROOT
+    SAMPLE = SAMPLE
+    run = staticmethod(run_cli)
+    refused = staticmethod(one_line_error)
+    chamber = staticmethod(chamber_messages)
+
+
+@pytest.fixture
+def rb() -> type[Helpers]:
+    return Helpers
+
+
+# -- real ROS nodes (marked ``ros``): each test on its own ROS_DOMAIN_ID, loopback only, stopped with SIGINT --------
+
+
+@pytest.fixture
+def ros_env(tmp_path: Path) -> Iterator[tuple[int, dict[str, str]]]:
+    from domain_coordinator import domain_id
+
+    with domain_id() as did:
+        yield did, dict(os.environ, ROS_DOMAIN_ID=str(did), ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST',
+                        ROS_LOG_DIR=str(tmp_path / 'roslog'), PYTHONUNBUFFERED='1')
+
+
+class NodeProcess:
+    """A node executable as its own process (its output in a file)."""
+
+    def __init__(self, exe: str, args: list[str], env: dict[str, str], log: Path) -> None:
+        path = Path(sys.executable).parent / exe
+        cmd = [str(path)] if path.exists() else [sys.executable, '-m', f'gimbal_friction.nodes.{exe}']
+        self.log = log
+        self._fh = log.open('wb')
+        self.proc = subprocess.Popen([*cmd, *args], env=env, stdout=self._fh, stderr=subprocess.STDOUT,
+                                     start_new_session=True)
+
+    def output(self) -> str:
+        return self.log.read_text(errors='replace')
+
+    def wait(self, timeout: float = 30.0) -> tuple[int, str]:
+        code = self.proc.wait(timeout)
+        self._fh.close()
+        return code, self.output()
+
+    def stop(self, sig: int = signal.SIGINT) -> tuple[int, str]:
+        if self.proc.poll() is None:
+            self.proc.send_signal(sig)
+            try:
+                self.proc.wait(10)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait()
+        self._fh.close()
+        return self.proc.returncode, self.output()
+
+
+@pytest.fixture
+def spawn(ros_env: tuple[int, dict[str, str]], tmp_path: Path) -> Iterator[Callable[..., NodeProcess]]:
+    procs: list[NodeProcess] = []
+
+    def start(exe: str, *args: str) -> NodeProcess:
+        procs.append(NodeProcess(exe, list(args), ros_env[1], tmp_path / f'{exe}_{len(procs)}.log'))
+        return procs[-1]
+
+    yield start
+    for p in procs:
+        p.stop()
+
+
+class Probe:
+    """A test-side node on a private context in the test's domain."""
 
     def __init__(self, domain: int) -> None:
-        self.domain = domain
-        self.context = rclpy.Context()
-        rclpy.init(args=['robustness'], context=self.context, domain_id=domain)
-        self.nodes: list[Any] = []
+        import rclpy
+        from rclpy.executors import SingleThreadedExecutor
+        from rclpy.node import Node
 
-    def make(self, cls: Callable[..., Any], **parameters: Any) -> Any:
-        from rclpy.parameter import Parameter
-        overrides = [Parameter(k, value=v) for k, v in parameters.items()]
-        node = cls(context=self.context, parameter_overrides=overrides)
-        for name in list(vars(node)):
-            if name.startswith('pub_'):
-                setattr(node, name, Recorder())
-        self.nodes.append(node)
-        return node
+        self.context = rclpy.Context()
+        rclpy.init(context=self.context, domain_id=domain)
+        self.node = Node('probe', context=self.context)
+        self.executor = SingleThreadedExecutor(context=self.context)
+        self.executor.add_node(self.node)
+        self.pubs: dict[str, object] = {}
+
+    def publisher(self, msg_type: object, topic: str, depth: int = 1000) -> object:
+        if topic not in self.pubs:
+            self.pubs[topic] = self.node.create_publisher(msg_type, topic, depth)
+        return self.pubs[topic]
+
+    def spin_until(self, cond: Callable[[], bool], timeout: float = 30.0, what: str = 'condition') -> None:
+        import time
+
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            if cond():
+                return
+            self.executor.spin_once(timeout_sec=0.05)
+        if not cond():
+            raise AssertionError(f'timed out after {timeout:.0f} s waiting for {what}')
 
     def close(self) -> None:
-        for node in self.nodes:
-            close = getattr(node, 'close', None)
-            if close is not None:
-                close()
-            node.destroy_node()
+        self.executor.shutdown()
+        self.node.destroy_node()
         self.context.try_shutdown()
 
 
-@pytest.fixture(scope='module')
-def in_process(tmp_path_factory: pytest.TempPathFactory) -> Iterator[InProcess]:
-    from domain_coordinator import domain_id
-    log_dir = tmp_path_factory.mktemp('roslog')
-    saved = {k: os.environ.get(k) for k in ('ROS_AUTOMATIC_DISCOVERY_RANGE', 'ROS_LOG_DIR')}
-    os.environ.update(ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST', ROS_LOG_DIR=str(log_dir))
-    with domain_id() as did:
-        p = InProcess(did)
-        try:
-            yield p
-        finally:
-            p.close()
-            for k, v in saved.items():
-                if v is None:
-                    os.environ.pop(k, None)
-                else:
-                    os.environ[k] = v
+@pytest.fixture
+def probe(ros_env: tuple[int, dict[str, str]]) -> Iterator[Probe]:
+    p = Probe(ros_env[0])
+    yield p
+    p.close()
 
 
-def finite_within(values: Any, bound: float) -> bool:
-    """Every value finite and at most ``bound`` in magnitude."""
-    return all(math.isfinite(v) and abs(v) <= bound for v in values)
-
-
-def diag_statuses(msgs: list[Any]) -> list[Any]:
-    """The DiagnosticStatus entries of the last DiagnosticArray recorded."""
-    return list(msgs[-1].status) if msgs else []
-
-
-def diag_values(status: Any) -> dict[str, str]:
-    return {kv.key: kv.value for kv in status.values}
+# the node and parameter tests' fixtures (real rclpy nodes on an isolated domain): robustness/nodes_harness.py
+from robustness.nodes_harness import in_process, node_env, node_probe, node_spawn  # noqa: E402, F401

@@ -14,12 +14,13 @@ from rcl_interfaces.srv import SetParameters
 from sensor_msgs.msg import JointState, Temperature
 from std_msgs.msg import Float64MultiArray
 
+from gimbal_friction.core.feedforward import FeedforwardSettings
 from gimbal_friction.core.model import friction_torque
 from gimbal_friction.core.params import AxisParams
 
 FF = '/gimbal/friction/feedforward'
 CMD = '/gimbal/friction/feedforward_commands'
-V_TH = 0.005
+V_TH = FeedforwardSettings().velocity_threshold_rad_s
 V_TEST = 2 * math.pi / 180  # 1/3 rpm in rad/s
 RPM = 60 / (2 * math.pi)
 pytestmark = pytest.mark.ros

@@ -10,7 +10,7 @@ import pytest
 
 from gimbal_friction import demo
 from gimbal_friction.config import axis_params, load_parameters
-from gimbal_friction.recording.residual_log import read_residual_log, read_residual_rows
+from gimbal_friction.recording.residual_read import read_residual_rows
 from gimbal_friction.replay import replay_bag
 from gimbal_friction.synth import SynthConfig
 from gimbal_friction.tools.cli import main
@@ -33,8 +33,8 @@ def test_main_job_outputs_and_refit_moves_toward_truth(pipeline, capsys):
     _bag, out = pipeline
     capsys.readouterr()
     assert (out / 'residuals' / 'metadata.yaml').exists()  # closed cleanly by SIGINT
-    log = read_residual_log([out / 'residuals'])
-    assert len(log.detail) > 2000 and not log.truncated_files
+    rows, report = read_residual_rows([out / 'residuals'])
+    assert len(rows) > 2000 and not report.truncated_files
     figures = sorted(p.name for p in (out / 'figures').glob('*.png'))
     assert 'fig13_model_vs_measured.png' in figures and 'fig11_components.png' in figures
     truth = SynthConfig().truth_params()

@@ -17,7 +17,7 @@ from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 from gimbal_friction.core.measurement import MEASUREMENT_FIELDS
 from gimbal_friction.recording import topics
 from gimbal_friction.recording.bag import default_typestore
-from gimbal_friction.recording.residual_log import read_residual_log
+from gimbal_friction.recording.residual_read import read_residual_rows
 
 pytestmark = pytest.mark.ros
 V = 2 * math.pi / 180
@@ -105,8 +105,7 @@ def test_pairs_and_closes_a_readable_log(spawn, probe, tmp_path):
     rc, out = node.stop()
     assert rc == 0, out
     assert (folder / 'metadata.yaml').exists()
-    log = read_residual_log([folder])
-    d = log.detail
+    d, log = read_residual_rows([folder])
     assert len(d) == 40 and not log.truncated_files
     for k in range(len(d)):
         pred, meas, current = expected[round(d.stamp_s[k] * 1e9)]
@@ -129,7 +128,7 @@ def test_pairs_and_closes_a_readable_log(spawn, probe, tmp_path):
     _wait_ready(probe)
     rc2, out2 = node2.stop()
     assert rc2 == 0, out2
-    assert len(read_residual_log([folder]).detail) == 40
+    assert len(read_residual_rows([folder])[0]) == 40
     assert [p for p in folder.iterdir() if p.is_dir()]
 
 
@@ -153,11 +152,11 @@ def test_sigkill_leaves_readable_chunks_and_rotation(spawn, probe, tmp_path):
     logged = int(seen[-1][1])
     node.proc.send_signal(signal.SIGKILL)
     node.proc.wait(10)
-    log = read_residual_log([folder])
+    rows, log = read_residual_rows([folder])
     assert not (folder / 'metadata.yaml').exists()  # killed: no clean close
     assert len(log.files) >= 3
-    assert len(log.detail) == logged, (len(log.detail), logged)  # everything flushed before the kill reads back
-    assert np.all(np.isfinite(log.detail.residual_nm))
+    assert len(rows) == logged, (len(rows), logged)  # everything flushed before the kill reads back
+    assert np.all(np.isfinite(rows.residual_nm))
 
 
 def test_unwritable_folder_reported_node_stays_up(spawn, probe, tmp_path):

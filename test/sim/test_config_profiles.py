@@ -12,7 +12,7 @@ import yaml
 
 from gimbal_friction.core.errors import ConfigError
 from gimbal_friction.core.units import RAD_S_PER_RPM
-from gimbal_friction.sim.config import SimConfig, parameter_specs
+from gimbal_friction.sim.config import RealtimeSettings, SimConfig, parameter_file_text, parameter_specs
 from gimbal_friction.sim.profiles import base_motion, make_profile, zero_crossings
 
 YAML = Path(__file__).resolve().parents[2] / 'config' / 'gimbal_sim.yaml'
@@ -20,11 +20,13 @@ YAML = Path(__file__).resolve().parents[2] / 'config' / 'gimbal_sim.yaml'
 
 def test_parameter_file_holds_every_parameter_with_its_default_and_unit():
     text = YAML.read_text(encoding='utf-8')
+    assert text == parameter_file_text()       # regenerate with parameter_file_text() after changing a parameter
     section = yaml.safe_load(text)['gimbal_sim']['ros__parameters']
-    defaults = SimConfig().to_mapping()
+    defaults = {**SimConfig().to_mapping(), **dataclasses.asdict(RealtimeSettings())}
     assert section == defaults
     assert SimConfig.from_mapping(yaml.safe_load(text)) == SimConfig()
-    for spec in parameter_specs():
+    assert RealtimeSettings.from_mapping(yaml.safe_load(text)) == RealtimeSettings()
+    for spec in parameter_specs(node=True):
         line = next(ln for ln in text.splitlines() if ln.strip().startswith(spec['name'] + ':'))
         assert f'# [{spec["unit"]}]' in line, spec['name']
 
@@ -41,8 +43,10 @@ def test_from_mapping_accepts_the_flat_parameters_the_section_or_a_whole_file():
 
 
 @pytest.mark.parametrize(('values', 'parameter', 'rule'), [
-    ({'inertia_kg_m2': 0.0}, 'inertia_kg_m2', 'must be > 0 [kg*m^2]'),
-    ({'inertia_kg': 1.0}, 'inertia_kg', "unknown simulator parameter (did you mean 'inertia_kg_m2'?)"),
+    ({'inertia_truth_ratio': 0.0}, 'inertia_truth_ratio', 'must lie in (0, 100] [-]'),
+    ({'inertia_kg_m2': 1e-4}, 'inertia_kg_m2', "unknown simulator parameter (did you mean 'inertia_truth_ratio'?)"),
+    ({'asymmetry_temperatures_c': [-40.0, 0.0, 60.0]}, 'asymmetry_temperatures_c',
+     'must be [cold, warm] with cold < warm [degC]'),
     ({'rate_bandwidth_hz': 'fast'}, 'rate_bandwidth_hz', 'must be a number, not str'),
     ({'plant_substeps': 2.5}, 'plant_substeps', 'must be a whole number'),
     ({'asymmetry_enabled': 1}, 'asymmetry_enabled', 'must be true or false'),
@@ -70,10 +74,24 @@ def test_every_parameter_is_documented_with_unit_and_group():
     for spec in parameter_specs():
         assert spec['unit'] and spec['description'] and spec['group'], spec['name']
     names = {f.name for f in dataclasses.fields(SimConfig)}
-    assert {'inertia_kg_m2', 'current_limit_a', 'current_loop_time_constant_s', 'rate_loop_hz', 'gyro_noise_rad_s',
+    assert {'inertia_truth_ratio', 'current_limit_a', 'current_loop_time_constant_s', 'rate_loop_hz',
+            'gyro_noise_rad_s',
             'gyro_bias_rad_s', 'base_motion_amplitudes_rad_s', 'base_motion_frequencies_hz',
             'thermal_time_constant_s', 'temperature_noise_c', 'lubricant_walther_a_shift', 'sigma0_nm_per_rad',
             'sigma1_nm_s_per_rad', 'stribeck_velocity_rad_s', 'breakaway_ratio'} <= names
+
+
+@pytest.mark.parametrize(('values', 'parameter', 'rule'), [
+    ({'profile': 'spiral'}, 'profile', 'must be one of tracking, scan, pointing'),
+    ({'environment_temperature_c': -80.0}, 'environment_temperature_c', 'must lie in [-60, 120] [degC]'),
+    ({'publish_every_ticks': 0}, 'publish_every_ticks', 'must be an integer in [1, 10000]'),
+    ({'use_feedforward': 'yes'}, 'use_feedforward', 'must be true or false'),
+])
+def test_bad_node_settings_are_refused_naming_the_parameter_and_the_rule(values, parameter, rule):
+    with pytest.raises(ConfigError) as info:
+        RealtimeSettings.from_mapping({'gimbal_sim': {'ros__parameters': {'rate_loop_hz': 500.0, **values}}})
+    assert info.value.parameter == parameter
+    assert info.value.rule == rule
 
 
 def test_tracking_profile_is_the_papers_sweep():

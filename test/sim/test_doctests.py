@@ -7,7 +7,7 @@ import importlib
 
 import pytest
 
-MODULES = ['config', 'lugre', 'truth', 'profiles', 'compensation', 'metrics']
+MODULES = ['config', 'lugre', 'truth', 'profiles', 'compensation', 'metrics', 'realtime']
 
 
 @pytest.mark.parametrize('name', MODULES)

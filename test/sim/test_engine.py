@@ -25,7 +25,7 @@ def test_coast_down_under_constant_friction():
     terms = plant.truth.terms(np.array([20.0]))       # +20 degC, 4.8 rpm: Palmgren's lower branch, F independent of w
     friction = float(plant.truth.static_torque_nm(20.0, 0.5))
     plant.z = np.array([friction / cfg.sigma0_nm_per_rad])   # sliding already
-    J = cfg.inertia_kg_m2
+    J = AXIS.inertia_kg_m2 * cfg.inertia_truth_ratio
     t_stop, angle_stop = J * 0.5 / friction, J * 0.25 / (2.0 * friction)
     T = cfg.controller_period_s
     omega, t = [], []
@@ -50,7 +50,7 @@ def test_p_rate_loop_steady_state_error_is_the_closed_form():
                     ripple_amplitudes=(0.0, 0.0))
     prof = make_profile(cfg, 'pointing', 1.0)
     res = simulate(cfg, AXIS, prof, [Run('ideal', 20.0)])
-    expected = tau / (cfg.inertia_kg_m2 * cfg.rate_kp_per_s)
+    expected = tau / (AXIS.inertia_kg_m2 * cfg.rate_kp_per_s)
     assert float(res.traces.los_rate_rad_s[-1, 0]) == pytest.approx(expected, rel=1e-9)
     # the ideal case cancels the friction and pays for it in current: K_T i = -tau at steady state
     assert float(res.traces.current_a[-1, 0]) * AXIS.torque_constant_nm_per_a == pytest.approx(
@@ -78,7 +78,7 @@ def test_a_batch_is_its_runs_one_by_one():
     runs = [Run('none', -40.0), Run('constant', 20.0, seed=3), Run('ideal', 0.0), Run('feedforward', 60.0)]
 
     def comps():
-        return {'constant': constant_coulomb(AXIS, prof.nominal_speed_rad_s), 'feedforward': suite_feedforward(AXIS)}
+        return {'constant': constant_coulomb(AXIS), 'feedforward': suite_feedforward(AXIS)}
 
     batch = simulate(cfg, AXIS, prof, runs, comps())
     for i, run in enumerate(runs):

@@ -17,7 +17,7 @@ from gimbal_friction.sim.lugre import (
     lugre_z_step,
     stribeck_curve_LuGre_1995,
 )
-from gimbal_friction.sim.truth import TruthFriction, direction_factors, ripple
+from gimbal_friction.sim.truth import TruthFriction, mean_factors, ripple, truth_asymmetry
 
 VELOCITIES = [-0.2, -0.01, -0.002, -0.0005, 0.0003, 0.001, 0.004, 0.0349, 0.5]
 
@@ -79,12 +79,18 @@ def test_truth_reproduces_the_papers_four_measured_means_without_lubricant_shift
     truth = TruthFriction(AxisParams(), cfg)
     v = RAD_S_PER_RPM / 3.0
     got = truth.static_torque_nm([-40.0, -40.0, 60.0, 60.0], [v, -v, v, -v]) * 1e3
-    assert got.tolist() == pytest.approx([3.19, -2.45, 1.05, -1.34], rel=1e-9)
-    # between the anchors the factors are linear in temperature, beyond them held
-    k = direction_factors(AxisParams(), cfg)
-    kp, kn = k.at([-60.0, 10.0, 100.0])
-    assert kp[0] == pytest.approx(k.positive[0]) and kn[2] == pytest.approx(k.negative[1])
-    assert kp[1] == pytest.approx(k.positive[0] + 0.5 * (k.positive[1] - k.positive[0]))
+    # (the truth's model part is the core's table: its interpolation of M_R + M_S is within 1e-6 of the model)
+    assert got.tolist() == pytest.approx([3.19, -2.45, 1.05, -1.34], rel=1e-6)
+    # the direction dependence is the core's form 1 + d a(t) with the measured asymmetry, times the mean factor;
+    # between the anchors both are linear in temperature, beyond them held
+    a_cold, a_warm = truth_asymmetry(cfg)
+    assert a_cold == pytest.approx((3.19 - 2.45) / (3.19 + 2.45)) and a_warm == pytest.approx((1.05 - 1.34) / 2.39)
+    m = mean_factors(AxisParams(), cfg)
+    terms = truth.terms(np.array([-60.0, 10.0, 100.0]))
+    assert terms.k_positive[0] == pytest.approx(m.factors[0] * (1.0 + a_cold))
+    assert terms.k_negative[2] == pytest.approx(m.factors[1] * (1.0 - a_warm))
+    mid_m = 0.5 * (m.factors[0] + m.factors[1])
+    assert terms.k_positive[1] == pytest.approx(mid_m * (1.0 + 0.5 * (a_cold + a_warm)))
 
 
 def test_lubricant_shift_raises_the_cold_friction_only():

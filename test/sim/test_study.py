@@ -5,6 +5,7 @@ from __future__ import annotations
 import itertools
 import math
 
+import numpy as np
 import pytest
 
 from gimbal_friction.core.errors import ConfigError, FitError
@@ -48,41 +49,48 @@ def test_records_carry_the_contract_fields(cold_study):
     assert res.config.tracking_duration_s == 5.5
 
 
-def test_refit_case_uses_the_estimators_samples_from_the_same_simulation():
+def test_refit_case_is_built_from_the_estimators_residual_rows_of_the_same_simulation():
     calls = []
 
-    def refit(traces, axis, config):
-        calls.append([t.run for t in traces])
-        return axis.replace(walther_a=axis.walther_a + config.lubricant_walther_a_shift)   # the truth's lubricant
+    def refit(rows, axis):
+        calls.append(rows)
+        return axis.replace(walther_a=axis.walther_a + 0.015)   # the truth's lubricant
 
     res = run_study(TINY, temperatures=[-40.0, 20.0], profiles=['scan'], cases=['none', 'refit'], refit=refit)
-    assert [[(r.case, r.temperature_c) for r in c] for c in calls] == [[('feedforward', -40.0), ('feedforward', 20.0)]]
+    (rows,) = calls
+    assert len(rows) > 100 and set(rows.method.tolist()) == {1}      # observer samples only, no sweep needed
+    assert np.all(np.isfinite(rows.predicted_nm))                   # paired with the feedforward of their stamp
+    assert sorted(set(np.round(rows.temperature_c, -1).tolist())) == [-40.0, 20.0]
     assert res.refit_params is not None and res.refit_params.walther_a == pytest.approx(8.6345)
     assert sorted((r['case'], r['temperature_c']) for r in res.records) == [
         ('none', -40.0), ('none', 20.0), ('refit', -40.0), ('refit', 20.0)]
     assert any('walther_a 8.6195 -> 8.6345' in n for n in res.notes)
 
 
-def test_default_refit_moves_the_lubricant_towards_the_truth():
-    res = run_study(SimConfig(), AxisParams(), temperatures=[-40.0], profiles=['tracking'],
+def test_default_refit_finds_the_truths_direction_asymmetry():
+    res = run_study(SimConfig(), AxisParams(), temperatures=[-40.0, 60.0], profiles=['tracking', 'pointing'],
                     cases=['feedforward', 'refit'], short=True)
-    assert res.refit_params is not None
-    # truth walther_a = 8.6195 + 0.015; the CW factor of the truth (1.015 at -40 degC) is folded into it
-    assert 8.6195 + 0.01 < res.refit_params.walther_a < 8.6195 + 0.03
+    assert res.refit is not None and res.refit.result is not None
+    fitted = res.refit.result.fitted
+    # truth: (3.19 - 2.45) / (3.19 + 2.45) = 0.131 at -40 degC, (1.05 - 1.34) / 2.39 = -0.121 at +60 degC
+    assert 0.09 < fitted['direction_asymmetry_cold'] < 0.18
+    assert -0.17 < fitted['direction_asymmetry_warm'] < -0.08
 
 
 def test_a_refused_refit_leaves_the_case_out_with_a_note():
-    def refit(traces, axis, config):
+    def refit(rows, axis):
         raise FitError('too few samples: 0 (need at least 20)')
 
     res = run_study(TINY, temperatures=[20.0], profiles=['pointing'], cases=['none', 'refit'], refit=refit)
     assert {r['case'] for r in res.records} == {'none'}
-    assert res.notes == ['case refit left out: the refit was refused (too few samples: 0 (need at least 20))']
+    assert res.notes[-1] == 'case refit left out: the refit was refused (too few samples: 0 (need at least 20))'
+    assert res.refit is not None and res.refit.params is None
 
 
 @pytest.mark.parametrize(('kwargs', 'parameter'), [
     ({'cases': ['magic']}, 'cases'), ({'profiles': ['spiral']}, 'profiles'), ({'temperatures': []}, 'temperatures'),
-    ({'temperatures': [-80.0]}, 'temperatures')])
+    ({'temperatures': [-80.0]}, 'temperatures'), ({'estimator_method': 'guess'}, 'estimator_method'),
+    ({'refit_fit': ['walther_z']}, 'refit_fit')])
 def test_bad_study_arguments_are_refused(kwargs, parameter):
     with pytest.raises(ConfigError) as info:
         run_study(SimConfig(), **kwargs)
@@ -98,3 +106,40 @@ def test_goal_checks():
     got = {g['goal']: (round(g['value'], 6), g['met']) for g in goal_checks(recs)}
     assert got == {'c_vs_a_cold': (0.7, True), 'c_vs_a_all': (0.7, True), 'c_reversal': (1.2, False),
                    'c_vs_b_cold': (0.4, True), 'd_near_e_cold': (1.1, True)}
+
+
+def test_case_d_from_observer_samples_of_pointing_alone():
+    """No constant-speed sweep at all: the observer samples the gimbal collects while holding a target under base
+    motion are enough to refit (issue 9, section 3)."""
+    res = run_study(SimConfig(), temperatures=[-40.0, 60.0], profiles=['pointing'], cases=['none', 'refit', 'ideal'],
+                    short=True)
+    assert res.refit is not None and res.refit.params is not None
+    assert len(res.refit.rows) > 1000 and set(res.refit.rows.method.tolist()) == {1}
+    rms = {(r['case'], r['temperature_c']): r['rate_error_rms_rad_s'] for r in res.records}
+    assert rms[('ideal', -40.0)] < rms[('refit', -40.0)] < rms[('none', -40.0)]
+
+
+def test_steady_state_method_collects_the_constant_speed_sweep_only():
+    seen = []
+
+    def refit(rows, axis):
+        seen.append(rows)
+        return axis
+
+    run_study(SimConfig(), temperatures=[20.0], profiles=['tracking'], cases=['refit'], short=True,
+              estimator_method='steady_state', refit=refit)
+    (rows,) = seen
+    assert len(rows) > 100 and set(rows.method.tolist()) == {0}
+    speed = np.abs(rows.velocity_rad_s)
+    assert np.all(np.abs(speed - 0.0349066) <= 0.1 * 0.0349066 + 1e-9)
+
+
+def test_the_reference_velocity_wiring_orders_the_cases_in_the_cold():
+    from gimbal_friction.core.feedforward import FeedforwardSettings
+    from gimbal_friction.sim.study import FeedforwardSetup
+    ff = FeedforwardSetup(FeedforwardSettings(velocity_threshold_rad_s=0.002), 'reference')
+    res = run_study(SimConfig(), temperatures=[-40.0], profiles=['tracking'], short=True, feedforward=ff,
+                    cases=['none', 'constant', 'feedforward', 'ideal'])
+    rms = {r['case']: r['rate_error_rms_rad_s'] for r in res.records}
+    assert rms['ideal'] <= rms['feedforward'] < rms['constant'] < rms['none']
+    assert rms['feedforward'] < 0.4 * rms['none']

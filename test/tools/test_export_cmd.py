@@ -10,7 +10,7 @@ import pytest
 import yaml
 
 from gimbal_friction.config import load_parameters, render_parameter_file
-from gimbal_friction.core.export import ROS_NODE
+from gimbal_friction.export_formats import ROS_NODE
 from gimbal_friction.tools.cli import main
 
 FAST = ['--relative-error', '1e-3', '--random-points', '500']

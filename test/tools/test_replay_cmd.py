@@ -15,9 +15,14 @@ from gimbal_friction.core.estimator import EstimatorLogic
 from gimbal_friction.core.feedforward import Feedforward
 from gimbal_friction.core.model import friction_torque
 from gimbal_friction.recording import topics
-from gimbal_friction.recording.bag import default_typestore, make_joint_state, make_temperature, \
-    open_chamber_bag, write_chamber_bag
-from gimbal_friction.recording.residual_log import read_residual_log
+from gimbal_friction.recording.bag import (
+    default_typestore,
+    make_joint_state,
+    make_temperature,
+    open_chamber_bag,
+    write_chamber_bag,
+)
+from gimbal_friction.recording.residual_read import read_residual_rows
 from gimbal_friction.replay import node_settings, replay_bag
 from gimbal_friction.tools.cli import main
 
@@ -55,12 +60,11 @@ def test_summary_per_plateau_and_direction(sample_replay):
 
 def test_residual_log_is_a_readable_rosbag2_folder(sample_replay):
     folder = sample_replay / 'residuals'
-    log = read_residual_log([folder])
-    assert len(log.detail) > 20000 and not log.truncated_files
+    d, log = read_residual_rows([folder])
+    assert len(d) > 20000 and not log.truncated_files
     for topic in (topics.TEMPERATURE, topics.JOINT_STATES, topics.MOTOR_CURRENT, topics.FEEDFORWARD,
                   topics.MEASURED, topics.MEASURED_DETAIL, topics.RESIDUAL, topics.RESIDUAL_DETAIL):
         assert log.topic_counts.get(topic, 0) > 0, topic
-    d = log.detail
     np.testing.assert_allclose(d.residual_nm, d.measured_nm - d.predicted_nm, rtol=0, atol=1e-15)
     with AnyReader([folder], default_typestore=default_typestore()) as reader:
         assert {c.topic for c in reader.connections} >= {topics.RESIDUAL, topics.RESIDUAL_DETAIL}
@@ -92,7 +96,7 @@ def test_replay_numbers_equal_the_nodes_message_by_message():
         else:
             measured += node_est.on_current(int(cur.stamp_ns[i]), ['elevation'], [float(cur.effort['elevation'][i])],
                                             log_ns)
-    np.testing.assert_allclose([t[0] for t in res.feedforward.torques_nm[:len(torques)]], torques, rtol=1e-12,
+    np.testing.assert_allclose(res.feedforward.commands_nm[:len(torques), 0], torques, rtol=1e-12,
                                atol=1e-18)
     offline = res.measurements.records()[:len(measured)]
     assert len(measured) > 5000
@@ -103,7 +107,7 @@ def test_replay_numbers_equal_the_nodes_message_by_message():
     rows = res.rows
     assert np.array_equal(rows.measured_nm, res.measurements.friction_nm)
     k = np.searchsorted(res.feedforward.stamp_ns, res.measurements.stamp_ns)
-    np.testing.assert_array_equal(rows.predicted_nm, [t[0] for t in (res.feedforward.torques_nm[i] for i in k)])
+    np.testing.assert_array_equal(rows.predicted_nm, res.feedforward.commands_nm[k, 0])
     np.testing.assert_allclose(rows.residual_nm, rows.measured_nm - rows.predicted_nm, rtol=0, atol=0)
     assert np.array_equal(rows.current_a, res.measurements.current_a)    # as measured, not reconstructed
 

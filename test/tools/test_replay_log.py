@@ -12,11 +12,15 @@ import pytest
 from rosbags.highlevel import AnyReader
 
 from gimbal_friction.config import render_parameter_file
-from gimbal_friction.recording import topics
-from gimbal_friction.recording.bag import default_typestore, make_float64_multi_array, make_joint_state, \
-    make_temperature, open_chamber_bag, write_chamber_bag
 from gimbal_friction.core.measurement import MEASUREMENT_FIELDS
-from gimbal_friction.recording.residual_log import read_residual_rows
+from gimbal_friction.recording import topics
+from gimbal_friction.recording.bag import (
+    default_typestore,
+    make_joint_state,
+    make_temperature,
+    write_chamber_bag,
+)
+from gimbal_friction.recording.residual_read import read_residual_rows
 from gimbal_friction.replay import replay_bag
 
 JOINTS = ['elevation', 'azimuth']

@@ -1,4 +1,5 @@
-"""ResidualLogWriter.write_raw_many: the same files, byte for byte, as write_raw per message; checks first."""
+"""The bulk fast path (mcap_bulk) behind ResidualLogWriter.write_raw_many: pinned to the mcap version, used, and the
+same files, byte for byte, as write_raw per message (the public mcap API); the forced fallback gives the same files."""
 
 from __future__ import annotations
 
@@ -9,11 +10,11 @@ import pytest
 from mcap.reader import make_reader
 from rosbags.highlevel import AnyReader
 
-from gimbal_friction.recording import residual_log
-from gimbal_friction.recording.bag import default_typestore, make_temperature
-from gimbal_friction.recording.cdr import float64_multi_array_cdr, joint_state_cdr
+from gimbal_friction.recording import mcap_bulk
+from gimbal_friction.recording.cdr import default_typestore, float64_multi_array_cdr, joint_state_cdr, make_temperature
 from gimbal_friction.recording.errors import RecordingError
-from gimbal_friction.recording.residual_log import ResidualLogWriter, iter_residual_log
+from gimbal_friction.recording.residual_log import ResidualLogWriter
+from gimbal_friction.recording.residual_read import iter_residual_log
 from gimbal_friction.recording.topics import (
     FLOAT64_MULTI_ARRAY_TYPE,
     JOINT_STATE_TYPE,
@@ -57,7 +58,7 @@ def write_both(tmp_path: Path, batches, **kwargs):
     one, many = tmp_path / 'one', tmp_path / 'many'
     with ResidualLogWriter(one, **kwargs) as writer:
         for ids, logs, datas in batches:
-            for t, log_ns, data in zip(ids.tolist(), logs.tolist(), datas):
+            for t, log_ns, data in zip(ids.tolist(), logs.tolist(), datas, strict=False):
                 writer.write_raw(TOPICS[t][0], TOPICS[t][1], log_ns, data)
         stats_one = writer.stats
     with ResidualLogWriter(many, **kwargs) as writer:
@@ -105,12 +106,12 @@ def test_mixed_with_write_raw_in_the_same_chunks(tmp_path):
     kwargs = {'chunk_size': 3000, 'flush_interval_s': None, 'max_bytes': 40_000}
     with ResidualLogWriter(one, **kwargs) as writer:
         for ids, logs, datas in batches:
-            for t, log_ns, data in zip(ids.tolist(), logs.tolist(), datas):
+            for t, log_ns, data in zip(ids.tolist(), logs.tolist(), datas, strict=False):
                 writer.write_raw(TOPICS[t][0], TOPICS[t][1], log_ns, data)
     with ResidualLogWriter(mixed, **kwargs) as writer:
         for k, (ids, logs, datas) in enumerate(batches):
             if k % 2:
-                for t, log_ns, data in zip(ids.tolist(), logs.tolist(), datas):
+                for t, log_ns, data in zip(ids.tolist(), logs.tolist(), datas, strict=False):
                     writer.write_raw(TOPICS[t][0], TOPICS[t][1], log_ns, data)
             else:  # in pieces, some of one message
                 for a, b in ((0, 1), (1, 2), (2, len(ids))):
@@ -146,13 +147,40 @@ def test_with_a_flush_interval_the_messages_go_one_by_one(tmp_path):
     assert first == second
 
 
-def test_without_mcap_internals_the_result_is_the_same(tmp_path, monkeypatch):
+def test_the_installed_mcap_is_the_pinned_one_and_the_fast_path_runs_on_it(tmp_path, monkeypatch):
+    pinned = next(line.split('==')[1].strip() for line in
+                  (Path(__file__).resolve().parents[2] / 'requirements.txt').read_text().splitlines()
+                  if line.startswith('mcap=='))
+    assert mcap_bulk.mcap_version() == pinned == mcap_bulk.SUPPORTED_MCAP_VERSIONS[0]
+    calls = []
+    real = mcap_bulk.BulkChunk.append
+
+    def spy(self, *args, **kwargs):
+        calls.append(len(args[0]))
+        return real(self, *args, **kwargs)
+
+    monkeypatch.setattr(mcap_bulk.BulkChunk, 'append', spy)
+    rng = np.random.default_rng(12)
+    ids, logs, datas = make_batch(rng, 300)
+    with ResidualLogWriter(tmp_path / 'log', chunk_size=5000, flush_interval_s=None) as writer:
+        writer.write_raw_many(TOPICS, ids, logs, datas)
+    assert sum(calls) == 300 and max(calls) > 1  # the messages went through the fast path, in runs
+
+
+def test_forced_fallback_gives_the_same_files_and_reads_back_the_same(tmp_path, monkeypatch):
     rng = np.random.default_rng(13)
-    batches = [make_batch(rng, 500)]
-    expected, _ = write_both(tmp_path / 'a', batches, chunk_size=900, flush_interval_s=None)
-    monkeypatch.setattr(residual_log._BulkChunk, 'of', staticmethod(lambda writer: None))
-    one, many = write_both(tmp_path / 'b', batches, chunk_size=900, flush_interval_s=None)
-    assert one == many == expected
+    batches = [make_batch(rng, 500), make_batch(rng, 300, start_ns=T0 + 10**10)]
+    fast_one, fast_many = write_both(tmp_path / 'fast', batches, chunk_size=900, flush_interval_s=None)
+    assert fast_one == fast_many
+    monkeypatch.setattr(mcap_bulk, 'ENABLED', False)
+    with ResidualLogWriter(tmp_path / 'probe', flush_interval_s=None) as writer:
+        assert mcap_bulk.bulk_chunk(writer._file.writer) is None
+    _slow_one, slow_many = write_both(tmp_path / 'slow', batches, chunk_size=900, flush_interval_s=None)
+    assert slow_many == fast_many  # byte for byte
+    read = [[(m.topic, m.log_time_ns, m.msg) for m in iter_residual_log(tmp_path / kind / 'many')]
+            for kind in ('fast', 'slow')]
+    assert len(read[0]) == 800
+    assert [(t, lt) for t, lt, _ in read[0]] == [(t, lt) for t, lt, _ in read[1]]
 
 
 def test_readable_by_mcap_rosbags_and_iter_residual_log(tmp_path):
@@ -160,13 +188,13 @@ def test_readable_by_mcap_rosbags_and_iter_residual_log(tmp_path):
     ids, logs, datas = make_batch(rng, 800)
     folder = tmp_path / 'log'
     with ResidualLogWriter(folder, chunk_size=4000, flush_interval_s=None) as writer:
-        assert residual_log._BulkChunk.of(writer._file.writer) is not None  # the fast path runs on this mcap
+        assert mcap_bulk.bulk_chunk(writer._file.writer) is not None  # the fast path runs on this mcap
         writer.write_raw_many(TOPICS, ids, logs, datas)
     with (folder / 'residuals_0.mcap').open('rb') as stream:
         reader = make_reader(stream)
         got = [(c.topic, m.log_time, m.data) for _, c, m in reader.iter_messages(log_time_order=False)]
         stats = reader.get_summary().statistics
-    assert got == [(TOPICS[t][0], int(log), d) for t, log, d in zip(ids.tolist(), logs.tolist(), datas)]
+    assert got == [(TOPICS[t][0], int(log), d) for t, log, d in zip(ids.tolist(), logs.tolist(), datas, strict=False)]
     assert stats.message_count == 800
     with AnyReader([folder], default_typestore=default_typestore()) as reader:
         assert sum(1 for _ in reader.messages()) == 800

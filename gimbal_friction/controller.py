@@ -1,0 +1,70 @@
+"""The feedforward inside your own controller process: no DDS hop, the same object and rules as the node.
+
+:func:`load_feedforward` builds :class:`~gimbal_friction.core.feedforward.Feedforward` — the very object the
+``friction_feedforward`` node runs — from the same parameter files the nodes load (the packaged defaults, then your
+files layered key by key, like repeated ``--params-file``; node settings from the ``/**`` and
+``friction_feedforward`` sections). Every rule is the node's: temperature validation and the stale policy (on the
+times you pass), the smooth sign, the per-direction factors, the clamp.
+
+A controller loop (Python, e.g. a custom rclpy control node or a test-bench script)::
+
+    from gimbal_friction.controller import load_feedforward
+    ff = load_feedforward('config/gimbal_friction.yaml', 'refit.yaml')
+    ...
+    ff.update_temperature(bearing_temperature_c, time_s=t)           # whenever a temperature arrives
+    u = rate_pi(error) + ff.torque_nm('elevation', joint_velocity_rad_s, time_s=t)   # every tick, ~2 µs
+
+``joint_velocity_rad_s`` is the rate of the gimbal relative to the base (the resolver's), or the reference joint
+rate the controller commands; never the inertial LOS rate of the gyro. Times are seconds on any clock, as long as
+temperature and tick times share it.
+
+>>> ff = load_feedforward()
+>>> ff.update_temperature(-40.0, time_s=100.0)
+>>> round(ff.torque_nm('elevation', 0.0349066, time_s=100.001) * 1e3, 3)   # N*mm at 1/3 rpm, -40 degC
+3.143
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+from pathlib import Path
+
+from gimbal_friction.config import all_axis_params, load_parameters
+from gimbal_friction.core.feedforward import Feedforward, FeedforwardSettings
+from gimbal_friction.core.settings import settings_from_parameters
+
+__all__ = ['Feedforward', 'FeedforwardSettings', 'load_feedforward']
+
+
+def load_feedforward(*param_files: str | Path, node_name: str = 'friction_feedforward',
+                     axes: Iterable[str] | None = None) -> Feedforward:
+    """The feedforward object of the node ``node_name``, built from parameter files layered over the packaged
+    defaults.
+
+    Parameters
+    ----------
+    *param_files : str or Path
+        ROS 2 parameter files (``config/gimbal_friction.yaml``, a ``refit`` output, ...), layered in order.
+    node_name : str
+        Whose node section applies besides ``/**`` (default the feedforward node's).
+    axes : iterable of str, optional
+        Only these configured joints (default: every configured axis).
+
+    Raises
+    ------
+    ConfigError
+        A missing or invalid file or value (named), or a joint that is not configured.
+    ModelDomainError
+        Parameters for which the model cannot be evaluated over the temperature range.
+    """
+    paths = [Path(p) for p in param_files]
+    configured = all_axis_params(load_parameters(paths))
+    if axes is not None:
+        wanted = list(axes)
+        missing = [a for a in wanted if a not in configured]
+        if missing:
+            from gimbal_friction.core.errors import ConfigError
+            raise ConfigError('axes', f'not configured: {", ".join(missing)} (configured: {", ".join(configured)})')
+        configured = {a: configured[a] for a in wanted}
+    settings = settings_from_parameters(FeedforwardSettings, load_parameters(paths, node_name=node_name))
+    return Feedforward(configured, settings)

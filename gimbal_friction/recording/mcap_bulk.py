@@ -1,0 +1,206 @@
+"""The bulk fast path of the residual-log writer: many message records appended to an open MCAP chunk at once.
+
+``mcap.writer.Writer.add_message`` costs a few microseconds per message (a ``Message`` object, a record builder, a
+message-index tuple, statistics). :class:`BulkChunk` appends a whole run of message records to the writer's open
+chunk with numpy and updates the same state -- the result is the file ``add_message`` would have written, byte for
+byte (``test/recording/test_mcap_bulk.py``).
+
+This is the only module that goes below mcap's public API: it uses the writer's private chunk builder and
+statistics (``Writer.__chunk_builder``, ``Writer.__statistics``, ``Writer.__maybe_finalize_chunk``), whose layout is
+that of the pinned mcap version (:data:`SUPPORTED_MCAP_VERSIONS`, requirements.txt). :func:`bulk_chunk` checks the
+installed version and that structure and returns None otherwise (another mcap version, a writer without chunks, or
+:data:`ENABLED` set to False); the writer then uses ``add_message``, message by message: same files, slower.
+
+Times: log times [ns]. Sizes in bytes [B].
+"""
+
+from __future__ import annotations
+
+import io
+import itertools
+import struct
+from importlib import metadata
+from typing import TYPE_CHECKING
+
+import numpy as np
+from mcap.opcode import Opcode
+from mcap.records import MessageIndex
+
+from gimbal_friction.recording.mcap_scan import MESSAGE_RECORD_HEAD
+
+_CHUNK_BUILDER: type | None
+try:  # the chunk builder of mcap's writer (private; checked by bulk_chunk)
+    from mcap._chunk_builder import ChunkBuilder as _CHUNK_BUILDER
+except ImportError:  # pragma: no cover - another mcap layout: the writer falls back to add_message
+    _CHUNK_BUILDER = None
+
+if TYPE_CHECKING:
+    from collections.abc import Sequence
+
+    from mcap.data_stream import RecordBuilder
+    from mcap.writer import Writer as McapWriter
+    from numpy.typing import NDArray
+
+__all__ = ['ENABLED', 'MESSAGE_OVERHEAD', 'SUPPORTED_MCAP_VERSIONS', 'BulkChunk', 'bulk_chunk', 'mcap_version']
+
+#: mcap versions whose writer internals this module knows (requirements.txt pins the first)
+SUPPORTED_MCAP_VERSIONS = ('1.6.0',)
+#: False: never use the fast path (tests force the fallback with it)
+ENABLED = True
+#: bytes of a message record besides its data: opcode, length, channel id, sequence, log and publish time [B]
+MESSAGE_OVERHEAD = MESSAGE_RECORD_HEAD.itemsize
+_OPCODE_MESSAGE = 0x05
+_RECORD_HEAD_BYTES = np.dtype(f'V{MESSAGE_OVERHEAD}')
+
+
+def mcap_version() -> str:
+    """The installed mcap version ('' if unknown)."""
+    try:
+        return metadata.version('mcap')
+    except metadata.PackageNotFoundError:  # pragma: no cover - mcap is a dependency
+        return ''
+
+
+_VERSION_OK = mcap_version() in SUPPORTED_MCAP_VERSIONS
+
+
+class _PackedMessageIndex(MessageIndex):
+    """A ``MessageIndex`` whose (log time, offset) entries are kept packed (``<u8`` pairs), as it writes them.
+
+    :meth:`add_packed` appends a block of entries; tuples that ``ChunkBuilder.add_message`` appends to
+    ``records`` meanwhile are packed first, so the entries stay in order. Writes the bytes of ``MessageIndex``.
+    """
+
+    def __init__(self, channel_id: int, records: list[tuple[int, int]]) -> None:
+        super().__init__(channel_id=channel_id, records=records)
+        self.packed: list[bytes] = []
+
+    def _pack_records(self) -> None:
+        records = self.records
+        if records:
+            self.packed.append(struct.pack(f'<{2 * len(records)}Q', *itertools.chain.from_iterable(records)))
+            records.clear()
+
+    def add_packed(self, entries: bytes) -> None:
+        self._pack_records()
+        self.packed.append(entries)
+
+    def write(self, stream: RecordBuilder) -> None:
+        self._pack_records()
+        entries = b''.join(self.packed)
+        stream.start_record(Opcode.MESSAGE_INDEX)
+        stream.write2(self.channel_id)
+        stream.write4(len(entries))
+        stream.write(entries)
+        stream.finish_record()  # type: ignore[no-untyped-call]
+
+
+class BulkChunk:
+    """Appends message records to the open chunk of an mcap ``Writer``, as ``Writer.add_message`` would.
+
+    Built by :func:`bulk_chunk`. The caller decides where runs end (a run must not need a new channel, a file
+    rotation or a chunk written out in its middle) and calls :meth:`maybe_finalize` after each run.
+    """
+
+    def __init__(self, writer: McapWriter, builder: object, stats: object) -> None:
+        self._writer = writer
+        self._builder = builder
+        self._stats = stats
+
+    def pending(self) -> int:
+        """Bytes in the open chunk [B]."""
+        return int(self._builder.count)  # type: ignore[attr-defined]
+
+    def append(
+        self,
+        channel: NDArray[np.int64],
+        sequence: NDArray[np.int64],
+        log_time: NDArray[np.int64],
+        datas: Sequence[bytes],
+        record_offsets: NDArray[np.int64],
+    ) -> None:
+        """Append message records ``k`` (channel id, sequence, log time = publish time [ns], ``datas[k]``).
+
+        Args:
+            channel: (m,) channel ids.
+            sequence: (m,) sequence numbers.
+            log_time: (m,) log times [ns].
+            datas: m serialized messages.
+            record_offsets: (m + 1,) offset of each record from the first, then the end of the last [B]
+                (cumulative ``len(data) + MESSAGE_OVERHEAD``).
+
+        Raises:
+            OSError: the chunk buffer could not be written.
+        """
+        m = channel.shape[0]
+        header = np.empty(m, dtype=MESSAGE_RECORD_HEAD)
+        header['opcode'] = _OPCODE_MESSAGE
+        header['length'] = record_offsets[1:] - record_offsets[:-1] - 9  # record length after opcode and length
+        header['channel'] = channel
+        header['sequence'] = sequence
+        header['log_time'] = log_time
+        header['publish_time'] = log_time
+        builder = self._builder
+        stats = self._stats
+        buffer = builder.record_writer._buffer  # type: ignore[attr-defined]
+        start = buffer.tell()
+        parts: list[bytes] = [b''] * (2 * m)
+        parts[0::2] = header.view(_RECORD_HEAD_BYTES).tolist()  # bytes objects (a void dtype keeps NULs)
+        parts[1::2] = datas
+        buffer.write(b''.join(parts))
+        positions = record_offsets[:-1] + start
+        indices = builder.message_indices  # type: ignore[attr-defined]
+        counts = stats.channel_message_counts  # type: ignore[attr-defined]
+        present, first = np.unique(channel, return_index=True)
+        for channel_id in present[np.argsort(first)].tolist():  # in order of first appearance, as add_message
+            mask = channel == channel_id
+            index = indices.get(channel_id)
+            if not isinstance(index, _PackedMessageIndex):  # new, or begun by add_message (same place in the dict)
+                index = indices[channel_id] = _PackedMessageIndex(channel_id, [] if index is None else index.records)
+            entries = np.empty((int(mask.sum()), 2), dtype='<u8')
+            entries[:, 0] = log_time[mask]
+            entries[:, 1] = positions[mask]
+            index.add_packed(entries.tobytes())
+            counts[channel_id] = counts.get(channel_id, 0) + int(mask.sum())
+        log_min, log_max = int(log_time.min()), int(log_time.max())
+        if builder.num_messages == 0:  # type: ignore[attr-defined]
+            builder.message_start_time = log_min  # type: ignore[attr-defined]
+        else:
+            builder.message_start_time = min(builder.message_start_time, log_min)  # type: ignore[attr-defined]
+        builder.message_end_time = max(builder.message_end_time, log_max)  # type: ignore[attr-defined]
+        builder.num_messages += m  # type: ignore[attr-defined]
+        if stats.message_count == 0:  # type: ignore[attr-defined]
+            stats.message_start_time = log_min  # type: ignore[attr-defined]
+        else:
+            stats.message_start_time = min(stats.message_start_time, log_min)  # type: ignore[attr-defined]
+        stats.message_end_time = max(stats.message_end_time, log_max)  # type: ignore[attr-defined]
+        stats.message_count += m  # type: ignore[attr-defined]
+
+    def maybe_finalize(self) -> None:
+        """Write the chunk out if it is full (as ``add_message`` does after each message); OSError propagates."""
+        self._writer._Writer__maybe_finalize_chunk()  # type: ignore[attr-defined]
+
+
+def bulk_chunk(writer: McapWriter) -> BulkChunk | None:
+    """The fast path for ``writer``, or None (use ``add_message``): see the module docstring."""
+    if not (ENABLED and _VERSION_OK) or _CHUNK_BUILDER is None:
+        return None
+    builder = getattr(writer, '_Writer__chunk_builder', None)
+    stats = getattr(writer, '_Writer__statistics', None)
+    finalize = getattr(writer, '_Writer__maybe_finalize_chunk', None)
+    if not isinstance(builder, _CHUNK_BUILDER) or not callable(finalize):
+        return None
+    record_writer = getattr(builder, 'record_writer', None)
+    if not isinstance(getattr(record_writer, '_buffer', None), io.BytesIO):
+        return None
+    if not isinstance(getattr(builder, 'message_indices', None), dict) or not all(
+        isinstance(getattr(builder, name, None), int)
+        for name in ('num_messages', 'message_start_time', 'message_end_time')
+    ):
+        return None
+    if not isinstance(getattr(stats, 'channel_message_counts', None), dict) or not all(
+        isinstance(getattr(stats, name, None), int)
+        for name in ('message_count', 'message_start_time', 'message_end_time')
+    ):
+        return None
+    return BulkChunk(writer, builder, stats)

@@ -1,0 +1,141 @@
+"""Fixtures of the node and parameter tests of the robustness suite (imported by those test modules; the
+package's conftest.py holds the file and CLI fixtures).
+
+- ``node_spawn`` and ``node_probe``: the live-node harness of ``test/ros/conftest.py`` (real processes on an isolated
+  ROS_DOMAIN_ID, loopback discovery, stopped with SIGINT; a probe node that publishes, collects and waits), loaded
+  from that file so both suites start nodes the same way.
+- ``in_process``: the node classes built in this process on a private rclpy context (isolated domain, loopback),
+  their publishers replaced by recorders. Callbacks are called directly: thousands of hostile messages per second
+  through the very adapter code the executables run, without DDS in the way.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import math
+import os
+import sys
+from collections.abc import Callable, Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+rclpy = pytest.importorskip('rclpy', reason='node tests need the ros-* wheels (requirements.txt)')
+
+ROOT = Path(__file__).resolve().parents[2]
+_spec = importlib.util.spec_from_file_location('_gimbal_friction_ros_harness', ROOT / 'test' / 'ros' / 'conftest.py')
+assert _spec is not None and _spec.loader is not None
+_harness = importlib.util.module_from_spec(_spec)
+sys.modules[_spec.name] = _harness
+_spec.loader.exec_module(_harness)
+
+Probe = _harness.Probe
+NodeProcess = _harness.NodeProcess
+TIMEOUT = _harness.TIMEOUT
+
+
+@pytest.fixture
+def node_env(tmp_path: Path) -> Iterator[tuple[int, dict[str, str]]]:
+    from domain_coordinator import domain_id
+    with domain_id() as did:
+        yield did, dict(os.environ, ROS_DOMAIN_ID=str(did), ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST',
+                        ROS_LOG_DIR=str(tmp_path / 'roslog'), PYTHONUNBUFFERED='1')
+
+
+@pytest.fixture
+def node_spawn(node_env: tuple[int, dict[str, str]], tmp_path: Path) -> Iterator[Callable[..., Any]]:
+    """``node_spawn(exe, *args)``: the executable as its own process in the test's domain; SIGINT at the end."""
+    procs: list[Any] = []
+
+    def start(exe: str, *args: str) -> Any:
+        procs.append(NodeProcess(exe, list(args), node_env[1], tmp_path / f'{exe}_{len(procs)}.log'))
+        return procs[-1]
+
+    yield start
+    for p in procs:
+        p.stop()
+
+
+@pytest.fixture
+def node_probe(node_env: tuple[int, dict[str, str]]) -> Iterator[Any]:
+    p = Probe(node_env[0])
+    yield p
+    p.close()
+
+
+class Recorder:
+    """Stands in for a publisher: keeps what would have been published (serialized and read back, as a
+    subscriber would get it: the nodes reuse their message objects)."""
+
+    def __init__(self) -> None:
+        self.messages: list[Any] = []
+
+    def publish(self, msg: Any) -> None:
+        from rclpy.serialization import deserialize_message, serialize_message
+        self.messages.append(deserialize_message(serialize_message(msg), type(msg)))
+
+    def clear(self) -> None:
+        self.messages.clear()
+
+
+class InProcess:
+    """Builds nodes on one private context; ``make(cls, *args, **parameters)`` returns the node with every
+    publisher (attributes named ``pub_*``) replaced by a :class:`Recorder`."""
+
+    def __init__(self, domain: int) -> None:
+        self.domain = domain
+        self.context = rclpy.Context()
+        rclpy.init(args=['robustness'], context=self.context, domain_id=domain)
+        self.nodes: list[Any] = []
+
+    def make(self, cls: Callable[..., Any], **parameters: Any) -> Any:
+        from rclpy.parameter import Parameter
+        overrides = [Parameter(k, value=v) for k, v in parameters.items()]
+        node = cls(context=self.context, parameter_overrides=overrides)
+        for name in list(vars(node)):
+            if name.startswith('pub_'):
+                setattr(node, name, Recorder())
+        self.nodes.append(node)
+        return node
+
+    def close(self) -> None:
+        for node in self.nodes:
+            close = getattr(node, 'close', None)
+            if close is not None:
+                close()
+            node.destroy_node()
+        self.context.try_shutdown()
+
+
+@pytest.fixture(scope='module')
+def in_process(tmp_path_factory: pytest.TempPathFactory) -> Iterator[InProcess]:
+    from domain_coordinator import domain_id
+    log_dir = tmp_path_factory.mktemp('roslog')
+    saved = {k: os.environ.get(k) for k in ('ROS_AUTOMATIC_DISCOVERY_RANGE', 'ROS_LOG_DIR')}
+    os.environ.update(ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST', ROS_LOG_DIR=str(log_dir))
+    with domain_id() as did:
+        p = InProcess(did)
+        try:
+            yield p
+        finally:
+            p.close()
+            for k, v in saved.items():
+                if v is None:
+                    os.environ.pop(k, None)
+                else:
+                    os.environ[k] = v
+
+
+def finite_within(values: Any, bound: float) -> bool:
+    """Every value finite and at most ``bound`` in magnitude."""
+    return all(math.isfinite(v) and abs(v) <= bound for v in values)
+
+
+def diag_statuses(msgs: list[Any]) -> list[Any]:
+    """The DiagnosticStatus entries of the last DiagnosticArray recorded."""
+    return list(msgs[-1].status) if msgs else []
+
+
+def diag_values(status: Any) -> dict[str, str]:
+    return {kv.key: kv.value for kv in status.values}

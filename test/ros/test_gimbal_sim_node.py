@@ -1,0 +1,103 @@
+"""gimbal_sim as its own process on an isolated domain: topics and stamps, the feedforward loop and its latency,
+a clean exit after one run (exit_when_done) or on SIGINT, one-line refusal of a bad parameter."""
+
+from __future__ import annotations
+
+import math
+import signal
+from pathlib import Path
+
+import numpy as np
+import pytest
+from diagnostic_msgs.msg import DiagnosticArray
+from sensor_msgs.msg import JointState, Temperature
+
+from gimbal_friction.loop_live import load_run
+from gimbal_friction.recording import topics
+
+pytestmark = pytest.mark.ros
+ROOT = Path(__file__).resolve().parents[2]
+SIM_YAML = str(ROOT / 'config' / 'gimbal_sim.yaml')
+
+
+def _echo_feedforward(probe, torque_nm: float) -> list[JointState]:
+    """The probe answers every joint state with a feedforward of the same stamp (what friction_feedforward does)."""
+    pub = probe.publisher(JointState, topics.FEEDFORWARD)
+    seen: list[JointState] = []
+
+    def reply(msg: JointState) -> None:
+        seen.append(msg)
+        out = JointState()
+        out.header.stamp = msg.header.stamp
+        out.name = list(msg.name)
+        out.effort = [math.copysign(torque_nm, msg.velocity[0])]
+        pub.publish(out)
+
+    probe.node.create_subscription(JointState, topics.JOINT_STATES, reply, 1000)
+    return seen
+
+
+def test_one_run_publishes_the_suites_inputs_takes_the_feedforward_and_exits(spawn, probe, tmp_path):
+    for msg_type, topic in ((JointState, topics.MOTOR_CURRENT), (JointState, '/gimbal/reference_velocity'),
+                            (Temperature, topics.TEMPERATURE), (JointState, '/gimbal_sim/los_error'),
+                            (DiagnosticArray, topics.DIAGNOSTICS)):
+        probe.subscribe(msg_type, topic, 1000)
+    joint_states = _echo_feedforward(probe, 2e-3)
+    record = tmp_path / 'run.npz'
+    node = spawn('gimbal_sim', '--ros-args', '--params-file', SIM_YAML, '-p', 'profile:=tracking',
+                 '-p', 'duration_s:=1.5', '-p', 'environment_temperature_c:=-40.0', '-p', 'exit_when_done:=true',
+                 '-p', 'wait_for_subscribers:=1', '-p', 'los_error_every_ticks:=10', '-p', f'record_path:={record}',
+                 '-p', 'feedforward_timeout_s:=2.0')   # the probe answers from Python: accept late replies too
+    probe.spin_until(lambda: not node.alive(), timeout=60.0, what='gimbal_sim to finish its run')
+    code, output = node.stop()
+    assert code == 0, output
+    probe.spin_until(lambda: len(probe.received[topics.DIAGNOSTICS]) > 0, timeout=5.0, what='diagnostics')
+    # topics and stamps: every tick at 1 kHz, stamps = sample times
+    stamps = np.array([m.header.stamp.sec * 10**9 + m.header.stamp.nanosec for m in joint_states])
+    assert len(joint_states) >= 1400 and np.all(np.diff(stamps) == 1_000_000)
+    assert joint_states[0].name == ['elevation'] and len(joint_states[0].position) == 1
+    assert len(probe.received[topics.MOTOR_CURRENT]) >= 1400
+    temps = [m.temperature for m in probe.received[topics.TEMPERATURE]]
+    assert 12 <= len(temps) <= 16 and abs(float(np.mean(temps)) + 40.0) < 0.2
+    los = probe.received['/gimbal_sim/los_error']
+    assert 130 <= len(los) <= 150 and all(len(m.position) == len(m.velocity) == 1 for m in los)
+    # the run record: the feedforward was applied and its latency measured from the stamps
+    batch, meta, extra = load_run(record)
+    assert meta['ticks'] == 1500 and meta['case'] == 'feedforward'
+    lat = meta['latency']
+    assert lat['feedforward_received'] > 1000 and 0.0 < lat['feedforward_latency_p50_s'] < 0.5
+    applied = batch.traces.feedforward_nm[:, 0]
+    assert np.count_nonzero(np.abs(applied) == 2e-3) > 1000 and np.all(np.abs(applied) <= 2e-3)
+    assert np.all(extra['feedforward_age'][extra['feedforward_age'] >= 0] >= 1)
+
+
+def test_sigint_ends_a_run_cleanly_and_records_it(spawn, probe, tmp_path):
+    probe.subscribe(JointState, topics.JOINT_STATES, 1000)
+    record = tmp_path / 'run.npz'
+    node = spawn('gimbal_sim', '--ros-args', '--params-file', SIM_YAML, '-p', 'profile:=pointing',
+                 '-p', 'duration_s:=30.0', '-p', 'use_feedforward:=false', '-p', f'record_path:={record}',
+                 '-p', 'publish_every_ticks:=10')
+    probe.spin_until(lambda: len(probe.received[topics.JOINT_STATES]) >= 50, timeout=30.0, what='joint states')
+    code, output = node.stop(signal.SIGINT)
+    assert code == 0, output
+    batch, meta, _ = load_run(record)
+    assert meta['case'] == 'none' and 400 <= meta['ticks'] < 30000
+    assert batch.traces.los_rate_rad_s.shape == (meta['ticks'], 1)
+
+
+def test_a_bad_parameter_is_refused_in_one_line(spawn):
+    node = spawn('gimbal_sim', '--ros-args', '-p', 'profile:=spiral')
+    assert _exited(node), 'gimbal_sim kept running with a bad parameter'
+    code, output = node.stop()
+    assert code == 1
+    lines = [ln for ln in output.strip().splitlines() if 'error' in ln]
+    assert len(lines) == 1 and 'profile' in lines[0] and 'tracking, scan, pointing' in lines[0]
+
+
+def _exited(node, timeout: float = 20.0) -> bool:
+    import subprocess
+    try:
+        node.proc.wait(timeout)
+    except subprocess.TimeoutExpired:
+        return False
+    return True

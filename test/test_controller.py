@@ -1,0 +1,47 @@
+"""The in-process controller API: built from the nodes' parameter files, the node's very object and rules."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+
+from gimbal_friction.config import render_parameter_file
+from gimbal_friction.controller import load_feedforward
+from gimbal_friction.core.errors import ConfigError
+from gimbal_friction.core.feedforward import Feedforward, FeedforwardSettings
+from gimbal_friction.core.model import friction_torque
+from gimbal_friction.core.params import AxisParams
+
+V = 2 * math.pi / 180
+
+
+def test_defaults_follow_the_model_and_the_node_rules():
+    ff = load_feedforward()
+    assert isinstance(ff, Feedforward) and ff.order == ('elevation',)
+    assert ff.update_temperature(-40.0, 10.0) is None
+    assert ff.torque_nm('elevation', V, 10.0) == pytest.approx(float(friction_torque(AxisParams(), -40.0).m_total_nmm)
+                                                              * 1e-3 * math.tanh(V / FeedforwardSettings().velocity_threshold_rad_s), rel=2e-5)
+    # the node's stale policy (fallback 20 degC after the 5 s timeout), on the caller's clock
+    stale = ff.torque_nm('elevation', V, 16.0)
+    assert stale == pytest.approx(float(friction_torque(AxisParams(), 20.0).m_total_nmm) * 1e-3, rel=2e-5)
+    assert ff.update_temperature(math.nan, 17.0) == 'non-finite temperature'
+
+
+def test_layered_files_refit_and_node_section(tmp_path):
+    refit = tmp_path / 'refit.yaml'
+    refit.write_text(render_parameter_file(axes=['elevation', 'azimuth'],
+                                           axes_overrides={'elevation': {'palmgren_factor': 3.0}}))
+    node = tmp_path / 'node.yaml'
+    node.write_text('friction_feedforward:\n  ros__parameters:\n    max_torque_nm: 0.001\n')
+    ff = load_feedforward(refit, node)
+    assert ff.order == ('elevation', 'azimuth') and ff.settings.max_torque_nm == 0.001
+    assert ff.axes['elevation'].palmgren_factor == 3.0 and ff.axes['azimuth'].palmgren_factor != 3.0
+    ff.update_temperature(-40.0, 0.0)
+    assert ff.torque_nm('elevation', 1.0, 0.0) == 0.001                       # clamped
+    only = load_feedforward(refit, axes=['azimuth'])
+    assert only.order == ('azimuth',)
+    with pytest.raises(ConfigError, match='not configured'):
+        load_feedforward(refit, axes=['roll'])
+    with pytest.raises(ConfigError):
+        load_feedforward(tmp_path / 'missing.yaml')

@@ -1,0 +1,100 @@
+"""``gimbal-friction loop-study`` through main(): JSON per CONTRACT.md, outputs, layering, one-line refusals."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import pytest
+import yaml
+
+from gimbal_friction.tools.cli import main
+
+CONTRACT_FIELDS = {'case', 'temperature_c', 'profile', 'rate_error_rms_rad_s', 'rate_error_peak_rad_s',
+                   'position_error_rms_rad', 'position_error_peak_rad', 'reversal_error_peak_rad'}
+SHORT = ['loop-study', '--short', '--profiles', 'tracking']
+
+
+@pytest.fixture(scope='module')
+def study_out(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, dict, str]:
+    out = tmp_path_factory.mktemp('loop') / 'study'
+    import contextlib
+    import io
+    buf, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(buf), contextlib.redirect_stderr(err):
+        code = main([*SHORT, '--temperatures', '-40,20', '--format', 'json', '--out', str(out)])
+    assert code == 0, err.getvalue()
+    return out, json.loads(buf.getvalue()), err.getvalue()
+
+
+def test_json_has_one_record_per_case_temperature_and_profile_with_the_contract_fields(study_out):
+    _, doc, _ = study_out
+    records = doc['records']
+    assert len(records) == 5 * 2
+    assert {(r['case'], r['temperature_c']) for r in records} == {
+        (c, t) for c in ('none', 'constant', 'feedforward', 'refit', 'ideal') for t in (-40.0, 20.0)}
+    for r in records:
+        assert set(r) >= CONTRACT_FIELDS and r['profile'] == 'tracking' and r['mode'] == 'offline'
+        assert all(isinstance(r[k], float) and math.isfinite(r[k]) for k in CONTRACT_FIELDS - {'case', 'profile'})
+    rms = {(r['case'], r['temperature_c']): r['rate_error_rms_rad_s'] for r in records}
+    assert rms[('ideal', -40.0)] <= rms[('feedforward', -40.0)] < rms[('none', -40.0)]
+    assert {g['goal'] for g in doc['goals']} >= {'c_vs_a_cold', 'c_vs_a_all', 'c_vs_b_cold', 'd_near_e_cold',
+                                                 'c_reversal'}
+    assert doc['settings']['velocity_source'] == 'auto' and doc['refit']['accepted_by_method']['observer'] > 0
+
+
+def test_out_holds_the_document_the_table_the_figures_and_the_residual_log(study_out, capsys):
+    out, doc, _ = study_out
+    assert json.loads((out / 'loop_study.json').read_text()) == doc
+    assert 'tracking: LOS rate error RMS' in (out / 'loop_study.txt').read_text()
+    for name in ('error_vs_temperature_tracking.png', 'reversal_trace.png'):
+        assert (out / 'figures' / name).read_bytes()[:8] == b'\x89PNG\r\n\x1a\n'
+    # the whole loop: `gimbal-friction refit` on the residual log finds case (d)'s parameters again
+    refit_file = out / 'refit.yaml'
+    assert main(['refit', str(out / 'residuals'), '--out', str(refit_file), '--fit',
+                 'walther_a,direction_asymmetry']) == 0
+    capsys.readouterr()
+    got = yaml.safe_load(refit_file.read_text())['/**']['ros__parameters']['axis']['elevation']
+    for name, value in doc['refit']['fitted'].items():
+        assert got[name] == pytest.approx(value, rel=1e-9), name
+
+
+def test_table_is_the_default_output_and_the_configuration_is_layered(tmp_path, capsys):
+    cfg = tmp_path / 'wiring.yaml'
+    cfg.write_text('/**:\n  ros__parameters:\n    velocity_source: "reference"\n    velocity_threshold_rad_s: 0.002\n'
+                   'gimbal_sim:\n  ros__parameters:\n    feedforward_latency_s: 0.002\n')
+    assert main([*SHORT, '--temperatures', '-40', '--cases', 'none,feedforward', '--config', str(cfg),
+                 '--format', 'json']) == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert doc['settings']['velocity_source'] == 'reference' and doc['settings']['feedforward_latency_s'] == 0.002
+    assert doc['settings']['velocity_threshold_rad_s'] == 0.002
+    assert main([*SHORT, '--temperatures', '-40', '--cases', 'none', '--latency-s', '0.003']) == 0
+    text = capsys.readouterr().out
+    assert text.startswith('tracking: LOS rate error RMS') and 'none' in text
+
+
+@pytest.mark.parametrize(('args', 'needle'), [
+    (['--cases', 'magic'], "--cases"),
+    (['--profiles', 'spiral'], "--profiles"),
+    (['--temperatures', 'warm'], '--temperature'),
+    (['--temperatures', '-90'], 'temperatures'),
+    (['--latency-s', '-1'], '--latency-s'),
+    (['--refit-fit', 'walther_z'], '--refit-fit'),
+    (['--config', '/nonexistent/file.yaml'], 'cannot read parameter file'),
+])
+def test_bad_input_is_refused_in_one_line(args, needle, capsys):
+    code = main(['loop-study', '--short', *args])
+    captured = capsys.readouterr()
+    assert code != 0 and captured.out == ''
+    lines = captured.err.strip().splitlines()
+    assert len(lines) == 1 and needle in lines[0] and 'Traceback' not in captured.err
+
+
+def test_help_names_the_options(capsys):
+    with pytest.raises(SystemExit) as info:
+        main(['loop-study', '--help'])
+    assert info.value.code == 0
+    text = capsys.readouterr().out
+    for opt in ('--temperatures', '--profiles', '--cases', '--short', '--latency-s', '--out', '--live', '--seed'):
+        assert opt in text
