@@ -551,10 +551,10 @@ def command_line_parameters(argv: Sequence[str], node_name: str, namespace: str 
 
 # ---------------------------------------------------------------------------------------------------- parameter names
 #: the executables of the suite whose parameters may share a file (packaged file: everything under ``/**``)
-SUITE_NODES = ('friction_feedforward', 'friction_estimator', 'residual_logger', 'chamber_replay')
+SUITE_NODES = ('friction_feedforward', 'friction_estimator', 'residual_logger', 'chamber_replay', 'gimbal_sim')
 #: parameters of chamber_replay (gimbal_friction.nodes.chamber_replay; tested to match its declarations)
-CHAMBER_REPLAY_PARAMETERS = ('bag', 'rate', 'loop', 'start_offset_s', 'topic_map', 'wait_for_subscribers',
-                             'wait_timeout_s')
+CHAMBER_REPLAY_PARAMETERS = ('bag', 'rate', 'loop', 'start_offset_s', 'topic_map', 'topics', 'exclude_topics',
+                             'wait_for_subscribers', 'wait_timeout_s')
 #: parameters every rclpy node declares itself
 ROS_PARAMETERS = ('use_sim_time', 'start_type_description_service')
 MODEL_PARAMETERS = tuple(f.name for f in dataclasses.fields(AxisParams))
@@ -580,6 +580,9 @@ def node_parameter_names(node: str, axes: Sequence[str]) -> frozenset[str]:
         names |= {'axes'} | fields(LoggerSettings)
     elif node == 'chamber_replay':
         names |= set(CHAMBER_REPLAY_PARAMETERS)
+    elif node == 'gimbal_sim':
+        from gimbal_friction.sim.config import parameter_specs as sim_specs
+        names |= model | {spec['name'] for spec in sim_specs(node=True)}
     else:
         raise ConfigError('node', f'not an executable of the suite ({", ".join(SUITE_NODES)})', node)
     return frozenset(names)

@@ -143,4 +143,3 @@ def test_bag_torques_never_raise_and_stay_within_the_clamp(temps, js):
     arrays, _, _ = chamber_arrays(t_msgs, j_msgs)
     bag = Feedforward(AXES, FeedforwardSettings(max_torque_nm=CLAMP, table_step_c=COARSE)).bag_torques(arrays)
     assert np.all(np.isfinite(bag.commands_nm)) and np.all(np.abs(bag.commands_nm) <= CLAMP)
-    assert all(np.all(np.isfinite(t)) for t in bag.torques_nm)

@@ -272,7 +272,7 @@ def test_logger_diagnostics_name_the_cause_and_return_to_ok(logger):
 
 def test_logger_closes_a_readable_log_whatever_it_was_fed(in_process: Any, tmp_path: Path):
     from gimbal_friction.nodes.residual_logger import ResidualLogger
-    from gimbal_friction.recording.residual_log import read_residual_rows
+    from gimbal_friction.recording.residual_read import read_residual_rows
     node = in_process.make(ResidualLogger, output_dir=str(tmp_path / 'log'), pairing_timeout_s=100.0)
     node.on_feedforward(feedforward(10, 0.002))
     node.on_measured_detail(detail(10, {}))

@@ -233,7 +233,7 @@ def detail(sec: int, friction: float, stamp_sec: float | None = None) -> Float64
 
 
 def test_residual_logger_process_under_a_hostile_stream(node_spawn, node_probe, tmp_path):
-    from gimbal_friction.recording.residual_log import read_residual_rows
+    from gimbal_friction.recording.residual_read import read_residual_rows
     folder = tmp_path / 'log'
     node = start(node_spawn, 'residual_logger', '-p', f'output_dir:={folder}', '-p', 'pairing_timeout_s:=0.2')
     link = Link(node_probe, {FF: JointState, DETAIL: Float64MultiArray}, {'/diagnostics': DiagnosticArray})

@@ -57,7 +57,7 @@ def test_absurd_feedforward_settings_are_refused(values):
 
 def test_default_model_builds_over_the_widest_allowed_range_or_says_why():
     """The credible range may be widened to [-200, 400] degC; the model either builds or refuses with a reason
-    (never a NaN table): at -200 degC the Walther fit overflows."""
+    (never a NaN table): below about -170 degC the Walther fit overflows."""
     with pytest.raises(GimbalFrictionError, match='non-finite viscosity'):
-        FrictionTable(AxisParams(), -200.0, 120.0, 0.1)
-    FrictionTable(AxisParams(), -60.0, 400.0, 0.1)
+        FrictionTable(AxisParams(), -199.0, 120.0, 0.1)
+    FrictionTable(AxisParams(), -60.0, 399.0, 0.1)

@@ -169,13 +169,14 @@ def test_misspelled_and_foreign_names(tmp_path):
     check_parameter_names(FF, {'axes': ['elevation', 'azimuth'], 'axis.azimuth.interference_mm': 0.004})
     with pytest.raises(ConfigError, match='not of friction_feedforward'):
         check_parameter_names(FF, {'method': 'observer'}, node_specific={'method'})
-    check_parameter_names(FF, {'method': 'observer', 'output_dir': 'x', 'bag': 'b'})   # shared under /**
+    check_parameter_names(FF, {'method': 'observer', 'output_dir': 'x', 'bag': 'b',   # shared under /**
+                               'inertia_truth_ratio': 1.0})                       # (gimbal_sim's)
     with pytest.raises(ConfigError, match='non-empty list'):
         check_parameter_names(FF, {'axes': []}, sources={'axes': '-p axes:=[]'})
 
 
 def test_the_packaged_file_is_accepted_by_every_node():
-    for node in ('friction_feedforward', 'friction_estimator', 'residual_logger', 'chamber_replay'):
+    for node in ('friction_feedforward', 'friction_estimator', 'residual_logger', 'chamber_replay', 'gimbal_sim'):
         cl = command_line_parameters(['x', '--ros-args', '--params-file', PACKAGED], node)
         check_parameter_names(node, cl.values, cl.node_specific, cl.sources)
         assert cl.ignored_by_rcl == {}
