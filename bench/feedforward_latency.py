@@ -18,7 +18,6 @@ Before the measured window starts, publisher and subscriber are matched (``get_s
 ``get_publisher_count``) and a round trip through the node has been observed (priming messages at 100 Hz).
 Sends follow an absolute 1 ms schedule; if this process was descheduled, overdue messages are caught up at 4x the
 rate (not in one burst), and a run with more than 1 % late sends is marked "disturbed" (the machine was busy).
-``--nodes relay,feedforward,lean`` adds ``bench/lean_feedforward.py``, an experiment with a leaner callback.
 
 Prints p50/p99/max, sent/received/lost, achieved rates, whether the node kept up (>= 99 % received and no growing
 backlog: median latency of the last second no more than ``--backlog-ms`` above that of the first measured
@@ -81,9 +80,6 @@ def node_command(kind: str) -> list[str]:
     """Command line of the node under test (run with cwd = repository root)."""
     if kind == 'relay':
         return [sys.executable, str(ROOT / 'bench' / 'relay_node.py')]
-    if kind == 'lean':
-        return [sys.executable, str(ROOT / 'bench' / 'lean_feedforward.py'), '--ros-args', '--params-file',
-                str(PARAMS_FILE)]
     exe = BIN / 'friction_feedforward'
     cmd = [str(exe)] if exe.exists() else [sys.executable, '-m', 'gimbal_friction.nodes.feedforward']
     return [*cmd, '--ros-args', '--params-file', str(PARAMS_FILE), '-p', f'diagnostics_period_s:={DIAG_PERIOD_S}']
@@ -563,7 +559,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                         help='allowed growth of the median latency from first to last second [ms] (1)')
     parser.add_argument('--nodes', default='relay,feedforward',
                         help="comma-separated nodes run in this order each round; 'relay' (the baseline) is "
-                             "required; 'lean' = bench/lean_feedforward.py (experiment) (default relay,feedforward)")
+                             "required (default relay,feedforward)")
     parser.add_argument('--drop-rates', default='3000',
                         help='comma-separated rates [Hz] of extra drop runs (relay and feedforward, one each, '
                              '--drop-duration long); the latency rounds report drops at --rate already (3000)')
@@ -589,8 +585,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         parser.error('need --duration >= --warmup + 2 s, --rounds >= 1, --rate > 0')
     kinds = [k.strip() for k in args.nodes.split(',') if k.strip()]
     if 'relay' not in kinds or len(kinds) < 2 or len(set(kinds)) != len(kinds) \
-            or not set(kinds) <= {'relay', 'feedforward', 'lean'}:
-        parser.error("--nodes: 'relay' plus one or more of feedforward, lean, each once")
+            or not set(kinds) <= {'relay', 'feedforward'}:
+        parser.error("--nodes: 'relay' and 'feedforward', each once")
 
     from domain_coordinator import domain_id
 
