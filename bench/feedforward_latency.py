@@ -192,7 +192,7 @@ class Driver:
 
     def __init__(self, domain: int) -> None:
         import rclpy
-        from rclpy.experimental import EventsExecutor
+        from rclpy.experimental.events_executor import EventsExecutor
         from rclpy.node import Node
         from rclpy.qos import QoSProfile
         from sensor_msgs.msg import JointState, Temperature
@@ -426,9 +426,11 @@ def run_bursts(kind: str, domain: int, env: dict[str, str], log_dir: Path, sizes
                     seq += 1
                 res.publish_s += (time.perf_counter() - t0) / repeats
                 last = seq - 1
+                def burst_back(last: int = last) -> bool:
+                    return any(s == last for s, _ in driver.received[-20:])
+
                 with contextlib.suppress(BenchError):
-                    driver.spin_until(lambda last=last: any(s == last for s, _ in driver.received[-20:]), 2.0,
-                                      'burst outputs')
+                    driver.spin_until(burst_back, 2.0, 'burst outputs')
                 t_settle = time.monotonic() + 0.05
                 while time.monotonic() < t_settle:
                     driver.executor.spin_once(timeout_sec=0.01)

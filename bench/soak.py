@@ -238,7 +238,7 @@ def soak(minutes: float, rate_hz: float, sample_s: float) -> dict[str, Any]:
                     publisher.kill()
             out = (publisher.stdout.read() if publisher.stdout else b'').decode(errors='replace')
             sent_line = [line for line in out.splitlines() if line.startswith('{')]
-            pub = json.loads(sent_line[-1]) if sent_line else {'error': out[-500:]}
+            pub: dict[str, Any] = json.loads(sent_line[-1]) if sent_line else {'error': out[-500:]}
             monitor.spin(3.0)                      # the last reports after the last message
             for name, proc in procs.items():
                 samples[name].append((time.monotonic() - t0, rss_mb(proc.pid)))

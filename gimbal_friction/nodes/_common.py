@@ -49,7 +49,7 @@ def _descriptor(name: str, unit: str, description: str, *, bound: Any = None, re
     return desc
 
 
-def _value(param: Parameter) -> Any:
+def _value(param: Parameter[Any]) -> Any:
     if param.type_ == Parameter.Type.NOT_SET:
         return None
     value = param.value
@@ -134,7 +134,7 @@ class ModelParameters:
         return name.startswith(('model.', 'axis.'))
 
 
-def split_parameters(params: Iterable[Parameter], *groups: Iterable[str]) -> list[dict[str, Any]]:
+def split_parameters(params: Iterable[Parameter[Any]], *groups: Iterable[str]) -> list[dict[str, Any]]:
     """Values of ``params`` by group: first the model parameters (``model.*``, ``axis.*``), then one dict per
     group of setting names, in the order given; other names are left out."""
     sets = [set(g) for g in groups]
@@ -152,10 +152,10 @@ def split_parameters(params: Iterable[Parameter], *groups: Iterable[str]) -> lis
 
 def field_names(cls: type) -> frozenset[str]:
     """Names of the fields of a settings dataclass (= its parameter names)."""
-    return frozenset(f.name for f in dataclasses.fields(cls))  # type: ignore[arg-type]
+    return frozenset(f.name for f in dataclasses.fields(cls))
 
 
-def check_changes(params: Iterable[Parameter], *groups: tuple[type, Any]) -> list[dict[str, Any]]:
+def check_changes(params: Iterable[Parameter[Any]], *groups: tuple[type, Any]) -> list[dict[str, Any]]:
     """Validate the settings of a ``set_parameters`` request: each group (``(settings class, current
     settings)``) against its current values. Returns the values of each group (model parameters are the node's
     business: it builds and checks the whole new model).
@@ -190,20 +190,20 @@ def declare_settings(node: Node, cls: type[T], prefix: str = '') -> T:
     return settings_from(cls, values)
 
 
-def describe_request(params: Iterable[Parameter]) -> str:
+def describe_request(params: Iterable[Parameter[Any]]) -> str:
     """``name = value, ...`` of a ``set_parameters`` request (for a refusal that the core did not name)."""
     return ', '.join(f'{p.name} = {_value(p)!r}' for p in params)
 
 
-def parameter_guard(node: Node, validate: Callable[[list[Parameter]], None],
-                    apply: Callable[[list[Parameter]], None]) -> None:
+def parameter_guard(node: Node, validate: Callable[[list[Parameter[Any]]], None],
+                    apply: Callable[[list[Parameter[Any]]], None]) -> None:
     """Install ``ros2 param set`` semantics: ``validate`` raises GimbalFrictionError to refuse (the old value stays
     and stays in effect), ``apply`` runs after a successful set. A refusal's reason names the parameter: a
     ConfigError does itself, any other error is prefixed with the request (``model.walther_a = 1.0: the lubricant
     viscosity ...``). An unexpected exception refuses too (counted as a callback error) rather than leaving the
     caller without an answer."""
 
-    def on_set(params: list[Parameter]) -> SetParametersResult:
+    def on_set(params: list[Parameter[Any]]) -> SetParametersResult:
         unset = [p.name for p in params if p.type_ == Parameter.Type.NOT_SET and node.has_parameter(p.name)]
         if unset:  # rclpy would undeclare it: the node could not read it any more
             return SetParametersResult(successful=False, reason=f'parameter {unset[0]!r} cannot be unset (rclpy '
@@ -225,7 +225,7 @@ def parameter_guard(node: Node, validate: Callable[[list[Parameter]], None],
                                        f'{type(err).__name__}: {err}')
         return SetParametersResult(successful=True)
 
-    def post_set(params: list[Parameter]) -> None:
+    def post_set(params: list[Parameter[Any]]) -> None:
         try:
             apply(params)
         except Exception as err:  # pragma: no cover - validated before
@@ -267,7 +267,7 @@ def startup_model_error(node: Node, err: GimbalFrictionError, defaults: Mapping[
 
 def settings_defaults(*classes: type) -> dict[str, Any]:
     """Parameter name -> default of every field of the settings dataclasses."""
-    return {f.name: f.default for cls in classes for f in dataclasses.fields(cls)}  # type: ignore[arg-type]
+    return {f.name: f.default for cls in classes for f in dataclasses.fields(cls)}
 
 
 class InputCounter:
@@ -368,7 +368,7 @@ def diagnostic_array(node: Node, statuses: Sequence[DiagnosticStatus]) -> Diagno
 
 def stamp_to_s(stamp: Any) -> float:
     """builtin_interfaces/Time to seconds [s]."""
-    return stamp.sec + 1e-9 * stamp.nanosec
+    return float(stamp.sec + 1e-9 * stamp.nanosec)
 
 
 def callback_failed(node: Node, err: BaseException) -> None:
@@ -387,7 +387,7 @@ def callback_error_values(node: Node) -> dict[str, int]:
     return {f'callback error: {k}': v for k, v in errors.items()}
 
 
-def startup_overrides(argv: Sequence[str], node_name: str) -> tuple[list[Parameter], dict[str, str]]:
+def startup_overrides(argv: Sequence[str], node_name: str) -> tuple[list[Parameter[Any]], dict[str, str]]:
     """Check the parameters the command line gives ``node_name`` and return the overrides rclpy must be given on
     top of rcl's (the values the user wrote last where rcl would keep another type's value), and where each value
     came from.
@@ -431,11 +431,11 @@ def run_node(exe: str, factory: Callable[..., Node], args: Sequence[str] | None 
     code = 0
     sources: dict[str, str] = {}
     try:
-        overrides: list[Parameter] = []
+        overrides: list[Parameter[Any]] = []
         if suite_node is not None:
             overrides, sources = startup_overrides(argv, suite_node)
         node = factory(parameter_overrides=overrides) if overrides else factory()
-        from rclpy.experimental import EventsExecutor
+        from rclpy.experimental.events_executor import EventsExecutor
         executor = EventsExecutor()
         executor.add_node(node)
         # EventsExecutor.spin() busy-loops and misses signals with these wheels; a spin_once loop does not.

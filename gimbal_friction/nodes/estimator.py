@@ -142,7 +142,7 @@ class FrictionEstimator(Node):
         self.get_logger().info(f'friction_estimator ({est_settings.method}): {kt}')
 
     # ------------------------------------------------------------------ parameters
-    def _validate_params(self, params: list[Parameter]) -> None:
+    def _validate_params(self, params: list[Parameter[Any]]) -> None:
         model, est, node = split_parameters(params, _EST_FIELDS, _NODE_FIELDS)
         axes = self.model.current(model) if model else None
         est_settings = settings_from(EstimatorSettings, est, self.logic.settings) if est else None
@@ -152,7 +152,7 @@ class FrictionEstimator(Node):
             EstimatorLogic(new_axes, new_settings)
         self._candidate = (axes, est_settings, settings_from(NodeSettings, node, self.settings))
 
-    def _apply_params(self, params: list[Parameter]) -> None:
+    def _apply_params(self, params: list[Parameter[Any]]) -> None:
         if self._candidate is None:
             return
         axes, est_settings, node_settings = self._candidate

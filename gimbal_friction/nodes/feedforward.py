@@ -122,7 +122,7 @@ class FrictionFeedforward(Node):
             defaults = {**self.model.defaults, **settings_defaults(FeedforwardSettings)}
             raise startup_model_error(self, err, defaults) from None
 
-    def _validate_params(self, params: list[Parameter]) -> None:
+    def _validate_params(self, params: list[Parameter[Any]]) -> None:
         """Build the whole new feedforward (model tables included) from the proposed values; kept for apply."""
         model, ff, node = split_parameters(params, _FF_FIELDS, _NODE_FIELDS)
         axes = self.model.current(model)
@@ -131,7 +131,7 @@ class FrictionFeedforward(Node):
         candidate = self._build(axes, ff_settings) if (model or ff) else None
         self._candidate = (candidate, node_settings)
 
-    def _apply_params(self, params: list[Parameter]) -> None:
+    def _apply_params(self, params: list[Parameter[Any]]) -> None:
         if self._candidate is None:
             return
         candidate, node_settings = self._candidate

@@ -31,7 +31,7 @@ import contextlib
 import math
 import sys
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -118,8 +118,7 @@ class ResidualLogger(Node):
                 (JointState, topics.JOINT_STATES, topics.JOINT_STATE_TYPE, qos),
                 (JointState, topics.MOTOR_CURRENT, topics.JOINT_STATE_TYPE, qos),
                 (JointState, topics.MEASURED, topics.JOINT_STATE_TYPE, qos)):
-            subscribe(self, self.inputs, msg_type, topic,
-                      lambda b, t=topic, n=type_name: self.log_raw(t, n, b), topic_qos, raw=True)
+            subscribe(self, self.inputs, msg_type, topic, self._raw_logger(topic, type_name), topic_qos, raw=True)
         subscribe(self, self.inputs, JointState, topics.FEEDFORWARD, self.on_feedforward, qos, raw=True)
         subscribe(self, self.inputs, Float64MultiArray, topics.MEASURED_DETAIL, self.on_measured_detail, qos,
                   raw=True)
@@ -199,6 +198,11 @@ class ResidualLogger(Node):
 
     def _refuse(self, reason: str, n: int = 1) -> None:
         self.refused[reason] = self.refused.get(reason, 0) + n
+
+    def _raw_logger(self, topic: str, msgtype: str) -> Callable[[bytes], None]:
+        def log(data: bytes) -> None:
+            self.log_raw(topic, msgtype, data)
+        return log
 
     def log_raw(self, topic: str, msgtype: str, data: bytes) -> None:
         if self.settings.log_inputs:
@@ -305,13 +309,13 @@ class ResidualLogger(Node):
         self._write('flush')
 
     # ------------------------------------------------------------------ parameters
-    def _validate_params(self, params: list[Parameter]) -> None:
+    def _validate_params(self, params: list[Parameter[Any]]) -> None:
         (own,) = check_changes(params, (LoggerSettings, self.settings))
         fixed = set(own) - _LIVE
         if fixed:
             raise ConfigError(sorted(fixed)[0], 'takes effect only at start-up (restart the node)')
 
-    def _apply_params(self, params: list[Parameter]) -> None:
+    def _apply_params(self, params: list[Parameter[Any]]) -> None:
         (own,) = split_parameters(params, _SETTINGS)[1:]
         if own:
             old = self.settings
