@@ -560,6 +560,22 @@ ROS_PARAMETERS = ('use_sim_time', 'start_type_description_service')
 MODEL_PARAMETERS = tuple(f.name for f in dataclasses.fields(AxisParams))
 
 
+def flat_parameters(params: Mapping[str, Any], prefix: str = '') -> dict[str, Any]:
+    """ROS parameter names of a merged ``ros__parameters`` mapping (:func:`load_parameters`): nested mappings
+    joined with dots, as the nodes declare them (for :func:`check_parameter_names` in a tool).
+
+    >>> flat_parameters({'axes': ['elevation'], 'model': {'ball_count': 15}, 'axis': {'elevation': {'width_mm': 5.0}}})
+    {'axes': ['elevation'], 'model.ball_count': 15, 'axis.elevation.width_mm': 5.0}
+    """
+    out: dict[str, Any] = {}
+    for key, value in params.items():
+        if isinstance(value, Mapping) and value:
+            out.update(flat_parameters(value, f'{prefix}{key}.'))
+        else:
+            out[f'{prefix}{key}'] = value
+    return out
+
+
 def node_parameter_names(node: str, axes: Sequence[str]) -> frozenset[str]:
     """Every parameter name executable ``node`` of the suite declares, with ``axes`` configured."""
     from gimbal_friction.core.estimator import EstimatorSettings
