@@ -604,6 +604,37 @@ def node_parameter_names(node: str, axes: Sequence[str]) -> frozenset[str]:
     return frozenset(names)
 
 
+def check_config_files(paths: Iterable[str | Path]) -> None:
+    """Refuse a name in ``paths`` that no executable of the suite would read (a typo a tool would ignore).
+
+    The ``/**`` section of each file may hold any suite node's parameters; a section naming a suite node
+    (``friction_estimator:``) only that node's. Sections of other nodes are not the suite's business.
+
+    Raises:
+        ConfigError: an unreadable file, or the parameter, the closest known name and the file it came from.
+    """
+    paths = list(paths)
+    if not paths:
+        return
+    axes = load_parameters(paths).get('axes')
+    for path in paths:
+        for key, section in _read_yaml(path).items():
+            name = str(key).strip('/')
+            if name == '**':
+                node, specific = SUITE_NODES[0], False
+            elif name in SUITE_NODES:
+                node, specific = name, True
+            else:
+                continue
+            values = (section or {}).get('ros__parameters') if isinstance(section, Mapping) else None
+            if not isinstance(values, Mapping):
+                continue  # a malformed section is refused by load_parameters with its own reason
+            flat = flat_parameters(values)
+            if axes is not None:
+                flat.setdefault('axes', axes)
+            check_parameter_names(node, flat, flat if specific else (), {n: str(path) for n in flat})
+
+
 def check_parameter_names(node: str, values: Mapping[str, Any], node_specific: Iterable[str] = (),
                           sources: Mapping[str, str] | None = None) -> None:
     """Refuse a parameter name that would be silently ignored by executable ``node``.

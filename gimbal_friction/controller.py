@@ -29,7 +29,7 @@ from __future__ import annotations
 from collections.abc import Iterable
 from pathlib import Path
 
-from gimbal_friction.config import all_axis_params, load_parameters
+from gimbal_friction.config import all_axis_params, check_config_files, load_parameters
 from gimbal_friction.core.feedforward import Feedforward, FeedforwardSettings
 from gimbal_friction.core.settings import settings_from_parameters
 
@@ -58,6 +58,7 @@ def load_feedforward(*param_files: str | Path, node_name: str = 'friction_feedfo
         Parameters for which the model cannot be evaluated over the temperature range.
     """
     paths = [Path(p) for p in param_files]
+    check_config_files(paths)   # a misspelt name is refused, not silently ignored
     configured = all_axis_params(load_parameters(paths))
     if axes is not None:
         wanted = list(axes)

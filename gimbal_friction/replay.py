@@ -25,7 +25,7 @@ from typing import Any, NamedTuple
 import numpy as np
 from numpy.typing import NDArray
 
-from gimbal_friction.config import all_axis_params, load_parameters
+from gimbal_friction.config import all_axis_params, check_config_files, load_parameters
 from gimbal_friction.core.arrays import ChamberArrays
 from gimbal_friction.core.estimator import EstimatorCounters, EstimatorLogic, EstimatorSettings
 from gimbal_friction.core.feedforward import (
@@ -81,6 +81,7 @@ def node_settings(config_paths: Sequence[Path] = ()) -> tuple[dict[str, AxisPara
                                                                EstimatorSettings]:
     """The axes and the settings the three nodes would load from the same parameter files."""
     paths = list(config_paths)
+    check_config_files(paths)   # a misspelt name is refused, not silently ignored
     axes = all_axis_params(load_parameters(paths))
     ff = settings_from_parameters(FeedforwardSettings, load_parameters(paths, node_name='friction_feedforward'))
     est = settings_from_parameters(EstimatorSettings, load_parameters(paths, node_name='friction_estimator'))

@@ -20,8 +20,9 @@ def test_defaults_follow_the_model_and_the_node_rules():
     ff = load_feedforward()
     assert isinstance(ff, Feedforward) and ff.order == ('elevation',)
     assert ff.update_temperature(-40.0, 10.0) is None
+    v_th = FeedforwardSettings().velocity_threshold_rad_s
     assert ff.torque_nm('elevation', V, 10.0) == pytest.approx(float(friction_torque(AxisParams(), -40.0).m_total_nmm)
-                                                              * 1e-3 * math.tanh(V / FeedforwardSettings().velocity_threshold_rad_s), rel=2e-5)
+                                                              * 1e-3 * math.tanh(V / v_th), rel=2e-5)
     # the node's stale policy (fallback 20 degC after the 5 s timeout), on the caller's clock
     stale = ff.torque_nm('elevation', V, 16.0)
     assert stale == pytest.approx(float(friction_torque(AxisParams(), 20.0).m_total_nmm) * 1e-3, rel=2e-5)

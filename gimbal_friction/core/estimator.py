@@ -88,7 +88,7 @@ from gimbal_friction.core.errors import ConfigError, check_rules
 from gimbal_friction.core.inputs import effective_time, is_fresh, temperature_valid
 from gimbal_friction.core.kt import friction_from_current_Eq23
 from gimbal_friction.core.measurement import METHOD_OBSERVER, METHOD_STEADY_STATE, Measurement, MeasurementArrays
-from gimbal_friction.core.params import AxisParams
+from gimbal_friction.core.params import MODEL_T_MAX_C, MODEL_T_MIN_C, AxisParams
 from gimbal_friction.core.settings import setting
 from gimbal_friction.core.statistics import GroupStatistics
 from gimbal_friction.core.units import NS_PER_S, ns_from_seconds
@@ -194,8 +194,8 @@ class EstimatorSettings:
             ('max_current_a', 0.0 < self.max_current_a <= 1e4, 'must lie in (0, 1e4] [A]'),
             ('temperature_bin_c', 0.001 <= self.temperature_bin_c <= 1000.0, 'must lie in [0.001, 1000] [degC]'),
             ('temperature_timeout_s', 0.0 < self.temperature_timeout_s <= 86400.0, 'must lie in (0, 86400] [s]'),
-            ('temperature_min_c', self.temperature_min_c >= -200.0, 'must be >= -200 [degC]'),
-            ('temperature_max_c', self.temperature_max_c <= 400.0, 'must be <= 400 [degC]'),
+            ('temperature_min_c', self.temperature_min_c >= MODEL_T_MIN_C, f'must be >= {MODEL_T_MIN_C:g} [degC]'),
+            ('temperature_max_c', self.temperature_max_c <= MODEL_T_MAX_C, f'must be <= {MODEL_T_MAX_C:g} [degC]'),
             ('temperature_max_c', self.temperature_max_c > self.temperature_min_c,
              'must exceed temperature_min_c [degC]'),
             ('ripple_bins', isinstance(bins, int) and not isinstance(bins, bool) and 1 <= bins <= 10000,
@@ -422,6 +422,8 @@ class EstimatorLogic:
         joint states, then currents). Returns the samples accepted, in the order they were completed."""
         return self.feed_timed(batch)[0]
 
+    # absurd finite inputs (a velocity of 1e308) give NaN or inf verdicts, which refuse the sample; no warnings
+    @np.errstate(over='ignore', invalid='ignore', divide='ignore')
     def feed_timed(self, batch: ChamberArrays) -> tuple[MeasurementArrays, NDArray[np.int64]]:
         """:meth:`feed`, and the arrival (log) time [ns] of the message that completed each sample."""
         t_arr, js, cur = batch.temperature, batch.joint_states, batch.motor_current
@@ -787,10 +789,9 @@ def _window_slope(stamp: NDArray[np.int64], velocity: NDArray[np.float64], first
         svv += dv * dv
     span = stamp[m] - stamp[m - count + 1]
     usable = (count >= 3) & (stt > 0.0) & (span <= max(10 * window_ns, MAX_GAP_NS))
-    with np.errstate(divide='ignore', invalid='ignore'):
-        slope = np.where(usable, stv / stt, np.nan)
-        resid = np.maximum(svv - slope * stv, 0.0)
-        se = np.where(count >= 3, np.sqrt(resid / np.maximum(count - 2, 1) / stt), np.nan)
+    slope = np.where(usable, stv / stt, np.nan)   # (feed_timed sets np.errstate for the division)
+    resid = np.maximum(svv - slope * stv, 0.0)
+    se = np.where(count >= 3, np.sqrt(resid / np.maximum(count - 2, 1) / stt), np.nan)
     return slope, se
 
 

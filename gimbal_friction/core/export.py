@@ -75,7 +75,7 @@ from gimbal_friction.core.errors import GimbalFrictionError, ModelDomainError, c
 from gimbal_friction.core.feedforward import FeedforwardSettings
 from gimbal_friction.core.friction import PALMGREN_THRESHOLD_CST_RPM
 from gimbal_friction.core.model import FrictionResult, friction_torque, viscosity_cst
-from gimbal_friction.core.params import AxisParams
+from gimbal_friction.core.params import MODEL_T_MAX_C, MODEL_T_MIN_C, AxisParams
 from gimbal_friction.core.thermal import loose_fit_temperature
 from gimbal_friction.core.units import nm_from_nmm, rad_s_from_rpm, rpm_from_rad_s
 
@@ -117,8 +117,8 @@ class ExportOptions:
     def validate(self) -> None:
         """Raises ConfigError naming the option and the rule it breaks."""
         checks: list[tuple[str, bool, str]] = [
-            ('temperature_min_c', self.temperature_min_c >= -200.0, 'must be >= -200 [degC]'),
-            ('temperature_max_c', self.temperature_max_c <= 400.0, 'must be <= 400 [degC]'),
+            ('temperature_min_c', self.temperature_min_c >= MODEL_T_MIN_C, f'must be >= {MODEL_T_MIN_C:g} [degC]'),
+            ('temperature_max_c', self.temperature_max_c <= MODEL_T_MAX_C, f'must be <= {MODEL_T_MAX_C:g} [degC]'),
             ('temperature_max_c', self.temperature_max_c > self.temperature_min_c,
              'must exceed temperature_min_c [degC]'),
             ('max_speed_rad_s', 0.0 < self.max_speed_rad_s <= 1e4, 'must lie in (0, 1e4] [rad/s]'),

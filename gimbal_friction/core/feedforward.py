@@ -56,7 +56,7 @@ from gimbal_friction.core.inputs import (
     temperature_rejection,
     temperature_valid,
 )
-from gimbal_friction.core.params import AxisParams
+from gimbal_friction.core.params import MODEL_T_MAX_C, MODEL_T_MIN_C, AxisParams
 from gimbal_friction.core.settings import setting
 from gimbal_friction.core.table import FrictionTable
 from gimbal_friction.core.units import NS_PER_S
@@ -100,8 +100,8 @@ class FeedforwardSettings:
             ('max_torque_nm', 0.0 < self.max_torque_nm <= 100.0, 'must lie in (0, 100] [N*m]'),
             ('temperature_timeout_s', 0.0 < self.temperature_timeout_s <= 86400.0, 'must lie in (0, 86400] [s]'),
             ('stale_policy', self.stale_policy in STALE_POLICIES, f'must be one of {", ".join(STALE_POLICIES)}'),
-            ('temperature_min_c', self.temperature_min_c >= -200.0, 'must be >= -200 [degC]'),
-            ('temperature_max_c', self.temperature_max_c <= 400.0, 'must be <= 400 [degC]'),
+            ('temperature_min_c', self.temperature_min_c >= MODEL_T_MIN_C, f'must be >= {MODEL_T_MIN_C:g} [degC]'),
+            ('temperature_max_c', self.temperature_max_c <= MODEL_T_MAX_C, f'must be <= {MODEL_T_MAX_C:g} [degC]'),
             ('temperature_max_c', self.temperature_max_c > self.temperature_min_c,
              'must exceed temperature_min_c [degC]'),
             ('fallback_temperature_c', self.temperature_min_c <= self.fallback_temperature_c

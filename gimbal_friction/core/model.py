@@ -21,7 +21,7 @@ from gimbal_friction.core.friction import (
     viscous_torque_Palmgren_1959,
 )
 from gimbal_friction.core.hertz import hertz_contact, reduced_modulus
-from gimbal_friction.core.params import AxisParams
+from gimbal_friction.core.params import MODEL_T_MAX_C, MODEL_T_MIN_C, AxisParams
 from gimbal_friction.core.thermal import AxialState, RadialState, axial_coupling, axial_coupling_direct, radial_coupling
 from gimbal_friction.core.viscosity import nu_Walther
 
@@ -90,8 +90,8 @@ def viscosity_cst(p: AxisParams, t_c: ArrayLike) -> Array:
 def _check_temperatures(t: Array) -> None:
     if not np.all(np.isfinite(t)):
         raise ModelDomainError('temperatures must be finite')
-    if np.any(t < -200.0) or np.any(t > 400.0):
-        raise ModelDomainError('temperatures must lie in [-200, 400] degC for this model')
+    if np.any(t < MODEL_T_MIN_C) or np.any(t > MODEL_T_MAX_C):
+        raise ModelDomainError(f'temperatures must lie in [{MODEL_T_MIN_C:g}, {MODEL_T_MAX_C:g}] degC for this model')
 
 
 def friction_torque(p: AxisParams, t_c: ArrayLike, speed_rpm: ArrayLike | None = None, *,

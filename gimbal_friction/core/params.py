@@ -30,6 +30,8 @@ from gimbal_friction.core.errors import ConfigError
 
 VISCOSITY_MODELS = ('walther_improved', 'walther')
 HYSTERESIS_RADII = ('harris', 'half_ball')
+#: Temperatures the model is defined for [°C] (every fit and table stays inside them).
+MODEL_T_MIN_C, MODEL_T_MAX_C = -200.0, 400.0
 
 
 class Bound(NamedTuple):
@@ -161,10 +163,10 @@ class AxisParams:
                                          Bound(-0.9, 0.9, True, True), group='direction')
     direction_asymmetry_cold_c: float = _p(-40.0, 'degC', 'T_c', 'cold anchor temperature of the direction '
                                            'asymmetry; a = direction_asymmetry_cold at and below it',
-                                           Bound(-200.0, 400.0, True), group='direction')
+                                           Bound(MODEL_T_MIN_C, MODEL_T_MAX_C, True), group='direction')
     direction_asymmetry_warm_c: float = _p(60.0, 'degC', 'T_w', 'warm anchor temperature of the direction '
                                            'asymmetry (must exceed the cold one); a = direction_asymmetry_warm at '
-                                           'and above it', Bound(-200.0, 400.0, True), group='direction')
+                                           'and above it', Bound(MODEL_T_MIN_C, MODEL_T_MAX_C, True), group='direction')
 
     # ------------------------------------------------------------------ derived quantities (MODEL.md §1.1)
     @property

@@ -91,7 +91,7 @@ from gimbal_friction.core.direction import ARRAY, asymmetry_weight, direction_as
 from gimbal_friction.core.errors import ConfigError, FitError, GimbalFrictionError
 from gimbal_friction.core.friction import PALMGREN_THRESHOLD_CST_RPM, viscous_torque_Palmgren_1959
 from gimbal_friction.core.model import friction_torque
-from gimbal_friction.core.params import AxisParams
+from gimbal_friction.core.params import MODEL_T_MAX_C, MODEL_T_MIN_C, AxisParams
 from gimbal_friction.core.sufficient import SufficientStats
 from gimbal_friction.core.thermal import radial_coupling
 from gimbal_friction.core.units import NM_PER_NMM
@@ -690,8 +690,8 @@ def _check_inputs(base: AxisParams, t: Array, n: Array, y: Array, d: Array) -> N
         raise FitError(msg)
     if not np.all(np.abs(d) == 1.0):
         raise FitError('direction must be +1 or -1 for every sample')
-    if np.any(t < -200.0) or np.any(t > 400.0):
-        raise FitError('temperatures must lie in [-200, 400] degC for this model')
+    if np.any(t < MODEL_T_MIN_C) or np.any(t > MODEL_T_MAX_C):
+        raise FitError(f'temperatures must lie in [{MODEL_T_MIN_C:g}, {MODEL_T_MAX_C:g}] degC for this model')
 
 
 def refit_model(base: AxisParams, temperature_c: ArrayLike, speed_rpm: ArrayLike, measured_abs_nm: ArrayLike,
@@ -799,8 +799,8 @@ def refit_stats(base: AxisParams, stats: SufficientStats, *, fit: Sequence[str] 
             raise FitError(msg)
     if np.any(pts.n <= 0.0):
         raise FitError('some samples have zero speed: the direction of friction is undefined')
-    if np.any(pts.t < -200.0) or np.any(pts.t > 400.0):
-        raise FitError('temperatures must lie in [-200, 400] degC for this model')
+    if np.any(pts.t < MODEL_T_MIN_C) or np.any(pts.t > MODEL_T_MAX_C):
+        raise FitError(f'temperatures must lie in [{MODEL_T_MIN_C:g}, {MODEL_T_MAX_C:g}] degC for this model')
     groups = _group(pts, bin_width_c, max(int(min_bin_samples), 2))
     if groups.size.shape[0] == 0:
         msg = (f'too few samples per temperature bin: no ({bin_width_c:g} degC bin, direction, speed) group has '

@@ -24,7 +24,7 @@ from numpy.typing import ArrayLike, NDArray
 from gimbal_friction.core.errors import ModelDomainError
 from gimbal_friction.core.friction import viscous_torque_Palmgren_1959
 from gimbal_friction.core.model import friction_torque
-from gimbal_friction.core.params import AxisParams
+from gimbal_friction.core.params import MODEL_T_MAX_C, MODEL_T_MIN_C, AxisParams
 from gimbal_friction.core.thermal import loose_fit_temperature, thermal_expansion_Eq11
 from gimbal_friction.core.units import NM_PER_NMM, NMM_PER_NM, RAD_S_PER_RPM, RPM_PER_RAD_S
 from gimbal_friction.core.viscosity import nu_Walther
@@ -98,7 +98,9 @@ class FrictionTable:
         self.n = max(n, 2)
         self.t0 = t0      #: temperature of the first grid node [°C] (≤ t_min)
         self.grid = self.t0 + self.step * np.arange(self.n)
-        contact = friction_torque(params, self.grid, 0.0)
+        # (the nodes beyond [t_min, t_max] are interpolation partners only; at the model's own limits they are
+        # evaluated at the limit)
+        contact = friction_torque(params, np.clip(self.grid, MODEL_T_MIN_C, MODEL_T_MAX_C), 0.0)
         # a lubricant cannot have a negative viscosity (Walther constants fitted elsewhere, a typo); Palmgren's
         # (nu n)^(2/3) would turn it into a positive torque without a word
         thin = np.flatnonzero(~(contact.viscosity_cst > 0.0))

@@ -35,6 +35,7 @@ from rclpy.node import Node
 from rclpy.qos import QoSProfile
 
 from gimbal_friction.core.errors import ConfigError, GimbalFrictionError
+from gimbal_friction.nodes._common import startup_overrides
 from gimbal_friction.recording import topics
 from gimbal_friction.recording.bag import open_chamber_bag
 
@@ -184,7 +185,9 @@ def main(args: Sequence[str] | None = None) -> None:
     node = None
     code = 0
     try:
-        node = ChamberReplay()
+        # the suite's start-up check: a misspelt name is refused, a -p value rcl would drop is applied
+        overrides, _ = startup_overrides(argv, 'chamber_replay')
+        node = ChamberReplay(parameter_overrides=overrides) if overrides else ChamberReplay()
         from rclpy.executors import SingleThreadedExecutor
         executor = SingleThreadedExecutor()
         executor.add_node(node)

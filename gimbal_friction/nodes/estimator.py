@@ -45,7 +45,6 @@ import sys
 from collections.abc import Sequence
 from typing import Any
 
-import numpy as np
 from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rclpy.node import Node
@@ -200,8 +199,7 @@ class FrictionEstimator(Node):
                                                        configured=self.logic.order)
         self._temps, self._joint_states, self._currents = [], [], []
         self.logic.count_messages(js_counts, cur_counts)
-        with np.errstate(over='ignore', invalid='ignore'):  # absurd inputs give NaN verdicts, refused; no warnings
-            measured = self.logic.feed(batch)
+        measured = self.logic.feed(batch)
         self._publish(measured)
 
     def _publish(self, m: MeasurementArrays) -> None:

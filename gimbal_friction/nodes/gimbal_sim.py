@@ -304,12 +304,12 @@ def main(args: Sequence[str] | None = None) -> None:
     """console_scripts entry point: ``gimbal_sim --ros-args --params-file config/gimbal_sim.yaml``."""
     made: list[GimbalSim] = []
 
-    def factory() -> GimbalSim:
-        node = GimbalSim()
+    def factory(**kwargs: Any) -> GimbalSim:
+        node = GimbalSim(**kwargs)
         made.append(node)
         return node
 
-    code = run_node('gimbal_sim', factory, args)
+    code = run_node('gimbal_sim', factory, args, suite_node='gimbal_sim')
     if code == 0 and made and made[0].failed:
         code = 1
     sys.exit(code)

@@ -73,6 +73,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(args_list)
     try:
+        # a name in a --config file that no node or tool reads is refused (it would be silently ignored)
+        from gimbal_friction.config import check_config_files
+        check_config_files([*(getattr(args, 'config', None) or []), *filter(None, [getattr(args, 'compare', None)])])
         return int(args.func(args))
     except GimbalFrictionError as err:
         print(f'gimbal-friction {args.command}: error: {err}', file=sys.stderr)

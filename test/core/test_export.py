@@ -39,6 +39,8 @@ BOUND = 1e-4
 PROV = Provenance('gimbal-friction export test', '2025-01-01T00:00:00+00:00',
                   (('packaged defaults', '0' * 64), ('refit.yaml', 'f' * 64)))
 
+V_TH = FeedforwardSettings().velocity_threshold_rad_s
+
 
 def model_nm(params, t, v):
     """The full model, called here directly (not through the module under test), [N*m]."""
@@ -225,7 +227,7 @@ def test_csv_has_provenance_units_and_the_grid(table):
     joined = '\n'.join(comments)
     for needle in ('gimbal-friction export test', '2025-01-01', 'axis: elevation', 'refit.yaml: ' + 'f' * 64,
                    'packaged defaults: ' + '0' * 64, 'requested 0.0001', 'walther_a = 8.6195',
-                   'ball_diameter_mm = 2.381 [mm]', f'velocity_threshold_rad_s = {FeedforwardSettings().velocity_threshold_rad_s} [rad/s]'):
+                   'ball_diameter_mm = 2.381 [mm]', f'velocity_threshold_rad_s = {V_TH} [rad/s]'):
         assert needle in joined
     rows = list(csv.DictReader(io.StringIO('\n'.join(line for line in text.splitlines()
                                                      if not line.startswith('#')))))
@@ -270,7 +272,7 @@ def test_ros_yaml_loads_and_its_arrays_reproduce_the_table(table, tmp_path):
     assert len(e['temperatures_c']) == len(e['ln_switch_speed']) == len(e['torque_lower_nm'])
     assert len(e['torque_upper_nm']) == e['torque_upper_shape'][0] * e['torque_upper_shape'][1]
     assert e['relative_error_bound'] == BOUND and e['max_relative_error'] <= BOUND
-    assert e['velocity_threshold_rad_s'] == FeedforwardSettings().velocity_threshold_rad_s and e['max_torque_nm'] == 0.02
+    assert e['velocity_threshold_rad_s'] == V_TH and e['max_torque_nm'] == 0.02
     rng = np.random.default_rng(3)
     for t, v in zip(rng.uniform(-70, 130, 300), rng.uniform(-12, 12, 300), strict=True):
         assert _lookup_from_ros_parameters(e, t, v) == pytest.approx(float(table.evaluate_nm(t, v)), rel=1e-13)

@@ -60,4 +60,4 @@ def test_default_model_builds_over_the_widest_allowed_range_or_says_why():
     (never a NaN table): below about -170 degC the Walther fit overflows."""
     with pytest.raises(GimbalFrictionError, match='non-finite viscosity'):
         FrictionTable(AxisParams(), -199.0, 120.0, 0.1)
-    FrictionTable(AxisParams(), -60.0, 399.0, 0.1)
+    FrictionTable(AxisParams(), -60.0, 400.0, 0.1)

@@ -163,7 +163,7 @@ def test_feedforward_refuses_every_wrong_value_and_keeps_the_old_one_in_effect(f
     ('model.viscosity_model', 'walther', 'viscosity'),      # Eq. 20 with the Eq. 21 constants
     ('model.walther_b', -1e-9, 'viscosity'),                # overflows
     ('temperature_min_c', -199.0, 'non-finite'),            # the Walther fit overflows below -170 degC
-    ('temperature_max_c', 399.0, 'viscosity'),              # the viscosity stays positive: accepted
+    ('temperature_max_c', 400.0, 'viscosity'),              # the viscosity stays positive: accepted
     ('max_torque_nm', 1e300, 'must lie in'),
     ('table_step_c', 1e-6, 'must lie in'),
 ])
@@ -175,7 +175,7 @@ def test_model_breaking_values_are_refused_whole(ff, name, value, needle):
     settings_before, axes_before = node.ff.settings, dict(node.ff.axes)
     result = node.set_parameters([Parameter(name, value=value)])[0]
     if result.successful:   # a value that builds must be in effect, whole
-        assert name == 'temperature_max_c' and node.ff.settings.temperature_max_c == 399.0
+        assert name == 'temperature_max_c' and node.ff.settings.temperature_max_c == 400.0
         assert node.set_parameters([Parameter(name, value=120.0)])[0].successful
         return
     assert name in result.reason and needle in result.reason, result.reason
