@@ -516,6 +516,12 @@ class _IndexMismatch(Exception):
     """The message indexes of a chunk do not describe its records (walk the chunk instead)."""
 
 
+#: Largest uncompressed chunk accepted [bytes]; a larger claim marks the chunk damaged (mcap writes ~1 MiB).
+MAX_CHUNK_BYTES = 1 << 32
+#: What decompressing a damaged chunk may raise (zstandard's ZstdError, lz4's RuntimeError, a size that overflows).
+_DECOMPRESS_ERRORS: tuple[type[BaseException], ...] = (*LIBRARY_READ_ERRORS, OverflowError, MemoryError)
+
+
 def _block(buf: bytes, offsets: NDArray[np.int64]) -> MessageBlock:
     u8 = np.frombuffer(buf, dtype=np.uint8)
     heads = np.ascontiguousarray(u8[offsets[:, None] + np.arange(_HEAD)]).view(MESSAGE_RECORD_HEAD).reshape(-1)
@@ -596,6 +602,9 @@ def _parse_chunk(body: bytes, *, complete: bool) -> _Chunk:
     if name not in _COMPRESSIONS:
         msg = f'unknown chunk compression {name!r}'
         raise ValueError(msg)
+    if usize > MAX_CHUNK_BYTES:  # damaged: no writer makes such chunks, and decompressing would allocate it
+        msg = f'chunk claims {usize} bytes uncompressed (more than {MAX_CHUNK_BYTES})'
+        raise ValueError(msg)
     at += 8
     records = body[at : at + records_len]
     if complete and (len(records) != records_len or at + records_len != len(body)):
@@ -624,7 +633,7 @@ def _decompress(chunk: _Chunk) -> bytes:
                 out = lz4.frame.LZ4FrameDecompressor().decompress(data)
         else:
             out = data
-    except LIBRARY_READ_ERRORS as err:  # zstandard's ZstdError, lz4's RuntimeError, ValueError
+    except _DECOMPRESS_ERRORS as err:
         msg = f'{chunk.compression} decompression failed: {str(err).strip() or type(err).__name__}'
         raise ValueError(msg) from err
     out = bytes(out)

@@ -92,6 +92,22 @@ def test_random_corruption_never_raises_and_keeps_every_intact_chunk(
     dst.unlink()
 
 
+@pytest.mark.parametrize('usize', [1 << 63, (1 << 64) - 1, (1 << 32) + 1])
+def test_a_chunk_claiming_an_absurd_uncompressed_size_is_lost_alone(
+    tmp_path: Path, log_file: tuple[bytes, list[tuple[int, int, int]]], usize: int
+) -> None:
+    """Found by the random corruption above (explore profile): 0x80 in the top byte of a chunk's uncompressed size
+    made the decompressor raise OverflowError out of recover."""
+    raw, chunks = log_file
+    start, _, lost = chunks[1]
+    damaged = bytearray(raw)
+    damaged[start + 25 : start + 33] = usize.to_bytes(8, 'little')  # opcode, length, start/end time, then the size
+    src = tmp_path / 'src.mcap'
+    src.write_bytes(bytes(damaged))
+    result = recover_mcap(src, tmp_path / 'fixed.mcap')
+    assert result.messages == sum(n for _, _, n in chunks) - lost
+
+
 def test_recover_cli_on_a_killed_log_folder_and_what_it_prints(tmp_path: Path, rb) -> None:
     folder = residual_log(tmp_path / 'log', 800, chunk_size=1024, max_bytes=6000)
     (folder / 'metadata.yaml').unlink()
