@@ -12,9 +12,7 @@ import math
 from gimbal_friction.core.estimator import EstimatorSettings
 from gimbal_friction.core.feedforward import FeedforwardSettings
 from gimbal_friction.core.params import parameter_specs
-from gimbal_friction.nodes.estimator import NodeSettings as EstimatorNode
-from gimbal_friction.nodes.feedforward import NodeSettings as FeedforwardNode
-from gimbal_friction.nodes.residual_logger import LoggerSettings
+from gimbal_friction.core.settings import EstimatorNodeSettings, FeedforwardNodeSettings, LoggerSettings
 
 
 def fmt(value: object) -> str:
@@ -50,8 +48,8 @@ if __name__ == '__main__':
     print('### Model parameters\n')
     print(model_table())
     print('\n**`friction_feedforward`**\n')
-    print(settings_table(FeedforwardSettings, FeedforwardNode))
+    print(settings_table(FeedforwardSettings, FeedforwardNodeSettings))
     print('\n**`friction_estimator`**\n')
-    print(settings_table(EstimatorSettings, EstimatorNode))
+    print(settings_table(EstimatorSettings, EstimatorNodeSettings))
     print('\n**`residual_logger`**\n')
     print(settings_table(LoggerSettings))
