@@ -242,6 +242,8 @@ class Feedforward:
                        for name, p in self.axes.items()}
         self.counters = FeedforwardCounters()
         self._index_cache: dict[tuple[tuple[str, ...], int], JointIndex] = {}
+        #: the table's temperature terms of the last temperature per joint (scalar calls; [°C] -> terms)
+        self._scalar_terms: dict[str, tuple[float, Any]] = {}
         self.last_temperature_c = math.nan   #: latest valid temperature [°C] (NaN: none)
         self.last_temperature_time_s = math.nan  #: its time [s]
 
@@ -283,7 +285,14 @@ class Feedforward:
         for these temperatures. No counting, no input checks: the callers below do those."""
         s = self.settings
         table = self.tables[joint]
-        if terms is None:
+        if terms is None and xp is SCALAR:  # the temperature changes at the sensor's rate, not the joints'
+            cached = self._scalar_terms.get(joint)
+            if cached is not None and cached[0] == temperature_c:
+                terms = cached[1]
+            else:
+                terms = table.temperature_terms(temperature_c, xp)
+                self._scalar_terms[joint] = (temperature_c, terms)
+        elif terms is None:
             terms = table.temperature_terms(temperature_c, xp)
         magnitude = table.magnitude_from_terms(terms, velocity_rad_s, xp)
         k_dir = direction_factor(self.axes[joint], temperature_c, velocity_rad_s, xp)

@@ -9,6 +9,7 @@ is refused with the core's reason and the old value stays.
 from __future__ import annotations
 
 import dataclasses
+import inspect
 import signal
 import sys
 import threading
@@ -23,7 +24,6 @@ from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.signals import SignalHandlerOptions
-from rclpy.subscription import Subscription
 
 from gimbal_friction.config import axis_names, check_parameter_names, command_line_parameters, load_parameters
 from gimbal_friction.core.errors import ConfigError, GimbalFrictionError, ModelDomainError
@@ -328,15 +328,21 @@ class InputCounter:
         return out
 
 
+#: the signature rclpy reads as a "callback with message info" (message, MessageInfo)
+_MESSAGE_WITH_INFO = inspect.Signature([inspect.Parameter('msg', inspect.Parameter.POSITIONAL_ONLY),
+                                        inspect.Parameter('info', inspect.Parameter.POSITIONAL_ONLY)])
+
+
 def subscribe(node: Node, counter: InputCounter, msg_type: Any, topic: str, callback: Callable[[Any], None],
               qos: Any, *, raw: bool = False) -> Any:
     """``node.create_subscription`` whose messages are counted by ``counter`` (received, lost) before
     ``callback(msg)`` runs.
 
-    The message info (publisher sequence numbers) needs rclpy's "callback with message info" form. rclpy 9's
-    EventsExecutor passes the ``(msg, info)`` tuple as one argument where the other executors pass two; the
-    wrapper takes either, and is registered with the two-argument callback type explicitly (rclpy infers the type
-    from the signature, and a ``*args`` callback would be taken for a message-only one).
+    The message info (publisher sequence numbers) needs rclpy's "callback with message info" form, which rclpy
+    infers from the callback's signature (two parameters). rclpy 9's EventsExecutor then passes the ``(msg, info)``
+    tuple as one argument where the other executors pass two, so the wrapper takes either and *declares* the
+    two-parameter signature (``__signature__``, which :func:`inspect.signature` reports) — no private state of
+    rclpy is touched.
     """
     count = counter.count
 
@@ -345,9 +351,8 @@ def subscribe(node: Node, counter: InputCounter, msg_type: Any, topic: str, call
         count(topic, info)
         callback(msg)
 
-    sub = node.create_subscription(msg_type, topic, on_message, qos, raw=raw)
-    sub._callback_type = Subscription.CallbackType.WithMessageInfo
-    return sub
+    on_message.__signature__ = _MESSAGE_WITH_INFO  # type: ignore[attr-defined]
+    return node.create_subscription(msg_type, topic, on_message, qos, raw=raw)
 
 
 def status(name: str, level: bytes, message: str, hardware_id: str, values: Mapping[str, Any]) -> DiagnosticStatus:
