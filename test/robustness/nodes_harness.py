@@ -1,9 +1,7 @@
 """Fixtures of the node and parameter tests of the robustness suite (imported by those test modules; the
 package's conftest.py holds the file and CLI fixtures).
 
-- ``node_spawn`` and ``node_probe``: the live-node harness of ``test/ros/conftest.py`` (real processes on an isolated
-  ROS_DOMAIN_ID, loopback discovery, stopped with SIGINT; a probe node that publishes, collects and waits), loaded
-  from that file so both suites start nodes the same way.
+- live nodes: ``spawn`` and ``probe`` of test/conftest.py (the harness test/ros uses too).
 - ``in_process``: the node classes built in this process on a private rclpy context (isolated domain, loopback),
   their publishers replaced by recorders. Callbacks are called directly: thousands of hostile messages per second
   through the very adapter code the executables run, without DDS in the way.
@@ -11,10 +9,8 @@ package's conftest.py holds the file and CLI fixtures).
 
 from __future__ import annotations
 
-import importlib.util
 import math
 import os
-import sys
 from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
@@ -24,44 +20,6 @@ import pytest
 rclpy = pytest.importorskip('rclpy', reason='node tests need the ros-* wheels (requirements.txt)')
 
 ROOT = Path(__file__).resolve().parents[2]
-_spec = importlib.util.spec_from_file_location('_gimbal_friction_ros_harness', ROOT / 'test' / 'ros' / 'conftest.py')
-assert _spec is not None and _spec.loader is not None
-_harness = importlib.util.module_from_spec(_spec)
-sys.modules[_spec.name] = _harness
-_spec.loader.exec_module(_harness)
-
-Probe = _harness.Probe
-NodeProcess = _harness.NodeProcess
-TIMEOUT = _harness.TIMEOUT
-
-
-@pytest.fixture
-def node_env(tmp_path: Path) -> Iterator[tuple[int, dict[str, str]]]:
-    from domain_coordinator import domain_id
-    with domain_id() as did:
-        yield did, dict(os.environ, ROS_DOMAIN_ID=str(did), ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST',
-                        ROS_LOG_DIR=str(tmp_path / 'roslog'), PYTHONUNBUFFERED='1')
-
-
-@pytest.fixture
-def node_spawn(node_env: tuple[int, dict[str, str]], tmp_path: Path) -> Iterator[Callable[..., Any]]:
-    """``node_spawn(exe, *args)``: the executable as its own process in the test's domain; SIGINT at the end."""
-    procs: list[Any] = []
-
-    def start(exe: str, *args: str) -> Any:
-        procs.append(NodeProcess(exe, list(args), node_env[1], tmp_path / f'{exe}_{len(procs)}.log'))
-        return procs[-1]
-
-    yield start
-    for p in procs:
-        p.stop()
-
-
-@pytest.fixture
-def node_probe(node_env: tuple[int, dict[str, str]]) -> Iterator[Any]:
-    p = Probe(node_env[0])
-    yield p
-    p.close()
 
 
 class Recorder:

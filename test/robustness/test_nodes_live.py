@@ -114,14 +114,14 @@ def values(status: Any) -> dict[str, str]:
     return {kv.key: kv.value for kv in status.values}
 
 
-def start(node_spawn: Any, exe: str, *extra: str) -> Any:
-    return node_spawn(exe, '--ros-args', '--params-file', PACKAGED, '-p', 'diagnostics_period_s:=0.3', *extra)
+def start(spawn: Any, exe: str, *extra: str) -> Any:
+    return spawn(exe, '--ros-args', '--params-file', PACKAGED, '-p', 'diagnostics_period_s:=0.3', *extra)
 
 
 # ------------------------------------------------------------------------------------------------ feedforward
-def test_feedforward_process_under_a_hostile_stream(node_spawn, node_probe):
-    node = start(node_spawn, 'friction_feedforward', '-p', 'temperature_timeout_s:=30.0', '-p', 'max_torque_nm:=0.004')
-    link = Link(node_probe, {JS: JointState, TEMP: Temperature},
+def test_feedforward_process_under_a_hostile_stream(spawn, probe):
+    node = start(spawn, 'friction_feedforward', '-p', 'temperature_timeout_s:=30.0', '-p', 'max_torque_nm:=0.004')
+    link = Link(probe, {JS: JointState, TEMP: Temperature},
                 {FF: JointState, CMD: Float64MultiArray, '/diagnostics': DiagnosticArray})
     link.wait_ready(node, [FF, '/diagnostics'])
 
@@ -130,7 +130,7 @@ def test_feedforward_process_under_a_hostile_stream(node_spawn, node_probe):
         link.send(JS, js(10, ['elevation'], [V]))
         return bool(link.got[FF]) and abs(link.got[FF][-1].effort[0] - 3.143e-3) < 1e-5
 
-    node_probe.spin_until(cold_in_use, what='-40 degC in use')
+    probe.spin_until(cold_in_use, what='-40 degC in use')
     mark = link.mark()
     hostile = [
         js(11, ['elevation'], [NAN]), js(11, ['elevation'], [INF]), js(11, ['elevation'], [1e154]),
@@ -174,9 +174,9 @@ def test_feedforward_process_under_a_hostile_stream(node_spawn, node_probe):
 
 
 # ------------------------------------------------------------------------------------------------ estimator
-def test_estimator_process_under_a_hostile_stream(node_spawn, node_probe):
-    node = start(node_spawn, 'friction_estimator', '-p', 'min_dwell_s:=0.05', '-p', 'method:=both')
-    link = Link(node_probe, {JS: JointState, CUR: JointState, TEMP: Temperature},
+def test_estimator_process_under_a_hostile_stream(spawn, probe):
+    node = start(spawn, 'friction_estimator', '-p', 'min_dwell_s:=0.05', '-p', 'method:=both')
+    link = Link(probe, {JS: JointState, CUR: JointState, TEMP: Temperature},
                 {MEAS: JointState, '/diagnostics': DiagnosticArray})
     link.wait_ready(node, [MEAS, '/diagnostics'])
     link.send(TEMP, temperature(100, -20.0))
@@ -190,7 +190,7 @@ def test_estimator_process_under_a_hostile_stream(node_spawn, node_probe):
                               effort=[current]))
 
     clean(100, 60)
-    node_probe.spin_until(lambda: len(link.got[MEAS]) > 10, what='measurements')
+    probe.spin_until(lambda: len(link.got[MEAS]) > 10, what='measurements')
     # hostile: a joint state 11 days ahead (it used to lock the estimator), NaN/inf, wrong-sign and absurd
     # currents, duplicate and unknown names, a restart of the time source
     mark = link.mark()
@@ -232,11 +232,11 @@ def detail(sec: int, friction: float, stamp_sec: float | None = None) -> Float64
     return msg
 
 
-def test_residual_logger_process_under_a_hostile_stream(node_spawn, node_probe, tmp_path):
+def test_residual_logger_process_under_a_hostile_stream(spawn, probe, tmp_path):
     from gimbal_friction.recording.residual_read import read_residual_rows
     folder = tmp_path / 'log'
-    node = start(node_spawn, 'residual_logger', '-p', f'output_dir:={folder}', '-p', 'pairing_timeout_s:=0.2')
-    link = Link(node_probe, {FF: JointState, DETAIL: Float64MultiArray}, {'/diagnostics': DiagnosticArray})
+    node = start(spawn, 'residual_logger', '-p', f'output_dir:={folder}', '-p', 'pairing_timeout_s:=0.2')
+    link = Link(probe, {FF: JointState, DETAIL: Float64MultiArray}, {'/diagnostics': DiagnosticArray})
     link.wait_ready(node, ['/diagnostics'])
     for k in range(20):
         link.send(FF, js(200 + k, ['elevation'], [], position=[], effort=[0.002]))
@@ -250,7 +250,7 @@ def test_residual_logger_process_under_a_hostile_stream(node_spawn, node_probe, 
     link.send(DETAIL, detail(304, 0.0025, stamp_sec=1e300))
     link.wait_status('gimbal_friction/residual_logger', lambda s: s.level == WARN and 'refused' in s.message,
                      'a WARN naming what was refused', mark)
-    node_probe.spin_until(lambda: 'invalid stamp' in link.messages_since(mark, 'gimbal_friction/residual_logger'),
+    probe.spin_until(lambda: 'invalid stamp' in link.messages_since(mark, 'gimbal_friction/residual_logger'),
                      what='every cause reported')
     said = link.messages_since(mark, 'gimbal_friction/residual_logger')
     for cause in ('feedforward not finite or not credible', 'not finite or not credible',
@@ -271,7 +271,7 @@ def test_residual_logger_process_under_a_hostile_stream(node_spawn, node_probe, 
 
 
 # ------------------------------------------------------------------------------------------------ parameters
-def test_start_up_refusals_of_the_issue(node_spawn, tmp_path):
+def test_start_up_refusals_of_the_issue(spawn, tmp_path):
     """`--params-file config/gimbal_friction.yaml -p model.ball_count:=15.5` ran with the file's 15; a misspelled
     name in a parameter file was ignored. Both now stop the executable with one line naming the parameter."""
     typo = tmp_path / 'typo.yaml'
@@ -281,7 +281,7 @@ def test_start_up_refusals_of_the_issue(node_spawn, tmp_path):
         (['--params-file', str(typo)], "'stale_polcy' = 'zero': unknown parameter (did you mean 'stale_policy'?)"),
         (['-p', 'axes:=[]'], "'axes' = []: must be a non-empty list"),
     ]
-    procs = [(node_spawn('friction_feedforward', '--ros-args', '--params-file', PACKAGED, *extra), needle)
+    procs = [(spawn('friction_feedforward', '--ros-args', '--params-file', PACKAGED, *extra), needle)
              for extra, needle in cases]
     for proc, needle in procs:
         proc.proc.wait(30)
@@ -290,9 +290,9 @@ def test_start_up_refusals_of_the_issue(node_spawn, tmp_path):
         assert rc == 1 and len(lines) == 1 and needle in lines[0] and 'Traceback' not in out, out
 
 
-def _set(node_probe: Any, node: str, name: str, value: Any) -> Any:
-    client = node_probe.node.create_client(SetParameters, f'/{node}/set_parameters')
-    node_probe.spin_until(client.service_is_ready, what='set_parameters service')
+def _set(probe: Any, node: str, name: str, value: Any) -> Any:
+    client = probe.node.create_client(SetParameters, f'/{node}/set_parameters')
+    probe.spin_until(client.service_is_ready, what='set_parameters service')
     if isinstance(value, float):
         pv = ParameterValue(type=ParameterType.PARAMETER_DOUBLE, double_value=value)
     elif isinstance(value, str):
@@ -300,13 +300,13 @@ def _set(node_probe: Any, node: str, name: str, value: Any) -> Any:
     else:
         pv = ParameterValue(type=ParameterType.PARAMETER_INTEGER, integer_value=value)
     future = client.call_async(SetParameters.Request(parameters=[ParameterMsg(name=name, value=pv)]))
-    node_probe.spin_until(future.done, what=f'set {name}')
+    probe.spin_until(future.done, what=f'set {name}')
     return future.result().results[0]
 
 
-def test_runtime_refusal_through_the_parameter_service_keeps_the_output(node_spawn, node_probe):
-    node = start(node_spawn, 'friction_feedforward', '-p', 'temperature_timeout_s:=30.0')
-    link = Link(node_probe, {JS: JointState, TEMP: Temperature}, {FF: JointState, '/diagnostics': DiagnosticArray})
+def test_runtime_refusal_through_the_parameter_service_keeps_the_output(spawn, probe):
+    node = start(spawn, 'friction_feedforward', '-p', 'temperature_timeout_s:=30.0')
+    link = Link(probe, {JS: JointState, TEMP: Temperature}, {FF: JointState, '/diagnostics': DiagnosticArray})
     link.wait_ready(node, [FF])
     sec = [500]
 
@@ -314,22 +314,22 @@ def test_runtime_refusal_through_the_parameter_service_keeps_the_output(node_spa
         sec[0] += 1
         link.send(TEMP, temperature(sec[0], -40.0))
         n0 = len(link.got[FF])
-        node_probe.spin_until(lambda: (link.send(JS, js(sec[0], ['elevation'], [V])),
+        probe.spin_until(lambda: (link.send(JS, js(sec[0], ['elevation'], [V])),
                                   any(m.header.stamp.sec == sec[0] for m in link.got[FF][n0:]))[1],
                          what='a feedforward')
         return next(m.effort[0] for m in link.got[FF][n0:] if m.header.stamp.sec == sec[0])
 
-    node_probe.spin_until(lambda: abs(torque() - 3.143e-3) < 1e-5, what='-40 degC in use')
+    probe.spin_until(lambda: abs(torque() - 3.143e-3) < 1e-5, what='-40 degC in use')
     before = torque()
     for name, value, needle in (('temperature_min_c', -200.0, 'temperature_min_c'),
                                 ('model.walther_a', 1.0, 'viscosity'), ('max_torque_nm', 1e300, 'must lie in'),
                                 ('model.ball_count', 'abc', 'must be a number'), ('model.ball_count', 16.5, 'whole')):
-        result = _set(node_probe, 'friction_feedforward', name, value)
+        result = _set(probe, 'friction_feedforward', name, value)
         assert not result.successful and name in result.reason and needle in result.reason, result.reason
         assert torque() == before
     link.send(TEMP, temperature(sec[0], -150.0))          # still outside the credible range: refused
     assert torque() == before
-    assert _set(node_probe, 'friction_feedforward', 'model.palmgren_factor', 3.0).successful
+    assert _set(probe, 'friction_feedforward', 'model.palmgren_factor', 3.0).successful
     assert torque() > before
     rc, _ = node.stop()
     assert rc == 0
