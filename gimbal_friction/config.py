@@ -68,7 +68,7 @@ def yaml_error_text(err: yaml.YAMLError) -> str:
     return text
 
 
-def _read_yaml(source: str | Path, text: str | None = None) -> dict[str, Any]:
+def read_yaml(source: str | Path, text: str | None = None) -> dict[str, Any]:
     try:
         if text is None:
             text = Path(source).read_text(encoding='utf-8')
@@ -131,8 +131,8 @@ def load_parameters(paths: Iterable[str | Path] = (), *, node_name: str | None =
     merged: dict[str, Any] = {}
     layers: list[tuple[str, dict[str, Any]]] = []
     if include_defaults:
-        layers.append(('packaged defaults', _read_yaml('packaged defaults', packaged_defaults_text())))
-    layers += [(str(p), _read_yaml(p)) for p in paths]
+        layers.append(('packaged defaults', read_yaml('packaged defaults', packaged_defaults_text())))
+    layers += [(str(p), read_yaml(p)) for p in paths]
     for source, data in layers:
         for section in _sections(data, source, node_name):
             merged = deep_merge(merged, section)
@@ -618,7 +618,7 @@ def check_config_files(paths: Iterable[str | Path]) -> None:
         return
     axes = load_parameters(paths).get('axes')
     for path in paths:
-        for key, section in _read_yaml(path).items():
+        for key, section in read_yaml(path).items():
             name = str(key).strip('/')
             if name == '**':
                 node, specific = SUITE_NODES[0], False

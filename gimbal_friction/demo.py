@@ -35,13 +35,14 @@ NODES = ('friction_feedforward', 'friction_estimator', 'residual_logger')
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def _exe(name: str) -> list[str]:
+def node_command(name: str) -> list[str]:
+    """The command that starts node executable ``name`` of this environment."""
     path = Path(sys.executable).parent / name
     return [str(path)] if path.exists() else [sys.executable, '-m', f'gimbal_friction.nodes.{name}']
 
 
 @contextlib.contextmanager
-def _params_file() -> Iterator[Path]:
+def packaged_params_file() -> Iterator[Path]:
     with resources.as_file(resources.files('gimbal_friction').joinpath('data', 'gimbal_friction.yaml')) as p:
         yield p
 
@@ -56,7 +57,7 @@ class Supervisor:
 
     def start(self, name: str, args: Sequence[str]) -> subprocess.Popen[bytes]:
         log = open(self.log_dir / f'{name}.log', 'wb')  # noqa: SIM115 - closed with the process
-        proc = subprocess.Popen(_exe(name) + list(args), env=self.env, stdout=log, stderr=subprocess.STDOUT,
+        proc = subprocess.Popen(node_command(name) + list(args), env=self.env, stdout=log, stderr=subprocess.STDOUT,
                                 start_new_session=True)
         self.procs[name] = proc
         return proc
@@ -147,7 +148,7 @@ def run(bag: Path, out: Path, rate: float, domain: int) -> int:
     sup = Supervisor(env, logs)
     watcher = None
     try:
-        with _params_file() as params:
+        with packaged_params_file() as params:
             print(f'[1/4] starting {", ".join(NODES)} (domain {domain}, loopback only)', flush=True)
             for name in NODES:
                 extra = ['-p', f'output_dir:={residuals}'] if name == 'residual_logger' else []

@@ -420,11 +420,9 @@ def progress_line(done: int, total: int, rec: Mapping[str, Any], stream: Any = N
 def plot_fleet(run: FleetRun, path: Path) -> Path:
     """One panel per (axis, parameter): every unit's value with its 95 % interval, the median, the band of the
     population (± z_max spreads) and the outliers in red; PNG via matplotlib Agg."""
-    import matplotlib
-    matplotlib.use('Agg')
-    import matplotlib.pyplot as plt
+    from gimbal_friction.plots import pyplot, save_figure
 
-    from gimbal_friction.plots import save_figure
+    plt = pyplot()
 
     panels = [(axis, name) for axis, params in run.population['axes'].items() for name in params]
     if not panels:

@@ -285,8 +285,8 @@ def _parameter_files(inputs: Any, work_dir: Path) -> list[Path]:
     import yaml
 
     from gimbal_friction.config import render_parameter_file
-    from gimbal_friction.demo import _params_file
-    with _params_file() as packaged:
+    from gimbal_friction.demo import packaged_params_file
+    with packaged_params_file() as packaged:
         text = Path(packaged).read_text(encoding='utf-8')
     files = [work_dir / 'packaged.yaml']
     files[0].write_text(text, encoding='utf-8')
@@ -309,12 +309,12 @@ def _parameter_files(inputs: Any, work_dir: Path) -> list[Path]:
 
 def _supervisor(env: dict[str, str], log_dir: Path) -> Any:
     """The demo's supervisor, starting ``gimbal_sim`` runs under their own names and letting them exit."""
-    from gimbal_friction.demo import Supervisor, _exe
+    from gimbal_friction.demo import Supervisor, node_command
 
     class LoopSupervisor(Supervisor):
         def start_as(self, name: str, exe: str, args: Sequence[str]) -> subprocess.Popen[bytes]:
             log_file = open(self.log_dir / f'{name}.log', 'wb')  # noqa: SIM115 - closed with the process
-            proc = subprocess.Popen(_exe(exe) + list(args), env=self.env, stdout=log_file,
+            proc = subprocess.Popen(node_command(exe) + list(args), env=self.env, stdout=log_file,
                                     stderr=subprocess.STDOUT, start_new_session=True)
             self.procs[name] = proc
             return proc

@@ -32,7 +32,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from gimbal_friction.config import _read_yaml, axis_names, axis_params, load_parameters
+from gimbal_friction.config import axis_names, axis_params, load_parameters, read_yaml
 from gimbal_friction.core.errors import ConfigError
 from gimbal_friction.core.estimator import EstimatorSettings
 from gimbal_friction.core.feedforward import FeedforwardSettings, check_velocity_source
@@ -77,7 +77,7 @@ class StudyInputs(NamedTuple):
 def _sim_config(paths: Sequence[str | Path]) -> SimConfig:
     cfg = SimConfig()
     for path in paths:
-        data = _read_yaml(path)
+        data = read_yaml(path)
         if SECTION in data or '/' + SECTION in data:
             try:
                 cfg = SimConfig.from_mapping(data, base=cfg)
@@ -249,8 +249,8 @@ _CASE_STYLE = {'none': ('k', 'o'), 'constant': ('tab:orange', 's'), 'feedforward
 
 def figures(result: StudyResult, out_dir: Path) -> list[Path]:
     """Error vs temperature per case (one figure per profile) and the reversal trace, PNGs in ``out_dir``."""
-    from gimbal_friction.plots import _pyplot, save_figure
-    plt = _pyplot()
+    from gimbal_friction.plots import pyplot, save_figure
+    plt = pyplot()
     paths = []
     recs = result.records
     for p in dict.fromkeys(r['profile'] for r in recs):
@@ -344,10 +344,10 @@ def write_outputs(out_dir: Path, doc: dict[str, Any], result: StudyResult, *, re
     Raises:
         GimbalFrictionError: a file or folder that cannot be written, or a residual log already there.
     """
-    from gimbal_friction.tools._common import _finite, write_text_atomic
+    from gimbal_friction.tools._common import json_finite, write_text_atomic
     out_dir.mkdir(parents=True, exist_ok=True)
     paths = [out_dir / STUDY_FILE, out_dir / TABLE_FILE]
-    write_text_atomic(paths[0], json.dumps(_finite(doc), indent=1) + '\n')
+    write_text_atomic(paths[0], json.dumps(json_finite(doc), indent=1) + '\n')
     write_text_atomic(paths[1], table_text(doc))
     paths += figures(result, out_dir / 'figures')
     if residual_log and result.refit is not None and len(result.refit.rows):

@@ -19,7 +19,8 @@ PAPER_TEST_CW = ((-40.0, 3.19), (60.0, 1.05))
 PAPER_TEST_CCW = ((-40.0, 2.45), (60.0, 1.34))
 
 
-def _pyplot() -> Any:
+def pyplot() -> Any:
+    """matplotlib.pyplot on the non-interactive Agg backend (imported on first use)."""
     import matplotlib
     matplotlib.use('Agg')
     import matplotlib.pyplot as plt
@@ -36,13 +37,13 @@ def save_figure(fig: Any, path: Path) -> Path:
         msg = f'cannot write {path}: {err.strerror}'
         raise GimbalFrictionError(msg) from None
     finally:
-        _pyplot().close(fig)
+        pyplot().close(fig)
     return path
 
 
 def plot_components(result: FrictionResult, path: Path, *, title: str = '', paper_points: bool = True) -> Path:
     """Fig. 11: M_L, M_S + M_R and M of the axis versus temperature [N·mm], with the paper's test means."""
-    plt = _pyplot()
+    plt = pyplot()
     fig, ax = plt.subplots(figsize=(7.5, 4.8))
     t = result.temperature_c
     ax.plot(t, result.m_viscous_nmm, label='$M_L$ viscous (Eq. 9)')
@@ -66,7 +67,7 @@ def _family(params: AxisParams, t: np.ndarray, field: str, values: Sequence[floa
 
 def _family_plot(path: Path, t: np.ndarray, results: list[FrictionResult], labels: list[str], quantity: str,
                  ylabel: str, title: str) -> Path:
-    plt = _pyplot()
+    plt = pyplot()
     fig, ax = plt.subplots(figsize=(7.5, 4.8))
     for res, label in zip(results, labels):
         y = res.m_sliding_nmm + res.m_rolling_nmm if quantity == 'ms_mr' else getattr(res, quantity)
@@ -120,7 +121,7 @@ def plot_model_vs_measured(summary: Sequence[dict[str, Any]], models: dict[str, 
     ``summary`` holds records of :func:`gimbal_friction.core.residuals.plateau_summary` (signed means [N·mm]);
     ``models`` maps a label to the parameters of a model curve (e.g. before and after a refit).
     """
-    plt = _pyplot()
+    plt = pyplot()
     fig, ax = plt.subplots(figsize=(7.5, 4.8))
     temps = [float(r['temperature_c']) for r in summary] or [-40.0, 60.0]
     t = np.linspace(min(*temps, -40.0), max(*temps, 60.0), 301)

@@ -95,7 +95,7 @@ from gimbal_friction.core.params import MODEL_T_MAX_C, MODEL_T_MIN_C, AxisParams
 from gimbal_friction.core.sufficient import SufficientStats
 from gimbal_friction.core.thermal import radial_coupling
 from gimbal_friction.core.units import NM_PER_NMM
-from gimbal_friction.core.viscosity import _abscissa, nu_Walther, nu_Walther_fitting_jacobian
+from gimbal_friction.core.viscosity import nu_Walther, nu_Walther_fitting_jacobian, walther_abscissa
 
 Array = NDArray[np.float64]
 
@@ -265,7 +265,7 @@ class SampleModel:
         self.s_unit = np.interp(self.t, grid, res.m_sliding_nmm)           # M_S at μ = 1 [N·mm]
         self.d_m = radial_coupling(base, self.t).d_m                       # [mm]
         self.T = self.t + base.kelvin_offset_k                             # [K]
-        self.x = _abscissa(self.T, base.viscosity_model)                   # Walther abscissa [-]
+        self.x = walther_abscissa(self.T, base.viscosity_model)                   # Walther abscissa [-]
         self.w = asymmetry_weight(base, self.t, ARRAY)                     # warm-anchor weight [-]
 
     def values(self, changes: Mapping[str, float] | None = None) -> dict[str, float]:

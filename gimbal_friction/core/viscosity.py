@@ -40,7 +40,7 @@ TABLE2_FIT2_CST = (11983.82, 337.73, 85.78, 34.65, 31.78, 5.354, 5.240, 1.094)
 TABLE2_ERR2_PCT = (-0.135, -0.668, 0.918, -0.993, -0.688, 1.014, 0.768, -0.540)
 
 
-def _abscissa(T: Any, model: str, xp: Any = ARRAY) -> Any:
+def walther_abscissa(T: Any, model: str, xp: Any = ARRAY) -> Any:
     """x of the linear Walther relation: log T (Eq. 20) or log log T (Eq. 21)."""
     if xp is ARRAY:
         T = np.asarray(T, dtype=float)
@@ -88,7 +88,7 @@ def nu_Walther(T: Any, a1: float, b1: float, c1: float, model: str = 'walther_im
     The Krytox 143AA fits of Eq. (22) were made on data from −32 to 204 °C (Table 2); below −32 °C they are
     extrapolations.
     """
-    x = _abscissa(T, model, xp)
+    x = walther_abscissa(T, model, xp)
     return 10.0 ** (10.0 ** (a1 + b1 * x)) - c1
 
 
@@ -106,7 +106,7 @@ def dnu_dT_Walther(T: ArrayLike, a1: float, b1: float, c1: float,
                    model: str = 'walther_improved') -> NDArray[np.float64]:
     """Temperature derivative dν/dT of Eq. (20)/(21), [mm²/s/K]."""
     T_arr = np.asarray(T, dtype=float)
-    x = _abscissa(T_arr, model)
+    x = walther_abscissa(T_arr, model)
     w = np.power(10.0, a1 + b1 * x)
     nu_c = np.power(10.0, w)
     if model == 'walther':
@@ -119,7 +119,7 @@ def dnu_dT_Walther(T: ArrayLike, a1: float, b1: float, c1: float,
 def nu_Walther_fitting_jacobian(T: ArrayLike, a1: float, b1: float, c1: float,
                                 model: str = 'walther_improved') -> NDArray[np.float64]:
     """Jacobian of ν with respect to (a1, b1, c1), shape (n, 3), [mm²/s per unit parameter]."""
-    x = _abscissa(T, model)
+    x = walther_abscissa(T, model)
     w = np.power(10.0, a1 + b1 * x)
     nu_c = np.power(10.0, w)
     d_da = nu_c * LN10 * LN10 * w
@@ -195,7 +195,7 @@ def fit_Walther(t_c: ArrayLike, nu_cst: ArrayLike, model: str = 'walther_improve
         raise FitError('need at least 3 distinct temperatures')
     T = t + kelvin_offset_k
     try:
-        x = _abscissa(T, model)
+        x = walther_abscissa(T, model)
     except ModelDomainError as err:
         raise FitError(str(err)) from None
     c_low = 1.0 - float(nu.min()) + 1e-9

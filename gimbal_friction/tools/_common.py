@@ -74,16 +74,17 @@ def load_axis(args: argparse.Namespace) -> tuple[str, AxisParams, dict[str, Any]
 
 def print_json(doc: Any) -> None:
     """One JSON document on stdout (non-finite numbers become null)."""
-    print(json.dumps(_finite(doc), indent=1))
+    print(json.dumps(json_finite(doc), indent=1))
 
 
-def _finite(obj: Any) -> Any:
+def json_finite(obj: Any) -> Any:
+    """``obj`` with every non-finite float (nested in mappings and sequences) replaced by None (JSON null)."""
     if isinstance(obj, float):
         return obj if math.isfinite(obj) else None
     if isinstance(obj, Mapping):
-        return {k: _finite(v) for k, v in obj.items()}
+        return {k: json_finite(v) for k, v in obj.items()}
     if isinstance(obj, (list, tuple)):
-        return [_finite(v) for v in obj]
+        return [json_finite(v) for v in obj]
     return obj
 
 

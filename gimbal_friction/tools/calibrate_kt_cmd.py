@@ -249,9 +249,9 @@ def provenance_header(fit: KtFit, axis: str, source: Path, data: CalibrationData
 
 def plot_fit(fit: KtFit, data: CalibrationData, path: Path, *, title: str = '') -> Path:
     """Data, fit line(s) per direction and residuals [mN*m] with outliers marked, as a PNG (matplotlib Agg)."""
-    import matplotlib
-    matplotlib.use('Agg')
-    import matplotlib.pyplot as plt
+    from gimbal_friction.plots import pyplot
+
+    plt = pyplot()
 
     I_arr, tau, inl = data.current_a, data.torque_nm, fit.inliers
     fig, (ax, axr) = plt.subplots(2, 1, figsize=(7.5, 6.4), sharex=True, gridspec_kw={'height_ratios': [3, 1.4]})

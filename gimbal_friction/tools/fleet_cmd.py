@@ -32,7 +32,7 @@ from gimbal_friction.fleet import (
     progress_line,
     run_fleet,
 )
-from gimbal_friction.tools._common import _finite, add_common, csv_text, format_table, print_json, write_text_atomic
+from gimbal_friction.tools._common import add_common, csv_text, format_table, json_finite, print_json, write_text_atomic
 from gimbal_friction.tools.refit_cmd import parse_fit
 
 
@@ -141,7 +141,7 @@ def run(args: argparse.Namespace) -> int:
            'units_per_minute': 60.0 * len(units) / result.seconds if result.seconds > 0 else None,
            'fit': list(fit), 'offset_mode': args.offset, 'config': [str(c) for c in args.config]}
     out.mkdir(parents=True, exist_ok=True)
-    write_text_atomic(out / 'fleet.json', json.dumps(_finite(doc), indent=1) + '\n')
+    write_text_atomic(out / 'fleet.json', json.dumps(json_finite(doc), indent=1) + '\n')
     write_text_atomic(out / 'fleet.csv', csv_text(rows, fields))
     if ok:
         plot_fleet(result, out / 'fleet.png')

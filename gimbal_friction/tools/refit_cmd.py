@@ -241,9 +241,9 @@ def provenance_header(fits: list[AxisRefit], logs: list[Path], files: int, fit: 
 def plot_refit(fits: list[AxisRefit], path: Path) -> Path:
     """Paper Fig. 13 per axis: measured plateau means by direction (CW positive, CCW as |.|) with error bars and
     the model before (dashed) and after (solid) the refit over temperature, [N*mm]; PNG via matplotlib Agg."""
-    import matplotlib
-    matplotlib.use('Agg')
-    import matplotlib.pyplot as plt
+    from gimbal_friction.plots import pyplot
+
+    plt = pyplot()
 
     fig, axes = plt.subplots(1, len(fits), figsize=(7.5 * len(fits), 5.0), squeeze=False)
     for ax, f in zip(axes[0], fits, strict=False):
