@@ -295,8 +295,8 @@ def _parameter_files(inputs: Any, work_dir: Path) -> list[Path]:
                                                axes=[inputs.axis_name]), encoding='utf-8')
     files.append(axis_file)
     ff = inputs.feedforward
-    node = {'velocity_source': ff.velocity_source, 'method': 'observer',
-            **{k: getattr(ff.settings, k) for k in ff.settings.__dataclass_fields__}}
+    node = {'method': 'observer', **{k: getattr(ff.settings, k) for k in ff.settings.__dataclass_fields__},
+            'velocity_source': ff.velocity_source}
     est = inputs.estimator
     node.update({k: getattr(est, k) for k in est.__dataclass_fields__ if k != 'method'})
     study = work_dir / 'study.yaml'

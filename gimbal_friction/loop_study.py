@@ -35,7 +35,7 @@ import numpy as np
 from gimbal_friction.config import axis_names, axis_params, load_parameters, read_yaml
 from gimbal_friction.core.errors import ConfigError
 from gimbal_friction.core.estimator import EstimatorSettings
-from gimbal_friction.core.feedforward import FeedforwardSettings, check_velocity_source
+from gimbal_friction.core.feedforward import FeedforwardSettings
 from gimbal_friction.core.measurement import MeasurementArrays, detail_matrix
 from gimbal_friction.core.params import AxisParams
 from gimbal_friction.core.residual_row import ResidualRows
@@ -99,8 +99,7 @@ def load_study_inputs(config_paths: Sequence[str | Path] = (), axis: str | None 
     name = axis if axis is not None else axis_names(params)[0]
     ax = axis_params(params, name)
     ff_settings = settings_from_parameters(FeedforwardSettings, params)
-    source = str(params.get('velocity_source', 'auto'))
-    check_velocity_source(source)
+    source = ff_settings.velocity_source
     est = settings_from_parameters(EstimatorSettings, params)
     sim = _sim_config(config_paths)
     if latency_s is not None:

@@ -54,7 +54,8 @@ class JointStateArrays(NamedTuple):
 
 
 class ChamberArrays(NamedTuple):
-    """The three input streams of a chamber-test bag as numpy arrays."""
+    """The input streams of a chamber-test bag as numpy arrays (the three inputs, and the reference velocity
+    when recorded)."""
 
     temperature: TemperatureArrays
     """``/gimbal/temperature``."""
@@ -62,6 +63,8 @@ class ChamberArrays(NamedTuple):
     """``/joint_states`` (position [rad], velocity [rad/s])."""
     motor_current: JointStateArrays
     """``/gimbal/motor_current`` (effort = motor current [A])."""
+    reference_velocity: JointStateArrays | None = None
+    """``/gimbal/reference_velocity`` (velocity = reference joint rate [rad/s]), if the bag holds it."""
 
 
 class MessageCounts(NamedTuple):

@@ -41,7 +41,7 @@ from typing import Any, NamedTuple
 import numpy as np
 from numpy.typing import NDArray
 
-from gimbal_friction.core.arrays import ChamberArrays
+from gimbal_friction.core.arrays import ChamberArrays, JointStateArrays
 from gimbal_friction.core.direction import direction_factor
 from gimbal_friction.core.errors import ConfigError, check_rules
 from gimbal_friction.core.inputs import (
@@ -91,6 +91,11 @@ class FeedforwardSettings:
                                        'spans [temperature_min_c, temperature_max_c]')
     temperature_max_c: float = setting(120.0, 'degC', 'highest credible bearing temperature')
     table_step_c: float = setting(0.1, 'degC', 'temperature step of the model table')
+    velocity_source: str = setting('auto', '-', 'velocity used for the torque: measured (joint_states velocity, '
+                                   'relative to the base), reference (reference_velocity topic; 0 N*m when it is '
+                                   'stale) or auto (reference while fresh, else measured)')
+    reference_timeout_s: float = setting(0.5, 's', 'a reference velocity whose stamp differs from the joint '
+                                         'state\'s by more than this is stale')
 
     def validate(self) -> None:
         """Raises ConfigError naming the setting and the rule it breaks."""
@@ -107,6 +112,9 @@ class FeedforwardSettings:
             ('fallback_temperature_c', self.temperature_min_c <= self.fallback_temperature_c
              <= self.temperature_max_c, 'must lie within [temperature_min_c, temperature_max_c] [degC]'),
             ('table_step_c', 0.001 <= self.table_step_c <= 5.0, 'must lie in [0.001, 5] [degC]'),
+            ('velocity_source', self.velocity_source in VELOCITY_SOURCES,
+             f'must be one of {", ".join(VELOCITY_SOURCES)}'),
+            ('reference_timeout_s', 0.0 < self.reference_timeout_s <= 3600.0, 'must lie in (0, 3600] [s]'),
         ]
         check_rules(self, checks)
 
@@ -168,6 +176,7 @@ class FeedforwardCounters:
 
     temperature_rejected: dict[str, int] = field(default_factory=dict)
     joint_state_rejected: dict[str, int] = field(default_factory=dict)
+    reference_rejected: dict[str, int] = field(default_factory=dict)
     saturated: dict[str, int] = field(default_factory=dict)
     published: int = 0
 
@@ -244,6 +253,8 @@ class Feedforward:
         self._index_cache: dict[tuple[tuple[str, ...], int], JointIndex] = {}
         #: the table's temperature terms of the last temperature per joint (scalar calls; [°C] -> terms)
         self._scalar_terms: dict[str, tuple[float, Any]] = {}
+        #: latest reference joint velocity per joint: (velocity [rad/s], time [s])
+        self._reference: dict[str, tuple[float, float]] = {}
         self.last_temperature_c = math.nan   #: latest valid temperature [°C] (NaN: none)
         self.last_temperature_time_s = math.nan  #: its time [s]
 
@@ -251,6 +262,7 @@ class Feedforward:
         """Continue from ``old`` after a parameter change: its counters and its latest valid temperature (if that
         is still inside this object's credible range)."""
         self.counters = old.counters
+        self._reference = {j: r for j, r in old._reference.items() if j in self.axes}
         s = self.settings
         if s.temperature_min_c <= old.last_temperature_c <= s.temperature_max_c:
             self.last_temperature_c, self.last_temperature_time_s = old.last_temperature_c, old.last_temperature_time_s
@@ -267,6 +279,41 @@ class Feedforward:
         self.last_temperature_c = float(temperature_c)
         self.last_temperature_time_s = float(time_s)
         return None
+
+    # ------------------------------------------------------------------ reference velocity
+    @property
+    def references(self) -> dict[str, tuple[float, float]]:
+        """The latest finite reference per configured joint: (velocity [rad/s], time [s]) (a copy)."""
+        return dict(self._reference)
+
+    def update_reference(self, names: list[str], velocities: list[float], time_s: float) -> str | None:
+        """A reference joint-velocity message (``/gimbal/reference_velocity``: ``names``, ``velocities`` [rad/s])
+        of time ``time_s`` [s]. The first entry of each configured joint is kept if finite. Returns the reason
+        (counted) when the message is refused whole."""
+        if len(velocities) != len(names):
+            self.counters.add(self.counters.reference_rejected, J_MISMATCH)
+            return J_MISMATCH
+        seen: set[str] = set()
+        for name, v in zip(names, velocities, strict=True):
+            if name in seen or name not in self.axes:
+                continue
+            seen.add(name)
+            value = float(v)
+            if math.isfinite(value):
+                self._reference[name] = (value, float(time_s))
+            else:
+                self.counters.add(self.counters.reference_rejected, NON_FINITE_VELOCITY)
+        return None
+
+    def velocity(self, joint: str, measured_rad_s: float, time_s: float) -> float:
+        """The velocity [rad/s] the torque of ``joint`` uses at time ``time_s`` [s] under ``velocity_source``
+        (:func:`velocity_used`), from its measured velocity and the latest reference."""
+        s = self.settings
+        if s.velocity_source == 'measured':
+            return measured_rad_s
+        v, t = self._reference.get(joint, (math.nan, math.nan))
+        return float(velocity_used(s.velocity_source, measured_rad_s, v,
+                                   is_fresh(time_s, t, s.reference_timeout_s, SCALAR), SCALAR))
 
     def temperature(self, time_s: float) -> tuple[float, int]:
         """Temperature [°C] to use for a sample of time ``time_s`` [s] (NaN: zero policy) and its source code."""
@@ -336,12 +383,15 @@ class Feedforward:
         c.add(bucket, J_UNKNOWN, idx.unknown)
         c.add(bucket, J_DUPLICATE, idx.duplicate)
         temperature, source = self.temperature(time_s)
+        measured = self.settings.velocity_source == 'measured'
         out_names: list[str] = []
         torques: list[float] = []
         commands: list[float] = []
         for joint in self.order:
             i = idx.position.get(joint)
             v = float(velocities[i]) if i is not None else math.nan
+            if i is not None and not measured:
+                v = self.velocity(joint, v, time_s)
             if i is not None and not math.isfinite(v):
                 c.add(bucket, NON_FINITE_VELOCITY)
             if math.isfinite(v):
@@ -384,6 +434,14 @@ class Feedforward:
         t_used = np.broadcast_to(np.asarray(t_used, dtype=np.float64), js_log.shape)
         source = np.broadcast_to(np.asarray(source, dtype=np.int8), js_log.shape)
 
+        ref = arrays.reference_velocity
+        if ref is not None:  # as update_reference: a configured joint's non-finite reference is counted
+            for joint in self.order:
+                if joint in ref.velocity:
+                    rv = np.asarray(ref.velocity[joint], dtype=np.float64)
+                    rp = np.asarray(ref.position.get(joint, np.full(rv.shape, np.nan)), dtype=np.float64)
+                    c.add(c.reference_rejected, NON_FINITE_VELOCITY,
+                          int(np.count_nonzero(~np.isfinite(rv) & ~(np.isnan(rv) & np.isnan(rp)))))
         n_msg = js_log.shape[0]
         commands = np.zeros((n_msg, len(self.order)))
         present = np.zeros((n_msg, len(self.order)), dtype=bool)
@@ -397,9 +455,12 @@ class Feedforward:
                 continue
             v = np.asarray(js.velocity[joint], dtype=np.float64)
             p = np.asarray(js.position[joint], dtype=np.float64)
+            in_message = ~(np.isnan(p) & np.isnan(v))
+            if s.velocity_source != 'measured':
+                v = self._bag_velocity(joint, v, arrays.reference_velocity, js_log, js_time)
             finite = np.isfinite(v)
-            c.add(c.joint_state_rejected, NON_FINITE_VELOCITY, int(np.count_nonzero(~finite & ~np.isnan(p))))
-            rows = np.flatnonzero(finite)
+            c.add(c.joint_state_rejected, NON_FINITE_VELOCITY, int(np.count_nonzero(~finite & in_message)))
+            rows = np.flatnonzero(finite & in_message)
             vv = v[rows]
             tt = t_used[rows]
             zero = np.isnan(tt)
@@ -414,3 +475,23 @@ class Feedforward:
         c.published += int(out.size)
         return BagTorques(out.astype(np.int64), self.order, present[out], js_stamp[out], js_log[out], commands[out],
                           t_used[out], source[out])
+
+    def _bag_velocity(self, joint: str, measured: NDArray[np.float64], reference: JointStateArrays | None,
+                      js_log: NDArray[np.int64], js_time: NDArray[np.float64]) -> NDArray[np.float64]:
+        """:meth:`velocity` for every joint state of a bag: the latest finite reference of ``joint`` logged up to
+        each joint state (one logged at the same time arrived before it), fresh within ``reference_timeout_s``."""
+        s = self.settings
+        ref_v = np.full(measured.shape, np.nan)
+        ref_time = np.full(measured.shape, np.nan)
+        if reference is not None and joint in reference.velocity and len(reference):
+            values = np.asarray(reference.velocity[joint], dtype=np.float64)
+            usable = np.isfinite(values)
+            r_log = np.asarray(reference.log_time_ns, dtype=np.int64)[usable]
+            r_time = effective_time(np.asarray(reference.stamp_ns, dtype=np.int64)[usable], r_log) / NS_PER_S
+            k = np.searchsorted(r_log, js_log, side='right') - 1
+            have = k >= 0
+            if r_log.size:
+                ref_v = np.where(have, values[usable][np.maximum(k, 0)], np.nan)
+                ref_time = np.where(have, r_time[np.maximum(k, 0)], np.nan)
+        fresh = is_fresh(js_time, ref_time, s.reference_timeout_s, ARRAY)
+        return np.asarray(velocity_used(s.velocity_source, measured, ref_v, fresh, ARRAY), dtype=np.float64)

@@ -89,22 +89,15 @@ def settings_from_parameters(cls: type[T], params: Mapping[str, Any]) -> T:
 # ---------------------------------------------------------------------------------------------------- node settings
 @dataclass(frozen=True)
 class FeedforwardNodeSettings:
-    """Node-level parameters of friction_feedforward (besides FeedforwardSettings and the model)."""
+    """Node-level parameters of friction_feedforward (besides FeedforwardSettings and the model; the velocity
+    source is a FeedforwardSettings, since replay and in-process callers apply it too)."""
 
-    velocity_source: str = setting('auto', '-', 'velocity used for the torque: measured (joint_states velocity, '
-                                   'relative to the base), reference (reference_velocity topic; 0 N*m when it is '
-                                   'stale) or auto (reference while fresh, else measured)')
-    reference_timeout_s: float = setting(0.5, 's', 'a reference velocity whose stamp differs from the joint '
-                                         'state\'s by more than this is not used (0 N*m)')
     max_rate_hz: float = setting(0.0, 'Hz', 'publish at most this often; 0 = for every joint-state message')
     diagnostics_period_s: float = setting(1.0, 's', 'period of /diagnostics')
 
     def validate(self) -> None:
         """Raises ConfigError naming the setting and the rule it breaks."""
-        from gimbal_friction.core.feedforward import check_velocity_source  # (it imports this module)
-        check_velocity_source(self.velocity_source)
         check_rules(self, [
-            ('reference_timeout_s', 0.0 < self.reference_timeout_s <= 3600.0, 'must lie in (0, 3600] [s]'),
             ('max_rate_hz', 0.0 <= self.max_rate_hz <= 1e6, 'must lie in [0, 1e6] [Hz]'),
             ('diagnostics_period_s', 0.05 <= self.diagnostics_period_s <= 60.0, 'must lie in [0.05, 60] [s]'),
         ])

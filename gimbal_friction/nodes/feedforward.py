@@ -1,7 +1,8 @@
 """``friction_feedforward``: model-predicted friction torque of every configured joint as a feedforward term.
 
 Subscribes ``/gimbal/temperature`` (sensor_msgs/Temperature, °C) and ``/joint_states`` (sensor_msgs/JointState);
-optionally ``/gimbal/reference_velocity`` (JointState, velocity [rad/s]) when ``velocity_source`` is ``reference``.
+and ``/gimbal/reference_velocity`` (JointState, velocity = reference joint rate [rad/s]), used by ``velocity_source``
+``auto`` (the default: while fresh) and ``reference``.
 Publishes, for each joint-state message (optionally rate-limited by ``max_rate_hz``):
 
 - ``/gimbal/friction/feedforward`` (JointState): effort = torque [N·m] the motor must add, sign of motion, for the
@@ -38,11 +39,9 @@ from gimbal_friction.core.feedforward import (
     SOURCE_ZERO,
     Feedforward,
     FeedforwardSettings,
-    velocity_used,
 )
-from gimbal_friction.core.inputs import effective_time, is_fresh
+from gimbal_friction.core.inputs import effective_time
 from gimbal_friction.core.settings import FeedforwardNodeSettings, settings_from
-from gimbal_friction.core.xp import SCALAR
 from gimbal_friction.nodes._common import (
     ERROR,
     OK,
@@ -65,7 +64,7 @@ from gimbal_friction.nodes._common import (
 )
 from gimbal_friction.recording import topics
 
-REFERENCE_VELOCITY = '/gimbal/reference_velocity'
+REFERENCE_VELOCITY = topics.REFERENCE_VELOCITY
 #: subscription depth of the joint states: a burst of this many messages is buffered, not dropped
 JOINT_STATE_DEPTH = 1000
 NodeSettings = FeedforwardNodeSettings  # the node-level parameters (gimbal_friction.core.settings)
@@ -84,7 +83,6 @@ class FrictionFeedforward(Node):
         self.settings = declare_settings(self, NodeSettings)
         self.ff = self._build(self.model.current(), ff_settings, startup=True)
         self._candidate: tuple[Feedforward | None, NodeSettings] | None = None
-        self._reference: dict[str, tuple[float, float]] = {}
         self._last_publish = -math.inf
         self._last_time_s = math.nan
         self._last_source = SOURCE_MEASURED
@@ -162,29 +160,10 @@ class FrictionFeedforward(Node):
             self._warn('temperature', f'temperature {msg.temperature!r} degC rejected: {reason}')
 
     def on_reference(self, msg: JointState) -> None:
-        if len(msg.velocity) != len(msg.name):
-            self._warn('reference', 'reference_velocity: velocity/name length mismatch, ignored')
-            return
         time_s = effective_time(stamp_to_s(msg.header.stamp), self._now_s())
-        seen = set()
-        for name, v in zip(msg.name, msg.velocity, strict=True):
-            # the first entry of a joint counts, as for joint states; other names are not kept
-            if name not in seen and name in self.ff.axes:
-                seen.add(name)
-                self._reference[name] = (float(v), time_s)
-
-    def _velocities(self, msg: JointState, time_s: float) -> list[float]:
-        source = self.settings.velocity_source
-        measured = list(msg.velocity)
-        if source == 'measured' or (source == 'auto' and len(measured) != len(msg.name)):
-            return measured   # (a length mismatch is refused by Feedforward.message)
-        timeout = self.settings.reference_timeout_s
-        out = []
-        for i, name in enumerate(msg.name):
-            v, t = self._reference.get(name, (math.nan, math.nan))
-            m = measured[i] if i < len(measured) else math.nan
-            out.append(velocity_used(source, m, v, is_fresh(time_s, t, timeout, SCALAR), SCALAR))
-        return out
+        reason = self.ff.update_reference(list(msg.name), list(msg.velocity), time_s)
+        if reason is not None:
+            self._warn('reference', f'reference_velocity message refused: {reason}')
 
     def on_joint_state(self, msg: JointState) -> None:
         if self.settings.max_rate_hz > 0.0:
@@ -197,7 +176,7 @@ class FrictionFeedforward(Node):
         # the receive time is needed only for an unstamped message (reading the clock costs a few µs)
         time_s = effective_time(stamp_s, self._now_s() if stamp_s == 0.0 else 0.0)
         names = list(msg.name)
-        out = self.ff.message(names, self._velocities(msg, time_s), time_s)
+        out = self.ff.message(names, list(msg.velocity), time_s)
         self._last_time_s = time_s
         if out is None:
             self._warn('joint_state', 'joint_states message not used (see /diagnostics for the reason)')
@@ -230,6 +209,7 @@ class FrictionFeedforward(Node):
         temperature, source = ff.temperature(last_time)
         new_t = self._new_since_report('temperature', c.temperature_rejected)
         new_j = self._new_since_report('joint_state', c.joint_state_rejected)
+        new_r = self._new_since_report('reference', c.reference_rejected)
         new_sat = self._new_since_report('saturated', c.saturated)
         new_lost = self.inputs.new_losses()
         errors = callback_error_values(self)
@@ -249,6 +229,10 @@ class FrictionFeedforward(Node):
             if new_j:
                 level = max(level, WARN)
                 problems.append('joint states rejected: ' + ', '.join(f'{r} {n}x' for r, n in sorted(new_j.items())))
+            if new_r:
+                level = max(level, WARN)
+                problems.append('reference velocities rejected: ' + ', '.join(f'{r} {n}x'
+                                                                              for r, n in sorted(new_r.items())))
             if new_lost:
                 level = max(level, WARN)
                 problems.append('messages lost on the way: ' + ', '.join(f'{t} {n}'
@@ -270,6 +254,9 @@ class FrictionFeedforward(Node):
                 values[f'rejected_temperature: {reason}'] = count
             for reason, count in c.joint_state_rejected.items():
                 values[f'rejected_joint_state: {reason}'] = count
+            for reason, count in c.reference_rejected.items():
+                values[f'rejected_reference: {reason}'] = count
+            values['velocity_source'] = s.velocity_source
             values.update(self.inputs.values())
             values.update(errors)
             statuses.append(status(f'gimbal_friction/feedforward/{axis}', level, '; '.join(problems) or 'ok',

@@ -72,7 +72,7 @@ from gimbal_friction.recording import topics
 from gimbal_friction.sim.config import RealtimeSettings, SimConfig, parameter_specs
 from gimbal_friction.sim.realtime import RealtimeRun, TickOutput
 
-REFERENCE_VELOCITY = '/gimbal/reference_velocity'
+REFERENCE_VELOCITY = topics.REFERENCE_VELOCITY
 LOS_ERROR = '/gimbal_sim/los_error'
 #: publisher depth (a subscriber that falls behind loses the oldest)
 DEPTH = 1000

@@ -39,7 +39,14 @@ from gimbal_friction.recording.cdr import (
     temperature_from_cdr,
 )
 from gimbal_friction.recording.errors import LIBRARY_READ_ERRORS, RecordingError, recover_hint
-from gimbal_friction.recording.topics import CHAMBER_TOPICS, JOINT_STATES, MOTOR_CURRENT, TEMPERATURE
+from gimbal_friction.recording.topics import (
+    CHAMBER_TOPICS,
+    JOINT_STATE_TYPE,
+    JOINT_STATES,
+    MOTOR_CURRENT,
+    REFERENCE_VELOCITY,
+    TEMPERATURE,
+)
 
 if TYPE_CHECKING:
     import os
@@ -443,6 +450,8 @@ class ChamberBag:
     def ignored_topics(self) -> dict[str, str]:
         """Bag topic -> message type ('' for several) of the topics no input uses (not read by default)."""
         used = {self.topic_map[t] for t in CHAMBER_TOPICS}
+        if self.has_reference:
+            used.add(self.topic_map[REFERENCE_VELOCITY])
         out = {}
         for contract, recorded in self.topic_map.items():
             if recorded not in used:
@@ -504,16 +513,24 @@ class ChamberBag:
 
     # -- arrays ----------------------------------------------------------------------------------------------
 
+    @property
+    def has_reference(self) -> bool:
+        """The bag holds ``/gimbal/reference_velocity`` as sensor_msgs/JointState (read by :meth:`read_arrays`)."""
+        info = self.topics.get(REFERENCE_VELOCITY)
+        return info is not None and info.msgtype == JOINT_STATE_TYPE and info.messages > 0
+
     def read_arrays(self, raw_sink: RawSink | None = None) -> ChamberArrays:
-        """Decode the three input topics into numpy arrays (one pass over the bag).
+        """Decode the three input topics, and ``/gimbal/reference_velocity`` if recorded, into numpy arrays (one
+        pass over the bag).
 
         JointState and Temperature messages are parsed directly from their CDR bytes (plain little-endian, the
         usual case) and fall back to the type store for anything else. Joint names are renamed by ``joint_map``.
 
         Args:
             raw_sink: called as ``raw_sink(contract_topics, msgtype, log_time_ns, cdr_bytes)`` for every message of
-                the three input topics, in log-time order, during the same pass (what :meth:`iter_raw` yields,
-                without reading the bag twice); ``contract_topics`` lists the contract names the bag topic feeds.
+                the three input topics (not the reference velocity, which the nodes do not log), in log-time
+                order, during the same pass (what :meth:`iter_raw` yields, without reading the bag twice);
+                ``contract_topics`` lists the contract names the bag topic feeds.
 
         Raises:
             RecordingError: the bag cannot be read, a message cannot be decoded, or the joint map would give two
@@ -525,13 +542,17 @@ class ChamberBag:
             self.topic_map[JOINT_STATES]: JointStateColumns(),
             self.topic_map[MOTOR_CURRENT]: JointStateColumns(),
         }
+        inputs = self._select(None)
+        bag_reference = self.topic_map[REFERENCE_VELOCITY] if self.has_reference else None
+        if bag_reference is not None and bag_reference not in joint_collectors:
+            joint_collectors[bag_reference] = JointStateColumns()
         t_log: list[int] = []
         t_stamp: list[int] = []
         t_value: list[float] = []
-        selected = self._select(None)
+        selected = self._select([*CHAMBER_TOPICS, REFERENCE_VELOCITY] if bag_reference is not None else None)
         for conn, log_time, data in self._messages(selected):
-            if raw_sink is not None:
-                raw_sink(selected[conn.topic], conn.msgtype, log_time, data)
+            if raw_sink is not None and conn.topic in inputs:
+                raw_sink(inputs[conn.topic], conn.msgtype, log_time, data)
             collector = joint_collectors.get(conn.topic)
             if collector is not None:
                 if not collector.add_cdr(log_time, data):
@@ -556,10 +577,18 @@ class ChamberBag:
         except ValueError as err:
             msg = f'bag {self.path}: joint map: {err}'
             raise RecordingError(msg) from err
+        reference = None
+        if bag_reference is not None:  # a message whose velocities do not match its names is not used (the node)
+            reference = finished[bag_reference]
+            bad = joint_collectors[bag_reference].mismatched(1)
+            if bad.any():
+                reference = reference._replace(velocity={n: np.where(bad, np.nan, v)
+                                                         for n, v in reference.velocity.items()})
         return ChamberArrays(
             temperature=temperature,
             joint_states=finished[self.topic_map[JOINT_STATES]],
             motor_current=finished[self.topic_map[MOTOR_CURRENT]],
+            reference_velocity=reference,
         )
 
     def describe(self, arrays: ChamberArrays | None = None) -> BagDescription:

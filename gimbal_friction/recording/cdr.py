@@ -723,6 +723,14 @@ class JointStateColumns:
             self.counts[field].append(int(arr.shape[0]))
             self.values[field].append(arr.tobytes())
 
+    def mismatched(self, field: int) -> NDArray[np.bool_]:
+        """Per message: field ``field`` (0 position, 1 velocity, 2 effort) holds another number of values than
+        the message has names."""
+        lengths = np.asarray([len(names) for names in self.name_sets], dtype=np.int64)
+        if not self.log_time:
+            return np.zeros(0, dtype=bool)
+        return np.asarray(self.counts[field], dtype=np.int64) != lengths[np.asarray(self.name_index, dtype=np.int64)]
+
     def finish(self, rename: Mapping[str, str] | None = None) -> JointStateArrays:
         """Assemble the per-joint arrays; ``rename`` maps a recorded joint name to the name to report it under.
 
@@ -753,7 +761,10 @@ class JointStateColumns:
                 slot = np.arange(flat.size) - starts[msg_of_value]
                 slot = np.minimum(slot, width)  # values beyond the names: column -1, dropped
                 column = lookup[name_index[msg_of_value], slot]
-                keep = column >= 0
+                keep = np.flatnonzero(column >= 0)
+                # a joint named twice in one message: its first value counts (as core.inputs.joint_index)
+                _, first = np.unique(msg_of_value[keep] * n_joints + column[keep], return_index=True)
+                keep = keep[first]
                 out[msg_of_value[keep], column[keep]] = flat[keep]
             fields.append({reported[col]: np.ascontiguousarray(out[:, col]) for col in range(n_joints)})
         return JointStateArrays(

@@ -8,6 +8,8 @@ from gimbal_friction.core.residual_row import RESIDUAL_FIELDS as _RESIDUAL_FIELD
 TEMPERATURE = '/gimbal/temperature'
 JOINT_STATES = '/joint_states'
 MOTOR_CURRENT = '/gimbal/motor_current'
+#: reference joint velocity (sensor_msgs/JointState, velocity [rad/s]): read by friction_feedforward and replay
+REFERENCE_VELOCITY = '/gimbal/reference_velocity'
 FEEDFORWARD = '/gimbal/friction/feedforward'
 FEEDFORWARD_COMMANDS = '/gimbal/friction/feedforward_commands'
 MEASURED = '/gimbal/friction/measured'

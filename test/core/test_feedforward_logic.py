@@ -9,7 +9,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from gimbal_friction.core.arrays import chamber_arrays
+from gimbal_friction.core.arrays import chamber_arrays, joint_state_arrays
 from gimbal_friction.core.errors import ConfigError, ModelDomainError
 from gimbal_friction.core.feedforward import (
     SOURCE_FALLBACK,
@@ -130,7 +130,7 @@ def test_bag_arrays_equal_the_per_message_rule(temps, vels, policy):
             t_msgs.append((clock, clock + dt * S // 2, t_c))
             events.append(('t', clock, clock + dt * S // 2, t_c))
         clock += S // 2
-        names = [['elevation'], ['azimuth', 'elevation'], ['azimuth']][which]
+        names = [['elevation'], ['azimuth', 'elevation'], ['azimuth'], ['elevation', 'elevation']][which]
         vel = [v1, v2][:len(names)]
         js_msgs.append((clock, clock, names, [0.0] * len(names), vel, []))
         events.append(('j', clock, clock, names, vel))
@@ -151,3 +151,69 @@ def test_bag_arrays_equal_the_per_message_rule(temps, vels, policy):
         if e is not None:
             np.testing.assert_allclose(g, e, rtol=1e-12, atol=1e-18)
             assert all(math.isfinite(x) and abs(x) <= 0.002 for x in g)
+
+
+@settings(max_examples=60, deadline=None)
+@given(steps=st.lists(st.tuples(st.sampled_from(['ref', 'js', 'both']),
+                                st.one_of(st.floats(-5, 5), st.sampled_from(ODD)),   # reference velocity
+                                st.one_of(st.floats(-5, 5), st.sampled_from(ODD)),   # measured velocity
+                                st.integers(-3, 3),                                  # reference stamp offset
+                                st.sampled_from([0, 1, 2, 3])),                      # which joints
+                      min_size=1, max_size=30),
+       source=st.sampled_from(['measured', 'reference', 'auto']))
+def test_bag_reference_velocity_equals_the_per_message_rule(steps, source):
+    """velocity_source on arrays (replay of a bag holding /gimbal/reference_velocity) equals the node's path:
+    Feedforward.update_reference per reference message, Feedforward.message per joint state."""
+    s = FeedforwardSettings(velocity_source=source, reference_timeout_s=0.6, temperature_timeout_s=1e4)
+    one = Feedforward(AXES, s)
+    clock = 10 * S
+    one.update_temperature(-20.0, clock / S)
+    t_msgs = [(clock, clock, -20.0)]
+    js_msgs, ref_msgs, events = [], [], []
+    for kind, v_ref, v_meas, dt, which in steps:
+        names = [['elevation'], ['azimuth', 'elevation'], ['azimuth'], ['elevation', 'elevation']][which]
+        clock += S // 4
+        if kind in ('ref', 'both'):
+            vel = [v_ref, -v_ref][:len(names)]
+            stamp = clock + dt * S // 4
+            ref_msgs.append((clock, stamp, names, [], vel, []))
+            events.append(('r', stamp, names, vel))
+        if kind in ('js', 'both'):
+            names = names if which != 3 else ['elevation']   # a repeated name only in the reference
+            vel = [v_meas, v_meas / 2][:len(names)]
+            js_msgs.append((clock, clock, names, [0.0] * len(names), vel, []))
+            events.append(('j', clock, names, vel))
+    expected = []
+    for e in events:
+        if e[0] == 'r':
+            one.update_reference(e[2], e[3], e[1] / S)
+        else:
+            out = one.message(e[2], e[3], e[1] / S)
+            expected.append(None if out is None else out.commands_nm)
+    arrays, _, _ = chamber_arrays(t_msgs, js_msgs)
+    reference, _ = joint_state_arrays(ref_msgs, fields=(False, True, False))
+    arrays = arrays._replace(reference_velocity=reference)
+    ff = Feedforward(AXES, s)
+    bag = ff.bag_torques(arrays)
+    got: list[list[float] | None] = [None] * len(js_msgs)
+    for i, row in zip(bag.msg_index.tolist(), bag.commands_nm.tolist()):
+        got[i] = row
+    for e, g in zip(expected, got):
+        assert (e is None) == (g is None)
+        if e is not None:
+            np.testing.assert_allclose(g, e, rtol=1e-12, atol=1e-18)
+    assert ff.counters.joint_state_rejected == one.counters.joint_state_rejected
+
+
+def test_a_fresh_reference_drives_the_torque_and_a_stale_one_falls_back():
+    ff = Feedforward({'elevation': AxisParams()}, FeedforwardSettings(reference_timeout_s=0.5))
+    ff.update_temperature(20.0, 100.0)
+    assert ff.update_reference(['elevation'], [-0.1], 100.0) is None
+    assert ff.velocity('elevation', 0.2, 100.3) == -0.1          # auto: the fresh reference
+    assert ff.velocity('elevation', 0.2, 100.7) == 0.2           # stale: the measured velocity
+    assert ff.message(['elevation'], [0.2], 100.3).torques_nm[0] < 0.0
+    assert ff.update_reference(['elevation', 'x'], [0.1], 100.4) == 'value/name length mismatch'
+    ff.update_reference(['elevation'], [math.nan], 100.4)
+    assert ff.counters.reference_rejected == {'value/name length mismatch': 1, 'non-finite velocity': 1}
+    strict = Feedforward({'elevation': AxisParams()}, FeedforwardSettings(velocity_source='reference'))
+    assert strict.velocity('elevation', 0.2, 100.0) == 0.0       # reference only: no reference, no torque

@@ -223,7 +223,8 @@ def test_empty_required_topic_is_refused(tmp_path: Path) -> None:
 
 def random_joint_states(rng: np.random.Generator, n: int) -> list[tuple[str, str, int, object]]:
     """JointStates with varied frame ids, name sets and missing or short fields."""
-    name_sets = [['elevation'], ['elevation', 'azimuth'], ['azimuth'], [], ['a' * 7, 'elevation', 'bb']]
+    name_sets = [['elevation'], ['elevation', 'azimuth'], ['azimuth'], [], ['a' * 7, 'elevation', 'bb'],
+                 ['elevation', 'azimuth', 'elevation']]  # a repeated name: its first value counts
     out = []
     for i in range(n):
         names = name_sets[int(rng.integers(len(name_sets)))]

@@ -97,7 +97,7 @@ def test_feedforward_node_survives_hostile_streams(ff, stream):
         assert all(math.isfinite(e) and abs(e) <= 0.004 for e in out.effort)
     for out in ff.pub_cmd.messages:
         assert len(out.data) == 1 and all(math.isfinite(e) and abs(e) <= 0.004 for e in out.data)
-    assert set(ff._reference) <= {'elevation'}           # hostile names are not kept
+    assert set(ff.ff.references) <= {'elevation'}           # hostile names are not kept
     assert not getattr(ff, 'callback_errors', {})
 
 

@@ -168,3 +168,32 @@ def test_refit_of_the_replayed_log_moves_viscosity_toward_the_truth(sample_repla
     base = axis_params(load_parameters(), 'elevation')
     assert abs(refit.walther_a - truth.walther_a) < 0.2 * abs(base.walther_a - truth.walther_a)
     assert abs(refit.palmgren_factor - truth.palmgren_factor) < 0.3 * abs(base.palmgren_factor - truth.palmgren_factor)
+
+
+def test_a_recorded_reference_velocity_drives_the_replayed_feedforward_as_live(tmp_path):
+    """A bag that also holds /gimbal/reference_velocity (a seeker's full graph) replays with the node's
+    velocity_source: auto uses the reference while fresh, measured uses the joint states; the residual log holds
+    the nodes' topics only."""
+    msgs = []
+    for i in range(200):
+        t = 1_000_000_000 + i * 20_000_000
+        v = 2 * math.pi / 180
+        msgs.append((topics.TEMPERATURE, topics.TEMPERATURE_TYPE, t, make_temperature(t, -40.0)))
+        msgs.append((topics.JOINT_STATES, topics.JOINT_STATE_TYPE, t, make_joint_state(t, ['elevation'], [0.0], [v])))
+        msgs.append((topics.MOTOR_CURRENT, topics.JOINT_STATE_TYPE, t + 1,
+                     make_joint_state(t, ['elevation'], effort=[0.06])))
+        if i < 100:   # the controller's reference: the other way; it stops half way (then stale after 0.5 s)
+            msgs.append((topics.REFERENCE_VELOCITY, topics.JOINT_STATE_TYPE, t - 1,
+                         make_joint_state(t, ['elevation'], velocity=[-v])))
+    bag = write_chamber_bag(tmp_path / 'bag', msgs)
+    arrays = open_chamber_bag(bag).read_arrays()
+    assert arrays.reference_velocity is not None and len(arrays.reference_velocity) == 100
+    auto = replay_bag(bag, tmp_path / 'auto', config_paths=[]).feedforward.commands_nm[:, 0]
+    late = np.arange(200) * 0.02 > 99 * 0.02 + 0.5          # the reference is stale
+    assert np.all(auto[:100] < 0.0) and np.all(auto[late] > 0.0)
+    measured_cfg = tmp_path / 'measured.yaml'
+    measured_cfg.write_text('/**:\n  ros__parameters:\n    velocity_source: measured\n')
+    measured = replay_bag(bag, tmp_path / 'measured', config_paths=[measured_cfg]).feedforward.commands_nm[:, 0]
+    assert np.all(measured > 0.0)
+    with AnyReader([tmp_path / 'auto' / 'residuals']) as reader:
+        assert topics.REFERENCE_VELOCITY not in {c.topic for c in reader.connections}
