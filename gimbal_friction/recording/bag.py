@@ -536,60 +536,56 @@ class ChamberBag:
             RecordingError: the bag cannot be read, a message cannot be decoded, or the joint map would give two
                 joints one name.
         """
+        return next(self._windows(None, raw_sink))
+
+    def iter_arrays(self, max_messages: int) -> Iterator[ChamberArrays]:
+        """:meth:`read_arrays` in consecutive windows of about ``max_messages`` messages (memory bounded by the
+        window whatever the bag's length), in log-time order. A window ends only where
+        the log time changes, so feeding the windows one after another to the nodes' logic (as a node gets its
+        callback batches) gives what one call on the whole bag gives. At least one window is yielded.
+
+        Raises:
+            ValueError: ``max_messages`` < 1.
+            RecordingError: as :meth:`read_arrays`.
+        """
+        if max_messages < 1:
+            msg = f'max_messages must be >= 1, not {max_messages}'
+            raise ValueError(msg)
+        return self._windows(max_messages, None)
+
+    def _windows(self, max_messages: int | None, raw_sink: RawSink | None) -> Iterator[ChamberArrays]:
+        """The one decoding loop of :meth:`read_arrays` (``max_messages`` None: one window) and
+        :meth:`iter_arrays`."""
         bag_temperature = self.topic_map[TEMPERATURE]
-        # one collector per bag topic: a bag topic may feed both joint-state inputs
-        joint_collectors = {
-            self.topic_map[JOINT_STATES]: JointStateColumns(),
-            self.topic_map[MOTOR_CURRENT]: JointStateColumns(),
-        }
         inputs = self._select(None)
         bag_reference = self.topic_map[REFERENCE_VELOCITY] if self.has_reference else None
-        if bag_reference is not None and bag_reference not in joint_collectors:
-            joint_collectors[bag_reference] = JointStateColumns()
-        t_log: list[int] = []
-        t_stamp: list[int] = []
-        t_value: list[float] = []
         selected = self._select([*CHAMBER_TOPICS, REFERENCE_VELOCITY] if bag_reference is not None else None)
+        window = _Window(self, bag_reference)
+        last_log = None
         for conn, log_time, data in self._messages(selected):
+            if max_messages is not None and window.count >= max_messages and log_time != last_log:
+                yield window.finish()
+                window = _Window(self, bag_reference)
+            last_log = log_time
             if raw_sink is not None and conn.topic in inputs:
                 raw_sink(inputs[conn.topic], conn.msgtype, log_time, data)
-            collector = joint_collectors.get(conn.topic)
+            collector = window.joint_collectors.get(conn.topic)
             if collector is not None:
+                window.count += 1
                 if not collector.add_cdr(log_time, data):
                     collector.add_message(log_time, self._decode(data, conn, log_time))
             elif conn.topic == bag_temperature:
+                window.count += 1
                 fast = temperature_from_cdr(data)
                 if fast is None:
                     message = self._decode(data, conn, log_time)
                     stamp = message.header.stamp  # type: ignore[attr-defined]
                     value = float(message.temperature)  # type: ignore[attr-defined]
                     fast = (join_stamp(stamp.sec, stamp.nanosec), value)
-                t_log.append(log_time)
-                t_stamp.append(fast[0])
-                t_value.append(fast[1])
-        temperature = TemperatureArrays(
-            np.array(t_log, dtype=np.int64),
-            np.array(t_stamp, dtype=np.int64),
-            np.array(t_value, dtype=np.float64),
-        )
-        try:
-            finished = {name: c.finish(self.joint_map) for name, c in joint_collectors.items()}
-        except ValueError as err:
-            msg = f'bag {self.path}: joint map: {err}'
-            raise RecordingError(msg) from err
-        reference = None
-        if bag_reference is not None:  # a message whose velocities do not match its names is not used (the node)
-            reference = finished[bag_reference]
-            bad = joint_collectors[bag_reference].mismatched(1)
-            if bad.any():
-                reference = reference._replace(velocity={n: np.where(bad, np.nan, v)
-                                                         for n, v in reference.velocity.items()})
-        return ChamberArrays(
-            temperature=temperature,
-            joint_states=finished[self.topic_map[JOINT_STATES]],
-            motor_current=finished[self.topic_map[MOTOR_CURRENT]],
-            reference_velocity=reference,
-        )
+                window.t_log.append(log_time)
+                window.t_stamp.append(fast[0])
+                window.t_value.append(fast[1])
+        yield window.finish()
 
     def describe(self, arrays: ChamberArrays | None = None) -> BagDescription:
         """What the three input streams hold (counts, joints and their fields, zero stamps) and what is not read.
@@ -666,3 +662,47 @@ def _joint_summary(data: JointStateArrays, name: str, recorded: str) -> JointSum
     return JointSummary(name, recorded, int(np.count_nonzero(pos | vel | eff)), int(np.count_nonzero(pos)),
                         int(np.count_nonzero(vel)), int(np.count_nonzero(eff)))
 
+
+class _Window:
+    """The messages of one window of :meth:`ChamberBag._windows`, being collected."""
+
+    def __init__(self, bag: ChamberBag, bag_reference: str | None) -> None:
+        self.bag = bag
+        self.bag_reference = bag_reference
+        # one collector per bag topic: a bag topic may feed both joint-state inputs
+        self.joint_collectors = {
+            bag.topic_map[JOINT_STATES]: JointStateColumns(),
+            bag.topic_map[MOTOR_CURRENT]: JointStateColumns(),
+        }
+        if bag_reference is not None and bag_reference not in self.joint_collectors:
+            self.joint_collectors[bag_reference] = JointStateColumns()
+        self.t_log: list[int] = []
+        self.t_stamp: list[int] = []
+        self.t_value: list[float] = []
+        self.count = 0
+
+    def finish(self) -> ChamberArrays:
+        bag = self.bag
+        temperature = TemperatureArrays(
+            np.array(self.t_log, dtype=np.int64),
+            np.array(self.t_stamp, dtype=np.int64),
+            np.array(self.t_value, dtype=np.float64),
+        )
+        try:
+            finished = {name: c.finish(bag.joint_map) for name, c in self.joint_collectors.items()}
+        except ValueError as err:
+            msg = f'bag {bag.path}: joint map: {err}'
+            raise RecordingError(msg) from err
+        reference = None
+        if self.bag_reference is not None:  # a message whose velocities do not match its names is not used
+            reference = finished[self.bag_reference]
+            bad = self.joint_collectors[self.bag_reference].mismatched(1)
+            if bad.any():
+                reference = reference._replace(velocity={n: np.where(bad, np.nan, v)
+                                                         for n, v in reference.velocity.items()})
+        return ChamberArrays(
+            temperature=temperature,
+            joint_states=finished[bag.topic_map[JOINT_STATES]],
+            motor_current=finished[bag.topic_map[MOTOR_CURRENT]],
+            reference_velocity=reference,
+        )

@@ -411,3 +411,41 @@ def test_a_truncated_or_corrupted_bag_points_to_recover(tmp_path: Path) -> None:
     cut.write_bytes(data[: len(data) // 2])
     with pytest.raises(RecordingError, match=r'cut.mcap: opening failed .*`gimbal-friction recover .*cut.mcap --out'):
         open_chamber_bag(cut)
+
+
+@pytest.mark.parametrize('window', [1, 3, 40, 10**9])
+def test_windows_together_equal_the_whole_bag(tmp_path: Path, window: int) -> None:
+    """iter_arrays (the fleet's bounded-memory read) gives read_arrays cut in log-time order, never inside one log
+    time (messages logged at the same time stay in one window, as one callback batch of a node)."""
+    rng = np.random.default_rng(3)
+    js = random_joint_states(rng, 120)
+    js = [(topic, msgtype, T0 + 20 * (i // 3), msg) for i, (topic, msgtype, _, msg) in enumerate(js)]  # ties
+    others = [(t, m, T0 + 20 * k + 20, msg) for k, (t, m, _, msg) in enumerate(
+        x for x in chamber_messages() if x[0] != JOINT_STATES)]
+    path = write_chamber_bag(tmp_path / 'bag', sorted(js + others, key=lambda x: x[2]))
+    bag = open_chamber_bag(path)
+    whole = bag.read_arrays()
+    parts = list(bag.iter_arrays(window))
+    assert len(parts) >= 1
+    if window == 10**9:
+        assert len(parts) == 1
+    sizes = [len(p.temperature.log_time_ns) + len(p.joint_states) + len(p.motor_current) for p in parts]
+    assert sum(sizes) == bag.message_count
+    assert all(size >= window for size in sizes[:-1])
+    for field in ('temperature', 'joint_states', 'motor_current'):
+        logs = [np.asarray(getattr(p, field).log_time_ns) for p in parts]
+        np.testing.assert_array_equal(np.concatenate(logs), getattr(whole, field).log_time_ns)
+    ends = [int(np.max(np.concatenate([p.temperature.log_time_ns, p.joint_states.log_time_ns,
+                                       p.motor_current.log_time_ns]))) for p in parts]
+    starts = [int(np.min(np.concatenate([p.temperature.log_time_ns, p.joint_states.log_time_ns,
+                                         p.motor_current.log_time_ns]))) for p in parts]
+    assert all(e < s for e, s in zip(ends[:-1], starts[1:], strict=True))   # a log time is never split
+    np.testing.assert_array_equal(np.concatenate([p.temperature.temperature_c for p in parts]),
+                                  whole.temperature.temperature_c)
+    for field in ('position', 'velocity', 'effort'):
+        for name in whole.joint_states.names:
+            joined = np.concatenate([getattr(p.joint_states, field).get(name, np.full(len(p.joint_states), NAN))
+                                     for p in parts])
+            np.testing.assert_array_equal(joined, getattr(whole.joint_states, field)[name], err_msg=field)
+    with pytest.raises(ValueError, match='max_messages'):
+        bag.iter_arrays(0)

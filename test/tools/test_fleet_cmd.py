@@ -159,3 +159,24 @@ def test_process_unit_records_an_unconfigured_joint(fleet_dir):
     settings = FitSettings(axes={'azimuth': AxisParams()}, config_paths=())
     rec = process_unit(UnitSpec('u', str(fleet_dir / 'seeker_00'), 'log'), settings)
     assert rec['error'].startswith('no samples of a configured axis (joints present: elevation')
+
+
+def test_a_bag_unit_is_read_in_windows_with_the_same_statistics(tmp_path, capsys):
+    """A chamber bag is fed to the estimator window by window (bounded memory): the same samples and statistics
+    as one pass over the whole bag, and as many samples as the offline replay accepts."""
+    from gimbal_friction.fleet import unit_stats_from_bag
+    from gimbal_friction.replay import replay_bag
+
+    assert main(['synth-bag', '--out', str(tmp_path / 'bag'), '--plateaus=-40,20', '--hold-s', '8',
+                 '--joint-rate-hz', '25', '--format', 'json']) == 0
+    capsys.readouterr()
+    whole = unit_stats_from_bag(str(tmp_path / 'bag'), [], 'both', window_messages=10**9)
+    small = unit_stats_from_bag(str(tmp_path / 'bag'), [], 'both', window_messages=97)
+    replayed = replay_bag(tmp_path / 'bag', None, log_inputs=False).measurements
+    assert set(whole) == set(small) == {'elevation'}
+    a, b = whole['elevation'], small['elevation']
+    assert a.n_samples == b.n_samples == int(np.sum(replayed.joint == 'elevation')) > 100
+    np.testing.assert_array_equal(a.t_index, b.t_index)
+    np.testing.assert_array_equal(a.samples, b.samples)
+    np.testing.assert_allclose(b.mean_y, a.mean_y, rtol=1e-12)
+    np.testing.assert_allclose(b.sum_t, a.sum_t, rtol=1e-12)
