@@ -100,7 +100,9 @@ class FrictionTable:
         self.grid = self.t0 + self.step * np.arange(self.n)
         # (the nodes beyond [t_min, t_max] are interpolation partners only; at the model's own limits they are
         # evaluated at the limit)
-        contact = friction_torque(params, np.clip(self.grid, MODEL_T_MIN_C, MODEL_T_MAX_C), 0.0)
+        # (a model that overflows is refused below by its result, not by a RuntimeWarning)
+        with np.errstate(over='ignore', invalid='ignore'):
+            contact = friction_torque(params, np.clip(self.grid, MODEL_T_MIN_C, MODEL_T_MAX_C), 0.0)
         # a lubricant cannot have a negative viscosity (Walther constants fitted elsewhere, a typo); Palmgren's
         # (nu n)^(2/3) would turn it into a positive torque without a word
         thin = np.flatnonzero(~(contact.viscosity_cst > 0.0))
@@ -112,7 +114,8 @@ class FrictionTable:
         m_rs = contact.m_rolling_nmm + contact.m_sliding_nmm
         self._m_rs = {ARRAY: m_rs, SCALAR: m_rs.tolist()}
         # the viscous part must be finite over the whole range too (e.g. a Walther constant gone wrong)
-        check = self.magnitude_nm(self.grid, np.full(self.n, 1.0), ARRAY)
+        with np.errstate(over='ignore', invalid='ignore'):
+            check = self.magnitude_nm(self.grid, np.full(self.n, 1.0), ARRAY)
         if not np.all(np.isfinite(check)) or np.any(check < 0.0):
             raise ModelDomainError('the model gives a non-finite or negative torque in '
                                    f'[{self.t_min:g}, {self.t_max:g}] degC; check the parameters')
