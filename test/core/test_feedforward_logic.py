@@ -111,6 +111,18 @@ def test_take_state_keeps_counters_and_a_temperature_still_in_range():
     assert new.last_temperature_c == -50.0
 
 
+def assert_same_commands(expected: list[list[float] | None], bag, n_messages: int) -> list[list[float]]:
+    """The per-message commands (None: nothing published) equal the bag's rows; returns the published ones."""
+    got: list[list[float] | None] = [None] * n_messages
+    for i, row in zip(bag.msg_index.tolist(), bag.commands_nm.tolist()):
+        got[i] = row
+    for e, g in zip(expected, got):
+        assert (e is None) == (g is None)
+        if e is not None:
+            np.testing.assert_allclose(g, e, rtol=1e-12, atol=1e-18)
+    return [g for g in got if g is not None]
+
+
 @settings(max_examples=40, deadline=None)
 @given(temps=st.lists(st.tuples(st.one_of(st.floats(-1e3, 1e3), st.sampled_from(ODD)), st.integers(-3, 3)),
                       max_size=8),
@@ -143,14 +155,8 @@ def test_bag_arrays_equal_the_per_message_rule(temps, vels, policy):
             expected.append(None if out is None else out.commands_nm)
     arrays, _, _ = chamber_arrays(t_msgs, js_msgs)
     bag = Feedforward(AXES, s).bag_torques(arrays)
-    got: list[list[float] | None] = [None] * len(js_msgs)
-    for i, row in zip(bag.msg_index.tolist(), bag.commands_nm.tolist()):
-        got[i] = row
-    for e, g in zip(expected, got):
-        assert (e is None) == (g is None)
-        if e is not None:
-            np.testing.assert_allclose(g, e, rtol=1e-12, atol=1e-18)
-            assert all(math.isfinite(x) and abs(x) <= 0.002 for x in g)
+    for g in assert_same_commands(expected, bag, len(js_msgs)):
+        assert all(math.isfinite(x) and abs(x) <= 0.002 for x in g)
 
 
 @settings(max_examples=60, deadline=None)
@@ -194,14 +200,7 @@ def test_bag_reference_velocity_equals_the_per_message_rule(steps, source):
     reference, _ = joint_state_arrays(ref_msgs, fields=(False, True, False))
     arrays = arrays._replace(reference_velocity=reference)
     ff = Feedforward(AXES, s)
-    bag = ff.bag_torques(arrays)
-    got: list[list[float] | None] = [None] * len(js_msgs)
-    for i, row in zip(bag.msg_index.tolist(), bag.commands_nm.tolist()):
-        got[i] = row
-    for e, g in zip(expected, got):
-        assert (e is None) == (g is None)
-        if e is not None:
-            np.testing.assert_allclose(g, e, rtol=1e-12, atol=1e-18)
+    assert_same_commands(expected, ff.bag_torques(arrays), len(js_msgs))
     assert ff.counters.joint_state_rejected == one.counters.joint_state_rejected
 
 
