@@ -33,7 +33,7 @@ from typing import Any, NamedTuple
 
 import yaml
 
-from gimbal_friction.core.errors import ConfigError
+from gimbal_friction.core.errors import ConfigError, ConfigFileError
 from gimbal_friction.core.params import AxisParams
 
 WILDCARD = '/**'
@@ -74,18 +74,18 @@ def read_yaml(source: str | Path, text: str | None = None) -> dict[str, Any]:
             text = Path(source).read_text(encoding='utf-8')
         data = yaml.safe_load(text)
     except OSError as err:
-        msg = f'cannot read parameter file: {err.strerror}'
-        raise ConfigError(str(source), msg) from None
+        msg = f'cannot read: {err.strerror}'
+        raise ConfigFileError(str(source), msg) from None
     except UnicodeDecodeError:
         msg = 'not a parameter file: not UTF-8 text (a binary file?)'
-        raise ConfigError(str(source), msg) from None
+        raise ConfigFileError(str(source), msg) from None
     except yaml.YAMLError as err:
         msg = f'not valid YAML: {yaml_error_text(err)}'
-        raise ConfigError(str(source), msg) from None
+        raise ConfigFileError(str(source), msg) from None
     if data is None:
         return {}
     if not isinstance(data, dict):
-        raise ConfigError(str(source), 'a parameter file must map node names to {ros__parameters: ...}')
+        raise ConfigFileError(str(source), 'a parameter file must map node names to {ros__parameters: ...}')
     return data
 
 
@@ -377,12 +377,12 @@ def ros_parameter_sections(text: str, source: str) -> list[tuple[str, dict[str, 
     try:
         root = yaml.compose(text, Loader=yaml.SafeLoader)
     except yaml.YAMLError as err:
-        raise ConfigError(source, f'not valid YAML: {yaml_error_text(err)}') from None
+        raise ConfigFileError(source, f'not valid YAML: {yaml_error_text(err)}') from None
     out: list[tuple[str, dict[str, Any]]] = []
 
     def walk(node: Any, namespace: list[str]) -> None:
         if not isinstance(node, yaml.MappingNode):
-            raise ConfigError(source, 'a parameter file must map node names to {ros__parameters: ...}')
+            raise ConfigFileError(source, 'a parameter file must map node names to {ros__parameters: ...}')
         for key, value in node.value:
             if not isinstance(value, yaml.MappingNode):
                 raise ConfigError(f'{source}: {key.value}', 'section must hold a ros__parameters mapping')
@@ -519,7 +519,7 @@ def command_line_parameters(argv: Sequence[str], node_name: str, namespace: str 
             try:
                 text = read(path)
             except OSError as err:
-                raise ConfigError(path, f'cannot read parameter file: {err.strerror}') from None
+                raise ConfigFileError(path, f'cannot read: {err.strerror}') from None
             for key, params in ros_parameter_sections(text, path):
                 section = sections.setdefault(key, {})
                 for pname, value in params.items():

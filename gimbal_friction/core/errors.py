@@ -25,6 +25,14 @@ class ConfigError(GimbalFrictionError):
         super().__init__(f'parameter {parameter!r}{shown}: {rule}')
 
 
+class ConfigFileError(ConfigError):
+    """A parameter file cannot be read or is not a parameter file (``parameter`` is the file's path)."""
+
+    def __init__(self, path: str, rule: str) -> None:
+        super().__init__(path, rule)
+        self.args = (f'parameter file {path}: {rule}',)
+
+
 class ModelDomainError(GimbalFrictionError):
     """The model was asked for a state it cannot represent (e.g. temperature below absolute zero)."""
 

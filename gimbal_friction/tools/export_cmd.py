@@ -34,7 +34,7 @@ from typing import Any
 
 from gimbal_friction import __version__
 from gimbal_friction.config import all_axis_params, load_parameters, packaged_defaults_text
-from gimbal_friction.core.errors import ConfigError, GimbalFrictionError
+from gimbal_friction.core.errors import ConfigError, ConfigFileError, GimbalFrictionError
 from gimbal_friction.core.export import (
     DEFAULT_MAX_SPEED_RAD_S,
     DEFAULT_RELATIVE_ERROR,
@@ -131,7 +131,7 @@ def sources(config: list[Path]) -> tuple[tuple[str, str], ...]:
         try:
             out.append((str(path), hashlib.sha256(Path(path).read_bytes()).hexdigest()))
         except OSError as err:
-            raise ConfigError(str(path), f'cannot read parameter file: {err.strerror}') from None
+            raise ConfigFileError(str(path), f'cannot read: {err.strerror}') from None
     return tuple(out)
 
 

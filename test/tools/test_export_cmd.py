@@ -147,7 +147,7 @@ def test_nothing_overwritten_silently(tmp_path, capsys):
     (['--random-points', '3'], "'--random-points'"),
     (['--axis', 'roll'], "axis 'roll' is not configured (configured: elevation)"),
     (['--relative-error', '1e-10'], 'temperature breakpoints'),
-    (['--config', '/nonexistent/params.yaml'], 'cannot read parameter file'),
+    (['--config', '/nonexistent/params.yaml'], 'parameter file /nonexistent/params.yaml: cannot read'),
 ])
 def test_bad_input_refused_with_one_line(tmp_path, capsys, args, needle):
     out = tmp_path / 'never'

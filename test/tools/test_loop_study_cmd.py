@@ -81,7 +81,7 @@ def test_table_is_the_default_output_and_the_configuration_is_layered(tmp_path, 
     (['--temperatures', '-90'], 'temperatures'),
     (['--latency-s', '-1'], '--latency-s'),
     (['--refit-fit', 'walther_z'], '--refit-fit'),
-    (['--config', '/nonexistent/file.yaml'], 'cannot read parameter file'),
+    (['--config', '/nonexistent/file.yaml'], 'parameter file /nonexistent/file.yaml: cannot read'),
 ])
 def test_bad_input_is_refused_in_one_line(args, needle, capsys):
     code = main(['loop-study', '--short', *args])
