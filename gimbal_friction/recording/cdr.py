@@ -624,6 +624,9 @@ class JointStateColumns:
             else:
                 pos, index = self._parse_layout(raw)
             sec, nanosec = _UNPACK_STAMP(raw, 4)
+            # the three float64 sequences are unrolled on purpose: this is the innermost loop of replay (one call
+            # per JointState of the bag), where a helper call per sequence adds about 0.25 us to the 0.9 us a
+            # message takes here
             # position
             pos = (pos + 3) & ~3
             (n_pos,) = _UNPACK_U32(raw, pos + 4)
