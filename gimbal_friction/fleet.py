@@ -40,8 +40,8 @@ from gimbal_friction.core.errors import FitError, GimbalFrictionError
 from gimbal_friction.core.model import friction_torque, viscosity_cst
 from gimbal_friction.core.params import AxisParams
 from gimbal_friction.core.refit import RefitResult, refit_stats
-from gimbal_friction.core.sufficient import SufficientStats
-from gimbal_friction.core.units import NS_PER_S, RPM_PER_RAD_S
+from gimbal_friction.core.residual_row import residual_rows
+from gimbal_friction.core.sufficient import SufficientStats, accumulate_rows
 from gimbal_friction.recording.topics import RESIDUAL_DETAIL, TEMPERATURE
 
 #: Messages of a chamber bag decoded at once on a worker (about 1 kB each while processed) [-].
@@ -195,22 +195,11 @@ def unit_stats_from_bag(path: str, config_paths: Sequence[str], direction: str,
 
     axes, _, est_settings = node_settings([Path(p) for p in config_paths])
     logic = EstimatorLogic(axes, est_settings)
-    parts: dict[str, list[SufficientStats]] = {}
+    stats: dict[str, SufficientStats] = {}
     for window in open_chamber_bag(path).iter_arrays(window_messages):
-        est = logic.feed(window)
-        for joint in sorted({str(j) for j in est.joint.tolist()}):
-            sel = est.joint == joint
-            v = est.velocity_rad_s[sel]
-            f = est.friction_nm[sel]
-            t = est.temperature_c[sel]
-            ok = np.isfinite(v) & np.isfinite(f) & np.isfinite(t) & (v != 0.0)
-            if direction != 'both':
-                ok &= (v > 0.0) if direction == 'cw' else (v < 0.0)
-            sign = np.sign(v[ok])
-            parts.setdefault(joint, []).append(
-                SufficientStats.from_arrays(t[ok], np.abs(v[ok]) * RPM_PER_RAD_S, f[ok] * sign, sign,
-                                            time=est.stamp_ns[sel][ok] / NS_PER_S))
-    return {joint: p[0].merge(*p[1:]) for joint, p in parts.items()}
+        measured = logic.feed(window)   # the refit's samples of these rows, as from a residual log
+        accumulate_rows(residual_rows(measured, np.full(len(measured), np.nan)), stats, direction=direction)
+    return stats
 
 
 def _axis_record(result: RefitResult, base: AxisParams) -> dict[str, Any]:

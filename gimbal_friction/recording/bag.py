@@ -559,7 +559,7 @@ class ChamberBag:
         bag_temperature = self.topic_map[TEMPERATURE]
         inputs = self._select(None)
         bag_reference = self.topic_map[REFERENCE_VELOCITY] if self.has_reference else None
-        selected = self._select([*CHAMBER_TOPICS, REFERENCE_VELOCITY] if bag_reference is not None else None)
+        selected = inputs if bag_reference is None else self._select([*CHAMBER_TOPICS, REFERENCE_VELOCITY])
         window = _Window(self, bag_reference)
         last_log = None
         for conn, log_time, data in self._messages(selected):
