@@ -38,7 +38,7 @@ setup(
             'residual_logger = gimbal_friction.nodes.residual_logger:main',
             'chamber_replay = gimbal_friction.nodes.chamber_replay:main',
             'gimbal_sim = gimbal_friction.nodes.gimbal_sim:main',
-            'gimbal-friction = gimbal_friction.tools.cli:entry',
+            'gimbal-friction = gimbal_friction.cli.main:entry',
         ],
     },
 )

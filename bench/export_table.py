@@ -1,6 +1,6 @@
 """Benchmark (not a test): the exported C table vs the Python model, per-call time and accuracy.
 
-Builds the table of the default axis (``gimbal_friction.core.export``), writes its C header to a temporary
+Builds the table of the default axis (``gimbal_friction.export.table``), writes its C header to a temporary
 directory, compiles a small driver with ``gcc -O2`` and measures, in the same run.
 
 Two point sets of ``--points`` each: ``random`` (uniform over the table's temperature range and ±max speed: the
@@ -13,7 +13,7 @@ temperature drifting slowly across the range, the velocity a ±2 rad/s sine of 1
 - **Python per call**: ``FrictionTable.torque_nm`` (the nodes' tabulated fast path) over the first
   ``--python-points`` of the same points, best of three passes;
 - **accuracy**: the C friction at every point against the full model
-  (:func:`~gimbal_friction.core.model.friction_torque`), max relative error outside the Palmgren switch band and
+  (:func:`~gimbal_friction.physics.model.friction_torque`), max relative error outside the Palmgren switch band and
   the number of points inside it; and the same for ``FrictionTable``.
 
 Prints a table (or ``--json``) with the ratio Python/C. Run from the repository root::
@@ -39,13 +39,13 @@ from typing import Any
 
 import numpy as np
 
-from gimbal_friction.config import all_axis_params, load_parameters
-from gimbal_friction.core.export import ExportOptions, Provenance, build_table, c_identifier
-from gimbal_friction.core.feedforward import FeedforwardSettings
-from gimbal_friction.core.model import friction_torque, viscosity_cst
-from gimbal_friction.core.table import FrictionTable
-from gimbal_friction.core.units import rpm_from_rad_s
-from gimbal_friction.export_formats import render_c_header
+from gimbal_friction.common.units import rpm_from_rad_s
+from gimbal_friction.config.loader import all_axis_params, load_parameters
+from gimbal_friction.export.formats import render_c_header
+from gimbal_friction.export.table import ExportOptions, Provenance, build_table, c_identifier
+from gimbal_friction.feedforward.rule import FeedforwardSettings
+from gimbal_friction.physics.model import friction_torque, viscosity_cst
+from gimbal_friction.physics.table import FrictionTable
 
 DRIVER = r'''
 #define _POSIX_C_SOURCE 199309L

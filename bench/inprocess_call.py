@@ -27,7 +27,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from gimbal_friction.config import render_parameter_file  # noqa: E402
+from gimbal_friction.config.loader import render_parameter_file  # noqa: E402
 from gimbal_friction.controller import load_feedforward  # noqa: E402
 
 TARGET_US = 5.0

@@ -20,10 +20,10 @@ import time
 
 import numpy as np
 
-from gimbal_friction.core.model import friction_torque, viscosity_cst
-from gimbal_friction.core.params import AxisParams
-from gimbal_friction.core.refit import refit_model, refit_stats
-from gimbal_friction.core.sufficient import SufficientStats
+from gimbal_friction.physics.model import friction_torque, viscosity_cst
+from gimbal_friction.physics.params import AxisParams
+from gimbal_friction.refit.fit import refit_model, refit_stats
+from gimbal_friction.refit.sufficient import SufficientStats
 
 
 def samples(n: int, truth: AxisParams, seed: int = 0) -> tuple[np.ndarray, ...]:

@@ -57,7 +57,7 @@ def run_decode(bag: Path) -> tuple[float, int]:
 
 def run_replay(bag: Path, work: Path, log_inputs: bool) -> tuple[float, int, dict[str, float]]:
     """``replay_bag`` into a fresh folder: (wall time [s], bag messages, seconds per stage)."""
-    from gimbal_friction.replay import replay_bag
+    from gimbal_friction.chamber.replay import replay_bag
     out = Path(tempfile.mkdtemp(prefix='replay-', dir=work))
     events: list[tuple[str, float]] = []
 

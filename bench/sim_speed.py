@@ -23,7 +23,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from gimbal_friction.core.params import AxisParams
+from gimbal_friction.physics.params import AxisParams
 from gimbal_friction.sim import DEFAULT_TEMPERATURES, SimConfig, make_profile, simulate
 from gimbal_friction.sim.compensation import Compensator, constant_coulomb, suite_feedforward
 from gimbal_friction.sim.engine import Run

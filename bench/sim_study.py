@@ -27,8 +27,8 @@ import sys
 import time
 from typing import Any
 
-from gimbal_friction.core.feedforward import FeedforwardSettings
-from gimbal_friction.loop_study import load_study_inputs, study
+from gimbal_friction.feedforward.rule import FeedforwardSettings
+from gimbal_friction.runs.loop_study import load_study_inputs, study
 from gimbal_friction.sim import goal_checks
 from gimbal_friction.sim.study import FeedforwardSetup
 

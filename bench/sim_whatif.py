@@ -25,8 +25,8 @@ from typing import Any
 
 import numpy as np
 
-from gimbal_friction.core.feedforward import FeedforwardSettings
-from gimbal_friction.core.params import AxisParams
+from gimbal_friction.feedforward.rule import FeedforwardSettings
+from gimbal_friction.physics.params import AxisParams
 from gimbal_friction.sim import SimConfig, batch_metrics, make_profile, simulate
 from gimbal_friction.sim.compensation import Compensator, ControllerInputs, suite_feedforward
 from gimbal_friction.sim.engine import Run

@@ -1,8 +1,10 @@
 """gimbal_friction: gimbal-bearing friction torque versus temperature (Yu & Shang 2017) for ROS 2.
 
-The physics lives in :mod:`gimbal_friction.core` (pure Python, never imports rclpy); the ROS 2 nodes in
-:mod:`gimbal_friction.nodes` and the ``gimbal-friction`` command line in :mod:`gimbal_friction.tools` are thin
-adapters around it.
+Folders, bottom to top (each imports only folders below it; ``test/test_layers.py`` checks it): ``common``,
+``physics`` (the paper's equations), ``streams``, ``feedforward`` and ``estimation``, ``recording``, ``refit``,
+``export`` and ``plots``, ``sim``, ``config``, ``chamber``, ``runs``, then the thin ``nodes`` (ROS 2) and ``cli``
+(``gimbal-friction``). Public facades at this level: :mod:`gimbal_friction.controller` (the feedforward in your own
+process), :mod:`gimbal_friction.demo` (the main job) and :mod:`gimbal_friction.core` (the model without ROS).
 """
 
 from __future__ import annotations

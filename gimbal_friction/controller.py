@@ -1,6 +1,6 @@
 """The feedforward inside your own controller process: no DDS hop, the same object and rules as the node.
 
-:func:`load_feedforward` builds :class:`~gimbal_friction.core.feedforward.Feedforward` — the very object the
+:func:`load_feedforward` builds :class:`~gimbal_friction.feedforward.rule.Feedforward` — the very object the
 ``friction_feedforward`` node runs — from the same parameter files the nodes load (the packaged defaults, then your
 files layered key by key, like repeated ``--params-file``; node settings from the ``/**`` and
 ``friction_feedforward`` sections). Every rule is the node's: temperature validation and the stale policy (on the
@@ -29,9 +29,9 @@ from __future__ import annotations
 from collections.abc import Iterable
 from pathlib import Path
 
-from gimbal_friction.config import all_axis_params, check_config_files, load_parameters
-from gimbal_friction.core.feedforward import Feedforward, FeedforwardSettings
-from gimbal_friction.core.settings import settings_from_parameters
+from gimbal_friction.common.settings import settings_from_parameters
+from gimbal_friction.config.loader import all_axis_params, check_config_files, load_parameters
+from gimbal_friction.feedforward.rule import Feedforward, FeedforwardSettings
 
 __all__ = ['Feedforward', 'FeedforwardSettings', 'load_feedforward']
 
@@ -64,7 +64,7 @@ def load_feedforward(*param_files: str | Path, node_name: str = 'friction_feedfo
         wanted = list(axes)
         missing = [a for a in wanted if a not in configured]
         if missing:
-            from gimbal_friction.core.errors import ConfigError
+            from gimbal_friction.common.errors import ConfigError
             raise ConfigError('axes', f'not configured: {", ".join(missing)} (configured: {", ".join(configured)})')
         configured = {a: configured[a] for a in wanted}
     settings = settings_from_parameters(FeedforwardSettings, load_parameters(paths, node_name=node_name))

@@ -9,10 +9,10 @@ from __future__ import annotations
 import dataclasses
 import math
 
-from gimbal_friction.core.estimator import EstimatorSettings
-from gimbal_friction.core.feedforward import FeedforwardSettings
-from gimbal_friction.core.params import parameter_specs
-from gimbal_friction.core.settings import EstimatorNodeSettings, FeedforwardNodeSettings, LoggerSettings
+from gimbal_friction.config.node_settings import EstimatorNodeSettings, FeedforwardNodeSettings, LoggerSettings
+from gimbal_friction.estimation.estimator import EstimatorSettings
+from gimbal_friction.feedforward.rule import FeedforwardSettings
+from gimbal_friction.physics.params import parameter_specs
 
 
 def fmt(value: object) -> str:

@@ -7,7 +7,8 @@ from pathlib import Path
 import pytest
 import yaml
 
-from gimbal_friction.config import (
+from gimbal_friction.common.errors import ConfigError
+from gimbal_friction.config.loader import (
     all_axis_params,
     axis_names,
     axis_params,
@@ -15,8 +16,7 @@ from gimbal_friction.config import (
     packaged_defaults_text,
     render_parameter_file,
 )
-from gimbal_friction.core.errors import ConfigError
-from gimbal_friction.core.params import AxisParams
+from gimbal_friction.physics.params import AxisParams
 
 ROOT = Path(__file__).resolve().parents[1]
 

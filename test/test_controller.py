@@ -6,12 +6,12 @@ import math
 
 import pytest
 
-from gimbal_friction.config import render_parameter_file
+from gimbal_friction.common.errors import ConfigError
+from gimbal_friction.config.loader import render_parameter_file
 from gimbal_friction.controller import load_feedforward
-from gimbal_friction.core.errors import ConfigError
-from gimbal_friction.core.feedforward import Feedforward, FeedforwardSettings
-from gimbal_friction.core.model import friction_torque
-from gimbal_friction.core.params import AxisParams
+from gimbal_friction.feedforward.rule import Feedforward, FeedforwardSettings
+from gimbal_friction.physics.model import friction_torque
+from gimbal_friction.physics.params import AxisParams
 
 V = 2 * math.pi / 180
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import doctest
 from pathlib import Path
 
-from gimbal_friction.core.params import parameter_specs
+from gimbal_friction.physics.params import parameter_specs
 
 README = Path(__file__).resolve().parents[1] / 'README.md'
 

@@ -1,4 +1,4 @@
-"""Synthetic chamber test (gimbal_friction.synth) and the ``gimbal-friction synth-bag`` command."""
+"""Synthetic chamber test (gimbal_friction.chamber.synth) and the ``gimbal-friction synth-bag`` command."""
 
 from __future__ import annotations
 
@@ -10,10 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from gimbal_friction.config import axis_params, load_parameters
-from gimbal_friction.core.errors import ConfigError
-from gimbal_friction.recording import topics
-from gimbal_friction.synth import (
+from gimbal_friction.chamber.synth import (
     PAPER_COLD_RATIO,
     SynthConfig,
     chamber_and_bearing,
@@ -22,7 +19,10 @@ from gimbal_friction.synth import (
     schedule,
     sweep,
 )
-from gimbal_friction.tools.cli import main
+from gimbal_friction.cli.main import main
+from gimbal_friction.common.errors import ConfigError
+from gimbal_friction.config.loader import axis_params, load_parameters
+from gimbal_friction.recording import topics
 
 V_NOMINAL = 2.0 * math.pi / 180.0   # 1/3 rpm = 2 deg/s [rad/s]
 
@@ -382,7 +382,7 @@ def test_shipped_sample_is_small_complete_and_reproducible(tmp_path, capsys):
 
 # ---------------------------------------------------------------------------------------------- preset 'paper'
 def test_paper_preset_reproduces_the_four_measured_means():
-    from gimbal_friction.synth import PAPER_MEANS_NMM, preset_config, truth_summary
+    from gimbal_friction.chamber.synth import PAPER_MEANS_NMM, preset_config, truth_summary
 
     cfg = preset_config('paper', hold_s=20.0, joint_rate_hz=50.0)
     assert cfg.asym_ratio_cold == 1.0   # the synthetic CCW-only asymmetry is off: the model's own term is the truth

@@ -1,1 +1,4 @@
-"""ROS 2 nodes: thin rclpy adapters around gimbal_friction.core (declare params, convert messages, publish)."""
+"""ROS 2 nodes: thin rclpy adapters (declare parameters, convert messages, publish) around one library object each.
+
+May import every library folder; nothing imports nodes.
+"""

@@ -25,11 +25,11 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.signals import SignalHandlerOptions
 
-from gimbal_friction.config import axis_names, check_parameter_names, command_line_parameters, load_parameters
-from gimbal_friction.core.errors import ConfigError, GimbalFrictionError, ModelDomainError
-from gimbal_friction.core.params import AxisParams, parameter_specs
-from gimbal_friction.core.settings import settings_from
-from gimbal_friction.core.table import FrictionTable
+from gimbal_friction.common.errors import ConfigError, GimbalFrictionError, ModelDomainError
+from gimbal_friction.common.settings import settings_from
+from gimbal_friction.config.loader import axis_names, check_parameter_names, command_line_parameters, load_parameters
+from gimbal_friction.physics.params import AxisParams, parameter_specs
+from gimbal_friction.physics.table import FrictionTable
 
 T = TypeVar('T')
 OK, WARN, ERROR = DiagnosticStatus.OK, DiagnosticStatus.WARN, DiagnosticStatus.ERROR
@@ -237,7 +237,7 @@ def parameter_guard(node: Node, validate: Callable[[list[Parameter[Any]]], None]
 
 def check_model(axes: Mapping[str, AxisParams], t_min_c: float, t_max_c: float) -> None:
     """The whole model of every axis can be built over ``[t_min_c, t_max_c]`` °C (positive, finite viscosity and
-    torque): :class:`~gimbal_friction.core.table.FrictionTable` on a 1 °C grid. For a node that does not tabulate
+    torque): :class:`~gimbal_friction.physics.table.FrictionTable` on a 1 °C grid. For a node that does not tabulate
     the model itself (the estimator) but shares its parameters.
 
     Raises:

@@ -34,7 +34,7 @@ from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import QoSProfile
 
-from gimbal_friction.core.errors import ConfigError, GimbalFrictionError
+from gimbal_friction.common.errors import ConfigError, GimbalFrictionError
 from gimbal_friction.nodes._common import startup_overrides
 from gimbal_friction.recording import topics
 from gimbal_friction.recording.bag import open_chamber_bag

@@ -4,7 +4,8 @@ the gimbal works (observer).
 Subscribes ``/gimbal/motor_current`` (sensor_msgs/JointState, effort = armature current [A] per joint),
 ``/joint_states`` (position [rad], velocity [rad/s] relative to the base) and ``/gimbal/temperature``
 (sensor_msgs/Temperature, °C, ``qos_profile_sensor_data``). The messages received are handed every
-``batch_period_s`` to :class:`gimbal_friction.core.estimator.EstimatorLogic` — the same code the offline ``replay``
+``batch_period_s`` to :class:`gimbal_friction.estimation.estimator.EstimatorLogic` — the same code the offline
+``replay``
 runs over a whole bag; its result does not depend on the batching, so live and offline give the same numbers. The
 rules (pairing, steady-state and observer acceptance, stamps, rejections, statistics) are in that module.
 
@@ -15,7 +16,7 @@ Publishes:
   [joint]``, ``position = [rad]``, ``velocity = [rad/s]``, ``effort = [friction N·m]`` signed like the motion. Never
   NaN.
 - ``/gimbal/friction/measured_detail`` (std_msgs/Float64MultiArray), one message per accepted sample:
-  ``layout.dim[0].label`` = joint, ``data`` = :data:`gimbal_friction.core.measurement.MEASUREMENT_FIELDS` (stamp sec
+  ``layout.dim[0].label`` = joint, ``data`` = :data:`gimbal_friction.streams.measurement.MEASUREMENT_FIELDS` (stamp sec
   and nanosec, position, velocity, acceleration, current, temperature used and whether it was fresh, friction, the
   K_T, I_0 and J applied, and the method: 0 steady state, 1 observer). What the residual logger logs.
 - ``/diagnostics`` (every ``diagnostics_period_s``): one status per joint, ``gimbal_friction/estimator/<joint>``
@@ -33,8 +34,8 @@ Publishes:
 
 Parameters: the model parameters (K_T = ``torque_constant_nm_per_a``, I_0 = ``no_load_current_a``, J =
 ``inertia_kg_m2``, per joint via ``axis.<joint>.*``), every field of
-:class:`~gimbal_friction.core.estimator.EstimatorSettings` and the node's periods. ``ros2 param set`` is validated as
-a whole before it succeeds; a change of the estimator settings restarts steady-state detection, a change of a
+:class:`~gimbal_friction.estimation.estimator.EstimatorSettings` and the node's periods. ``ros2 param set`` is
+validated as a whole before it succeeds; a change of the estimator settings restarts steady-state detection, a change of a
 joint's K_T or I_0 restarts that joint's statistics.
 """
 
@@ -53,17 +54,16 @@ from rclpy.qos import QoSProfile, qos_profile_sensor_data
 from sensor_msgs.msg import JointState, Temperature
 from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 
-from gimbal_friction.core.arrays import chamber_arrays
-from gimbal_friction.core.errors import ModelDomainError
-from gimbal_friction.core.estimator import (
+from gimbal_friction.common.errors import ModelDomainError
+from gimbal_friction.common.settings import settings_from
+from gimbal_friction.common.units import NS_PER_S, join_stamp, split_stamp
+from gimbal_friction.config.node_settings import EstimatorNodeSettings
+from gimbal_friction.estimation.estimator import (
     INPUT_REASONS,
     UNKNOWN_JOINT,
     EstimatorLogic,
     EstimatorSettings,
 )
-from gimbal_friction.core.measurement import MEASUREMENT_FIELDS, METHOD_NAMES, MeasurementArrays, detail_matrix
-from gimbal_friction.core.settings import EstimatorNodeSettings, settings_from
-from gimbal_friction.core.units import NS_PER_S, join_stamp, split_stamp
 from gimbal_friction.nodes._common import (
     ERROR,
     OK,
@@ -85,13 +85,15 @@ from gimbal_friction.nodes._common import (
     subscribe,
 )
 from gimbal_friction.recording import topics
+from gimbal_friction.streams.arrays import chamber_arrays
+from gimbal_friction.streams.measurement import MEASUREMENT_FIELDS, METHOD_NAMES, MeasurementArrays, detail_matrix
 
 #: subscription depth: a burst of this many messages is buffered, not dropped
 DEPTH = 1000
 _Msg = tuple[int, int, list[str], list[float], list[float], list[float]]
 
 
-NodeSettings = EstimatorNodeSettings  # the node-level parameters (gimbal_friction.core.settings)
+NodeSettings = EstimatorNodeSettings  # the node-level parameters (gimbal_friction.common.settings)
 
 _EST_FIELDS = field_names(EstimatorSettings)
 _NODE_FIELDS = field_names(NodeSettings)

@@ -12,9 +12,9 @@ Publishes, for each joint-state message (optionally rate-limited by ``max_rate_h
 - ``/diagnostics`` (every ``diagnostics_period_s``): per joint, temperature source and age, saturation, rejected
   inputs.
 
-The logic is :class:`gimbal_friction.core.feedforward.Feedforward`, the very object a controller can use in its own
+The logic is :class:`gimbal_friction.feedforward.rule.Feedforward`, the very object a controller can use in its own
 process and the offline replay runs over a whole bag; the node only converts messages. Times are message stamps
-(the receive time where a stamp is zero), the rule of :mod:`gimbal_friction.core.inputs`.
+(the receive time where a stamp is zero), the rule of :mod:`gimbal_friction.streams.inputs`.
 """
 
 from __future__ import annotations
@@ -32,16 +32,16 @@ from rclpy.qos import QoSProfile, qos_profile_sensor_data
 from sensor_msgs.msg import JointState, Temperature
 from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 
-from gimbal_friction.core.errors import ModelDomainError
-from gimbal_friction.core.feedforward import (
+from gimbal_friction.common.errors import ModelDomainError
+from gimbal_friction.common.settings import settings_from
+from gimbal_friction.config.node_settings import FeedforwardNodeSettings
+from gimbal_friction.feedforward.rule import (
     SOURCE_MEASURED,
     SOURCE_NAMES,
     SOURCE_ZERO,
     Feedforward,
     FeedforwardSettings,
 )
-from gimbal_friction.core.inputs import effective_time
-from gimbal_friction.core.settings import FeedforwardNodeSettings, settings_from
 from gimbal_friction.nodes._common import (
     ERROR,
     OK,
@@ -63,11 +63,12 @@ from gimbal_friction.nodes._common import (
     subscribe,
 )
 from gimbal_friction.recording import topics
+from gimbal_friction.streams.inputs import effective_time
 
 REFERENCE_VELOCITY = topics.REFERENCE_VELOCITY
 #: subscription depth of the joint states: a burst of this many messages is buffered, not dropped
 JOINT_STATE_DEPTH = 1000
-NodeSettings = FeedforwardNodeSettings  # the node-level parameters (gimbal_friction.core.settings)
+NodeSettings = FeedforwardNodeSettings  # the node-level parameters (gimbal_friction.common.settings)
 
 _FF_FIELDS = field_names(FeedforwardSettings)
 _NODE_FIELDS = field_names(NodeSettings)

@@ -52,8 +52,8 @@ from rclpy.parameter import Parameter
 from rclpy.qos import QoSProfile
 from sensor_msgs.msg import JointState, Temperature
 
-from gimbal_friction.core.errors import ConfigError
-from gimbal_friction.core.units import split_stamp
+from gimbal_friction.common.errors import ConfigError
+from gimbal_friction.common.units import split_stamp
 from gimbal_friction.nodes._common import (
     ERROR,
     OK,
@@ -224,7 +224,7 @@ class GimbalSim(Node):
                 self._publish(out, settings, every, los_every)
         finally:
             if settings.record_path:
-                from gimbal_friction.loop_live import save_run
+                from gimbal_friction.runs.loop_live import save_run
                 with self._lock:
                     save_run(settings.record_path, run)
                 self.get_logger().info(f'gimbal_sim: run recorded to {settings.record_path}')

@@ -5,13 +5,13 @@ Subscribes ``/gimbal/temperature``, ``/joint_states``, ``/gimbal/motor_current``
 arrived (raw CDR, log time = receive time; ``log_inputs``). What the estimator measured arrives complete on
 ``measured_detail`` (current, temperature, K_T and I_0 applied, method): nothing is reconstructed here. Each
 measurement is paired with the feedforward published for the same joint and joint-state stamp
-(:func:`gimbal_friction.core.residuals.match_predictions`) and logged as a residual row
-(:func:`gimbal_friction.core.residual_row.residual_rows`):
+(:func:`gimbal_friction.estimation.residuals.match_predictions`) and logged as a residual row
+(:func:`gimbal_friction.streams.residual_row.residual_rows`):
 
 - ``/gimbal/friction/residual`` (sensor_msgs/JointState): name = [joint], position [rad], velocity [rad/s],
   effort = [measured − predicted] [N·m], stamp = the sample's stamp;
 - ``/gimbal/friction/residual_detail`` (std_msgs/Float64MultiArray): ``layout.dim[0].label`` = joint, data in the
-  order of :data:`gimbal_friction.core.residual_row.RESIDUAL_FIELDS`.
+  order of :data:`gimbal_friction.streams.residual_row.RESIDUAL_FIELDS`.
 
 A measurement whose feedforward has not arrived after ``pairing_timeout_s`` is logged with the prediction NaN
 (counted ``no_feedforward``: the sample is still good for the refit). A value that is not finite or not credible
@@ -44,13 +44,11 @@ from rclpy.serialization import deserialize_message
 from sensor_msgs.msg import JointState, Temperature
 from std_msgs.msg import Float64MultiArray
 
-from gimbal_friction.core.errors import ConfigError, GimbalFrictionError
-from gimbal_friction.core.inputs import effective_time
-from gimbal_friction.core.measurement import MEASUREMENT_FIELDS, MeasurementArrays, from_detail
-from gimbal_friction.core.residual_row import ResidualRows, residual_rows
-from gimbal_friction.core.residuals import ResidualStats, credible_rows, credible_torque, match_predictions
-from gimbal_friction.core.settings import LoggerSettings, settings_from
-from gimbal_friction.core.units import join_stamp
+from gimbal_friction.common.errors import ConfigError, GimbalFrictionError
+from gimbal_friction.common.settings import settings_from
+from gimbal_friction.common.units import join_stamp
+from gimbal_friction.config.node_settings import LoggerSettings
+from gimbal_friction.estimation.residuals import ResidualStats, credible_rows, credible_torque, match_predictions
 from gimbal_friction.nodes._common import (
     ERROR,
     OK,
@@ -73,6 +71,9 @@ from gimbal_friction.recording import topics
 from gimbal_friction.recording.cdr import float64_multi_array_cdr_rows, joint_state_cdr_rows, split_rows
 from gimbal_friction.recording.residual_log import ResidualLogWriter
 from gimbal_friction.recording.residual_read import residual_log_files
+from gimbal_friction.streams.inputs import effective_time
+from gimbal_friction.streams.measurement import MEASUREMENT_FIELDS, MeasurementArrays, from_detail
+from gimbal_friction.streams.residual_row import ResidualRows, residual_rows
 
 #: subscription depth: a burst of this many messages is buffered, not dropped
 DEPTH = 1000

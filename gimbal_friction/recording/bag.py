@@ -26,8 +26,7 @@ from rosbags.rosbag2 import Reader, StoragePlugin, Writer, WriterError
 from rosbags.serde import SerdeError
 from rosbags.typesys import TypesysError, get_types_from_idl, get_types_from_msg, get_typestore
 
-from gimbal_friction.core.arrays import ChamberArrays, JointStateArrays, TemperatureArrays
-from gimbal_friction.core.units import join_stamp
+from gimbal_friction.common.units import join_stamp
 from gimbal_friction.recording.cdr import (
     DEFAULT_STORE,
     JointStateColumns,
@@ -47,6 +46,7 @@ from gimbal_friction.recording.topics import (
     REFERENCE_VELOCITY,
     TEMPERATURE,
 )
+from gimbal_friction.streams.arrays import ChamberArrays, JointStateArrays, TemperatureArrays
 
 if TYPE_CHECKING:
     import os

@@ -31,9 +31,9 @@ from typing import TYPE_CHECKING, NamedTuple
 import numpy as np
 from rosbags.typesys import Stores, get_typestore
 
-from gimbal_friction.core.arrays import JointStateArrays
-from gimbal_friction.core.units import NS_PER_S, split_stamp
+from gimbal_friction.common.units import NS_PER_S, split_stamp
 from gimbal_friction.recording.topics import FLOAT64_MULTI_ARRAY_TYPE, JOINT_STATE_TYPE, TEMPERATURE_TYPE
+from gimbal_friction.streams.arrays import JointStateArrays
 
 if TYPE_CHECKING:
     from collections.abc import Mapping, Sequence

@@ -7,7 +7,7 @@ import struct
 
 from rosbags.rosbag2 import ReaderError
 
-from gimbal_friction.core.errors import GimbalFrictionError
+from gimbal_friction.common.errors import GimbalFrictionError
 
 __all__ = ['LIBRARY_READ_ERRORS', 'RecordingError', 'recover_hint']
 

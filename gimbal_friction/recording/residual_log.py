@@ -36,7 +36,7 @@ from mcap.writer import Writer as McapWriter
 from rosbags.serde import SerdeError
 from rosbags.typesys import TypesysError
 
-from gimbal_friction.core.units import NS_PER_S
+from gimbal_friction.common.units import NS_PER_S
 from gimbal_friction.recording import mcap_bulk
 from gimbal_friction.recording.cdr import default_typestore
 from gimbal_friction.recording.errors import RecordingError

@@ -8,7 +8,7 @@ chunks after it are read.
 
 ``/gimbal/friction/residual_detail`` rows are decoded in bulk from their CDR bytes
 (:func:`~.cdr.float64_multi_array_rows`: the Float64MultiArray layout is fixed per joint label), into the row type
-of :mod:`gimbal_friction.core.residual_row` (12 columns; the 11-column layout 1 is read too). What a read went
+of :mod:`gimbal_friction.streams.residual_row` (12 columns; the 11-column layout 1 is read too). What a read went
 through is a :class:`ReadReport`.
 
 Times: ``log_time_ns`` is the log time [ns]; row fields carry their units in their names (SI, temperature in °C).
@@ -26,9 +26,7 @@ import numpy as np
 from rosbags.serde import SerdeError
 from rosbags.typesys import TypesysError, get_types_from_msg, get_typestore
 
-from gimbal_friction.core.inputs import effective_time
-from gimbal_friction.core.residual_row import RESIDUAL_FIELDS_V1, ResidualRows, rows_from_detail
-from gimbal_friction.core.units import NS_PER_S
+from gimbal_friction.common.units import NS_PER_S
 from gimbal_friction.recording.cdr import DEFAULT_STORE, float64_multi_array_rows
 from gimbal_friction.recording.errors import RecordingError
 from gimbal_friction.recording.mcap_scan import McapScanner, MessageBlock
@@ -40,6 +38,8 @@ from gimbal_friction.recording.topics import (
     SCHEMA_ENCODING,
     TEMPERATURE,
 )
+from gimbal_friction.streams.inputs import effective_time
+from gimbal_friction.streams.residual_row import RESIDUAL_FIELDS_V1, ResidualRows, rows_from_detail
 
 if TYPE_CHECKING:
     from collections.abc import Iterable, Iterator

@@ -2,8 +2,8 @@
 
 from __future__ import annotations
 
-from gimbal_friction.core.measurement import MEASUREMENT_FIELDS as _MEASUREMENT_FIELDS
-from gimbal_friction.core.residual_row import RESIDUAL_FIELDS as _RESIDUAL_FIELDS
+from gimbal_friction.streams.measurement import MEASUREMENT_FIELDS as _MEASUREMENT_FIELDS
+from gimbal_friction.streams.residual_row import RESIDUAL_FIELDS as _RESIDUAL_FIELDS
 
 TEMPERATURE = '/gimbal/temperature'
 JOINT_STATES = '/joint_states'

@@ -1,7 +1,8 @@
 """Closed-loop simulation of a gimbal axis with the suite's friction compensation (pure: numpy/scipy + core).
 
 Never imports rclpy and does no file I/O: the ``gimbal_sim`` node (:mod:`gimbal_friction.nodes.gimbal_sim`) and the
-``loop-study`` CLI (:mod:`gimbal_friction.loop_study`, :mod:`gimbal_friction.loop_live`) are thin adapters around it.
+``loop-study`` CLI (:mod:`gimbal_friction.runs.loop_study`, :mod:`gimbal_friction.runs.loop_live`) are thin
+adapters around it.
 
 - :mod:`~gimbal_friction.sim.config`: :class:`SimConfig`, every simulator parameter with its unit;
 - :mod:`~gimbal_friction.sim.lugre`: the LuGre model (Canudas de Wit et al. 1995);

@@ -15,7 +15,7 @@ Cases of the loop study (issue 9):
     suite's own torque rule evaluated at +20 °C whatever the temperature, on the same velocity as the feedforward.
     It lives in the seeker controller, so no transport latency.
 ``feedforward``
-    :func:`suite_feedforward`: the suite's feedforward (:class:`~gimbal_friction.core.feedforward.Feedforward`,
+    :func:`suite_feedforward`: the suite's feedforward (:class:`~gimbal_friction.feedforward.rule.Feedforward`,
     its torque rule and its temperature rules, as configured), delayed by the transport latency.
 ``refit``
     the same feedforward with parameters refitted from the residuals the suite's estimator collected in the
@@ -37,7 +37,8 @@ from typing import Any, NamedTuple
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from gimbal_friction.core.feedforward import (
+from gimbal_friction.common.xp import ARRAY
+from gimbal_friction.feedforward.rule import (
     VELOCITY_SOURCES,
     Feedforward,
     FeedforwardSettings,
@@ -45,9 +46,8 @@ from gimbal_friction.core.feedforward import (
     temperature_used,
     velocity_used,
 )
-from gimbal_friction.core.inputs import is_fresh, temperature_valid
-from gimbal_friction.core.params import AxisParams
-from gimbal_friction.core.xp import ARRAY
+from gimbal_friction.physics.params import AxisParams
+from gimbal_friction.streams.inputs import is_fresh, temperature_valid
 
 Array = NDArray[np.float64]
 
@@ -148,11 +148,11 @@ def suite_feedforward(axis: AxisParams, settings: FeedforwardSettings | None = N
                       velocity_source: str = 'measured') -> Compensator:
     """Case (c)/(d): the suite's feedforward over arrays of runs, delayed by the transport latency.
 
-    The torque is :meth:`Feedforward.rule` of a :class:`~gimbal_friction.core.feedforward.Feedforward` of ``axis``
+    The torque is :meth:`Feedforward.rule` of a :class:`~gimbal_friction.feedforward.rule.Feedforward` of ``axis``
     and ``settings``; the temperature is chosen by the node's rules on the sensor's stamps: a published sample is
-    kept if valid (:func:`~gimbal_friction.core.inputs.temperature_valid`), it is used while fresh for the joint
-    state's stamp (:func:`~gimbal_friction.core.inputs.is_fresh`), otherwise the stale policy decides
-    (:func:`~gimbal_friction.core.feedforward.temperature_used`; ``zero`` gives 0 N·m). The velocity is the
+    kept if valid (:func:`~gimbal_friction.streams.inputs.temperature_valid`), it is used while fresh for the joint
+    state's stamp (:func:`~gimbal_friction.streams.inputs.is_fresh`), otherwise the stale policy decides
+    (:func:`~gimbal_friction.feedforward.rule.temperature_used`; ``zero`` gives 0 N·m). The velocity is the
     resolver's joint rate relative to the base (``velocity_source='measured'``) or the reference joint velocity
     (``'reference'``), as the node's ``velocity_source``.
 

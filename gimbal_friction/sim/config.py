@@ -4,19 +4,19 @@ One frozen dataclass, :class:`SimConfig`, holds the simulator's own parameters (
 seeker's stabilization controller, the truth friction beyond the model, the thermal lag, base motion, the
 feedforward transport latency and the study profiles). The *model* parameters of the axis (K_T, I_0, the
 bearing and lubricant of the friction model) are not repeated here: they come from the suite's
-:class:`~gimbal_friction.core.params.AxisParams`, and the truth is that model with the lubricant shifted by
+:class:`~gimbal_friction.physics.params.AxisParams`, and the truth is that model with the lubricant shifted by
 ``lubricant_walther_a_shift`` plus what the model does not know (LuGre pre-sliding and Stribeck breakaway,
 position ripple, a CW/CCW asymmetry that grows in the cold).
 
 It is read from the ``gimbal_sim`` section of a ROS 2 parameter file (``gimbal_sim: ros__parameters: {...}``,
 see ``config/gimbal_sim.yaml``) with :meth:`SimConfig.from_mapping`, so the (later) ``gimbal_sim`` node and the
 ``loop-study`` CLI accept and refuse the same values. Every refusal is a
-:class:`~gimbal_friction.core.errors.ConfigError` naming the parameter and the rule:
+:class:`~gimbal_friction.common.errors.ConfigError` naming the parameter and the rule:
 
 >>> SimConfig.from_mapping({'inertia_truth_ratio': -1.0})
 Traceback (most recent call last):
 ...
-gimbal_friction.core.errors.ConfigError: parameter 'inertia_truth_ratio' = -1.0: must lie in (0, 100] [-]
+gimbal_friction.common.errors.ConfigError: parameter 'inertia_truth_ratio' = -1.0: must lie in (0, 100] [-]
 >>> c = SimConfig.from_mapping({'gimbal_sim': {'ros__parameters': {'rate_bandwidth_hz': 30}}})
 >>> c.rate_bandwidth_hz, c.rate_loop_hz
 (30.0, 1000.0)
@@ -24,7 +24,7 @@ gimbal_friction.core.errors.ConfigError: parameter 'inertia_truth_ratio' = -1.0:
 Defaults and why (the seeker is the paper's gimbaled-mirror seeker, elevation axis)
 -----------------------------------------------------------------------------------
 Inertia. The configured J is the axis parameter ``inertia_kg_m2`` of
-:class:`~gimbal_friction.core.params.AxisParams` (default 1.0e-4 kg·m²; the seeker's controller gains and the
+:class:`~gimbal_friction.physics.params.AxisParams` (default 1.0e-4 kg·m²; the seeker's controller gains and the
 estimator's observer use it); the plant's true J is that times ``inertia_truth_ratio`` (default 1: the configured J
 is right), so the number has one default. Why 1.0e-4 kg·m²; assumed load: an aluminium (6061, 2700 kg/m³) flat
 mirror 60 mm in diameter and 8 mm thick, rotating about a diameter: m = 61 g, J = m(r²/4 + t²/12) = 1.4e-5 kg·m²;
@@ -80,8 +80,8 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
-from gimbal_friction.core.errors import ConfigError, check_rules
-from gimbal_friction.core.settings import setting, settings_from
+from gimbal_friction.common.errors import ConfigError, check_rules
+from gimbal_friction.common.settings import setting, settings_from
 
 #: Profiles the simulator knows (see :mod:`gimbal_friction.sim.profiles`).
 PROFILES = ('tracking', 'scan', 'pointing')
@@ -101,7 +101,7 @@ class SimConfig:
     """Every parameter of the gimbal-axis simulator (units in the names; see the module notes for the defaults).
 
     Model parameters of the axis (K_T, I_0, bearing, lubricant) are not here: they come from
-    :class:`~gimbal_friction.core.params.AxisParams`.
+    :class:`~gimbal_friction.physics.params.AxisParams`.
     """
 
     # --- plant

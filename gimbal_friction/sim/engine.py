@@ -36,15 +36,15 @@ from typing import NamedTuple
 import numpy as np
 from numpy.typing import NDArray
 
-from gimbal_friction.core.arrays import ChamberArrays, JointStateArrays, TemperatureArrays
-from gimbal_friction.core.errors import ConfigError
-from gimbal_friction.core.params import AxisParams
-from gimbal_friction.core.units import NS_PER_S
+from gimbal_friction.common.errors import ConfigError
+from gimbal_friction.common.units import NS_PER_S
+from gimbal_friction.physics.params import AxisParams
 from gimbal_friction.sim.compensation import CASE_IDEAL, CASE_NONE, Compensator, ControllerInputs
 from gimbal_friction.sim.config import SimConfig
 from gimbal_friction.sim.lugre import lugre_force_1995, lugre_z_step
 from gimbal_friction.sim.profiles import Profile
 from gimbal_friction.sim.truth import TemperatureTerms, TruthFriction, TruthTerms, ripple
+from gimbal_friction.streams.arrays import ChamberArrays, JointStateArrays, TemperatureArrays
 
 Array = NDArray[np.float64]
 

@@ -36,8 +36,8 @@ from typing import NamedTuple
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from gimbal_friction.core.errors import ConfigError
-from gimbal_friction.core.units import RAD_S_PER_RPM
+from gimbal_friction.common.errors import ConfigError
+from gimbal_friction.common.units import RAD_S_PER_RPM
 from gimbal_friction.sim.config import PROFILES, SimConfig
 
 Array = NDArray[np.float64]

@@ -17,7 +17,7 @@ its tick and measures
   previous tick's, the best a separate process can do); a torque older than ``feedforward_timeout_s`` is not
   applied (0 N·m, age −1), as the offline loop does with a latency beyond the timeout.
 
->>> from gimbal_friction.core.params import AxisParams
+>>> from gimbal_friction.physics.params import AxisParams
 >>> cfg = SimConfig(tracking_duration_s=0.01)
 >>> run = RealtimeRun(cfg, AxisParams(), RealtimeSettings(profile='tracking', environment_temperature_c=-40.0),
 ...                   epoch_ns=10**9)
@@ -39,8 +39,8 @@ from typing import NamedTuple
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from gimbal_friction.core.params import AxisParams
-from gimbal_friction.core.units import NS_PER_S
+from gimbal_friction.common.units import NS_PER_S
+from gimbal_friction.physics.params import AxisParams
 from gimbal_friction.sim.compensation import CASE_NONE, Compensator, ControllerInputs
 from gimbal_friction.sim.config import RealtimeSettings, SimConfig
 from gimbal_friction.sim.engine import BatchResult, ClosedLoop, Run

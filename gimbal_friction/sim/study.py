@@ -10,14 +10,15 @@ functions the nodes and ``gimbal-friction refit`` run:
 
 1. the case-(c) runs of every profile (``refit_profiles``) at every plateau are turned into the estimator's input
    streams at the controller rate (:meth:`~gimbal_friction.sim.engine.EstimatorTrace.chamber_arrays`) and fed to
-   :class:`~gimbal_friction.core.estimator.EstimatorLogic` (method ``observer`` by default: friction while the
+   :class:`~gimbal_friction.estimation.estimator.EstimatorLogic` (method ``observer`` by default: friction while the
    gimbal works, no constant-speed sweep needed; ``steady_state`` and ``both`` are offered);
 2. each measurement is paired with the feedforward computed for its joint-state stamp
-   (:func:`~gimbal_friction.core.residuals.match_predictions`) into residual rows
-   (:func:`~gimbal_friction.core.residual_row.residual_rows`, :func:`~gimbal_friction.core.residuals.credible_rows`):
+   (:func:`~gimbal_friction.estimation.residuals.match_predictions`) into residual rows
+   (:func:`~gimbal_friction.streams.residual_row.residual_rows`,
+   :func:`~gimbal_friction.estimation.residuals.credible_rows`):
    what ``residual_logger`` logs;
 3. the rows are accumulated into sufficient statistics and refitted exactly as ``gimbal-friction refit`` does
-   (:func:`~gimbal_friction.core.sufficient.accumulate_rows`, :func:`~gimbal_friction.core.refit.refit_stats`,
+   (:func:`~gimbal_friction.refit.sufficient.accumulate_rows`, :func:`~gimbal_friction.refit.fit.refit_stats`,
    calibration offset ``auto``), by default for ``walther_a`` and the two direction-asymmetry anchors
    (:data:`DEFAULT_REFIT_FIT`, see :func:`refit_rows`);
 4. case (d) runs the same feedforward with the refitted parameters.
@@ -39,16 +40,14 @@ from typing import Any, NamedTuple
 import numpy as np
 from numpy.typing import NDArray
 
-from gimbal_friction.core.errors import ConfigError, GimbalFrictionError
-from gimbal_friction.core.estimator import EstimatorLogic, EstimatorSettings
-from gimbal_friction.core.feedforward import FeedforwardSettings, check_velocity_source
-from gimbal_friction.core.measurement import METHOD_OBSERVER, METHOD_STEADY_STATE, MeasurementArrays
-from gimbal_friction.core.params import AxisParams
-from gimbal_friction.core.refit import FIT_PARAMETERS, RefitResult, refit_stats
-from gimbal_friction.core.residual_row import ResidualRows, residual_rows
-from gimbal_friction.core.residuals import credible_rows, match_predictions
-from gimbal_friction.core.sufficient import SufficientStats, accumulate_rows
-from gimbal_friction.core.units import NS_PER_S, RAD_S_PER_RPM
+from gimbal_friction.common.errors import ConfigError, GimbalFrictionError
+from gimbal_friction.common.units import NS_PER_S, RAD_S_PER_RPM
+from gimbal_friction.estimation.estimator import EstimatorLogic, EstimatorSettings
+from gimbal_friction.estimation.residuals import credible_rows, match_predictions
+from gimbal_friction.feedforward.rule import FeedforwardSettings, check_velocity_source
+from gimbal_friction.physics.params import AxisParams
+from gimbal_friction.refit.fit import FIT_PARAMETERS, RefitResult, refit_stats
+from gimbal_friction.refit.sufficient import SufficientStats, accumulate_rows
 from gimbal_friction.sim.compensation import (
     CASES,
     EXTRA_CASES,
@@ -61,6 +60,8 @@ from gimbal_friction.sim.config import PROFILES, SimConfig
 from gimbal_friction.sim.engine import BatchResult, Run, simulate
 from gimbal_friction.sim.metrics import batch_metrics
 from gimbal_friction.sim.profiles import make_profile
+from gimbal_friction.streams.measurement import METHOD_OBSERVER, METHOD_STEADY_STATE, MeasurementArrays
+from gimbal_friction.streams.residual_row import ResidualRows, residual_rows
 
 Array = NDArray[np.float64]
 
@@ -160,7 +161,7 @@ def estimator_rows(results: Sequence[tuple[BatchResult, Sequence[int]]], axis: A
     """The estimator's measurements and the residual logger's rows for runs of simulated batches.
 
     Each run (``(batch, run indices)``) is fed, as the node would receive it at the controller rate, to its own
-    :class:`~gimbal_friction.core.estimator.EstimatorLogic` (the run's stamps follow the previous run's after
+    :class:`~gimbal_friction.estimation.estimator.EstimatorLogic` (the run's stamps follow the previous run's after
     :data:`RUN_GAP_S`, from ``start_s`` [s]); each measurement is paired with the feedforward computed for its
     joint-state stamp and kept if credible, as ``residual_logger`` does.
 
@@ -190,7 +191,7 @@ def estimator_rows(results: Sequence[tuple[BatchResult, Sequence[int]]], axis: A
 
 def refit_rows(rows: ResidualRows, axis: AxisParams, fit: Sequence[str] = DEFAULT_REFIT_FIT) -> RefitResult:
     """Refit ``axis`` to residual rows the way ``gimbal-friction refit`` does (sufficient statistics of the rows,
-    :func:`~gimbal_friction.core.refit.refit_stats`, calibration offset ``auto``).
+    :func:`~gimbal_friction.refit.fit.refit_stats`, calibration offset ``auto``).
 
     The default parameters (:data:`DEFAULT_REFIT_FIT`): ``walther_a``, the lubricant's viscosity level, which the
     cold plateaus determine (Palmgren's upper branch) and which the configured lubricant gets wrong; and

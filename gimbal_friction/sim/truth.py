@@ -4,12 +4,12 @@ Sliding (Coulomb) level of the truth at bearing temperature t, relative velocity
 
     F_C(t, v, θ) = m(t) · k_dir(t, sgn v) · M_truth(t, |v|) · (1 + r(θ, t))
 
-- ``M_truth`` is the suite's model through its one fast path, :class:`~gimbal_friction.core.table.FrictionTable`
+- ``M_truth`` is the suite's model through its one fast path, :class:`~gimbal_friction.physics.table.FrictionTable`
   (Yu & Shang 2017, Eq. 10: tabulated M_R + M_S, Palmgren's Eq. 9 evaluated exactly at |v|), of the *truth*
-  axis parameters (:func:`truth_params`): the configured :class:`~gimbal_friction.core.params.AxisParams` with
+  axis parameters (:func:`truth_params`): the configured :class:`~gimbal_friction.physics.params.AxisParams` with
   ``walther_a`` shifted by ``lubricant_walther_a_shift`` (a lubricant that differs from the configuration). The
   configured ``scale_*`` and ``direction_asymmetry_*`` are the *user's* and play no part in the truth.
-- ``k_dir`` is the core's direction factor :func:`~gimbal_friction.core.direction.direction_factor`
+- ``k_dir`` is the core's direction factor :func:`~gimbal_friction.physics.direction.direction_factor`
   ``1 + d a(t)`` with the truth's asymmetry: ``a = (CW − |CCW|)/(CW + |CCW|)`` of the paper's measured means at the
   two anchors (0.131 at −40 °C, −0.121 at +60 °C, Sec. 6), linear between them and held beyond (the core's form,
   so a refit of ``direction_asymmetry_cold``/``_warm`` can find it).
@@ -37,11 +37,11 @@ from typing import NamedTuple
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from gimbal_friction.core.direction import direction_factor
-from gimbal_friction.core.model import friction_torque
-from gimbal_friction.core.params import AxisParams
-from gimbal_friction.core.table import FrictionTable, TemperatureTerms
-from gimbal_friction.core.xp import ARRAY
+from gimbal_friction.common.xp import ARRAY
+from gimbal_friction.physics.direction import direction_factor
+from gimbal_friction.physics.model import friction_torque
+from gimbal_friction.physics.params import AxisParams
+from gimbal_friction.physics.table import FrictionTable, TemperatureTerms
 from gimbal_friction.sim.config import SimConfig
 from gimbal_friction.sim.lugre import lugre_g_1995, stribeck_curve_LuGre_1995
 

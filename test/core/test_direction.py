@@ -7,9 +7,9 @@ import math
 import numpy as np
 import pytest
 
-from gimbal_friction.core.direction import ARRAY, SCALAR, asymmetry_weight, direction_asymmetry, direction_factor
-from gimbal_friction.core.errors import ConfigError
-from gimbal_friction.core.params import AxisParams
+from gimbal_friction.common.errors import ConfigError
+from gimbal_friction.physics.direction import ARRAY, SCALAR, asymmetry_weight, direction_asymmetry, direction_factor
+from gimbal_friction.physics.params import AxisParams
 
 PAPER = AxisParams(direction_asymmetry_cold=0.131, direction_asymmetry_warm=-0.121)
 

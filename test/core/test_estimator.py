@@ -11,14 +11,14 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from gimbal_friction import synth
+from gimbal_friction.chamber import synth
+from gimbal_friction.common.errors import ConfigError
 from gimbal_friction.core import estimator as est
-from gimbal_friction.core.arrays import ChamberArrays, JointStateArrays, TemperatureArrays
-from gimbal_friction.core.errors import ConfigError
-from gimbal_friction.core.estimator import EstimatorLogic, EstimatorSettings
-from gimbal_friction.core.measurement import METHOD_OBSERVER, METHOD_STEADY_STATE, MeasurementArrays
-from gimbal_friction.core.params import AxisParams
+from gimbal_friction.estimation.estimator import EstimatorLogic, EstimatorSettings
+from gimbal_friction.physics.params import AxisParams
 from gimbal_friction.recording.bag import open_chamber_bag
+from gimbal_friction.streams.arrays import ChamberArrays, JointStateArrays, TemperatureArrays
+from gimbal_friction.streams.measurement import METHOD_OBSERVER, METHOD_STEADY_STATE, MeasurementArrays
 
 ROOT = Path(__file__).resolve().parents[2]
 SAMPLE = ROOT / 'bags' / 'chamber_sample'

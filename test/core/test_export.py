@@ -15,9 +15,11 @@ import numpy as np
 import pytest
 import yaml
 
-from gimbal_friction.core.direction import direction_factor
-from gimbal_friction.core.errors import ConfigError, GimbalFrictionError
-from gimbal_friction.core.export import (
+from gimbal_friction.common.errors import ConfigError, GimbalFrictionError
+from gimbal_friction.common.units import rad_s_from_rpm, rpm_from_rad_s
+from gimbal_friction.common.xp import SCALAR
+from gimbal_friction.export.formats import CSV_FIELDS, ROS_NODE, render_c_header, render_csv, render_ros_yaml
+from gimbal_friction.export.table import (
     PALMGREN_JUMP,
     PALMGREN_SWITCH_CST_RPM,
     ExportOptions,
@@ -25,15 +27,13 @@ from gimbal_friction.core.export import (
     build_table,
     c_identifier,
 )
-from gimbal_friction.core.feedforward import Feedforward, FeedforwardSettings
-from gimbal_friction.core.friction import viscous_torque_Palmgren_1959
-from gimbal_friction.core.model import friction_torque, viscosity_cst
-from gimbal_friction.core.params import AxisParams
-from gimbal_friction.core.table import FrictionTable
-from gimbal_friction.core.thermal import loose_fit_temperature
-from gimbal_friction.core.units import rad_s_from_rpm, rpm_from_rad_s
-from gimbal_friction.core.xp import SCALAR
-from gimbal_friction.export_formats import CSV_FIELDS, ROS_NODE, render_c_header, render_csv, render_ros_yaml
+from gimbal_friction.feedforward.rule import Feedforward, FeedforwardSettings
+from gimbal_friction.physics.direction import direction_factor
+from gimbal_friction.physics.friction import viscous_torque_Palmgren_1959
+from gimbal_friction.physics.model import friction_torque, viscosity_cst
+from gimbal_friction.physics.params import AxisParams
+from gimbal_friction.physics.table import FrictionTable
+from gimbal_friction.physics.thermal import loose_fit_temperature
 
 BOUND = 1e-4
 PROV = Provenance('gimbal-friction export test', '2025-01-01T00:00:00+00:00',
@@ -279,7 +279,7 @@ def test_ros_yaml_loads_and_its_arrays_reproduce_the_table(table, tmp_path):
     # the suite's loader and ROS's own parameter-file parser accept it
     path = tmp_path / 'params.yaml'
     path.write_text(text)
-    from gimbal_friction.config import load_parameters
+    from gimbal_friction.config.loader import load_parameters
     loaded = load_parameters([path], node_name=ROS_NODE)
     assert loaded['elevation']['temperatures_c'] == e['temperatures_c']
     rclpy_parameter = pytest.importorskip('rclpy.parameter')

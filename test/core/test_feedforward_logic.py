@@ -9,9 +9,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from gimbal_friction.core.arrays import chamber_arrays, joint_state_arrays
-from gimbal_friction.core.errors import ConfigError, ModelDomainError
-from gimbal_friction.core.feedforward import (
+from gimbal_friction.common.errors import ConfigError, ModelDomainError
+from gimbal_friction.feedforward.rule import (
     SOURCE_FALLBACK,
     SOURCE_HOLD_LAST,
     SOURCE_MEASURED,
@@ -19,8 +18,9 @@ from gimbal_friction.core.feedforward import (
     Feedforward,
     FeedforwardSettings,
 )
-from gimbal_friction.core.model import friction_torque
-from gimbal_friction.core.params import AxisParams
+from gimbal_friction.physics.model import friction_torque
+from gimbal_friction.physics.params import AxisParams
+from gimbal_friction.streams.arrays import chamber_arrays, joint_state_arrays
 
 AXES = {'elevation': AxisParams(), 'azimuth': AxisParams(interference_mm=0.004, scale_negative=0.8)}
 S = 1_000_000_000

@@ -7,14 +7,14 @@ import math
 import numpy as np
 import pytest
 
-from gimbal_friction.core.friction import (
+from gimbal_friction.physics.friction import (
     hysteresis_force_Jiang,
     spin_torque_contact_Eq6,
     spin_torque_contact_numerical,
     viscous_torque_Palmgren_1959,
 )
-from gimbal_friction.core.hertz import ellipticity_Harris, hertz_contact, load_deflection_constant, reduced_modulus
-from gimbal_friction.core.params import AxisParams
+from gimbal_friction.physics.hertz import ellipticity_Harris, hertz_contact, load_deflection_constant, reduced_modulus
+from gimbal_friction.physics.params import AxisParams
 
 E_STAR = reduced_modulus(208000.0, 0.3, 208000.0, 0.3)
 A15 = math.radians(15.0)

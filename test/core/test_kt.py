@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from gimbal_friction.core.errors import FitError
-from gimbal_friction.core.kt import KtFit, fit_kt, friction_from_current_Eq23, friction_from_current_Eq23_jacobian
+from gimbal_friction.common.errors import FitError
+from gimbal_friction.estimation.kt import KtFit, fit_kt, friction_from_current_Eq23, friction_from_current_Eq23_jacobian
 
 K_T_TRUE = 0.0523   # [N*m/A]
 I_0_TRUE = 0.012    # [A]

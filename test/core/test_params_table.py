@@ -7,11 +7,11 @@ import math
 import numpy as np
 import pytest
 
-from gimbal_friction.core.errors import ConfigError
-from gimbal_friction.core.model import friction_torque
-from gimbal_friction.core.params import AxisParams, parameter_specs
-from gimbal_friction.core.table import FrictionTable
-from gimbal_friction.core.xp import ARRAY, SCALAR
+from gimbal_friction.common.errors import ConfigError
+from gimbal_friction.common.xp import ARRAY, SCALAR
+from gimbal_friction.physics.model import friction_torque
+from gimbal_friction.physics.params import AxisParams, parameter_specs
+from gimbal_friction.physics.table import FrictionTable
 
 P0 = AxisParams()
 
@@ -86,7 +86,7 @@ def test_table_clamps_outside_and_scalar_equals_array():
 
 def test_table_is_exact_to_the_grid_at_the_loose_fit_kink():
     """A grid node sits on the loose-fit temperature (the contact torques' kink): no interpolation across it."""
-    from gimbal_friction.core.thermal import loose_fit_temperature
+    from gimbal_friction.physics.thermal import loose_fit_temperature
     table = FrictionTable(P0)
     kink = loose_fit_temperature(P0)
     assert table.t0 <= -60.0 and table.t0 > -60.0 - table.step and table.t_min == -60.0

@@ -12,10 +12,10 @@ import math
 import numpy as np
 import pytest
 
-from gimbal_friction.core.errors import FitError
-from gimbal_friction.core.model import friction_torque, viscosity_cst
-from gimbal_friction.core.params import AxisParams
-from gimbal_friction.core.refit import FIT_PARAMETERS, SampleModel, refit_model
+from gimbal_friction.common.errors import FitError
+from gimbal_friction.physics.model import friction_torque, viscosity_cst
+from gimbal_friction.physics.params import AxisParams
+from gimbal_friction.refit.fit import FIT_PARAMETERS, SampleModel, refit_model
 
 PLATEAUS = (-40.0, -20.0, 0.0, 20.0, 40.0, 60.0)
 SHIFT = 0.02

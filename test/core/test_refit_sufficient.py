@@ -13,14 +13,14 @@ import math
 import numpy as np
 import pytest
 
-from gimbal_friction.core.direction import ARRAY, direction_factor
-from gimbal_friction.core.errors import FitError
-from gimbal_friction.core.model import friction_torque, viscosity_cst
-from gimbal_friction.core.params import AxisParams
-from gimbal_friction.core.refit import refit_model, refit_stats
-from gimbal_friction.core.residual_row import ResidualRows
-from gimbal_friction.core.sufficient import SufficientStats, accumulate_rows
-from gimbal_friction.core.units import RAD_S_PER_RPM
+from gimbal_friction.common.errors import FitError
+from gimbal_friction.common.units import RAD_S_PER_RPM
+from gimbal_friction.physics.direction import ARRAY, direction_factor
+from gimbal_friction.physics.model import friction_torque, viscosity_cst
+from gimbal_friction.physics.params import AxisParams
+from gimbal_friction.refit.fit import refit_model, refit_stats
+from gimbal_friction.refit.sufficient import SufficientStats, accumulate_rows
+from gimbal_friction.streams.residual_row import ResidualRows
 
 PLATEAUS = (-40.0, -20.0, 0.0, 20.0, 40.0, 60.0)
 

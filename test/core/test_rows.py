@@ -5,15 +5,15 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from gimbal_friction.core.measurement import MEASUREMENT_FIELDS, MeasurementArrays, detail_matrix, from_detail
-from gimbal_friction.core.residual_row import (
+from gimbal_friction.recording import topics
+from gimbal_friction.streams.measurement import MEASUREMENT_FIELDS, MeasurementArrays, detail_matrix, from_detail
+from gimbal_friction.streams.residual_row import (
     RESIDUAL_FIELDS,
     RESIDUAL_FIELDS_V1,
     ResidualRows,
     residual_rows,
     rows_from_detail,
 )
-from gimbal_friction.recording import topics
 
 
 def _measurements(n: int = 5) -> MeasurementArrays:

@@ -8,10 +8,10 @@ import math
 import numpy as np
 import pytest
 
-from gimbal_friction.core.errors import ModelDomainError
-from gimbal_friction.core.model import friction_torque
-from gimbal_friction.core.params import AxisParams
-from gimbal_friction.core.thermal import (
+from gimbal_friction.common.errors import ModelDomainError
+from gimbal_friction.physics.model import friction_torque
+from gimbal_friction.physics.params import AxisParams
+from gimbal_friction.physics.thermal import (
     axial_coupling,
     contact_angle_Harris_Eq19,
     loose_fit_temperature,

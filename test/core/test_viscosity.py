@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from gimbal_friction.core.errors import FitError, ModelDomainError
-from gimbal_friction.core.viscosity import (
+from gimbal_friction.common.errors import FitError, ModelDomainError
+from gimbal_friction.physics.viscosity import (
     KRYTOX_143AA_WALTHER,
     KRYTOX_143AA_WALTHER_IMPROVED,
     TABLE2_ERR1_PCT,

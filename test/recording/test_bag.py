@@ -10,7 +10,7 @@ import pytest
 from rosbags.highlevel import AnyReader
 from rosbags.rosbag2 import StoragePlugin, Writer
 
-from gimbal_friction.core.errors import GimbalFrictionError
+from gimbal_friction.common.errors import GimbalFrictionError
 from gimbal_friction.recording.bag import ChamberArrays, open_chamber_bag, write_chamber_bag
 from gimbal_friction.recording.cdr import (
     default_typestore,

@@ -19,7 +19,6 @@ from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 from rosbags.highlevel import AnyReader
 
-from gimbal_friction.core.residual_row import RESIDUAL_FIELDS, RESIDUAL_FIELDS_V1, ResidualRows
 from gimbal_friction.recording.cdr import (
     default_typestore,
     make_float64_multi_array,
@@ -42,6 +41,7 @@ from gimbal_friction.recording.topics import (
     TEMPERATURE,
     TEMPERATURE_TYPE,
 )
+from gimbal_friction.streams.residual_row import RESIDUAL_FIELDS, RESIDUAL_FIELDS_V1, ResidualRows
 
 T0 = 1_700_000_000_000_000_000  # [ns]
 N_FIELDS = len(RESIDUAL_FIELDS)

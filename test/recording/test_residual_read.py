@@ -7,7 +7,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from gimbal_friction.core.residual_row import RESIDUAL_FIELDS, ResidualRows
 from gimbal_friction.recording.cdr import default_typestore, make_float64_multi_array, make_joint_state
 from gimbal_friction.recording.errors import RecordingError
 from gimbal_friction.recording.mcap_scan import McapScanner
@@ -19,6 +18,7 @@ from gimbal_friction.recording.residual_read import (
     read_residual_rows,
 )
 from gimbal_friction.recording.topics import FLOAT64_MULTI_ARRAY_TYPE, JOINT_STATE_TYPE, RESIDUAL, RESIDUAL_DETAIL
+from gimbal_friction.streams.residual_row import RESIDUAL_FIELDS, ResidualRows
 
 T0 = 1_700_000_000_000_000_000  # [ns]
 JOINTS = ('elevation', 'azimuth')

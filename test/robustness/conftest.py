@@ -50,10 +50,10 @@ def run_cli(*args: str, preexec: Callable[[], None] | None = None, timeout: floa
     """``gimbal-friction ARGS``: in this process (fast), or with ``preexec`` in its own (a file-size limit stays
     there). Any exception escaping ``main`` is a failure of the tool, shown as the traceback it would print."""
     if preexec is not None:
-        proc = subprocess.run([sys.executable, '-m', 'gimbal_friction.tools.cli', *args], capture_output=True,
+        proc = subprocess.run([sys.executable, '-m', 'gimbal_friction.cli.main', *args], capture_output=True,
                               text=True, timeout=timeout, preexec_fn=preexec, check=False)
         return Run(proc.returncode, proc.stdout, proc.stderr)
-    from gimbal_friction.tools.cli import main
+    from gimbal_friction.cli.main import main
 
     out, err = io.StringIO(), io.StringIO()
     with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):

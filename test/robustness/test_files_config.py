@@ -10,9 +10,9 @@ import re
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
-from gimbal_friction.config import axis_names, load_parameters
-from gimbal_friction.core.residual_row import RESIDUAL_FIELDS, RESIDUAL_FIELDS_V1
+from gimbal_friction.config.loader import axis_names, load_parameters
 from gimbal_friction.recording import topics
+from gimbal_friction.streams.residual_row import RESIDUAL_FIELDS, RESIDUAL_FIELDS_V1
 
 ROOT = Path(__file__).resolve().parents[2]
 

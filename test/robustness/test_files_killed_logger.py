@@ -40,7 +40,7 @@ def measured_detail(i: int, friction: float) -> object:
     """The estimator's measured_detail of sample ``i`` (MEASUREMENT_FIELDS)."""
     from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 
-    from gimbal_friction.core.measurement import MEASUREMENT_FIELDS
+    from gimbal_friction.streams.measurement import MEASUREMENT_FIELDS
 
     values = {'stamp_sec': 1000 + i // 1000, 'stamp_nanosec': (i % 1000) * 1_000_000, 'position_rad': 0.01,
               'velocity_rad_s': 0.05, 'current_a': friction / 0.05, 'temperature_c': 20.0, 'temperature_fresh': 1.0,

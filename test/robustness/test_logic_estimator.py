@@ -15,7 +15,7 @@ import math
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from gimbal_friction.core.estimator import (
+from gimbal_friction.estimation.estimator import (
     INPUT_REASONS,
     OBSERVER_REASONS,
     R_OPPOSES,
@@ -25,7 +25,7 @@ from gimbal_friction.core.estimator import (
     EstimatorLogic,
     EstimatorSettings,
 )
-from gimbal_friction.core.params import AxisParams
+from gimbal_friction.physics.params import AxisParams
 
 EL = 'elevation'
 KT, I0 = 0.05, 0.01
@@ -173,7 +173,7 @@ def test_current_against_the_motion_is_refused_not_published_with_the_wrong_sign
 
 def test_a_joint_named_twice_uses_the_first_entry_like_the_feedforward():
     """The two nodes once disagreed on ``name=[elevation, elevation]`` (last vs first entry)."""
-    from gimbal_friction.core.feedforward import Feedforward, FeedforwardSettings
+    from gimbal_friction.feedforward.rule import Feedforward, FeedforwardSettings
     logic = EstimatorLogic(AXES, EstimatorSettings(min_dwell_s=0.05))
     t = T0
     out = []

@@ -14,16 +14,16 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from gimbal_friction.core.arrays import chamber_arrays
-from gimbal_friction.core.feedforward import (
+from gimbal_friction.feedforward.rule import (
     SOURCE_FALLBACK,
     SOURCE_MEASURED,
     SOURCE_ZERO,
     Feedforward,
     FeedforwardSettings,
 )
-from gimbal_friction.core.inputs import J_DUPLICATE, J_MISMATCH, J_NONE, J_UNKNOWN, T_NON_FINITE, T_RANGE
-from gimbal_friction.core.params import AxisParams
+from gimbal_friction.physics.params import AxisParams
+from gimbal_friction.streams.arrays import chamber_arrays
+from gimbal_friction.streams.inputs import J_DUPLICATE, J_MISMATCH, J_NONE, J_UNKNOWN, T_NON_FINITE, T_RANGE
 
 AXES = {'elevation': AxisParams(), 'azimuth': AxisParams(scale_negative=0.7, direction_asymmetry_cold=0.1)}
 CLAMP = 0.003

@@ -13,15 +13,15 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from gimbal_friction.core.measurement import MEASUREMENT_FIELDS, from_detail
-from gimbal_friction.core.residual_row import residual_rows
-from gimbal_friction.core.residuals import (
+from gimbal_friction.estimation.residuals import (
     MAX_CREDIBLE_TORQUE_NM,
     ResidualStats,
     credible_rows,
     credible_torque,
     match_predictions,
 )
+from gimbal_friction.streams.measurement import MEASUREMENT_FIELDS, from_detail
+from gimbal_friction.streams.residual_row import residual_rows
 
 ODD = [math.nan, math.inf, -math.inf, 1e154, -1e154, 1e308, 5e-324, 0.0, 100.0, 100.0000001]
 VALUE = st.one_of(st.floats(-0.01, 0.01), st.sampled_from(ODD), st.floats(allow_nan=True, allow_infinity=True))

@@ -21,7 +21,7 @@ from rclpy.serialization import serialize_message
 from sensor_msgs.msg import JointState, Temperature
 from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 
-from gimbal_friction.core.measurement import MEASUREMENT_FIELDS
+from gimbal_friction.streams.measurement import MEASUREMENT_FIELDS
 
 pytestmark = pytest.mark.ros  # real rclpy nodes and contexts on an isolated domain
 OK, WARN, ERROR = b'\x00', b'\x01', b'\x02'

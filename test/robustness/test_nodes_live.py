@@ -24,7 +24,7 @@ from rclpy.qos import QoSProfile
 from sensor_msgs.msg import JointState, Temperature
 from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 
-from gimbal_friction.core.measurement import MEASUREMENT_FIELDS
+from gimbal_friction.streams.measurement import MEASUREMENT_FIELDS
 
 pytestmark = pytest.mark.ros
 ROOT = Path(__file__).resolve().parents[2]

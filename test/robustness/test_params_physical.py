@@ -6,10 +6,10 @@ import math
 
 import pytest
 
-from gimbal_friction.core.errors import ConfigError, GimbalFrictionError, ModelDomainError
-from gimbal_friction.core.feedforward import Feedforward, FeedforwardSettings
-from gimbal_friction.core.params import AxisParams
-from gimbal_friction.core.table import FrictionTable
+from gimbal_friction.common.errors import ConfigError, GimbalFrictionError, ModelDomainError
+from gimbal_friction.feedforward.rule import Feedforward, FeedforwardSettings
+from gimbal_friction.physics.params import AxisParams
+from gimbal_friction.physics.table import FrictionTable
 
 
 @pytest.mark.parametrize('changes', [
@@ -49,7 +49,7 @@ def test_overflowing_viscosity_is_refused(changes, name):
     {'temperature_min_c': -273.0}, {'temperature_max_c': 999.0}, {'table_step_c': 0.0},
 ])
 def test_absurd_feedforward_settings_are_refused(values):
-    from gimbal_friction.core.settings import settings_from
+    from gimbal_friction.common.settings import settings_from
     with pytest.raises(ConfigError) as info:
         settings_from(FeedforwardSettings, values)
     assert info.value.parameter in values

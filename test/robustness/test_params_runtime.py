@@ -20,10 +20,10 @@ from hypothesis import strategies as st
 from rclpy.parameter import Parameter
 from sensor_msgs.msg import JointState, Temperature
 
-from gimbal_friction.core.estimator import EstimatorSettings
-from gimbal_friction.core.feedforward import FeedforwardSettings
-from gimbal_friction.core.params import AxisParams, parameter_specs
-from gimbal_friction.core.settings import EstimatorNodeSettings, FeedforwardNodeSettings, LoggerSettings
+from gimbal_friction.config.node_settings import EstimatorNodeSettings, FeedforwardNodeSettings, LoggerSettings
+from gimbal_friction.estimation.estimator import EstimatorSettings
+from gimbal_friction.feedforward.rule import FeedforwardSettings
+from gimbal_friction.physics.params import AxisParams, parameter_specs
 
 pytestmark = pytest.mark.ros  # real rclpy nodes and contexts on an isolated domain
 V = 0.0349

@@ -26,7 +26,8 @@ import yaml
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from gimbal_friction.config import (
+from gimbal_friction.common.errors import ConfigError
+from gimbal_friction.config.loader import (
     CHAMBER_REPLAY_PARAMETERS,
     MODEL_PARAMETERS,
     ROS_PARAMETERS,
@@ -35,11 +36,10 @@ from gimbal_friction.config import (
     node_parameter_names,
     rcl_scalar,
 )
-from gimbal_friction.core.errors import ConfigError
-from gimbal_friction.core.estimator import EstimatorSettings
-from gimbal_friction.core.feedforward import FeedforwardSettings
-from gimbal_friction.core.params import parameter_specs
-from gimbal_friction.core.settings import EstimatorNodeSettings, FeedforwardNodeSettings, LoggerSettings
+from gimbal_friction.config.node_settings import EstimatorNodeSettings, FeedforwardNodeSettings, LoggerSettings
+from gimbal_friction.estimation.estimator import EstimatorSettings
+from gimbal_friction.feedforward.rule import FeedforwardSettings
+from gimbal_friction.physics.params import parameter_specs
 
 rclpy = pytest.importorskip('rclpy')
 from rclpy.node import Node  # noqa: E402

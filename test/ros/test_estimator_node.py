@@ -16,9 +16,9 @@ from rcl_interfaces.srv import SetParameters
 from rclpy.qos import QoSProfile
 from sensor_msgs.msg import JointState, Temperature
 
-from gimbal_friction import synth
-from gimbal_friction.core.estimator import EstimatorLogic, EstimatorSettings
-from gimbal_friction.core.params import AxisParams
+from gimbal_friction.chamber import synth
+from gimbal_friction.estimation.estimator import EstimatorLogic, EstimatorSettings
+from gimbal_friction.physics.params import AxisParams
 
 ROOT = Path(__file__).resolve().parents[2]
 MEAS = '/gimbal/friction/measured'

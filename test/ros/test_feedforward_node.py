@@ -14,9 +14,9 @@ from rcl_interfaces.srv import SetParameters
 from sensor_msgs.msg import JointState, Temperature
 from std_msgs.msg import Float64MultiArray
 
-from gimbal_friction.core.feedforward import FeedforwardSettings
-from gimbal_friction.core.model import friction_torque
-from gimbal_friction.core.params import AxisParams
+from gimbal_friction.feedforward.rule import FeedforwardSettings
+from gimbal_friction.physics.model import friction_torque
+from gimbal_friction.physics.params import AxisParams
 
 FF = '/gimbal/friction/feedforward'
 CMD = '/gimbal/friction/feedforward_commands'
@@ -233,7 +233,7 @@ def test_bad_parameter_file_exits_with_one_line(spawn, tmp_path):
 
 def test_refitted_parameter_file_changes_the_output(spawn, probe, tmp_path, monkeypatch):
     """A refit output (values under axis.<joint>) layered as a second --params-file changes the feedforward."""
-    from gimbal_friction.config import render_parameter_file
+    from gimbal_friction.config.loader import render_parameter_file
     monkeypatch.chdir(__import__('pathlib').Path(__file__).resolve().parents[2])
     refit = tmp_path / 'refit.yaml'
     refit.write_text(render_parameter_file(axes_overrides={'elevation': {'walther_a': 8.6345,

@@ -12,8 +12,8 @@ import pytest
 from diagnostic_msgs.msg import DiagnosticArray
 from sensor_msgs.msg import JointState, Temperature
 
-from gimbal_friction.loop_live import load_run
 from gimbal_friction.recording import topics
+from gimbal_friction.runs.loop_live import load_run
 
 pytestmark = pytest.mark.ros
 ROOT = Path(__file__).resolve().parents[2]

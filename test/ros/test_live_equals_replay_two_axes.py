@@ -14,14 +14,14 @@ import numpy as np
 import pytest
 from rosbags.highlevel import AnyReader
 
-from gimbal_friction import demo
-from gimbal_friction.config import render_parameter_file
-from gimbal_friction.core.residual_row import RESIDUAL_FIELDS
+from gimbal_friction.chamber.replay import replay_bag
+from gimbal_friction.chamber.synth import SynthConfig, generate
+from gimbal_friction.cli.synth_bag_cmd import write_bag
+from gimbal_friction.config.loader import render_parameter_file
 from gimbal_friction.recording import topics
 from gimbal_friction.recording.bag import default_typestore
-from gimbal_friction.replay import replay_bag
-from gimbal_friction.synth import SynthConfig, generate
-from gimbal_friction.tools.synth_bag_cmd import write_bag
+from gimbal_friction.runs import demo
+from gimbal_friction.streams.residual_row import RESIDUAL_FIELDS
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 

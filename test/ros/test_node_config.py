@@ -8,8 +8,8 @@ from pathlib import Path
 import pytest
 import yaml
 
-from gimbal_friction.core.estimator import EstimatorSettings
-from gimbal_friction.core.feedforward import FeedforwardSettings
+from gimbal_friction.estimation.estimator import EstimatorSettings
+from gimbal_friction.feedforward.rule import FeedforwardSettings
 from gimbal_friction.nodes.estimator import NodeSettings as EstimatorNode
 from gimbal_friction.nodes.feedforward import NodeSettings as FeedforwardNode
 from gimbal_friction.nodes.residual_logger import LoggerSettings

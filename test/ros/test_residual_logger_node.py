@@ -14,10 +14,10 @@ from rosbags.highlevel import AnyReader
 from sensor_msgs.msg import JointState, Temperature
 from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 
-from gimbal_friction.core.measurement import MEASUREMENT_FIELDS
 from gimbal_friction.recording import topics
 from gimbal_friction.recording.bag import default_typestore
 from gimbal_friction.recording.residual_read import read_residual_rows
+from gimbal_friction.streams.measurement import MEASUREMENT_FIELDS
 
 pytestmark = pytest.mark.ros
 V = 2 * math.pi / 180

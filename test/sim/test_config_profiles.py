@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 import yaml
 
-from gimbal_friction.core.errors import ConfigError
-from gimbal_friction.core.units import RAD_S_PER_RPM
+from gimbal_friction.common.errors import ConfigError
+from gimbal_friction.common.units import RAD_S_PER_RPM
 from gimbal_friction.sim.config import RealtimeSettings, SimConfig, parameter_file_text, parameter_specs
 from gimbal_friction.sim.profiles import base_motion, make_profile, zero_crossings
 

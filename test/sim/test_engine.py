@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from gimbal_friction.core.params import AxisParams
-from gimbal_friction.core.units import NS_PER_S
+from gimbal_friction.common.units import NS_PER_S
+from gimbal_friction.physics.params import AxisParams
 from gimbal_friction.sim.compensation import constant_coulomb, suite_feedforward
 from gimbal_friction.sim.config import SimConfig
 from gimbal_friction.sim.engine import Plant, Run, simulate
@@ -146,7 +146,7 @@ def test_estimator_trace_as_the_suites_input_streams():
 
 def test_stepping_the_closed_loop_is_simulate():
     """A real-time adapter steps the loop tick by tick and publishes last(); same numbers as simulate()."""
-    from gimbal_friction.core.errors import ConfigError
+    from gimbal_friction.common.errors import ConfigError
     from gimbal_friction.sim.engine import ClosedLoop
 
     cfg = SimConfig()

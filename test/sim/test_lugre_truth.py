@@ -7,8 +7,8 @@ import math
 import numpy as np
 import pytest
 
-from gimbal_friction.core.params import AxisParams
-from gimbal_friction.core.units import RAD_S_PER_RPM
+from gimbal_friction.common.units import RAD_S_PER_RPM
+from gimbal_friction.physics.params import AxisParams
 from gimbal_friction.sim.config import SimConfig
 from gimbal_friction.sim.lugre import (
     lugre_force_1995,

@@ -7,10 +7,10 @@ import math
 import numpy as np
 import pytest
 
-from gimbal_friction.core.errors import ConfigError
-from gimbal_friction.core.feedforward import Feedforward, FeedforwardSettings
-from gimbal_friction.core.params import AxisParams
-from gimbal_friction.core.units import NS_PER_S
+from gimbal_friction.common.errors import ConfigError
+from gimbal_friction.common.units import NS_PER_S
+from gimbal_friction.feedforward.rule import Feedforward, FeedforwardSettings
+from gimbal_friction.physics.params import AxisParams
 from gimbal_friction.sim.compensation import JOINT, suite_feedforward
 from gimbal_friction.sim.config import RealtimeSettings, SimConfig
 from gimbal_friction.sim.engine import Plant, Run, simulate

@@ -8,8 +8,8 @@ import math
 import numpy as np
 import pytest
 
-from gimbal_friction.core.errors import ConfigError, FitError
-from gimbal_friction.core.params import AxisParams
+from gimbal_friction.common.errors import ConfigError, FitError
+from gimbal_friction.physics.params import AxisParams
 from gimbal_friction.sim.config import SimConfig
 from gimbal_friction.sim.study import goal_checks, run_study
 
@@ -135,7 +135,7 @@ def test_steady_state_method_collects_the_constant_speed_sweep_only():
 
 
 def test_the_reference_velocity_wiring_orders_the_cases_in_the_cold():
-    from gimbal_friction.core.feedforward import FeedforwardSettings
+    from gimbal_friction.feedforward.rule import FeedforwardSettings
     from gimbal_friction.sim.study import FeedforwardSetup
     ff = FeedforwardSetup(FeedforwardSettings(velocity_threshold_rad_s=0.002), 'reference')
     res = run_study(SimConfig(), temperatures=[-40.0], profiles=['tracking'], short=True, feedforward=ff,

@@ -13,9 +13,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from gimbal_friction.config import axis_params, load_parameters, render_parameter_file
-from gimbal_friction.core.kt import fit_kt
-from gimbal_friction.tools.cli import main
+from gimbal_friction.cli.main import main
+from gimbal_friction.config.loader import axis_params, load_parameters, render_parameter_file
+from gimbal_friction.estimation.kt import fit_kt
 
 DATA = Path(__file__).resolve().parent.parent / 'data' / 'kt_calibration.csv'
 K_T_TRUE, I_0_TRUE = 0.0523, 0.012

@@ -9,9 +9,9 @@ import json
 import pytest
 import yaml
 
-from gimbal_friction.config import load_parameters, render_parameter_file
-from gimbal_friction.export_formats import ROS_NODE
-from gimbal_friction.tools.cli import main
+from gimbal_friction.cli.main import main
+from gimbal_friction.config.loader import load_parameters, render_parameter_file
+from gimbal_friction.export.formats import ROS_NODE
 
 FAST = ['--relative-error', '1e-3', '--random-points', '500']
 

@@ -1,4 +1,4 @@
-"""``gimbal-friction fleet`` and gimbal_friction.fleet: units found, refitted on Dask, population and outliers.
+"""``gimbal-friction fleet`` and gimbal_friction.chamber.fleet: units found, refitted on Dask, population and outliers.
 
 Units are tiny residual logs written in the 12-column residual layout (plateaus -40..60 degC, both directions,
 1/3 rpm, +/-5 % ripple, 0.1 mN*m noise) from truths that differ a little in lubricant and contact friction; one
@@ -14,14 +14,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from gimbal_friction.core.model import friction_torque
-from gimbal_friction.core.params import AxisParams
-from gimbal_friction.core.residual_row import RESIDUAL_FIELDS
-from gimbal_friction.fleet import FitSettings, UnitSpec, discover_units, population, process_unit
+from gimbal_friction.chamber.fleet import FitSettings, UnitSpec, discover_units, population, process_unit
+from gimbal_friction.cli.main import main
+from gimbal_friction.physics.model import friction_torque
+from gimbal_friction.physics.params import AxisParams
 from gimbal_friction.recording.bag import make_float64_multi_array
 from gimbal_friction.recording.residual_log import ResidualLogWriter
 from gimbal_friction.recording.topics import FLOAT64_MULTI_ARRAY_TYPE, RESIDUAL_DETAIL
-from gimbal_friction.tools.cli import main
+from gimbal_friction.streams.residual_row import RESIDUAL_FIELDS
 
 T0 = 1_700_000_000_000_000_000  # [ns]
 SPEED = 2.0 * math.pi / 180.0   # 1/3 rpm [rad/s]
@@ -164,8 +164,8 @@ def test_process_unit_records_an_unconfigured_joint(fleet_dir):
 def test_a_bag_unit_is_read_in_windows_with_the_same_statistics(tmp_path, capsys):
     """A chamber bag is fed to the estimator window by window (bounded memory): the same samples and statistics
     as one pass over the whole bag, and as many samples as the offline replay accepts."""
-    from gimbal_friction.fleet import unit_stats_from_bag
-    from gimbal_friction.replay import replay_bag
+    from gimbal_friction.chamber.fleet import unit_stats_from_bag
+    from gimbal_friction.chamber.replay import replay_bag
 
     assert main(['synth-bag', '--out', str(tmp_path / 'bag'), '--plateaus=-40,20', '--hold-s', '8',
                  '--joint-rate-hz', '25', '--format', 'json']) == 0

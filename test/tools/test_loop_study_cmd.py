@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from gimbal_friction.tools.cli import main
+from gimbal_friction.cli.main import main
 
 CONTRACT_FIELDS = {'case', 'temperature_c', 'profile', 'rate_error_rms_rad_s', 'rate_error_peak_rad_s',
                    'position_error_rms_rad', 'position_error_peak_rad', 'reversal_error_peak_rad'}

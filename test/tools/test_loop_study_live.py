@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from gimbal_friction.tools.cli import main
+from gimbal_friction.cli.main import main
 
 pytest.importorskip('rclpy', reason='the live study needs the ros-* wheels (requirements.txt)')
 pytestmark = pytest.mark.ros

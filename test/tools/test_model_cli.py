@@ -10,9 +10,9 @@ import sys
 
 import pytest
 
-from gimbal_friction.config import render_parameter_file
-from gimbal_friction.core.model import CONTRACT_FIELDS
-from gimbal_friction.tools.cli import main
+from gimbal_friction.cli.main import main
+from gimbal_friction.config.loader import render_parameter_file
+from gimbal_friction.physics.model import CONTRACT_FIELDS
 
 
 def test_model_json_has_contract_fields(capsys):
@@ -101,7 +101,7 @@ def test_report_writes_every_figure(tmp_path, capsys):
 
 
 def test_console_script_runs_and_help(tmp_path):
-    exe = [sys.executable, '-m', 'gimbal_friction.tools.cli']
+    exe = [sys.executable, '-m', 'gimbal_friction.cli.main']
     out = subprocess.run(exe + ['--help'], capture_output=True, text=True, timeout=60)
     assert out.returncode == 0 and 'model' in out.stdout and 'report' in out.stdout
     out = subprocess.run(exe + ['model', '-t', '-40', '--format', 'json'], capture_output=True, text=True,

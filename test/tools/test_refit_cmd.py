@@ -15,9 +15,10 @@ import numpy as np
 import pytest
 import yaml
 
-from gimbal_friction.config import axis_params, load_parameters, render_parameter_file
-from gimbal_friction.core.model import friction_torque, viscosity_cst
-from gimbal_friction.core.params import AxisParams
+from gimbal_friction.cli.main import main
+from gimbal_friction.config.loader import axis_params, load_parameters, render_parameter_file
+from gimbal_friction.physics.model import friction_torque, viscosity_cst
+from gimbal_friction.physics.params import AxisParams
 from gimbal_friction.recording.bag import make_float64_multi_array, make_temperature, write_chamber_bag
 from gimbal_friction.recording.residual_log import ResidualLogWriter
 from gimbal_friction.recording.topics import (
@@ -27,7 +28,6 @@ from gimbal_friction.recording.topics import (
     TEMPERATURE,
     TEMPERATURE_TYPE,
 )
-from gimbal_friction.tools.cli import main
 
 T0 = 1_700_000_000_000_000_000  # [ns]
 SPEED_RAD_S = 2.0 * math.pi / 180.0  # 1/3 rpm
@@ -293,8 +293,8 @@ def paper_logs(tmp_path_factory) -> Path:
 
 
 def test_goal_asymmetry_model_vs_paper_within_5_percent(paper_logs, tmp_path, capsys):
-    from gimbal_friction.core.direction import ARRAY, direction_factor
-    from gimbal_friction.synth import PAPER_MEANS_NMM
+    from gimbal_friction.chamber.synth import PAPER_MEANS_NMM
+    from gimbal_friction.physics.direction import ARRAY, direction_factor
 
     capsys.readouterr()
     out = tmp_path / 'refit.yaml'
@@ -342,7 +342,7 @@ def calibration(tmp_path_factory):
 @pytest.fixture(scope='module')
 def wrong_i0_logs(tmp_path_factory, calibration) -> tuple[Path, float]:
     """The default synthetic chamber test replayed with I_0 configured 2 calibration sigmas too high."""
-    from gimbal_friction.tools.refit_cmd import read_calibration_se
+    from gimbal_friction.cli.refit_cmd import read_calibration_se
 
     root = tmp_path_factory.mktemp('i0')
     _, se_t0 = read_calibration_se(calibration)
@@ -356,7 +356,7 @@ def wrong_i0_logs(tmp_path_factory, calibration) -> tuple[Path, float]:
 
 
 def test_goal_offset_keeps_the_cold_viscosity_within_5_percent(wrong_i0_logs, calibration, tmp_path, capsys):
-    from gimbal_friction.synth import DEFAULT_TRUTH_OVERRIDES
+    from gimbal_friction.chamber.synth import DEFAULT_TRUTH_OVERRIDES
 
     logs, se_i0 = wrong_i0_logs
     assert 0.5e-3 < se_i0 < 3e-3   # the calibration: I_0 known to 1-2 mA

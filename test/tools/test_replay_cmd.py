@@ -10,10 +10,12 @@ import numpy as np
 import pytest
 from rosbags.highlevel import AnyReader
 
-from gimbal_friction.config import axis_params, load_parameters
-from gimbal_friction.core.estimator import EstimatorLogic
-from gimbal_friction.core.feedforward import Feedforward
-from gimbal_friction.core.model import friction_torque
+from gimbal_friction.chamber.replay import node_settings, replay_bag
+from gimbal_friction.cli.main import main
+from gimbal_friction.config.loader import axis_params, load_parameters
+from gimbal_friction.estimation.estimator import EstimatorLogic
+from gimbal_friction.feedforward.rule import Feedforward
+from gimbal_friction.physics.model import friction_torque
 from gimbal_friction.recording import topics
 from gimbal_friction.recording.bag import (
     default_typestore,
@@ -23,8 +25,6 @@ from gimbal_friction.recording.bag import (
     write_chamber_bag,
 )
 from gimbal_friction.recording.residual_read import read_residual_rows
-from gimbal_friction.replay import node_settings, replay_bag
-from gimbal_friction.tools.cli import main
 
 ROOT = Path(__file__).resolve().parents[2]
 SAMPLE = ROOT / 'bags' / 'chamber_sample'

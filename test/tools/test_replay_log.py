@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 from rosbags.highlevel import AnyReader
 
-from gimbal_friction.config import render_parameter_file
-from gimbal_friction.core.measurement import MEASUREMENT_FIELDS
+from gimbal_friction.chamber.replay import replay_bag
+from gimbal_friction.config.loader import render_parameter_file
 from gimbal_friction.recording import topics
 from gimbal_friction.recording.bag import (
     default_typestore,
@@ -21,7 +21,7 @@ from gimbal_friction.recording.bag import (
     write_chamber_bag,
 )
 from gimbal_friction.recording.residual_read import read_residual_rows
-from gimbal_friction.replay import replay_bag
+from gimbal_friction.streams.measurement import MEASUREMENT_FIELDS
 
 JOINTS = ['elevation', 'azimuth']
 

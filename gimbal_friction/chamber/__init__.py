@@ -1,0 +1,4 @@
+"""Chamber tests offline: synthetic chamber bags, replay of the nodes' rules over a bag, fleet (many units on Dask).
+
+May import everything below it (physics ... recording, refit, sim, config, plots); never runs, nodes or cli.
+"""

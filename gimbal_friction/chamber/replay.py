@@ -1,0 +1,283 @@
+"""Offline replay of a chamber-test bag through the three nodes' logic (no rclpy), in log-time order.
+
+The same objects and functions the live nodes run, fed with the whole bag at once instead of a message at a time:
+
+- ``friction_feedforward``: :meth:`~gimbal_friction.feedforward.rule.Feedforward.bag_torques` (the rules of
+  :meth:`~gimbal_friction.feedforward.rule.Feedforward.message`, evaluated on arrays);
+- ``friction_estimator``: :meth:`~gimbal_friction.estimation.estimator.EstimatorLogic.feed` (the node feeds the
+messages of
+  each timer tick; the result does not depend on the batching);
+- ``residual_logger``: :func:`~gimbal_friction.estimation.residuals.match_predictions` and
+  :func:`~gimbal_friction.streams.residual_row.residual_rows`.
+
+Times follow the one rule of :mod:`gimbal_friction.streams.inputs`: message stamps, with the log time where a stamp is
+zero. The residual log has the topics and layouts the live ``residual_logger`` writes (the feedforward as one
+JointState per joint-state message with every configured joint present, the measurement, its detail, the residual
+and its detail, and the three input topics as recorded); the generated messages are serialized in bulk
+(:mod:`~gimbal_friction.recording.cdr`). Throughput: ``bench/REPLAY.md``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping, Sequence
+from pathlib import Path
+from typing import Any, NamedTuple
+
+import numpy as np
+from numpy.typing import NDArray
+
+from gimbal_friction.common.settings import settings_from_parameters
+from gimbal_friction.common.units import NS_PER_S
+from gimbal_friction.config.loader import all_axis_params, check_config_files, load_parameters
+from gimbal_friction.estimation.estimator import EstimatorCounters, EstimatorLogic, EstimatorSettings
+from gimbal_friction.estimation.residuals import match_predictions, plateau_summary, steady_temperature
+from gimbal_friction.feedforward.rule import (
+    SOURCE_MEASURED,
+    BagTorques,
+    Feedforward,
+    FeedforwardCounters,
+    FeedforwardSettings,
+)
+from gimbal_friction.physics.params import AxisParams
+from gimbal_friction.recording import topics
+from gimbal_friction.recording.bag import ChamberBag, default_typestore, open_chamber_bag
+from gimbal_friction.recording.cdr import float64_multi_array_cdr_rows, joint_state_cdr_rows, split_rows
+from gimbal_friction.recording.residual_log import ResidualLogWriter
+from gimbal_friction.streams.arrays import ChamberArrays
+from gimbal_friction.streams.inputs import effective_time
+from gimbal_friction.streams.measurement import MEASUREMENT_FIELDS, MeasurementArrays, detail_matrix
+from gimbal_friction.streams.residual_row import RESIDUAL_FIELDS, ResidualRows, residual_rows
+
+Progress = Callable[[str, float], None]
+
+#: the generated topics of the residual log, in id order
+_GENERATED_TOPICS = [(topics.FEEDFORWARD, topics.JOINT_STATE_TYPE), (topics.MEASURED, topics.JOINT_STATE_TYPE),
+                     (topics.MEASURED_DETAIL, topics.FLOAT64_MULTI_ARRAY_TYPE),
+                     (topics.RESIDUAL, topics.JOINT_STATE_TYPE),
+                     (topics.RESIDUAL_DETAIL, topics.FLOAT64_MULTI_ARRAY_TYPE)]
+_LOG_BATCH = 20000  # messages per write_raw_many call (one progress report each)
+
+
+class ReplayResult(NamedTuple):
+    """What :func:`replay_bag` computed and wrote."""
+
+    feedforward: BagTorques            #: what friction_feedforward would have published
+    measurements: MeasurementArrays    #: what friction_estimator would have published
+    rows: ResidualRows                 #: what residual_logger would have logged
+    feedforward_counters: FeedforwardCounters
+    estimator_counters: EstimatorCounters
+    summary: list[dict[str, Any]]      #: per plateau and direction (:func:`plateau_summary`)
+    residual_dir: Path | None
+    messages_in: int
+    messages_out: int
+    findings: list[str]                #: one line per reason the replay matched little or nothing
+
+    @property
+    def estimate(self) -> MeasurementArrays:
+        """The accepted samples (old name of :attr:`measurements`)."""
+        return self.measurements
+
+
+def node_settings(config_paths: Sequence[Path] = ()) -> tuple[dict[str, AxisParams], FeedforwardSettings,
+                                                               EstimatorSettings]:
+    """The axes and the settings the three nodes would load from the same parameter files."""
+    paths = list(config_paths)
+    check_config_files(paths)   # a misspelt name is refused, not silently ignored
+    axes = all_axis_params(load_parameters(paths))
+    ff = settings_from_parameters(FeedforwardSettings, load_parameters(paths, node_name='friction_feedforward'))
+    est = settings_from_parameters(EstimatorSettings, load_parameters(paths, node_name='friction_estimator'))
+    return axes, ff, est
+
+
+def replay_arrays(arrays: ChamberArrays, axes: dict[str, AxisParams], ff_settings: FeedforwardSettings,
+                  est_settings: EstimatorSettings) -> tuple[BagTorques, Feedforward, MeasurementArrays,
+                                                            NDArray[np.int64], EstimatorLogic, ResidualRows]:
+    """The three nodes' logic over a bag's arrays: the feedforward, the measurements with the log time that
+    completed each, and the residual rows."""
+    ff_logic = Feedforward(axes, ff_settings)
+    ff = ff_logic.bag_torques(arrays)
+    est_logic = EstimatorLogic(axes, est_settings)
+    measured, measured_log = est_logic.feed_timed(arrays)
+    ff_joint, ff_stamp, ff_torque = _flat_feedforward(ff)
+    predicted = match_predictions(measured.joint, measured.stamp_ns, ff_joint, ff_stamp, ff_torque)
+    return ff, ff_logic, measured, measured_log, est_logic, residual_rows(measured, predicted)
+
+
+def _flat_feedforward(ff: BagTorques) -> tuple[NDArray[np.str_], NDArray[np.int64], NDArray[np.float64]]:
+    """(joint, effective stamp, torque) of every joint of every feedforward message."""
+    rows, cols = np.nonzero(ff.present)
+    joint = np.asarray(ff.joints, dtype=str)[cols] if rows.size else np.empty(0, dtype=str)
+    stamp = effective_time(ff.stamp_ns, ff.log_time_ns)[rows]
+    return joint, stamp, ff.commands_nm[rows, cols]
+
+
+def replay_bag(bag_path: str | Path, out_dir: str | Path | None, *, config_paths: Sequence[Path] = (),
+               topic_map: Mapping[str, str] | None = None, joint_map: Mapping[str, str] | None = None,
+               log_inputs: bool = True, progress: Progress | None = None) -> ReplayResult:
+    """Run the three nodes' logic over a chamber-test bag; write ``out_dir/residuals/`` (if given).
+
+    ``topic_map`` maps contract topics to the bag's (``{'/joint_states': '/robot/joint_states'}``), ``joint_map``
+    recorded joint names to configured ones (``{'joint_2': 'elevation'}``). ``findings`` of the result says, one
+    line each, why the bag matched little or nothing (an axis not in the bag, no velocity, zero stamps, the
+    estimator's reasons, no temperature plateau).
+
+    Raises:
+        RecordingError: the bag is missing, not a bag, lacks a contract topic or has a wrong type (named).
+        ConfigError: a bad parameter file.
+    """
+    def report(stage: str, frac: float) -> None:
+        if progress is not None:
+            progress(stage, frac)
+
+    axes, ff_settings, est_settings = node_settings(list(config_paths))
+    bag = open_chamber_bag(bag_path, dict(topic_map) if topic_map else None,
+                           joint_map=dict(joint_map) if joint_map else None)
+    report('reading bag', 0.0)
+    arrays, raw = _read_inputs(bag, log_inputs and out_dir is not None)
+    report('reading bag', 1.0)
+    report('nodes', 0.0)
+    ff, ff_logic, measured, measured_log, est_logic, rows = replay_arrays(arrays, axes, ff_settings, est_settings)
+    report('nodes', 1.0)
+    report('summary', 0.0)
+    t = arrays.temperature
+    t_time = effective_time(np.asarray(t.stamp_ns, dtype=np.int64), np.asarray(t.log_time_ns, dtype=np.int64))
+    steady = steady_temperature(rows.stamp_s, t_time / NS_PER_S, t.temperature_c)
+    summary = plateau_summary(rows.temperature_c, rows.velocity_rad_s, rows.measured_nm, rows.predicted_nm,
+                              joint=rows.joint.tolist(), bin_c=est_settings.temperature_bin_c, steady=steady)
+    report('summary', 1.0)
+    messages_out = 0
+    residual_dir = None
+    if out_dir is not None:
+        residual_dir = Path(out_dir) / 'residuals'
+        with ResidualLogWriter(residual_dir, flush_interval_s=None, chunk_size=1 << 20,
+                               typestore=default_typestore()) as writer:
+            report('writing residual log', 0.0)
+            log_topics, ids, logs, datas = _log_stream(ff, measured, measured_log, rows, raw)
+            total = len(datas)
+            for a in range(0, total, _LOG_BATCH):
+                b = min(a + _LOG_BATCH, total)
+                writer.write_raw_many(log_topics, ids[a:b], logs[a:b], datas[a:b])
+                messages_out = b
+                report('writing residual log', b / total)
+        report('writing residual log', 1.0)
+    findings = bag.describe(arrays).findings(list(axes)) + _findings(ff, measured, est_logic, summary)
+    return ReplayResult(ff, measured, rows, ff_logic.counters, est_logic.counters, summary, residual_dir,
+                        bag.message_count, messages_out, findings)
+
+
+def _findings(ff: BagTorques, measured: MeasurementArrays, est: EstimatorLogic,
+              summary: list[dict[str, Any]]) -> list[str]:
+    """What the nodes' logic says about a bag that matched little: the estimator's reasons, the temperature."""
+    out: list[str] = []
+    if len(ff) and not np.any(ff.source == SOURCE_MEASURED):
+        out.append('no joint state had a fresh valid temperature (|stamp difference| <= temperature_timeout_s): '
+                   'the feedforward used its stale policy throughout')
+    for joint in est.order:
+        if est.counters.accepted.get(joint, 0):
+            continue
+        reasons = sorted(est.counters.rejected.get(joint, {}).items(), key=lambda kv: -kv[1])[:4]
+        why = ', '.join(f'{r} {n}x' for r, n in reasons) or 'no current paired with a joint state'
+        out.append(f'no friction sample of {joint!r} was accepted ({why}); the settings of friction_estimator '
+                   f'(method, commanded_speed_rad_s, position window) must match the test')
+    if len(measured) and not summary:
+        out.append('samples were accepted but no temperature plateau qualified for the summary (the bearing '
+                   'temperature never held within 1 degC/min over 30 s while they were taken)')
+    return out
+
+
+class _RawInputs(NamedTuple):
+    """The bag's input messages as recorded: (topic, msgtype) list, and per message its id, log time, bytes."""
+
+    topics: list[tuple[str, str]]
+    ids: NDArray[np.int64]
+    log_time_ns: NDArray[np.int64]
+    datas: list[bytes]
+
+
+def _read_inputs(bag: ChamberBag, log_inputs: bool) -> tuple[ChamberArrays, _RawInputs | None]:
+    """``bag.read_arrays()`` and, for ``log_inputs``, the raw messages of the three input topics (only those: the
+    live logger subscribes to nothing else) in the same pass."""
+    if not log_inputs:
+        return bag.read_arrays(), None
+    ids: list[int] = []
+    logs: list[int] = []
+    datas: list[bytes] = []
+    pairs: dict[tuple[str, str], int] = {}
+
+    def sink(contract_topics: Sequence[str], msgtype: str, log_time_ns: int, data: bytes) -> None:
+        for topic in contract_topics:
+            if topic in topics.CHAMBER_TOPICS:
+                ids.append(pairs.setdefault((topic, msgtype), len(pairs)))
+                logs.append(log_time_ns)
+                datas.append(data)
+
+    arrays = bag.read_arrays(raw_sink=sink)
+    return arrays, _RawInputs(list(pairs), np.asarray(ids, dtype=np.int64), np.asarray(logs, dtype=np.int64),
+                              datas)
+
+
+def _by_layout(keys: NDArray[np.int64], serialize: Callable[[NDArray[np.int64], int], list[bytes]]) -> list[bytes]:
+    """``serialize(rows, key)`` per distinct key (one CDR layout each), put back in the order of ``keys``."""
+    uniq = np.unique(keys)
+    if uniq.size == 1:
+        return serialize(np.arange(keys.shape[0], dtype=np.int64), int(uniq[0]))
+    out: list[bytes] = [b''] * keys.shape[0]
+    for key in uniq.tolist():
+        rows = np.flatnonzero(keys == key)
+        for k, data in zip(rows.tolist(), serialize(rows, key), strict=True):
+            out[k] = data
+    return out
+
+
+def _log_stream(ff: BagTorques, measured: MeasurementArrays, measured_log: NDArray[np.int64], rows: ResidualRows,
+                raw: _RawInputs | None) -> tuple[list[tuple[str, str]], NDArray[np.int64], NDArray[np.int64],
+                                                 list[bytes]]:
+    """Every message of the residual log in log-time order (ties: feedforward, measurement, its detail, residual,
+    its detail, then inputs): topics, topic ids, log times [ns], CDR bytes."""
+    joints = np.asarray(ff.joints)
+    patterns = ff.present @ (1 << np.arange(len(ff.joints), dtype=np.int64)) if len(ff) else np.empty(0, np.int64)
+    ff_datas = _by_layout(patterns, lambda r, _: split_rows(joint_state_cdr_rows(
+        ff.stamp_ns[r], joints[ff.present[r[0]]].tolist(), effort=ff.commands_nm[r][:, ff.present[r[0]]])))
+    n = len(measured)
+    joints = measured.joint.tolist()
+    stamps = np.asarray(measured.stamp_ns, dtype=np.int64)
+    m_detail = detail_matrix(measured)
+    r_detail = rows.matrix()
+
+    def measured_rows(r: NDArray[np.int64], joint: str) -> list[bytes]:
+        out: list[bytes] = [b''] * (4 * r.shape[0])
+        pos, vel = measured.position_rad[r], measured.velocity_rad_s[r]
+        out[0::4] = split_rows(joint_state_cdr_rows(stamps[r], [joint], pos, vel, measured.friction_nm[r]))
+        out[1::4] = split_rows(float64_multi_array_cdr_rows(m_detail[r], joint))
+        out[2::4] = split_rows(joint_state_cdr_rows(stamps[r], [joint], pos, vel, rows.residual_nm[r]))
+        out[3::4] = split_rows(float64_multi_array_cdr_rows(r_detail[r], joint))
+        return out
+
+    names = sorted(set(joints))
+    if len(names) == 1:
+        m_datas = measured_rows(np.arange(n, dtype=np.int64), names[0])
+    else:
+        m_datas = [b''] * (4 * n)
+        for joint in names:
+            sel = np.flatnonzero(measured.joint == joint)
+            datas = measured_rows(sel, joint)
+            for q, k in enumerate(sel.tolist()):
+                m_datas[4 * k: 4 * k + 4] = datas[4 * q: 4 * q + 4]
+    log_topics = list(_GENERATED_TOPICS)
+    ids = [np.zeros(len(ff_datas), dtype=np.int64), np.tile(np.arange(1, 5, dtype=np.int64), n)]
+    logs = [np.asarray(ff.log_time_ns, dtype=np.int64), np.repeat(measured_log, 4)]
+    datas = ff_datas + m_datas
+    if raw is not None:
+        shift = len(log_topics)
+        log_topics += raw.topics
+        ids.append(raw.ids + shift)
+        logs.append(raw.log_time_ns)
+        datas += raw.datas
+    all_ids = np.concatenate(ids)
+    all_logs = np.concatenate(logs)
+    order = np.argsort(all_logs, kind='stable')
+    return log_topics, all_ids[order], all_logs[order], [datas[i] for i in order.tolist()]
+
+
+#: the measured_detail / residual_detail layouts, for readers of this module
+__all__ = ['MEASUREMENT_FIELDS', 'RESIDUAL_FIELDS', 'ReplayResult', 'node_settings', 'replay_arrays', 'replay_bag']

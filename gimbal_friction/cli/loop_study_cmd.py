@@ -1,0 +1,133 @@
+"""``gimbal-friction loop-study``: the closed loop over temperature plateaus and profiles with each compensation case.
+
+Thin: parse -> :mod:`gimbal_friction.runs.loop_study` (offline) / :mod:`gimbal_friction.runs.loop_live`
+(``--live``) -> one
+line on error. See those modules for what is computed and written.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+from gimbal_friction.cli._common import add_common, parse_temperature_spec, print_json, progress
+from gimbal_friction.common.errors import ConfigError
+
+CASE_CHOICES = ('none', 'constant', 'feedforward', 'refit', 'ideal', 'feedforward_measured', 'feedforward_reference')
+
+
+def add_parser(sub: Any) -> None:
+    parser = sub.add_parser(
+        'loop-study', help='closed-loop study: the simulated axis over temperature plateaus and profiles with each '
+        'compensation case; table, JSON, figures',
+        description='Simulate the seeker\'s stabilization loop of one gimbal axis (truth friction: the model with a '
+        'shifted lubricant, LuGre breakaway and pre-sliding, position ripple, the measured CW/CCW asymmetry) over '
+        'temperature plateaus and profiles, with each compensation case: none, constant (temperature-blind Coulomb '
+        'tuned at +20 degC), feedforward (the suite\'s, as configured), refit (the feedforward after a refit from '
+        'the residual rows the suite\'s estimator collected in the same simulation), ideal (the truth cancelled). '
+        'Reports the LOS rate and position error RMS and peak, the peak error at reversals and the current margin.')
+    add_common(parser)
+    parser.add_argument('--axis', metavar='NAME', help='configured axis to simulate (default: the first)')
+    parser.add_argument('--temperatures', default='-40,-20,0,20,40,60', metavar='SPEC',
+                        help="temperature plateaus, '-40,0,60' or 'start:stop:step' [degC] (default -40:60:20)")
+    parser.add_argument('--profiles', default='tracking,scan,pointing', metavar='LIST',
+                        help='profiles: tracking (1/3 rpm with reversals), scan (sine), pointing (fixed target under '
+                        'base motion); comma-separated (default all)')
+    parser.add_argument('--cases', default='none,constant,feedforward,refit,ideal', metavar='LIST',
+                        help=f'cases, comma-separated, from {", ".join(CASE_CHOICES)} (default the five of issue 9)')
+    parser.add_argument('--short', action='store_true', help='short profiles (one reversal each; for CI)')
+    parser.add_argument('--latency-s', type=float, metavar='S',
+                        help='transport latency of the feedforward [s] (default feedforward_latency_s, 0.001)')
+    parser.add_argument('--estimator-method', choices=('observer', 'steady_state', 'both'), default='observer',
+                        help='how the estimator collects case (d)\'s data (default observer: while the gimbal works)')
+    parser.add_argument('--refit-fit', default=None, metavar='LIST',
+                        help='parameters refitted for case (d) (default walther_a,direction_asymmetry_cold,'
+                        'direction_asymmetry_warm)')
+    parser.add_argument('--seed', type=int, metavar='N', help='sensor-noise seed (default the configured seed, 0)')
+    parser.add_argument('--out', type=Path, metavar='DIR',
+                        help='write loop_study.json, loop_study.txt, figures/ and residuals/ (case d\'s log) here')
+    parser.add_argument('--live', action='store_true',
+                        help='also run the real nodes (gimbal_sim, friction_feedforward, friction_estimator, '
+                        'residual_logger) on loopback in real time and compare with the offline run')
+    parser.add_argument('--live-temperature', type=float, default=-40.0, metavar='C',
+                        help='plateau of the live runs [degC] (default -40)')
+    parser.add_argument('--live-profile', default='tracking', metavar='NAME', help='profile of the live runs')
+    parser.add_argument('--live-cases', default='feedforward', metavar='LIST',
+                        help='cases of the live runs: feedforward and/or none (default feedforward)')
+    parser.add_argument('--live-duration-s', type=float, metavar='S',
+                        help='duration of a live run [s] (default the profile\'s, or the short one with --short)')
+    parser.add_argument('--live-realtime-factor', type=float, default=1.0, metavar='X',
+                        help='simulated seconds per wall second of the live runs (default 1; below 1 on a busy '
+                        'machine: the nodes see the same stamps, fewer messages per wall second)')
+    parser.add_argument('--live-publish-every', type=int, default=2, metavar='N',
+                        help='gimbal_sim publishes joint states / current / reference every N controller ticks '
+                        '(default 2: 500 Hz; four Python processes at 1 kHz saturate a small machine and the '
+                        'transport latency grows a long tail)')
+    parser.set_defaults(func=run)
+
+
+def _names(text: str, option: str, allowed: tuple[str, ...]) -> list[str]:
+    names = [x.strip() for x in text.split(',') if x.strip()]
+    if not names:
+        raise ConfigError(option, 'needs at least one name', text)
+    for n in names:
+        if n not in allowed:
+            raise ConfigError(option, f'unknown name (choose from {", ".join(allowed)})', n)
+    return list(dict.fromkeys(names))
+
+
+def run(args: argparse.Namespace) -> int:
+    from gimbal_friction.refit.fit import FIT_PARAMETERS
+    from gimbal_friction.runs.loop_study import load_study_inputs, study, study_document, table_text, write_outputs
+    from gimbal_friction.sim.config import PROFILES
+    from gimbal_friction.sim.study import DEFAULT_REFIT_FIT
+
+    temperatures = [float(t) for t in parse_temperature_spec(args.temperatures)]
+    profiles = _names(args.profiles, '--profiles', PROFILES)
+    cases = _names(args.cases, '--cases', CASE_CHOICES)
+    fit = _names(args.refit_fit, '--refit-fit', FIT_PARAMETERS) if args.refit_fit else list(DEFAULT_REFIT_FIT)
+    if args.latency_s is not None and not (math.isfinite(args.latency_s) and 0.0 <= args.latency_s <= 1.0):
+        raise ConfigError('--latency-s', 'must lie in [0, 1] [s]', args.latency_s)
+    live_cases = _names(args.live_cases, '--live-cases', ('feedforward', 'none')) if args.live else []
+    if args.live and not (0.01 <= args.live_realtime_factor <= 100.0):
+        raise ConfigError('--live-realtime-factor', 'must lie in [0.01, 100] [-]', args.live_realtime_factor)
+    if args.live and not 1 <= args.live_publish_every <= 10000:
+        raise ConfigError('--live-publish-every', 'must be an integer in [1, 10000]', args.live_publish_every)
+    if args.live and args.live_profile not in PROFILES:
+        raise ConfigError('--live-profile', f'must be one of {", ".join(PROFILES)}', args.live_profile)
+    if args.out is not None and args.out.exists() and not args.out.is_dir():
+        raise ConfigError('--out', 'must be a folder', str(args.out))
+    if args.out is not None and (args.out / 'residuals').exists() and any((args.out / 'residuals').iterdir()):
+        raise ConfigError('--out', f'{args.out / "residuals"} already holds a log; choose another --out '
+                          '(nothing is overwritten)')
+    inputs = load_study_inputs(args.config, args.axis, latency_s=args.latency_s, seed=args.seed)
+
+    def show(stage: str, frac: float) -> None:
+        progress(int(frac * 1000), 1000, f'loop-study {stage[:44]:<44}')
+
+    t0 = time.perf_counter()
+    result = study(inputs, temperatures=temperatures, profiles=profiles, cases=cases, short=args.short,
+                   estimator_method=args.estimator_method, refit_fit=fit, progress=show)
+    live = None
+    if args.live:
+        from gimbal_friction.runs.loop_live import live_study
+        live = live_study(inputs, temperature_c=args.live_temperature, profile=args.live_profile,
+                          cases=live_cases, short=args.short, duration_s=args.live_duration_s,
+                          realtime_factor=args.live_realtime_factor, publish_every_ticks=args.live_publish_every,
+                          work_dir=(args.out / 'live') if args.out is not None else None,
+                          log=lambda text: print(text, file=sys.stderr, flush=True))
+    doc = study_document(result, inputs, live=live)
+    doc['wall_s']['total'] = round(time.perf_counter() - t0, 3)
+    if args.out is not None:
+        written = write_outputs(args.out, doc, result)
+        print(f'loop-study: wrote {", ".join(str(p) for p in written[:2])}, {len(written) - 2} more in {args.out}',
+              file=sys.stderr)
+    if args.format == 'json':
+        print_json(doc)
+    else:
+        sys.stdout.write(table_text(doc))
+    return 0

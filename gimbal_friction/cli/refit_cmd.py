@@ -1,0 +1,471 @@
+"""``gimbal-friction refit``: refit the lubricant viscosity (and optionally other) parameters from residual logs.
+
+Streams one or more residual-log folders (``residual_logger`` or ``replay`` output) chunk by chunk
+(:func:`~gimbal_friction.recording.residual_read.iter_residual_rows`, bounded memory) and uses each
+``residual_detail`` row's ``temperature_c``, ``velocity_rad_s``
+(speed and direction) and ``measured_nm`` (signed; friction along the motion is ``measured_nm · sign(velocity)``),
+accumulated into per-bin sufficient statistics (:mod:`gimbal_friction.refit.sufficient`). Rows with a non-finite
+value or zero velocity are skipped and counted. The fit is :func:`gimbal_friction.refit.fit.refit_stats` per axis
+(every axis present in the logs that is configured, or ``--axis``); it says which parameters the data can
+determine and holds the others at their configured values.
+
+Calibration offset: with ``--offset auto`` (default) a constant torque offset (an error of the no-load current
+I_0) is fitted as a nuisance when the logs hold both a cold (viscous-regime) and a warm plateau; it is reported
+with its interval and the I_0 that would remove it, and a warning is printed (stderr) when it exceeds the
+calibration's uncertainty, read from the ``calibrate-kt`` output file (``--calibration FILE.yaml``: its header line
+``T_0 = ... +/- SE N*m``) or given as ``--calibration-se`` [N*m]. The offset is never written to the file.
+
+Output file: a layerable parameter file holding **only the refitted parameters**, always under
+``axis.<name>.<parameter>`` (also for a single axis): an ``axis.*`` entry overrides ``model.*`` whatever the file
+order, so the refit takes effect even over a user file with per-axis lubricant values, and an axis without data
+(e.g. a newly configured one) keeps its own values. The header records the logs, the date, the samples and the
+RMS residual before and after. The file is written (atomically) only after every axis was refitted; on any
+refusal nothing is written and an existing file is left untouched.
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime as dt
+import math
+import re
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any, NamedTuple
+
+import numpy as np
+
+from gimbal_friction.cli._common import add_common, format_table, print_json, write_text_atomic
+from gimbal_friction.common.errors import ConfigError, FitError, GimbalFrictionError
+from gimbal_friction.config.loader import axis_names, axis_params, load_parameters, render_parameter_file
+from gimbal_friction.physics.direction import ARRAY, direction_factor
+from gimbal_friction.physics.model import friction_torque
+from gimbal_friction.physics.params import AxisParams
+from gimbal_friction.recording.residual_read import ReadReport, iter_residual_rows
+from gimbal_friction.recording.topics import RESIDUAL_DETAIL
+from gimbal_friction.refit.fit import (
+    ASYMMETRY_PARAMETERS,
+    FIT_PARAMETERS,
+    OFFSET_MODES,
+    PALMGREN_THRESHOLD,
+    RefitResult,
+    palmgren_threshold_temperature,
+    refit_stats,
+)
+from gimbal_friction.refit.sufficient import SufficientStats, accumulate_rows
+
+DEFAULT_FIT = 'walther_a'
+#: ``--fit`` shorthand for both anchors of the direction asymmetry
+FIT_ALIASES = {'direction_asymmetry': ASYMMETRY_PARAMETERS}
+#: rows per chunk read from the logs (bounds the memory of a refit or a fleet worker)
+CHUNK_ROWS = 1 << 18
+
+
+class AxisData(NamedTuple):
+    """What the logs held for one axis: the statistics, and what was skipped."""
+
+    stats: SufficientStats
+    rows: int
+    skipped_nonfinite: int
+    skipped_standstill: int
+
+
+def read_stats(logs: Sequence[Path], *, joints: list[str] | None = None, direction: str = 'both',
+               report: ReadReport | None = None, label: str = 'refit: reading') -> dict[str, AxisData]:
+    """Per-joint sufficient statistics of the logs, streamed chunk by chunk with bounded memory
+    (:func:`~gimbal_friction.recording.residual_read.iter_residual_rows`; progress on a terminal's stderr)."""
+    stats: dict[str, SufficientStats] = {}
+    done = 0
+    for chunk in iter_residual_rows(list(logs), chunk_rows=CHUNK_ROWS, report=report):
+        accumulate_rows(chunk, stats, joints=joints, direction=direction)
+        done += len(chunk)
+        if sys.stderr.isatty():
+            sys.stderr.write(f'\r{label}: {done} rows')
+            sys.stderr.flush()
+    if done and sys.stderr.isatty():
+        sys.stderr.write('\n')
+    return {j: AxisData(s, s.tally.rows, s.tally.skipped_nonfinite, s.tally.skipped_standstill)
+            for j, s in stats.items()}
+
+
+_T0_LINE = re.compile(r'T_0 = (\S+) \+/- (\S+) N\*m')
+_AXIS_LINE = re.compile(r"no-load current of axis '([^']+)'")
+
+
+def read_calibration_se(path: Path) -> tuple[str | None, float]:
+    """(axis, 1-sigma of T_0 [N*m]) from the header of a ``calibrate-kt`` output file.
+
+    Raises:
+        ConfigError: not readable, or no ``T_0 = ... +/- ... N*m`` line (not a calibrate-kt file).
+    """
+    try:
+        text = path.read_text(encoding='utf-8')
+    except OSError as err:
+        raise ConfigError('--calibration', f'cannot read: {err.strerror}', str(path)) from None
+    m = _T0_LINE.search(text)
+    if m is None:
+        raise ConfigError('--calibration', "no 'T_0 = ... +/- ... N*m' header line: not a calibrate-kt output file",
+                          str(path))
+    try:
+        se = float(m.group(2))
+    except ValueError:
+        raise ConfigError('--calibration', f'unreadable T_0 uncertainty {m.group(2)!r}', str(path)) from None
+    if not (math.isfinite(se) and se >= 0.0):
+        raise ConfigError('--calibration', 'the T_0 uncertainty must be a finite value >= 0', str(path))
+    a = _AXIS_LINE.search(text)
+    return (a.group(1) if a else None), se
+
+
+class AxisRefit(NamedTuple):
+    axis: str
+    base: AxisParams
+    data: AxisData
+    result: RefitResult
+
+
+def add_parser(sub: Any) -> None:
+    parser = sub.add_parser('refit', help='refit the lubricant viscosity parameters (and optionally others) from '
+                            'residual logs',
+                            description='Refit the Walther viscosity constants (and with --fit the Palmgren factor, '
+                            'the sliding coefficient and the per-direction factors) to the measured friction in '
+                            'residual logs by weighted least squares on the full model; report the fitted values '
+                            'with 95 % confidence intervals, which parameters the data can determine, and the RMS '
+                            'residual before and after per temperature bin and direction; write a parameter file '
+                            'layerable with --config / --params-file (refitted values under axis.<name>).')
+    parser.add_argument('logs', nargs='+', type=Path, metavar='LOG_DIR',
+                        help='residual-log folder (or .mcap file) written by residual_logger or replay')
+    parser.add_argument('--out', type=Path, required=True, metavar='FILE.yaml',
+                        help='parameter file to write (only after a successful fit)')
+    add_common(parser)
+    parser.add_argument('--axis', action='append', metavar='NAME',
+                        help='axis to refit (repeatable; default: every configured axis present in the logs)')
+    parser.add_argument('--fit', default=DEFAULT_FIT, metavar='NAMES',
+                        help=f'comma-separated parameters to fit, from {",".join(FIT_PARAMETERS)} '
+                        f'(default {DEFAULT_FIT})')
+    parser.add_argument('--loss', choices=['linear', 'soft_l1'], default='linear',
+                        help='least-squares loss on the weighted plateau means (soft_l1: robust to outlier bins)')
+    parser.add_argument('--bin-width', type=float, default=5.0, metavar='DEGC',
+                        help='temperature bin width [degC] (default 5)')
+    parser.add_argument('--direction', choices=['both', 'cw', 'ccw'], default='both',
+                        help='use samples of one direction only: the paper found CW and CCW alike at 20 degC but '
+                        'apart in the cold (grease distribution, not viscosity); cw = positive motion')
+    parser.add_argument('--plot', type=Path, metavar='PNG',
+                        help='draw measured vs model before/after by direction over temperature (paper Fig. 13)')
+    parser.add_argument('--offset', choices=OFFSET_MODES, default='auto',
+                        help='constant torque offset of the measurement (an I_0 calibration error) fitted as a '
+                        'nuisance: auto (default) = when the logs hold a cold (nu*n >= 2000) and a warm plateau')
+    parser.add_argument('--calibration', type=Path, metavar='FILE.yaml',
+                        help='calibrate-kt output the logs were measured with: its T_0 uncertainty is what the '
+                        'offset is compared with (values not applied; layer it with --config for that)')
+    parser.add_argument('--calibration-se', type=float, metavar='N*M',
+                        help='1-sigma uncertainty of the no-load torque T_0 = K_T*I_0 [N*m], instead of --calibration')
+    parser.set_defaults(func=run)
+
+
+def parse_fit(text: str) -> tuple[str, ...]:
+    """``'walther_a,walther_b'`` to a tuple of fit parameter names.
+
+    >>> parse_fit('walther_a, scale_negative')
+    ('walther_a', 'scale_negative')
+    >>> parse_fit('walther_a,direction_asymmetry')
+    ('walther_a', 'direction_asymmetry_cold', 'direction_asymmetry_warm')
+    """
+    names = tuple(y for x in text.split(',') if x.strip() for y in FIT_ALIASES.get(x.strip(), (x.strip(),)))
+    if not names:
+        raise ConfigError('--fit', f'give at least one of {", ".join(FIT_PARAMETERS)}', text)
+    bad = [x for x in names if x not in FIT_PARAMETERS]
+    if bad:
+        raise ConfigError('--fit', f'unknown {", ".join(bad)}; choose from {", ".join(FIT_PARAMETERS)} (or '
+                          f'{", ".join(FIT_ALIASES)})', text)
+    if len(set(names)) != len(names):
+        raise ConfigError('--fit', 'a parameter is listed twice', text)
+    return names
+
+
+def _select_axes(args: argparse.Namespace, cfg: dict[str, Any], present: list[str]) -> tuple[list[str], list[str]]:
+    configured = axis_names(cfg)
+    if args.axis:
+        for name in args.axis:
+            axis_params(cfg, name)  # refuses an axis that is not configured
+            if name not in present:
+                msg = (f'no {RESIDUAL_DETAIL} samples for axis {name!r} in the logs (joints present: '
+                       f'{", ".join(present) or "none"})')
+                raise FitError(msg)
+        return list(dict.fromkeys(args.axis)), []
+    axes = [name for name in present if name in configured]
+    if not axes:
+        msg = (f'the logs hold joints {", ".join(repr(p) for p in present)}, none of them configured '
+               f'(axes: {", ".join(configured)}); pass --config with those axes')
+        raise FitError(msg)
+    return axes, [name for name in present if name not in configured]
+
+
+def _fmt(value: float, digits: int = 6) -> str:
+    return '-' if not math.isfinite(value) else f'{value:.{digits}g}'
+
+
+def provenance_header(fits: list[AxisRefit], logs: list[Path], files: int, fit: tuple[str, ...],
+                      config: list[Path]) -> str:
+    """Comment header of the written file: logs, date, base configuration, and per axis the samples, the RMS
+    residual before and after, and every requested parameter (refitted with its 95 % interval, or why not)."""
+    now = dt.datetime.now(dt.timezone.utc).replace(microsecond=0).isoformat()
+    layers = ' + '.join(['packaged defaults', *(str(Path(c).resolve()) for c in config)])
+    lines = [
+        'gimbal-friction refit: lubricant (and other) parameters refitted to measured friction',
+        'logs: ' + ', '.join(str(p.resolve()) for p in logs) + f' ({files} file(s))',
+        f'date: {now}',
+        f'base parameters: {layers} (layer this file over the same ones)',
+        f'fit requested: {", ".join(fit)}',
+    ]
+    for f in fits:
+        r = f.result
+        lines.append(f"axis '{f.axis}': {r.n_samples} samples; RMS residual {1e3 * r.rms_before_nm:.4g} -> "
+                     f'{1e3 * r.rms_after_nm:.4g} N*mm')
+        for name in r.fitted:
+            ident = r.identifiability[name]
+            if ident.identifiable:
+                lo, hi = r.confidence_intervals[name]
+                lines.append(f'  {name} = {r.fitted[name]:.8g} (was {r.base[name]:.8g}; 95% CI '
+                             f'[{lo:.8g}, {hi:.8g}])')
+            else:
+                lines.append(f'  {name}: not identifiable, not written ({ident.reason})')
+        for vi in r.viscosity:
+            lines.append(f'  viscosity at {vi.temperature_c:.1f} degC: {vi.before_cst:.6g} -> {vi.after_cst:.6g} cSt '
+                         f'(95% [{vi.low_cst:.6g}, {vi.high_cst:.6g}])')
+        lines.append(f'  {offset_text(r)} (not written)')
+    lines.append('layer with: gimbal-friction ... --config FILE, or ros2 run ... --ros-args --params-file FILE')
+    return '\n'.join(lines)
+
+
+def plot_refit(fits: list[AxisRefit], path: Path) -> Path:
+    """Paper Fig. 13 per axis: measured plateau means by direction (CW positive, CCW as |.|) with error bars and
+    the model before (dashed) and after (solid) the refit over temperature, [N*mm]; PNG via matplotlib Agg."""
+    from gimbal_friction.plots.figures import pyplot
+
+    plt = pyplot()
+
+    fig, axes = plt.subplots(1, len(fits), figsize=(7.5 * len(fits), 5.0), squeeze=False)
+    for ax, f in zip(axes[0], fits, strict=False):
+        r = f.result
+        used = [b for b in r.bins if b.used]
+        t_lo = min(b.temperature_c for b in used) - 5.0
+        t_hi = max(b.temperature_c for b in used) + 5.0
+        grid = np.linspace(t_lo, t_hi, 241)
+        speeds = []
+        for sign, label, color in ((1, 'CW (+)', 'C0'), (-1, '|CCW| (-)', 'C3')):
+            pts = [b for b in used if b.direction == sign]
+            if not pts:
+                continue
+            # CW and CCW markers side by side (0.4 degC apart) so neither hides the other
+            ax.errorbar([b.temperature_c - 0.2 * sign for b in pts], [1e3 * b.measured_mean_nm for b in pts],
+                        yerr=[1.96e3 * b.measured_se_nm for b in pts], fmt='o' if sign > 0 else 's', color=color,
+                        mfc=color if sign > 0 else 'none', capsize=3, label=f'measured {label}, mean +/- 95 %')
+            speed = float(np.median([b.speed_rpm for b in pts]))
+            speeds.append(speed)
+            for params, style, when in ((f.base, '--', 'before'), (r.params, '-', 'after')):
+                k = direction_factor(params, grid, float(sign), ARRAY)
+                shift = 1e3 * r.offset.value_nm if when == 'after' and r.offset.estimated else 0.0
+                model = k * friction_torque(params, grid, speed).m_total_nmm + shift
+                ax.plot(grid, model, style, color=color, lw=1.6 if when == 'after' else 1.1,
+                        label=f'model {when}, {label}, {speed:.3g} rpm')
+        t_thr = palmgren_threshold_temperature(r.params, min(speeds)) if speeds else math.nan
+        if math.isfinite(t_thr) and t_thr > t_lo:
+            ax.axvspan(t_lo, min(t_thr, t_hi), color='0.9', lw=0, zorder=0,
+                       label=f'nu*n >= {PALMGREN_THRESHOLD:g} (refitted, {min(speeds):.3g} rpm): M_L depends on nu')
+        ax.set_xlabel('temperature [°C]')
+        ax.set_ylabel('friction torque |M| of the axis [N·mm]')
+        ax.set_title(f'{f.axis}: measured vs model by direction (paper Fig. 13)\nRMS residual '
+                     f'{1e3 * r.rms_before_nm:.3g} -> {1e3 * r.rms_after_nm:.3g} N·mm', fontsize=9)
+        ax.grid(True, alpha=0.4)
+        ax.legend(fontsize=7)
+    fig.tight_layout()
+    from gimbal_friction.plots.figures import save_figure
+    return save_figure(fig, path)
+
+
+def _axis_record(f: AxisRefit) -> dict[str, Any]:
+    r = f.result
+    return {
+        'rows': f.data.rows,
+        'skipped_nonfinite': f.data.skipped_nonfinite,
+        'skipped_standstill': f.data.skipped_standstill,
+        'samples': r.n_samples,
+        'samples_dropped': r.n_dropped,
+        'fitted': r.fitted,
+        'base': r.base,
+        'standard_errors': r.standard_errors,
+        'confidence_intervals_95': {k: list(v) for k, v in r.confidence_intervals.items()},
+        'identifiability': {k: {'identifiable': v.identifiable, 'reason': v.reason}
+                            for k, v in r.identifiability.items()},
+        'written': r.refitted,
+        'rms_before_nmm': 1e3 * r.rms_before_nm,
+        'rms_after_nmm': 1e3 * r.rms_after_nm,
+        'viscous_temperatures_c': list(r.viscous_temperatures_c),
+        'viscosity': [{'temperature_c': vi.temperature_c, 'before_cst': vi.before_cst, 'after_cst': vi.after_cst,
+                       'ci95_cst': [vi.low_cst, vi.high_cst]} for vi in r.viscosity],
+        'bins': [{
+            'temperature_c': b.temperature_c, 'temperature_bin_c': b.temperature_bin_c,
+            'direction': 'cw' if b.direction > 0 else 'ccw', 'sign': b.direction, 'speed_rpm': b.speed_rpm,
+            'samples': b.n, 'used': b.used, 'viscous': b.viscous,
+            'measured_mean_nmm': 1e3 * b.measured_mean_nm, 'measured_se_nmm': 1e3 * b.measured_se_nm,
+            'model_before_nmm': 1e3 * b.model_before_nm, 'model_after_nmm': 1e3 * b.model_after_nm,
+            'rms_before_nmm': 1e3 * b.rms_before_nm, 'rms_after_nmm': 1e3 * b.rms_after_nm,
+            'viscosity_before_cst': b.viscosity_before_cst, 'viscosity_after_cst': b.viscosity_after_cst,
+            'friction_after_nmm': 1e3 * b.friction_after_nm,
+        } for b in r.bins],
+        'cost': r.cost,
+        'message': r.message,
+        'fine_bins': r.n_bins,
+        'offset': offset_record(r),
+        'warnings': list(r.warnings),
+    }
+
+
+def offset_record(r: RefitResult) -> dict[str, Any]:
+    """The calibration offset of a refit as JSON (torques in N*mm)."""
+    o = r.offset
+    return {'mode': o.mode, 'estimated': o.estimated, 'reason': o.reason, 'value_nmm': 1e3 * o.value_nm,
+            'standard_error_nmm': 1e3 * o.standard_error_nm,
+            'ci95_nmm': [1e3 * o.confidence_interval_nm[0], 1e3 * o.confidence_interval_nm[1]],
+            'calibration_se_nmm': 1e3 * o.calibration_se_nm, 'exceeds_calibration': o.exceeds_calibration,
+            'torque_constant_nm_per_a': o.torque_constant_nm_per_a, 'no_load_current_a': o.no_load_current_a,
+            'implied_no_load_current_a': o.implied_no_load_current_a}
+
+
+def offset_text(r: RefitResult) -> str:
+    """One line on the calibration offset of a refit."""
+    o = r.offset
+    if not o.estimated:
+        return f'torque offset: not estimated ({o.reason})'
+    lo, hi = o.confidence_interval_nm
+    cal = (f'; calibration T_0 1-sigma {1e3 * o.calibration_se_nm:.3g} N*mm: '
+           + ('EXCEEDS it' if o.exceeds_calibration else 'within it')) if o.exceeds_calibration is not None else \
+        '; no calibration uncertainty given (--calibration / --calibration-se)'
+    return (f'torque offset {1e3 * o.value_nm:+.4g} N*mm (95% [{1e3 * lo:+.4g}, {1e3 * hi:+.4g}]), as if I_0 were '
+            f'{o.implied_no_load_current_a:.6g} A instead of {o.no_load_current_a:.6g} A{cal}')
+
+
+def _print_axis(f: AxisRefit) -> None:
+    r, d = f.result, f.data
+    skipped = d.skipped_nonfinite + d.skipped_standstill
+    print(f'axis {f.axis}: {r.n_samples} samples used of {d.rows} rows'
+          + (f' ({d.skipped_nonfinite} non-finite, {d.skipped_standstill} at standstill skipped)' if skipped else '')
+          + (f', {r.n_dropped} in groups too small to use' if r.n_dropped else ''))
+    rows = []
+    for name in r.fitted:
+        ident = r.identifiability[name]
+        if ident.identifiable:
+            lo, hi = r.confidence_intervals[name]
+            rows.append([name, _fmt(r.base[name]), _fmt(r.fitted[name], 8), _fmt(r.standard_errors[name], 3),
+                         f'[{_fmt(lo, 8)}, {_fmt(hi, 8)}]', 'yes'])
+        else:
+            rows.append([name, _fmt(r.base[name]), _fmt(r.fitted[name], 8), '-', '-', 'NO (held)'])
+    print(format_table(rows, ['parameter', 'base', 'fitted', 'std. error', '95% CI', 'identifiable']))
+    for name, ident in r.identifiability.items():
+        if not ident.identifiable:
+            print(f'  {name}: not identifiable: {ident.reason}')
+    print(f'RMS residual: {1e3 * r.rms_before_nm:.4g} -> {1e3 * r.rms_after_nm:.4g} N*mm ({r.message})')
+    print(offset_text(r))
+    for warning in r.warnings:
+        print(f'WARNING: {warning}')
+    brows = []
+    for b in r.bins:
+        brows.append([f'{b.temperature_c:.1f}', 'CW' if b.direction > 0 else 'CCW', f'{b.speed_rpm:.3g}',
+                      f'{b.n}' + ('' if b.used else ' (unused)'), f'{1e3 * b.measured_mean_nm:.4f}',
+                      _fmt(1e3 * b.measured_se_nm, 2), f'{1e3 * b.model_before_nm:.4f}',
+                      f'{1e3 * b.model_after_nm:.4f}', f'{1e3 * b.rms_before_nm:.4f}', f'{1e3 * b.rms_after_nm:.4f}',
+                      f'{b.viscosity_before_cst:.5g}', f'{b.viscosity_after_cst:.5g}', 'yes' if b.viscous else ''])
+    print(format_table(brows, ['t [degC]', 'dir', 'n [rpm]', 'samples', '|M| meas [N*mm]', 'se', 'model before',
+                               'model after', 'RMS before', 'RMS after', 'nu before [cSt]', 'nu after',
+                               'nu*n>=2000']))
+    for vi in r.viscosity:
+        print(f'viscosity at {vi.temperature_c:.1f} degC: {vi.before_cst:.5g} -> {vi.after_cst:.5g} cSt '
+              f'(95% interval {vi.low_cst:.5g} .. {vi.high_cst:.5g})')
+    if r.viscous_temperatures_c:
+        temps = ', '.join(f'{x:g}' for x in r.viscous_temperatures_c)
+        print(f'viscosity determined by the data at {temps} degC only (nu*n >= {PALMGREN_THRESHOLD:g}); elsewhere '
+              'the viscous torque does not depend on viscosity at these speeds')
+
+
+def calibration_se_by_axis(args: argparse.Namespace, axes: list[str]) -> dict[str, float | None]:
+    """The T_0 uncertainty [N*m] to compare each axis' offset with, from --calibration-se or --calibration."""
+    out: dict[str, float | None] = dict.fromkeys(axes)
+    if args.calibration_se is not None:
+        if not (math.isfinite(args.calibration_se) and args.calibration_se >= 0.0):
+            raise ConfigError('--calibration-se', 'must be a finite torque >= 0 [N*m]', args.calibration_se)
+        out = {axis: float(args.calibration_se) for axis in axes}
+    if args.calibration is not None:
+        if args.calibration_se is not None:
+            raise ConfigError('--calibration', 'give --calibration or --calibration-se, not both',
+                              str(args.calibration))
+        cal_axis, se = read_calibration_se(args.calibration)
+        for axis in axes:
+            if cal_axis is None or cal_axis == axis:
+                out[axis] = se
+    return out
+
+
+def run(args: argparse.Namespace) -> int:
+    out: Path = args.out
+    if out.is_dir():
+        msg = f'--out {out} is a directory; give a file name such as refit.yaml'
+        raise GimbalFrictionError(msg)
+    if not (math.isfinite(args.bin_width) and args.bin_width > 0.0):
+        raise ConfigError('--bin-width', 'must be > 0 [degC]', args.bin_width)
+    fit = parse_fit(args.fit)
+    cfg = load_parameters(args.config)
+    if args.calibration is not None:
+        read_calibration_se(args.calibration)  # refuse a bad file before reading the logs
+    report = ReadReport()
+    data_by_joint = read_stats(list(args.logs), direction=args.direction, report=report)
+    where = ', '.join(str(p) for p in args.logs)
+    if not data_by_joint:
+        msg = f'{where}: the residual log holds no {RESIDUAL_DETAIL} samples'
+        raise FitError(msg)
+    present = sorted(data_by_joint)
+    axes, ignored = _select_axes(args, cfg, present)
+    cal_se = calibration_se_by_axis(args, axes)
+    fits: list[AxisRefit] = []
+    for axis in axes:
+        base = axis_params(cfg, axis)
+        data = data_by_joint[axis]
+        try:
+            result = refit_stats(base, data.stats, fit=fit, loss=args.loss, bin_width_c=args.bin_width,
+                                 offset=args.offset, calibration_se_nm=cal_se[axis])
+        except FitError as err:
+            hint = ' (pass --axis to refit only the others)' if len(axes) > 1 else ''
+            msg = f'axis {axis}: {err}{hint}'
+            raise FitError(msg) from None
+        fits.append(AxisRefit(axis, base, data, result))
+    if args.plot is not None:
+        plot_refit(fits, args.plot)
+    text = render_parameter_file(axes_overrides={f.axis: f.result.refitted for f in fits},
+                                 header=provenance_header(fits, list(args.logs), len(report.files), fit,
+                                                          list(args.config)))
+    write_text_atomic(out, text)
+    for f in fits:
+        for warning in f.result.warnings:
+            print(f'gimbal-friction refit: warning: axis {f.axis}: {warning}', file=sys.stderr)
+
+    if args.format == 'json':
+        print_json({'logs': [str(p) for p in args.logs], 'files': [str(p) for p in report.files],
+                    'truncated_files': [str(p) for p in report.truncated_files], 'out': str(out),
+                    'plot': None if args.plot is None else str(args.plot), 'fit': list(fit),
+                    'config': [str(c) for c in args.config], 'offset_mode': args.offset,
+                    'ignored_joints': ignored, 'axes': {f.axis: _axis_record(f) for f in fits}})
+        print(f'wrote {out}' + ('' if args.plot is None else f', plot: {args.plot}'), file=sys.stderr)
+        return 0
+    print(f'refit of {", ".join(fit)} from {len(report.files)} file(s) in {where}'
+          + (f' ({len(report.truncated_files)} truncated)' if report.truncated_files else ''))
+    if ignored:
+        print(f'joints not configured, ignored: {", ".join(ignored)}')
+    for f in fits:
+        print()
+        _print_axis(f)
+    written = [f'axis.{f.axis}.{name}' for f in fits for name in f.result.refitted]
+    print()
+    print(f'wrote {out} ({", ".join(written)})')
+    if args.plot is not None:
+        print(f'plot: {args.plot}')
+    return 0

@@ -1,0 +1,119 @@
+"""``gimbal-friction report``: the paper's figures from the model (Figs. 5, 7–11) as PNG files."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+from typing import Any, cast
+
+from gimbal_friction.cli._common import add_common, format_table, load_axis, os_error_text, print_json
+from gimbal_friction.common.errors import GimbalFrictionError
+from gimbal_friction.config.loader import axis_params, load_parameters
+from gimbal_friction.physics.model import friction_torque
+
+
+def add_parser(sub: Any) -> None:
+    parser = sub.add_parser('report', help='figures and tables: model components vs temperature (Fig. 11), '
+                            'model vs measured by direction (Fig. 13)',
+                            description='Draw the paper figures from the model into --out: free contact angle '
+                            '(Fig. 5), axial force (Figs. 7-8), M_S+M_R (Figs. 9-10) and the components M_L, '
+                            'M_S+M_R, M (Fig. 11).')
+    add_common(parser)
+    parser.add_argument('--axis', metavar='NAME', help='configured axis (default: the first in axes)')
+    parser.add_argument('--out', type=Path, default=Path('report'), metavar='DIR',
+                        help='output folder for the PNG files (default: ./report)')
+    parser.add_argument('--residuals', nargs='+', type=Path, metavar='LOG_DIR',
+                        help='residual logs (residual_logger or replay): adds Fig. 13, model vs measured by '
+                        'direction, and its table')
+    parser.add_argument('--compare', type=Path, metavar='FILE.yaml',
+                        help='a parameter file (e.g. from refit) layered over --config: drawn as a second model '
+                        'curve in Fig. 13')
+    parser.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    try:
+        return _run(args)
+    except OSError as err:  # the figures' folder cannot be created or written (read-only, full, not a folder)
+        raise GimbalFrictionError(f'cannot write the report into {args.out}: {os_error_text(err)}') from None
+
+
+def _run(args: argparse.Namespace) -> int:
+    from gimbal_friction.plots.figures import model_figures
+    axis, params, _ = load_axis(args)
+    if args.compare is not None:  # refuse a bad --compare file before drawing anything
+        load_parameters([*args.config, args.compare])
+    files = model_figures(params, args.out)
+    temps = [-40.0, -20.0, 0.0, 20.0, 40.0, 60.0]
+    res = friction_torque(params, temps)
+    rows = res.records()
+    summary = None
+    if args.residuals:
+        summary, fig13 = _fig13(args, axis, params)
+        files.append(fig13)
+    if args.format == 'json':
+        doc = {'axis': axis, 'figures': [str(f) for f in files], 'fig11': rows}
+        if summary is not None:
+            doc['fig13'] = summary
+        print_json(doc)
+        return 0
+    print(f'axis {axis}: figures written to {args.out}/')
+    for f in files:
+        print(f'  {f}')
+    print()
+    print(format_table([[f'{r["temperature_c"]:.0f}', f'{r["m_viscous_nmm"]:.3f}',
+                         f'{r["m_sliding_nmm"] + r["m_rolling_nmm"]:.3f}', f'{r["m_total_nmm"]:.3f}']
+                        for r in rows], ['t [degC]', 'M_L [N*mm]', 'M_S+M_R [N*mm]', 'M [N*mm]']))
+    if summary is not None:
+        print()
+        print(summary_table(summary))
+    return 0
+
+
+def summary_table(summary: list[dict[str, Any]]) -> str:
+    """Model vs measured by temperature plateau and direction, N*mm (with the compared model when present)."""
+    extra = any('compare_nmm' in r for r in summary)
+    header = ['joint', 't [degC]', 'dir', 'measured [N*mm]', 'model [N*mm]', 'residual [N*mm]', 'samples']
+    if extra:
+        header[5:5] = ['refit model [N*mm]']
+    rows = []
+    for r in summary:
+        row = [str(r['joint']), f'{r["temperature_c"]:.1f}', str(r['direction']), f'{r["measured_mean_nmm"]:+.3f}',
+               f'{r["predicted_nmm"]:+.3f}', f'{r["residual_nmm"]:+.3f}', str(r['samples'])]
+        if extra:
+            row[5:5] = [f'{r["compare_nmm"]:+.3f}']
+        rows.append(row)
+    return format_table(rows, header)
+
+
+def _fig13(args: argparse.Namespace, axis: str, params: Any) -> tuple[list[dict[str, Any]], Path]:
+    from gimbal_friction.config.loader import load_parameters
+    from gimbal_friction.estimation.residuals import plateau_summary, steady_temperature
+    from gimbal_friction.physics.direction import SCALAR, direction_factor
+    from gimbal_friction.plots.figures import plot_model_vs_measured
+    from gimbal_friction.recording.residual_read import read_residual_rows, read_temperature_stream
+    d, report = read_residual_rows(args.residuals)
+    if report.truncated_files or report.bad_chunks or report.skipped_rows:
+        print(f'note: residual logs: {report.summary()}', file=sys.stderr)
+    sel = d.joint == axis
+    if not sel.any():
+        raise GimbalFrictionError(f'the residual logs hold no samples of axis {axis!r}')
+    t_time, t_value = read_temperature_stream(args.residuals)
+    if t_time.size < 2:  # the inputs were not logged: judge the plateaus on the samples' own temperatures
+        t_time, t_value = d.stamp_s[sel], d.temperature_c[sel]
+    steady = steady_temperature(d.stamp_s[sel], t_time, t_value)
+    summary = plateau_summary(d.temperature_c[sel], d.velocity_rad_s[sel], d.measured_nm[sel],
+                              d.predicted_nm[sel], joint=d.joint[sel], steady=steady)
+    models = {'configured': params}
+    if args.compare is not None:
+        compared = axis_params(load_parameters([*args.config, args.compare]), axis)
+        models[f'with {args.compare.name}'] = compared
+        for r in summary:  # the compared model at each plateau, signed like the measurement, at the model speed
+            sign = float(cast('float', r['sign']))
+            t_c = float(cast('float', r['temperature_c']))
+            m = float(friction_torque(compared, t_c).m_total_nmm)
+            r['compare_nmm'] = sign * direction_factor(compared, t_c, sign, SCALAR) * m
+    path = plot_model_vs_measured(summary, models, args.out / 'fig13_model_vs_measured.png',
+                                  title=f'{axis}: model vs measured by direction (paper Fig. 13)')
+    return summary, path

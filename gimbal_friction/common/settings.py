@@ -1,0 +1,83 @@
+"""Settings dataclasses: fields with unit and description, built from parameter values (one coercion rule).
+
+Shared by the nodes (ROS parameters with descriptors), the simulator and the offline tools (parameter files), so all
+accept and refuse the same values. Each feature declares its own settings class with :func:`setting`.
+
+>>> from gimbal_friction.config.node_settings import FeedforwardNodeSettings, LoggerSettings
+>>> settings_from(FeedforwardNodeSettings, {'max_rate_hz': 500}).max_rate_hz
+500.0
+>>> settings_from(LoggerSettings, {'chunk_kib': 64.5})
+Traceback (most recent call last):
+...
+gimbal_friction.common.errors.ConfigError: parameter 'chunk_kib' = 64.5: must be a whole number
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Mapping
+from dataclasses import field
+from typing import Any, TypeVar
+
+from gimbal_friction.common.errors import ConfigError
+
+T = TypeVar('T')
+
+__all__ = ['setting', 'settings_from', 'settings_from_parameters']
+
+
+def setting(default: Any, unit: str, description: str) -> Any:
+    """A settings field with its unit and description (turned into ROS parameter descriptors by the nodes)."""
+    return field(default=default, metadata={'unit': unit, 'description': description})
+
+
+def _coerce(name: str, value: Any, default: Any) -> Any:
+    """``value`` as the type of the field's ``default``; ConfigError naming ``name`` if it is not one."""
+    if isinstance(default, bool):
+        if not isinstance(value, bool):
+            raise ConfigError(name, 'must be true or false', value)
+        return value
+    if isinstance(default, (int, float)):
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise ConfigError(name, f'must be a number, not {type(value).__name__}', value)
+        if isinstance(value, float) and not math.isfinite(value):
+            raise ConfigError(name, 'must be a finite number', value)
+        if isinstance(default, int):
+            if value != int(value):
+                raise ConfigError(name, 'must be a whole number', value)
+            return int(value)
+        return float(value)
+    if isinstance(default, str):
+        if not isinstance(value, str):
+            raise ConfigError(name, f'must be a string, not {type(value).__name__}', value)
+        return value
+    if isinstance(default, (list, tuple)):
+        if not isinstance(value, (list, tuple)):
+            raise ConfigError(name, f'must be a list, not {type(value).__name__}', value)
+        return type(default)(value)
+    return value
+
+
+def settings_from(cls: type[T], values: Mapping[str, Any], base: T | None = None) -> T:
+    """Settings dataclass from parameter values, coerced to the field types and validated.
+
+    Raises:
+        ConfigError: wrong type (a float where a whole number is needed, a string where a number is, NaN or
+            inf) or a value its ``validate()`` refuses.
+    """
+    kwargs = {}
+    for f in dataclasses.fields(cls):  # type: ignore[arg-type]
+        if f.name in values:
+            kwargs[f.name] = _coerce(f.name, values[f.name], f.default)
+    obj = dataclasses.replace(base, **kwargs) if base is not None else cls(**kwargs)  # type: ignore[type-var]
+    validate = getattr(obj, 'validate', None)
+    if validate is not None:
+        validate()
+    return obj
+
+
+def settings_from_parameters(cls: type[T], params: Mapping[str, Any]) -> T:
+    """Settings of ``cls`` from a merged ``ros__parameters`` mapping (unknown keys ignored), validated."""
+    names = {f.name for f in dataclasses.fields(cls)}  # type: ignore[arg-type]
+    return settings_from(cls, {k: v for k, v in params.items() if k in names})

@@ -1,0 +1,82 @@
+"""Node-level settings of friction_feedforward, friction_estimator and residual_logger (periods, rate limit, log files).
+
+The settings of the logic live with the logic (``FeedforwardSettings`` in :mod:`gimbal_friction.feedforward.rule`,
+``EstimatorSettings`` in :mod:`gimbal_friction.estimation.estimator`); these are the nodes' own, kept here so the whole
+set of parameter names of the suite is known without starting a node.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from gimbal_friction.common.errors import ConfigError, check_rules
+from gimbal_friction.common.settings import setting
+
+
+# ---------------------------------------------------------------------------------------------------- node settings
+@dataclass(frozen=True)
+class FeedforwardNodeSettings:
+    """Node-level parameters of friction_feedforward (besides FeedforwardSettings and the model; the velocity
+    source is a FeedforwardSettings, since replay and in-process callers apply it too)."""
+
+    max_rate_hz: float = setting(0.0, 'Hz', 'publish at most this often; 0 = for every joint-state message')
+    diagnostics_period_s: float = setting(1.0, 's', 'period of /diagnostics')
+
+    def validate(self) -> None:
+        """Raises ConfigError naming the setting and the rule it breaks."""
+        check_rules(self, [
+            ('max_rate_hz', 0.0 <= self.max_rate_hz <= 1e6, 'must lie in [0, 1e6] [Hz]'),
+            ('diagnostics_period_s', 0.05 <= self.diagnostics_period_s <= 60.0, 'must lie in [0.05, 60] [s]'),
+        ])
+
+
+@dataclass(frozen=True)
+class EstimatorNodeSettings:
+    """Node-level parameters of friction_estimator (besides EstimatorSettings and the model)."""
+
+    batch_period_s: float = setting(0.02, 's', 'the messages received are processed together this often (the '
+                                    'result does not depend on it; measurements are published this much later)')
+    statistics_period_s: float = setting(2.0, 's', 'period of the statistics summary on '
+                                         '/gimbal/friction/statistics')
+    diagnostics_period_s: float = setting(1.0, 's', 'period of /diagnostics')
+
+    def validate(self) -> None:
+        """Raises ConfigError naming the setting and the rule it breaks."""
+        check_rules(self, [
+            ('batch_period_s', 0.001 <= self.batch_period_s <= 1.0, 'must lie in [0.001, 1] [s]'),
+            ('statistics_period_s', 0.05 <= self.statistics_period_s <= 3600.0, 'must lie in [0.05, 3600] [s]'),
+            ('diagnostics_period_s', 0.05 <= self.diagnostics_period_s <= 3600.0, 'must lie in [0.05, 3600] [s]'),
+        ])
+
+
+@dataclass(frozen=True)
+class LoggerSettings:
+    """Parameters of residual_logger."""
+
+    output_dir: str = setting('residuals', '-', 'folder of the residual log (created; a timestamped sub-folder '
+                              'is used if it already holds a log)')
+    flush_period_s: float = setting(1.0, 's', 'completed data reaches the disk at least this often')
+    chunk_kib: int = setting(64, 'KiB', 'MCAP chunk size; small chunks lose little when the process is killed')
+    max_file_mb: float = setting(64.0, 'MB', 'rotate to a new file at this size; 0 = never')
+    max_file_duration_s: float = setting(0.0, 's', 'rotate to a new file after this much log time; 0 = never')
+    pairing_timeout_s: float = setting(1.0, 's', 'a measurement waits this long for its feedforward, then is '
+                                       'logged without a prediction')
+    log_inputs: bool = setting(True, '-', 'also log the raw input topics (temperature, joint states, current, '
+                               'feedforward, measured, measured_detail)')
+    residual_bin_c: float = setting(5.0, 'degC', 'temperature bin of the residual RMS on /diagnostics')
+    retry_period_s: float = setting(5.0, 's', 'after a write error, try a new file this often')
+    diagnostics_period_s: float = setting(1.0, 's', 'period of /diagnostics')
+
+    def validate(self) -> None:
+        """Raises ConfigError naming the setting and the rule it breaks."""
+        if not self.output_dir.strip():
+            raise ConfigError('output_dir', 'must be a folder path', self.output_dir)
+        for name, hi in (('flush_period_s', 3600.0), ('pairing_timeout_s', 3600.0), ('residual_bin_c', 1000.0),
+                         ('retry_period_s', 3600.0), ('diagnostics_period_s', 3600.0)):
+            if not 0.0 < getattr(self, name) <= hi:
+                raise ConfigError(name, f'must lie in (0, {hi:g}]', getattr(self, name))
+        if not 1 <= self.chunk_kib <= 65536:
+            raise ConfigError('chunk_kib', 'must lie in [1, 65536] [KiB]', self.chunk_kib)
+        for name in ('max_file_mb', 'max_file_duration_s'):
+            if not 0.0 <= getattr(self, name) <= 1e9:
+                raise ConfigError(name, 'must lie in [0, 1e9] (0 = never)', getattr(self, name))

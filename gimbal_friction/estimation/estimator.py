@@ -1,0 +1,825 @@
+r"""The estimator of ``friction_estimator``: measured friction from motor current (pure: no rclpy, no I/O).
+
+One implementation, fed with batches of messages in arrival order (:meth:`EstimatorLogic.feed`): the node feeds the
+messages it received since its last timer tick, the offline replay a whole bag; the state carried between batches
+makes the result the same however the messages are batched (tested), so live and offline give the same numbers.
+
+**Eq. (23)** of Yu & Shang (2017), the electrical measurement: the motor torque balances friction and inertia,
+
+.. math:: T_f = K_T\,(I - d\,I_0) - J\,\hat\alpha,\qquad d = \operatorname{sign}(\omega)
+
+with the armature current ``I`` [A], the torque constant ``K_T`` [N·m/A], the no-load current ``I_0`` [A] and, for
+the observer, the axis inertia ``J`` [kg·m²] (``inertia_kg_m2`` of the axis) and the filtered acceleration
+``α̂`` [rad/s²]. ``T_f`` is signed like the motion (CONTRACT.md); a value of the opposite sign is not physical and
+is refused (``'friction opposes motion'``).
+
+Two methods (``method`` setting: ``steady_state``, ``observer`` or ``both``):
+
+The acceleration ``α̂`` of a joint state (both methods) is the least-squares slope of the joint velocity over the
+accepted joint states of the last ``acceleration_window_s`` (at least the last three; unknown when those span more
+than ten windows and 0.25 s, i.e. a gap in the data): at 1 kHz the difference of two successive velocities is
+mostly noise.
+
+- **steady_state** — the paper's chamber protocol: a sample counts only at the commanded constant speed, inside
+  the position window, with ``|α̂| ≤ max_accel_rad_s2`` (known), after a dwell (in this order, the first failing
+  check is the reason: ``'outside position window'``, ``'speed off command'``, ``'acceleration'``, ``'dwell'``);
+  J·α̂ is not subtracted (it is small by this rule).
+- **observer** — friction while the gimbal works: a sample counts when the speed is away from zero
+  (``'observer: speed near zero'``), α̂ is known (``'observer: window'``),
+  ``|α̂| ≤ observer_max_accel_rad_s2`` (``'observer: acceleration'``) and the standard error of α̂ is at most
+  ``observer_max_accel_noise_rad_s2`` (``'observer: acceleration noise'``).
+- **both** — a steady-state sample where the steady-state rules hold, else an observer sample where the observer
+  rules hold (the observer's reason is counted otherwise).
+
+Every sample carries its method (:class:`~gimbal_friction.streams.measurement.MeasurementArrays`).
+
+Input rules (rejections counted in ``counters.rejected[joint][reason]``; ``'*'`` = no configured joint):
+
+- joint states: the time of a joint state is its stamp, or its arrival time if the stamp is zero
+  (:func:`~gimbal_friction.streams.inputs.effective_time`); NaN/inf position or velocity → ``'non-finite joint
+  state'``; a stamp not later than the last accepted one → ``'stamp not increasing'``, unless it is earlier by more
+  than ``stamp_reset_s``: then the time source jumped back (a bag played in a loop, simulated time restarted, or
+  one sample stamped far in the future before) and the joint's stream restarts from it
+  (``'stream restarted (stamp jumped back)'``; currents waiting for a joint state are dropped as ``'unpaired'``).
+- currents: NaN/inf → ``'non-finite'``; ``|I| > max_current_a`` → ``'over current rating'``.
+- pairing: a current of time ``c`` pairs with the accepted joint state of its joint nearest to ``c`` within
+  ``pairing_tolerance_s`` (the earlier one on a tie), decided once a joint state later than ``c + tolerance`` has
+  arrived (so arrival order does not matter); none in the window → ``'unpaired'``. A current arriving after
+  more than :data:`HISTORY_LENGTH` newer joint states, or pushed out of the :data:`WAIT_LENGTH` buffer of currents
+  waiting for their joint state, is ``'unpaired'`` too.
+- temperature: the latest valid temperature (finite, in ``[temperature_min_c, temperature_max_c]``) received
+  before the current; fresh if its time and the joint state's differ by at most ``temperature_timeout_s``. The
+  statistics plateau is ``round(t / temperature_bin_c) · temperature_bin_c`` when fresh, else unknown.
+
+Statistics (:meth:`EstimatorLogic.statistics`, steady-state samples only, the paper's per-plateau means): per
+(joint, direction, plateau) count, mean, sample standard deviation, ripple (peak-to-peak of the mean friction in
+``ripple_bins`` position bins across the window) and position range.
+
+>>> logic = EstimatorLogic({'elevation': AxisParams(no_load_current_a=0.01)}, EstimatorSettings(min_dwell_s=0.0))
+>>> v = EstimatorSettings().commanded_speed_rad_s
+>>> for k in range(3):                          # three joint states at 100 Hz: the acceleration is known
+...     _ = logic.on_joint_state(10**9 + k * 10**7, ['elevation'], [0.0], [-v])
+>>> logic.on_current(10**9 + 2 * 10**7, ['elevation'], [-0.05])
+[]
+>>> (m,) = logic.on_joint_state(10**9 + 3 * 10**7, ['elevation'], [0.0], [-v])   # beyond the pairing window
+>>> round(m.friction_nm, 6), m.direction   # 0.05 N*m/A * (-0.05 A + 0.01 A)
+(-0.002, -1)
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Any, NamedTuple
+
+import numpy as np
+from numpy.typing import NDArray
+
+from gimbal_friction.common.errors import ConfigError, check_rules
+from gimbal_friction.common.settings import setting
+from gimbal_friction.common.units import NS_PER_S, ns_from_seconds
+from gimbal_friction.common.xp import ARRAY
+from gimbal_friction.estimation.kt import friction_from_current_Eq23
+from gimbal_friction.estimation.statistics import GroupStatistics
+from gimbal_friction.physics.params import MODEL_T_MAX_C, MODEL_T_MIN_C, AxisParams
+from gimbal_friction.streams.arrays import (
+    ChamberArrays,
+    JointStateArrays,
+    MessageCounts,
+    chamber_arrays,
+    single_message_arrays,
+)
+from gimbal_friction.streams.inputs import effective_time, is_fresh, temperature_valid
+from gimbal_friction.streams.measurement import METHOD_OBSERVER, METHOD_STEADY_STATE, Measurement, MeasurementArrays
+
+#: accepted joint states kept per joint for currents that arrive late [-]
+HISTORY_LENGTH = 256
+#: currents waiting for their joint state, per joint [-]
+WAIT_LENGTH = 256
+#: most joint states used in one acceleration window [-]
+OBSERVER_MAX_SAMPLES = 64
+#: joint states of an acceleration window spanning more than this (or ten windows) straddle a gap [ns]
+MAX_GAP_NS = 250_000_000
+#: joint key of rejections that belong to no configured joint (unknown names)
+UNKNOWN_JOINT = '*'
+METHODS = ('steady_state', 'observer', 'both')
+
+R_LENGTH = 'length mismatch'
+R_UNKNOWN = 'unknown joint'
+R_DUPLICATE = 'duplicate joint name'
+R_NON_FINITE_JS = 'non-finite joint state'
+R_STAMP = 'stamp not increasing'
+R_RESET = 'stream restarted (stamp jumped back)'
+R_NON_FINITE = 'non-finite'
+R_OVER_CURRENT = 'over current rating'
+R_UNPAIRED = 'unpaired'
+R_WINDOW = 'outside position window'
+R_SPEED = 'speed off command'
+R_ACCEL = 'acceleration'
+R_DWELL = 'dwell'
+R_OBS_SPEED = 'observer: speed near zero'
+R_OBS_WINDOW = 'observer: window'
+R_OBS_ACCEL = 'observer: acceleration'
+R_OBS_NOISE = 'observer: acceleration noise'
+R_OPPOSES = 'friction opposes motion'
+#: steady-state verdict codes 1..4 (0 = steady)
+STEADY_STATE_REASONS = (R_WINDOW, R_SPEED, R_ACCEL, R_DWELL)
+#: observer verdict codes 1..4 (0 = accepted)
+OBSERVER_REASONS = (R_OBS_SPEED, R_OBS_WINDOW, R_OBS_ACCEL, R_OBS_NOISE)
+#: reasons that mean a bad or unusable input (as opposed to "not in steady state")
+INPUT_REASONS = (R_LENGTH, R_UNKNOWN, R_DUPLICATE, R_NON_FINITE_JS, R_STAMP, R_RESET, R_NON_FINITE, R_OVER_CURRENT,
+                 R_UNPAIRED, R_OPPOSES)
+
+_I64_MAX = np.iinfo(np.int64).max
+
+
+@dataclass(frozen=True)
+class EstimatorSettings:
+    """Settings of the estimator (ROS parameters of ``friction_estimator``; units in the names)."""
+
+    method: str = setting('steady_state', '-', 'steady_state (the paper\'s constant-speed protocol), observer '
+                          '(friction while the gimbal works: Eq. 23 minus J*alpha) or both')
+    commanded_speed_rad_s: float = setting(2.0 * math.pi / 180.0, 'rad/s', 'commanded constant test speed '
+                                           "(paper: 1/3 rpm = 0.0349 rad/s); samples must move at this speed")
+    speed_tolerance: float = setting(0.1, '-', 'accepted relative deviation of |velocity| from the commanded '
+                                     'speed')
+    min_dwell_s: float = setting(0.5, 's', 'speed continuously within tolerance, same sign, for at least this '
+                                 'long (joint-state stamps) before a sample is accepted')
+    position_min_rad: float = setting(math.radians(-5.0), 'rad', 'lower end of the accepted position window '
+                                      '(paper: swept from -6 deg, kept from -5 deg)')
+    position_max_rad: float = setting(math.radians(10.0), 'rad', 'upper end of the accepted position window '
+                                      '(paper: swept to +11 deg, kept to +10 deg)')
+    max_accel_rad_s2: float = setting(0.1, 'rad/s^2', 'largest |acceleration| (see acceleration_window_s) for a '
+                                      'sample to count as steady')
+    pairing_tolerance_s: float = setting(0.005, 's', 'a current pairs with the joint state nearest its own stamp '
+                                         'within this')
+    max_current_a: float = setting(2.0, 'A', 'motor current rating; larger |current| is rejected as bad input')
+    temperature_bin_c: float = setting(5.0, 'degC', 'width of the temperature plateau bins of the statistics '
+                                       '(plateau = round(t/bin)*bin)')
+    temperature_timeout_s: float = setting(5.0, 's', 'a temperature whose stamp differs from the sample\'s by more '
+                                           'than this is stale: sample kept, plateau "unknown"')
+    temperature_min_c: float = setting(-60.0, 'degC', 'lowest credible bearing temperature (lower ones are '
+                                       'rejected)')
+    temperature_max_c: float = setting(120.0, 'degC', 'highest credible bearing temperature')
+    ripple_bins: int = setting(15, '-', 'position bins across the window for the ripple statistic')
+    stamp_reset_s: float = setting(1.0, 's', 'a joint-state stamp earlier than the last accepted one by more than '
+                                   'this restarts the joint\'s stream (time source jumped back)')
+    acceleration_window_s: float = setting(0.01, 's', 'the acceleration of a joint state is the least-squares '
+                                           'slope of the velocities of this last time span (at least the last 3)')
+    observer_min_speed_rad_s: float = setting(0.01, 'rad/s', 'observer: |velocity| must be at least this (away '
+                                              'from the Stribeck/pre-sliding region around zero speed)')
+    observer_max_accel_rad_s2: float = setting(2.0, 'rad/s^2', 'observer: largest |acceleration| accepted (keeps '
+                                               'the J*alpha correction small next to the friction)')
+    observer_max_accel_noise_rad_s2: float = setting(1.0, 'rad/s^2', 'observer: largest standard error of the '
+                                                     'acceleration estimate accepted')
+
+    def validate(self) -> None:
+        """Raises ConfigError naming the setting and the rule it breaks."""
+        for f in self.__dataclass_fields__:
+            value = getattr(self, f)
+            if isinstance(value, float) and not math.isfinite(value):
+                raise ConfigError(f, 'must be a finite number', value)
+        bins = self.ripple_bins
+        checks = [
+            ('method', self.method in METHODS, f'must be one of {", ".join(METHODS)}'),
+            ('commanded_speed_rad_s', 0.0 < self.commanded_speed_rad_s <= 100.0, 'must lie in (0, 100] [rad/s]'),
+            ('speed_tolerance', 0.0 < self.speed_tolerance < 1.0, 'must lie in (0, 1) [-]'),
+            ('min_dwell_s', 0.0 <= self.min_dwell_s <= 3600.0, 'must lie in [0, 3600] [s]'),
+            ('position_max_rad', self.position_max_rad > self.position_min_rad,
+             'must exceed position_min_rad [rad]'),
+            ('max_accel_rad_s2', 0.0 < self.max_accel_rad_s2 <= 1e6, 'must lie in (0, 1e6] [rad/s^2]'),
+            ('pairing_tolerance_s', 0.0 <= self.pairing_tolerance_s <= 10.0, 'must lie in [0, 10] [s]'),
+            ('max_current_a', 0.0 < self.max_current_a <= 1e4, 'must lie in (0, 1e4] [A]'),
+            ('temperature_bin_c', 0.001 <= self.temperature_bin_c <= 1000.0, 'must lie in [0.001, 1000] [degC]'),
+            ('temperature_timeout_s', 0.0 < self.temperature_timeout_s <= 86400.0, 'must lie in (0, 86400] [s]'),
+            ('temperature_min_c', self.temperature_min_c >= MODEL_T_MIN_C, f'must be >= {MODEL_T_MIN_C:g} [degC]'),
+            ('temperature_max_c', self.temperature_max_c <= MODEL_T_MAX_C, f'must be <= {MODEL_T_MAX_C:g} [degC]'),
+            ('temperature_max_c', self.temperature_max_c > self.temperature_min_c,
+             'must exceed temperature_min_c [degC]'),
+            ('ripple_bins', isinstance(bins, int) and not isinstance(bins, bool) and 1 <= bins <= 10000,
+             'must be an integer in [1, 10000]'),
+            ('stamp_reset_s', 0.0 < self.stamp_reset_s <= 1e6, 'must lie in (0, 1e6] [s]'),
+            ('acceleration_window_s', 1e-4 <= self.acceleration_window_s <= 10.0, 'must lie in [1e-4, 10] [s]'),
+            ('observer_min_speed_rad_s', 0.0 < self.observer_min_speed_rad_s <= 100.0,
+             'must lie in (0, 100] [rad/s]'),
+            ('observer_max_accel_rad_s2', 0.0 < self.observer_max_accel_rad_s2 <= 1e6,
+             'must lie in (0, 1e6] [rad/s^2]'),
+            ('observer_max_accel_noise_rad_s2', 0.0 < self.observer_max_accel_noise_rad_s2 <= 1e6,
+             'must lie in (0, 1e6] [rad/s^2]'),
+        ]
+        check_rules(self, checks)
+
+
+@dataclass
+class EstimatorCounters:
+    """What happened to the inputs. ``rejected[joint][reason]``; joint ``'*'`` = not a configured joint."""
+
+    accepted: dict[str, int] = field(default_factory=dict)
+    rejected: dict[str, dict[str, int]] = field(default_factory=dict)
+    temperature_rejected: dict[str, int] = field(default_factory=dict)
+
+    def reject(self, joint: str, reason: str, n: int = 1) -> None:
+        if n:
+            bucket = self.rejected.setdefault(joint, {})
+            bucket[reason] = bucket.get(reason, 0) + int(n)
+
+    def rejected_count(self, joint: str, reason: str) -> int:
+        return self.rejected.get(joint, {}).get(reason, 0)
+
+    def as_dict(self) -> dict[str, Any]:
+        """JSON-ready copy."""
+        return {'accepted': dict(self.accepted),
+                'rejected': {j: dict(r) for j, r in self.rejected.items()},
+                'temperature_rejected': dict(self.temperature_rejected)}
+
+
+def plateau_of(temperature_c: Any, bin_c: float) -> Any:
+    """Statistics plateau of a temperature: ``round(t / bin) * bin`` [°C] (half to even; arrays too)."""
+    return np.round(np.asarray(temperature_c, dtype=np.float64) / bin_c) * bin_c + 0.0
+
+
+class _History(NamedTuple):
+    """Accepted joint states of one joint's stream (carried between batches): times [ns], values, verdicts."""
+
+    stamp: NDArray[np.int64]
+    pos: NDArray[np.int64]          #: global arrival position
+    position: NDArray[np.float64]
+    velocity: NDArray[np.float64]
+    code: NDArray[np.int8]          #: steady-state verdict (0 = steady)
+    alpha: NDArray[np.float64]      #: observer acceleration [rad/s^2] (NaN: window too short)
+    alpha_se: NDArray[np.float64]   #: its standard error [rad/s^2]
+
+    @staticmethod
+    def empty() -> _History:
+        i, f = np.empty(0, dtype=np.int64), np.empty(0, dtype=np.float64)
+        return _History(i, i, f, f, np.empty(0, dtype=np.int8), f, f)
+
+    def concat(self, other: _History) -> _History:
+        return _History._make(np.concatenate([a, b]) for a, b in zip(self, other, strict=True))
+
+    def tail(self, n: int) -> _History:
+        return _History._make(a[-n:] if a.shape[0] > n else a for a in self)
+
+
+class _Waiting(NamedTuple):
+    """Currents waiting for their joint state: time [ns], current [A], global arrival position, and the latest
+    valid temperature [°C] and its time [s] when they arrived."""
+
+    stamp: NDArray[np.int64]
+    current: NDArray[np.float64]
+    pos: NDArray[np.int64]
+    temperature_c: NDArray[np.float64]
+    temperature_time_s: NDArray[np.float64]
+
+    @staticmethod
+    def empty() -> _Waiting:
+        i, f = np.empty(0, dtype=np.int64), np.empty(0, dtype=np.float64)
+        return _Waiting(i, f, i, f, f)
+
+
+@dataclass
+class _JointState:
+    """Streaming state of one configured joint."""
+
+    kt: float
+    i0: float
+    inertia: float
+    last_stamp: int | None = None          #: last accepted joint-state time [ns]
+    run_sign: int = 0                      #: sign of the current constant-speed run (0: none)
+    run_start: int = 0                     #: its first stamp [ns]
+    speed_ok_last: bool = False
+    history: _History = field(default_factory=_History.empty)
+    waiting: _Waiting = field(default_factory=_Waiting.empty)
+
+    def restart(self) -> None:
+        self.last_stamp = None
+        self.run_sign = 0
+        self.speed_ok_last = False
+        self.history = _History.empty()
+
+
+class _Emitted(NamedTuple):
+    """Measurements of one joint in one batch, with the arrival position that completed each."""
+
+    emit: NDArray[np.int64]
+    entry: NDArray[np.int64]
+    m: MeasurementArrays
+
+
+class EstimatorLogic:
+    """Turns motor current, joint states and temperature into friction samples and statistics.
+
+    Parameters
+    ----------
+    axes : Mapping[str, AxisParams]
+        Configured joints (in order); ``torque_constant_nm_per_a`` (K_T), ``no_load_current_a`` (I_0) and
+        ``inertia_kg_m2`` (J, observer) are used.
+    settings : EstimatorSettings
+        Validated settings.
+    """
+
+    def __init__(self, axes: dict[str, AxisParams], settings: EstimatorSettings) -> None:
+        settings.validate()
+        if not axes:
+            raise ConfigError('axes', 'must name at least one joint')
+        self.axes = dict(axes)
+        self.order = list(self.axes)
+        self.settings = settings
+        self.joints = {name: _JointState(float(p.torque_constant_nm_per_a), float(p.no_load_current_a),
+                                         float(p.inertia_kg_m2)) for name, p in self.axes.items()}
+        self.counters = EstimatorCounters(accepted=dict.fromkeys(self.axes, 0))
+        self.last_temperature_c = math.nan       #: latest valid temperature [°C]
+        self.last_temperature_time_s = math.nan  #: its time [s]
+        self._seq = 0                            #: global arrival position of the next message
+        self._stats = self._new_stats()
+        self.last: dict[str, MeasurementArrays] = {}
+
+    def _new_stats(self) -> GroupStatistics:
+        s = self.settings
+        return GroupStatistics(s.ripple_bins, s.position_min_rad, s.position_max_rad)
+
+    # ------------------------------------------------------------------ configuration
+    def update_settings(self, settings: EstimatorSettings) -> None:
+        """Replace the settings (validated). Steady-state detection and pairing restart (waiting currents are
+        dropped uncounted); the statistics are reset when their layout (window, bins) changes."""
+        settings.validate()
+        old = self.settings
+        self.settings = settings
+        for j in self.joints.values():
+            j.restart()
+            j.waiting = _Waiting.empty()
+        layout = ('position_min_rad', 'position_max_rad', 'ripple_bins', 'temperature_bin_c')
+        if any(getattr(old, n) != getattr(settings, n) for n in layout):
+            self._stats = self._new_stats()
+        if not (settings.temperature_min_c <= self.last_temperature_c <= settings.temperature_max_c):
+            self.last_temperature_c = self.last_temperature_time_s = math.nan
+
+    def set_axis_params(self, name: str, params: AxisParams) -> None:
+        """Replace K_T, I_0 and J of one joint; its statistics restart if K_T or I_0 changed."""
+        joint = self.joints[name]
+        self.axes[name] = params
+        kt, i0 = float(params.torque_constant_nm_per_a), float(params.no_load_current_a)
+        joint.inertia = float(params.inertia_kg_m2)
+        if (kt, i0) != (joint.kt, joint.i0):
+            joint.kt, joint.i0 = kt, i0
+            self._stats.drop(lambda key: key[0] == name)
+
+    def reset_statistics(self) -> None:
+        self._stats = self._new_stats()
+
+    def pending(self, joint: str) -> int:
+        """Currents of ``joint`` waiting for their joint state [-]."""
+        return int(self.joints[joint].waiting.stamp.shape[0])
+
+    # ------------------------------------------------------------------ one message at a time (examples, tests)
+    def _arrival(self, stamp_ns: int, arrival_ns: int | None) -> int:
+        if arrival_ns is not None:
+            return int(arrival_ns)
+        return int(stamp_ns) if stamp_ns else self._seq
+
+    def on_temperature(self, temperature_c: float, stamp_ns: int = 0, arrival_ns: int | None = None
+                       ) -> list[Measurement]:
+        """One ``/gimbal/temperature`` message, as a batch of one (see :meth:`feed`)."""
+        log = self._arrival(stamp_ns, arrival_ns)
+        return self.feed(single_message_arrays('temperature', log, stamp_ns, temperature_c=temperature_c)).records()
+
+    def on_joint_state(self, stamp_ns: int, names: Sequence[str], positions: Sequence[float],
+                       velocities: Sequence[float], arrival_ns: int | None = None) -> list[Measurement]:
+        """One ``/joint_states`` message (position [rad], velocity [rad/s]), as a batch of one."""
+        batch, counts, _ = chamber_arrays(joint_states=[(self._arrival(stamp_ns, arrival_ns), stamp_ns,
+                                                         list(names), list(positions), list(velocities), [])],
+                                          configured=self.order)
+        self.count_messages(counts, None)
+        return self.feed(batch).records()
+
+    def on_current(self, stamp_ns: int, names: Sequence[str], currents: Sequence[float],
+                   arrival_ns: int | None = None) -> list[Measurement]:
+        """One ``/gimbal/motor_current`` message (current [A]), as a batch of one."""
+        batch, _, counts = chamber_arrays(currents=[(self._arrival(stamp_ns, arrival_ns), stamp_ns, list(names),
+                                                     [], [], list(currents))], configured=self.order)
+        self.count_messages(None, counts)
+        return self.feed(batch).records()
+
+    def count_messages(self, joint_states: MessageCounts | None, currents: MessageCounts | None) -> None:
+        """Count what :func:`~gimbal_friction.streams.arrays.chamber_arrays` found odd in a node's messages (a NaN
+        current or an all-NaN joint state is absent from the arrays, so it is counted here)."""
+        for counts, nan_reason in ((joint_states, R_NON_FINITE_JS), (currents, R_NON_FINITE)):
+            if counts is None:
+                continue
+            for joint, n in counts.mismatch.items():
+                self.counters.reject(joint if joint in self.axes else UNKNOWN_JOINT, R_LENGTH, n)
+            for joint, n in counts.duplicate.items():
+                self.counters.reject(joint if joint in self.axes else UNKNOWN_JOINT, R_DUPLICATE, n)
+            for joint, n in counts.not_a_number.items():
+                if joint in self.axes:
+                    self.counters.reject(joint, nan_reason, n)
+
+    # ------------------------------------------------------------------ the batch
+    def feed(self, batch: ChamberArrays) -> MeasurementArrays:
+        """Process a batch of messages (arrival order = ``log_time_ns`` order; on equal times temperature, then
+        joint states, then currents). Returns the samples accepted, in the order they were completed."""
+        return self.feed_timed(batch)[0]
+
+    # absurd finite inputs (a velocity of 1e308) give NaN or inf verdicts, which refuse the sample; no warnings
+    @np.errstate(over='ignore', invalid='ignore', divide='ignore')
+    def feed_timed(self, batch: ChamberArrays) -> tuple[MeasurementArrays, NDArray[np.int64]]:
+        """:meth:`feed`, and the arrival (log) time [ns] of the message that completed each sample."""
+        t_arr, js, cur = batch.temperature, batch.joint_states, batch.motor_current
+        nT, nJ, nC = len(t_arr.log_time_ns), len(js), len(cur)
+        n = nT + nJ + nC
+        none = np.empty(0, dtype=np.int64)
+        if n == 0:
+            return MeasurementArrays.empty(), none
+        logs = np.concatenate([np.asarray(x, dtype=np.int64) for x in (t_arr.log_time_ns, js.log_time_ns,
+                                                                         cur.log_time_ns)])
+        kind = np.concatenate([np.zeros(nT, np.int8), np.ones(nJ, np.int8), np.full(nC, 2, np.int8)])
+        index = np.concatenate([np.arange(nT), np.arange(nJ), np.arange(nC)])
+        order = np.lexsort((index, kind, logs))
+        rank = np.empty(n, dtype=np.int64)
+        base = self._seq
+        rank[order] = np.arange(n, dtype=np.int64) + base
+        self._seq += n
+        logs_sorted = logs[order]
+        posT, posJ, posC = rank[:nT], rank[nT:nT + nJ], rank[nT + nJ:]
+
+        # temperatures: the latest valid one before each position
+        s = self.settings
+        valid, rejected = temperature_valid(t_arr.temperature_c, s.temperature_min_c, s.temperature_max_c)
+        for reason, count in rejected.items():
+            self.counters.temperature_rejected[reason] = self.counters.temperature_rejected.get(reason, 0) + count
+        t_pos = posT[valid]
+        t_val = np.asarray(t_arr.temperature_c, dtype=np.float64)[valid]
+        t_time = effective_time(np.asarray(t_arr.stamp_ns, dtype=np.int64)[valid],
+                                np.asarray(t_arr.log_time_ns, dtype=np.int64)[valid]) / NS_PER_S
+        t_order = np.argsort(t_pos, kind='stable')
+        t_pos, t_val, t_time = t_pos[t_order], t_val[t_order], t_time[t_order]
+        carried = (self.last_temperature_c, self.last_temperature_time_s)
+        if t_pos.size:
+            self.last_temperature_c, self.last_temperature_time_s = float(t_val[-1]), float(t_time[-1])
+
+        def temperature_before(pos: NDArray[np.int64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+            k = np.searchsorted(t_pos, pos, side='left') - 1
+            have = k >= 0
+            kk = np.maximum(k, 0)
+            value = np.where(have, t_val[kk] if t_val.size else 0.0, carried[0])
+            time = np.where(have, t_time[kk] if t_val.size else 0.0, carried[1])
+            return value, time
+
+        for name in js.names:
+            if name not in self.axes:
+                present = ~(np.isnan(js.position[name]) & np.isnan(js.velocity[name]))
+                self.counters.reject(UNKNOWN_JOINT, R_UNKNOWN, int(np.count_nonzero(present)))
+        for name in cur.names:
+            if name not in self.axes:
+                self.counters.reject(UNKNOWN_JOINT, R_UNKNOWN, int(np.count_nonzero(~np.isnan(cur.effort[name]))))
+
+        parts: list[_Emitted] = []
+        for name in self.order:
+            emitted = self._joint(name, js, cur, posJ, posC, temperature_before)
+            if emitted is not None and len(emitted.m):
+                parts.append(emitted)
+        if not parts:
+            return MeasurementArrays.empty(), none
+        joint_rank = {name: i for i, name in enumerate(self.order)}
+        emit = np.concatenate([p.emit for p in parts])
+        entry = np.concatenate([p.entry for p in parts])
+        jr = np.concatenate([np.full(len(p.m), joint_rank[str(p.m.joint[0])]) for p in parts])
+        out = MeasurementArrays.concatenate([p.m for p in parts])
+        order_out = np.lexsort((entry, jr, emit))
+        out = out.select(order_out)
+        emit_log = logs_sorted[emit[order_out] - base]
+        for name in self.order:
+            sel = out.joint == name
+            count = int(np.count_nonzero(sel))
+            if count:
+                self.counters.accepted[name] = self.counters.accepted.get(name, 0) + count
+                self.last[name] = out.select(np.flatnonzero(sel)[-1:])
+        steady = out.method == METHOD_STEADY_STATE
+        if np.any(steady):
+            st = out.select(steady)
+            plateau = np.where(st.temperature_fresh, plateau_of(st.temperature_c, s.temperature_bin_c), np.nan)
+            keys = [(j, d, None if math.isnan(p) else p)
+                    for j, d, p in zip(st.joint.tolist(), st.direction.tolist(), plateau.tolist())]
+            self._stats.add(keys, st.friction_nm, st.position_rad)
+        return out, emit_log
+
+    # ------------------------------------------------------------------ one joint
+    def _joint(self, name: str, js: JointStateArrays, cur: JointStateArrays, posJ: NDArray[np.int64],
+               posC: NDArray[np.int64], temperature_before: Any) -> _Emitted | None:
+        s = self.settings
+        state = self.joints[name]
+        counters = self.counters
+        # ---- joint states of this joint, in arrival order
+        if name in js.position:
+            pj = np.asarray(js.position[name], dtype=np.float64)
+            vj = np.asarray(js.velocity[name], dtype=np.float64)
+            present = ~(np.isnan(pj) & np.isnan(vj))
+            finite = np.isfinite(pj) & np.isfinite(vj)
+            counters.reject(name, R_NON_FINITE_JS, int(np.count_nonzero(present & ~finite)))
+            sel = np.flatnonzero(finite)
+            sel = sel[np.argsort(posJ[sel], kind='stable')]
+            stamp = effective_time(np.asarray(js.stamp_ns, dtype=np.int64)[sel],
+                                   np.asarray(js.log_time_ns, dtype=np.int64)[sel])
+            J_pos, J_p, J_v = posJ[sel], pj[sel], vj[sel]
+        else:
+            stamp = J_pos = np.empty(0, dtype=np.int64)
+            J_p = J_v = np.empty(0, dtype=np.float64)
+        # ---- currents of this joint, in arrival order
+        if name in cur.effort:
+            cj = np.asarray(cur.effort[name], dtype=np.float64)
+            present_c = ~np.isnan(cj)
+            finite_c = np.isfinite(cj)
+            counters.reject(name, R_NON_FINITE, int(np.count_nonzero(present_c & ~finite_c)))
+            over = finite_c & (np.abs(np.where(finite_c, cj, 0.0)) > s.max_current_a)
+            counters.reject(name, R_OVER_CURRENT, int(np.count_nonzero(over)))
+            csel = np.flatnonzero(finite_c & ~over)
+            csel = csel[np.argsort(posC[csel], kind='stable')]
+            C_stamp = effective_time(np.asarray(cur.stamp_ns, dtype=np.int64)[csel],
+                                     np.asarray(cur.log_time_ns, dtype=np.int64)[csel])
+            C_cur, C_pos = cj[csel], posC[csel]
+        else:
+            C_stamp = C_pos = np.empty(0, dtype=np.int64)
+            C_cur = np.empty(0, dtype=np.float64)
+        if stamp.size == 0 and C_stamp.size == 0:
+            return None
+        # ---- accepted joint states, split where the stream restarts
+        accepted, resets = _accept_stamps(state.last_stamp, stamp, ns_from_seconds(s.stamp_reset_s))
+        counters.reject(name, R_STAMP, int(np.count_nonzero(~accepted)))
+        counters.reject(name, R_RESET, len(resets))
+        bounds = [0, *resets, stamp.size]
+        parts: list[_Emitted] = []
+        for k in range(len(bounds) - 1):
+            lo, hi = bounds[k], bounds[k + 1]
+            if k > 0:  # the stream restarts at joint state `lo`
+                counters.reject(name, R_UNPAIRED, int(state.waiting.stamp.shape[0]))
+                state.waiting = _Waiting.empty()
+                state.restart()
+            ok = accepted[lo:hi]
+            seg_end = J_pos[hi] if hi < stamp.size else _I64_MAX
+            seg_start = J_pos[lo] if k > 0 else -1
+            in_seg = (C_pos >= seg_start) & (C_pos < seg_end)
+            parts.append(self._segment(name, state, stamp[lo:hi][ok], J_pos[lo:hi][ok], J_p[lo:hi][ok],
+                                       J_v[lo:hi][ok], C_stamp[in_seg], C_cur[in_seg], C_pos[in_seg],
+                                       temperature_before))
+        emit = np.concatenate([p.emit for p in parts])
+        entry = np.concatenate([p.entry for p in parts])
+        return _Emitted(emit, entry, MeasurementArrays.concatenate([p.m for p in parts]))
+
+    def _segment(self, name: str, state: _JointState, S: NDArray[np.int64], A: NDArray[np.int64],
+                 P: NDArray[np.float64], V: NDArray[np.float64], C_stamp: NDArray[np.int64],
+                 C_cur: NDArray[np.float64], C_pos: NDArray[np.int64], temperature_before: Any) -> _Emitted:
+        s = self.settings
+        counters = self.counters
+        new = self._verdicts(state, S, A, P, V)
+        full = state.history.concat(new)
+        if S.size:
+            state.last_stamp = int(S[-1])
+        # ---- currents: the carried waiting ones first
+        w = state.waiting
+        new_t, new_time = temperature_before(C_pos)
+        c_stamp = np.concatenate([w.stamp, C_stamp])
+        c_cur = np.concatenate([w.current, C_cur])
+        c_pos = np.concatenate([w.pos, C_pos])
+        c_t = np.concatenate([w.temperature_c, np.asarray(new_t, dtype=np.float64).reshape(-1)])
+        c_time = np.concatenate([w.temperature_time_s, np.asarray(new_time, dtype=np.float64).reshape(-1)])
+        tol = ns_from_seconds(s.pairing_tolerance_s)
+        FS, FA = full.stamp, full.pos
+        nF = FS.shape[0]
+        r = np.searchsorted(FS, c_stamp + tol, side='right')          # first joint state beyond the window
+        decided = r < nF
+        decide_pos = np.where(decided, np.maximum(c_pos, FA[np.minimum(r, max(nF - 1, 0))] if nF else 0), _I64_MAX)
+        # waiting buffer: currents undecided at their arrival occupy it until decided (FIFO, WAIT_LENGTH)
+        waits = decide_pos > c_pos
+        alive = np.ones(c_stamp.shape[0], dtype=bool)
+        wi = np.flatnonzero(waits)
+        if wi.size > WAIT_LENGTH:
+            # the buffer overflows only if more than WAIT_LENGTH wait at once: occupancy at each arrival
+            entry, leave = c_pos[wi], np.sort(decide_pos[wi])
+            occupancy = np.arange(wi.size) - np.searchsorted(leave, entry, side='left')
+            if int(occupancy.max()) >= WAIT_LENGTH:
+                alive[wi] = _simulate_wait_buffer(entry, decide_pos[wi])
+                counters.reject(name, R_UNPAIRED, int(np.count_nonzero(~alive)))
+        pending = alive & ~decided
+        state.waiting = _Waiting(c_stamp[pending], c_cur[pending], c_pos[pending], c_t[pending], c_time[pending])
+        go = np.flatnonzero(alive & decided)
+        c_stamp, c_cur, c_pos, r, decide_pos = c_stamp[go], c_cur[go], c_pos[go], r[go], decide_pos[go]
+        c_t, c_time = c_t[go], c_time[go]
+        # the nearest joint state within the window, still in the history when the current arrived
+        lo = np.searchsorted(FS, c_stamp - tol, side='left')
+        j = np.searchsorted(FS, c_stamp, side='left')
+        before = np.clip(j - 1, 0, max(nF - 1, 0))
+        after = np.clip(j, 0, max(nF - 1, 0))
+        d_before = np.where((j - 1 >= lo) & (j - 1 < r), np.abs(c_stamp - FS[before]) if nF else 0, _I64_MAX)
+        d_after = np.where((j >= lo) & (j < r), np.abs(FS[after] - c_stamp) if nF else 0, _I64_MAX)
+        idx = np.where(d_before <= d_after, before, after)
+        found = np.minimum(d_before, d_after) < _I64_MAX
+        arrived_before = np.searchsorted(FA, c_pos, side='left')
+        found &= idx >= arrived_before - HISTORY_LENGTH
+        counters.reject(name, R_UNPAIRED, int(np.count_nonzero(~found)))
+        c_cur, c_pos, idx, decide_pos = c_cur[found], c_pos[found], idx[found], decide_pos[found]
+        c_t, c_time = c_t[found], c_time[found]
+        # ---- verdicts and friction
+        direction = np.where(full.velocity[idx] > 0.0, 1.0, -1.0)
+        base = friction_from_current_Eq23(c_cur, state.kt, state.i0, direction)
+        steady_ok = full.code[idx] == 0
+        obs_code = self._observer_code(full, idx)
+        method = s.method
+        if method == 'steady_state':
+            use_steady, use_obs = steady_ok, np.zeros_like(steady_ok)
+            for code, reason in enumerate(STEADY_STATE_REASONS, start=1):
+                counters.reject(name, reason, int(np.count_nonzero(full.code[idx] == code)))
+        elif method == 'observer':
+            use_steady, use_obs = np.zeros_like(steady_ok), obs_code == 0
+            for code, reason in enumerate(OBSERVER_REASONS, start=1):
+                counters.reject(name, reason, int(np.count_nonzero(obs_code == code)))
+        else:
+            use_steady = steady_ok
+            use_obs = ~steady_ok & (obs_code == 0)
+            for code, reason in enumerate(OBSERVER_REASONS, start=1):
+                counters.reject(name, reason, int(np.count_nonzero(~steady_ok & (obs_code == code))))
+        alpha = np.where(use_obs, full.alpha[idx], 0.0)
+        inertia = np.where(use_obs, state.inertia, 0.0)
+        friction = base - inertia * alpha
+        take = (use_steady | use_obs)
+        opposes = take & ~(friction * direction > 0.0)
+        counters.reject(name, R_OPPOSES, int(np.count_nonzero(opposes)))
+        take &= ~opposes
+        k = np.flatnonzero(take)
+        idx_k = idx[k]
+        t_c, t_time = c_t[k], c_time[k]
+        js_time = full.stamp[idx_k] / NS_PER_S
+        fresh = is_fresh(js_time, t_time, s.temperature_timeout_s, ARRAY) & np.isfinite(t_c)
+        nk = k.shape[0]
+        m = MeasurementArrays(
+            np.full(nk, name), full.stamp[idx_k].astype(np.int64), full.position[idx_k],
+            full.velocity[idx_k], alpha[k], c_cur[k], np.asarray(t_c, dtype=np.float64), np.asarray(fresh, bool),
+            friction[k], np.full(nk, state.kt), np.full(nk, state.i0), inertia[k],
+            np.where(use_obs[k], METHOD_OBSERVER, METHOD_STEADY_STATE).astype(np.int8))
+        # ---- carry the history
+        state.history = full.tail(max(HISTORY_LENGTH, OBSERVER_MAX_SAMPLES))
+        return _Emitted(decide_pos[k], c_pos[k], m)
+
+    def _verdicts(self, state: _JointState, S: NDArray[np.int64], A: NDArray[np.int64], P: NDArray[np.float64],
+                  V: NDArray[np.float64]) -> _History:
+        """Steady-state verdicts and observer accelerations of newly accepted joint states (carry included)."""
+        s = self.settings
+        n = S.shape[0]
+        if n == 0:
+            return _History.empty()
+        hist = state.history
+        band = s.speed_tolerance * s.commanded_speed_rad_s
+        in_win = (s.position_min_rad <= P) & (s.position_max_rad >= P)
+        speed_ok = np.abs(np.abs(V) - s.commanded_speed_rad_s) <= band
+        sign = np.where(V > 0.0, 1, -1)
+        # acceleration: one estimate for both methods, the least-squares slope over the acceleration window
+        alpha, alpha_se = _window_slope(np.concatenate([hist.stamp, S]), np.concatenate([hist.velocity, V]),
+                                        hist.stamp.shape[0], ns_from_seconds(s.acceleration_window_s))
+        acc_bad = ~(np.abs(alpha) <= s.max_accel_rad_s2)   # unknown (fewer than 3 joint states yet): not steady
+        # dwell: constant-speed runs (same sign, speed within tolerance)
+        prev_ok = np.concatenate([[state.speed_ok_last], speed_ok[:-1]])
+        prev_sign = np.concatenate([[state.run_sign if state.run_sign else 0], sign[:-1]])
+        start = speed_ok & ~(prev_ok & (sign == prev_sign))
+        idx = np.where(start, np.arange(n), -1)
+        last_start = np.maximum.accumulate(idx)
+        run_start = np.where(last_start >= 0, S[np.maximum(last_start, 0)], state.run_start)
+        dwell_bad = (S - run_start) < ns_from_seconds(s.min_dwell_s)
+        code = np.where(~in_win, 1, np.where(~speed_ok, 2, np.where(acc_bad, 3, np.where(dwell_bad, 4, 0))))
+        state.speed_ok_last = bool(speed_ok[-1])
+        state.run_sign = int(sign[-1]) if speed_ok[-1] else 0
+        state.run_start = int(run_start[-1])
+        return _History(S, A, P, V, code.astype(np.int8), alpha, alpha_se)
+
+    def _observer_code(self, full: _History, idx: NDArray[np.intp]) -> NDArray[np.int64]:
+        s = self.settings
+        v, a, se = full.velocity[idx], full.alpha[idx], full.alpha_se[idx]
+        return np.where(np.abs(v) < s.observer_min_speed_rad_s, 1,
+                        np.where(~np.isfinite(a), 2,
+                                 np.where(np.abs(a) > s.observer_max_accel_rad_s2, 3,
+                                          np.where(~(se <= s.observer_max_accel_noise_rad_s2), 4, 0))))
+
+    # ------------------------------------------------------------------ statistics
+    def statistics(self) -> list[dict[str, Any]]:
+        """Running statistics of the steady-state samples, one record per (joint, direction, plateau), sorted by
+        configured joint order, direction (−1 first) and plateau (unknown last).
+
+        Record fields: ``joint``, ``direction`` (+1/-1), ``plateau_c`` (°C or None = no fresh temperature),
+        ``count``, ``mean_nm``, ``std_nm`` (sample std, 0 below 2 samples), ``ripple_nm``, ``min_position``,
+        ``max_position`` [rad].
+        """
+        rank = {name: i for i, name in enumerate(self.order)}
+        out = []
+        for r in self._stats.records():
+            joint, direction, plateau = r['key']
+            out.append({'joint': joint, 'direction': int(direction), 'plateau_c': plateau, 'count': r['count'],
+                        'mean_nm': r['mean'], 'std_nm': r['std'], 'ripple_nm': r['ripple'],
+                        'min_position': r['min_position'], 'max_position': r['max_position']})
+        out.sort(key=lambda x: (rank.get(x['joint'], len(rank)), x['direction'],
+                                math.inf if x['plateau_c'] is None else x['plateau_c']))
+        return out
+
+
+# ====================================================================================================== helpers
+def _accept_stamps(last: int | None, stamps: NDArray[np.int64], reset_ns: int) -> tuple[NDArray[np.bool_],
+                                                                                          list[int]]:
+    """Which joint-state times are accepted (later than every accepted one before), and where the stream
+    restarts (a time earlier than the last accepted one by more than ``reset_ns``; accepted as a new start)."""
+    n = stamps.shape[0]
+    accepted = np.zeros(n, dtype=bool)
+    resets: list[int] = []
+    prev_max = -_I64_MAX if last is None else int(last)
+    start = 0
+    while start < n:
+        window = 256
+        while True:  # look ahead in growing windows: cheap when restarts are frequent, O(n) when rare
+            seg = stamps[start:start + window]
+            running = np.maximum.accumulate(np.concatenate([[prev_max], seg]))[:-1]
+            jump = (seg < running - reset_ns) & (running > -_I64_MAX)
+            hit = np.flatnonzero(jump)
+            if hit.size or start + window >= n:
+                break
+            window *= 4
+        stop = int(hit[0]) if hit.size else seg.shape[0]
+        accepted[start:start + stop] = seg[:stop] > running[:stop]
+        if not hit.size:
+            if start + seg.shape[0] >= n:
+                break
+            prev_max = int(max(prev_max, int(seg.max())))
+            start += seg.shape[0]
+            continue
+        at = start + stop
+        resets.append(at)
+        accepted[at] = True
+        prev_max = int(stamps[at])
+        start = at + 1
+    return accepted, resets
+
+
+def _window_slope(stamp: NDArray[np.int64], velocity: NDArray[np.float64], first: int, window_ns: int
+                  ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Least-squares slope of velocity over time [rad/s²] and its standard error, for each sample from ``first``
+    on, over the samples of the last ``window_ns`` — at least the last 3, at most OBSERVER_MAX_SAMPLES; NaN where
+    there are fewer than 3 or they span more than 10 windows and MAX_GAP_NS (a gap in the data)."""
+    n = stamp.shape[0]
+    m = np.arange(first, n)
+    if m.size == 0:
+        return np.empty(0), np.empty(0)
+    lo = np.searchsorted(stamp, stamp[m] - window_ns, side='right')
+    count = np.minimum(np.maximum(m - lo + 1, np.minimum(m + 1, 3)), OBSERVER_MAX_SAMPLES)
+    kmax = int(count.max())
+    sum_t = np.zeros(m.size)
+    sum_v = np.zeros(m.size)
+    for k in range(kmax):
+        use = k < count
+        i = np.where(use, m - k, m)
+        sum_t += np.where(use, (stamp[i] - stamp[m]) / NS_PER_S, 0.0)
+        sum_v += np.where(use, velocity[i], 0.0)
+    mean_t, mean_v = sum_t / count, sum_v / count
+    stt = np.zeros(m.size)
+    stv = np.zeros(m.size)
+    svv = np.zeros(m.size)
+    for k in range(kmax):
+        use = k < count
+        i = np.where(use, m - k, m)
+        dt = np.where(use, (stamp[i] - stamp[m]) / NS_PER_S - mean_t, 0.0)
+        dv = np.where(use, velocity[i] - mean_v, 0.0)
+        stt += dt * dt
+        stv += dt * dv
+        svv += dv * dv
+    span = stamp[m] - stamp[m - count + 1]
+    usable = (count >= 3) & (stt > 0.0) & (span <= max(10 * window_ns, MAX_GAP_NS))
+    slope = np.where(usable, stv / stt, np.nan)   # (feed_timed sets np.errstate for the division)
+    resid = np.maximum(svv - slope * stv, 0.0)
+    se = np.where(count >= 3, np.sqrt(resid / np.maximum(count - 2, 1) / stt), np.nan)
+    return slope, se
+
+
+def _simulate_wait_buffer(entry: NDArray[np.int64], exit_pos: NDArray[np.int64]) -> NDArray[np.bool_]:
+    """Which waiting currents survive the FIFO buffer of WAIT_LENGTH (False = dropped as unpaired).
+
+    ``entry``: arrival positions (increasing); ``exit_pos``: position at which each is decided (int64 max if not
+    yet). Exact replay of a FIFO that holds at most WAIT_LENGTH currents and drops the oldest on overflow.
+    """
+    import heapq
+    state = [0] * entry.size          # 0 waiting, 1 decided, 2 dropped
+    fifo: deque[int] = deque()
+    heap: list[tuple[int, int]] = []
+    live = 0
+    exits = exit_pos.tolist()
+    for w, e in enumerate(entry.tolist()):
+        while heap and heap[0][0] < e:
+            _, x = heapq.heappop(heap)
+            if state[x] == 0:
+                state[x] = 1
+                live -= 1
+        if live >= WAIT_LENGTH:
+            x = fifo.popleft()
+            while state[x] != 0:
+                x = fifo.popleft()
+            state[x] = 2
+            live -= 1
+        fifo.append(w)
+        heapq.heappush(heap, (exits[w], w))
+        live += 1
+    return np.array(state, dtype=np.int8) != 2

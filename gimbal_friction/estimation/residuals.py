@@ -1,0 +1,175 @@
+"""Model-versus-measured residuals (pure: no rclpy): pairing, running RMS, and the per-plateau summary.
+
+A measured sample (stamped with the joint-state stamp of its sample) pairs with the feedforward published for the
+same joint and the same joint-state stamp (:func:`match_predictions`); the row itself is
+:func:`gimbal_friction.streams.residual_row.residual_rows`. ``residual_logger`` (live, a few samples per timer tick)
+and ``gimbal-friction replay`` (offline, a whole bag) call the same functions. All torques in [N·m].
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from gimbal_friction.common.units import nmm_from_nm
+from gimbal_friction.estimation.statistics import GroupStatistics
+from gimbal_friction.streams.residual_row import ResidualRows
+
+#: residual or torque magnitudes above this are not credible for a gimbal bearing and are not logged [N·m]
+MAX_CREDIBLE_TORQUE_NM = 100.0
+#: bearing temperatures above this are not credible [°C]
+MAX_CREDIBLE_TEMPERATURE_C = 1000.0
+
+
+def match_predictions(joint: NDArray[np.str_], stamp_ns: NDArray[np.int64], ff_joint: NDArray[np.str_],
+                      ff_stamp_ns: NDArray[np.int64], ff_torque_nm: NDArray[np.float64]) -> NDArray[np.float64]:
+    """The feedforward [N·m] published for each measured sample's joint and stamp [ns] (NaN where none; the last
+    one where a stamp was published twice).
+
+    >>> match_predictions(np.array(['a', 'a']), np.array([5, 6]), np.array(['a', 'b']), np.array([5, 6]),
+    ...                   np.array([0.1, 0.2])).tolist()
+    [0.1, nan]
+    """
+    out = np.full(np.asarray(stamp_ns).shape[0], np.nan)
+    fj = np.asarray(ff_joint)
+    for name in np.unique(np.asarray(joint)).tolist():
+        rows = np.flatnonzero(np.asarray(joint) == name)
+        cand = np.flatnonzero(fj == name)
+        if cand.size == 0:
+            continue
+        stamps = np.asarray(ff_stamp_ns, dtype=np.int64)[cand]
+        order = np.lexsort((np.arange(cand.size), stamps))
+        stamps, cand = stamps[order], cand[order]
+        want = np.asarray(stamp_ns, dtype=np.int64)[rows]
+        k = np.searchsorted(stamps, want, side='right') - 1
+        hit = (k >= 0) & (stamps[np.maximum(k, 0)] == want)
+        out[rows[hit]] = np.asarray(ff_torque_nm, dtype=np.float64)[cand[k[hit]]]
+    return out
+
+
+def credible_torque(torque_nm: ArrayLike) -> NDArray[np.bool_]:
+    """Torques [N·m] that are finite and at most :data:`MAX_CREDIBLE_TORQUE_NM` in magnitude.
+
+    >>> credible_torque([0.003, -1e154, float('nan'), float('inf')]).tolist()
+    [True, False, False, False]
+    """
+    t = np.asarray(torque_nm, dtype=np.float64)
+    with np.errstate(invalid='ignore'):
+        return np.isfinite(t) & (np.abs(t) <= MAX_CREDIBLE_TORQUE_NM)
+
+
+def credible_rows(rows: ResidualRows) -> NDArray[np.bool_]:
+    """Rows whose measured value is finite and credible, whose prediction is NaN (none arrived) or finite and
+    credible, whose temperature is NaN (none) or inside [-273.15, :data:`MAX_CREDIBLE_TEMPERATURE_C`] °C and whose
+    position and velocity are finite (a hostile or corrupted input must not reach the log or poison its statistics:
+    each distinct absurd temperature would open a statistics bin of its own)."""
+    pred = np.asarray(rows.predicted_nm, dtype=np.float64)
+    t = np.asarray(rows.temperature_c, dtype=np.float64)
+    with np.errstate(invalid='ignore'):
+        t_ok = np.isnan(t) | ((t >= -273.15) & (t <= MAX_CREDIBLE_TEMPERATURE_C))
+    kinematics = np.isfinite(np.asarray(rows.position_rad, dtype=np.float64)) & np.isfinite(
+        np.asarray(rows.velocity_rad_s, dtype=np.float64))
+    return credible_torque(rows.measured_nm) & (np.isnan(pred) | credible_torque(pred)) & t_ok & kinematics
+
+
+class ResidualStats:
+    """Running RMS of the residual per (joint, temperature bin), for diagnostics (NaN residuals are skipped)."""
+
+    def __init__(self, bin_c: float = 5.0) -> None:
+        self.bin_c = bin_c
+        self._stats = GroupStatistics(1, 0.0, 1.0)
+
+    def add(self, rows: ResidualRows) -> None:
+        r = np.asarray(rows.residual_nm, dtype=np.float64)
+        bins = temperature_bins(rows.temperature_c, self.bin_c)
+        keys = [(j, None if math.isnan(b) else b) for j, b in zip(rows.joint.tolist(), bins.tolist())]
+        self._stats.add(keys, r, np.zeros(r.shape[0]))
+
+    def rms(self) -> dict[tuple[str, float | None], tuple[int, float]]:
+        """(joint, bin [°C] or None) -> (count, RMS residual [N·m])."""
+        out = {}
+        for rec in self._stats.records():
+            n = rec['count']
+            var = rec['std'] ** 2 * (n - 1) / n if n > 1 else 0.0
+            out[rec['key']] = (n, math.sqrt(rec['mean'] ** 2 + var))
+        return out
+
+
+def temperature_bins(t_c: ArrayLike, bin_c: float) -> NDArray[np.float64]:
+    """Centre of the temperature bin of each temperature [°C] (NaN stays NaN)."""
+    t = np.asarray(t_c, dtype=np.float64)
+    with np.errstate(invalid='ignore'):
+        return np.round(t / bin_c) * bin_c + 0.0
+
+
+def steady_temperature(sample_time_s: ArrayLike, temperature_time_s: ArrayLike, temperature_c: ArrayLike, *,
+                       window_s: float = 30.0, max_rate_c_per_min: float = 1.0) -> NDArray[np.bool_]:
+    """True for each sample time [s] at which the bearing temperature stream (times [s], values [°C]) changed by
+    at most ``max_rate_c_per_min`` [°C/min] over the last ``window_s`` [s] (and covers that window): a temperature
+    plateau, not a ramp between the chamber's set points. Judged on the temperature stream itself, so a plateau
+    with a single short sweep each way (the paper's protocol) qualifies."""
+    ts = np.asarray(temperature_time_s, dtype=np.float64)
+    tv = np.asarray(temperature_c, dtype=np.float64)
+    ok = np.isfinite(ts) & np.isfinite(tv)
+    ts, tv = ts[ok], tv[ok]
+    st = np.asarray(sample_time_s, dtype=np.float64)
+    if ts.size < 2:
+        return np.zeros(st.shape, dtype=bool)
+    order = np.argsort(ts, kind='stable')
+    ts, tv = ts[order], tv[order]
+    now = np.interp(st, ts, tv)
+    back = st - window_s
+    earlier = np.interp(back, ts, tv)
+    # the largest excursion inside the window, approximated by the ends and the extremes of the samples in it
+    lo_i = np.searchsorted(ts, back, side='left')
+    hi_i = np.searchsorted(ts, st, side='right')
+    running_max = np.maximum(np.abs(now - earlier), 0.0)
+    for k in range(3):  # also look at a few interior points: a ramp that turned round inside the window
+        mid = np.interp(back + (k + 1) * window_s / 4.0, ts, tv)
+        running_max = np.maximum(running_max, np.abs(mid - earlier))
+    rate = running_max / window_s * 60.0
+    covered = (back >= ts[0]) & (st <= ts[-1]) & (hi_i - lo_i >= 2)
+    return covered & (rate <= max_rate_c_per_min)
+
+
+def plateau_summary(temperature_c: ArrayLike, velocity_rad_s: ArrayLike, measured_nm: ArrayLike,
+                    predicted_nm: ArrayLike, *, bin_c: float = 5.0, min_samples: int = 10,
+                    joint: Iterable[str] | None = None, steady: ArrayLike | None = None) -> list[dict[str, Any]]:
+    """One record per temperature plateau and direction: the paper's per-temperature means (Fig. 13).
+
+    Plateaus are temperature bins of width ``bin_c`` [°C] holding at least ``min_samples`` samples per direction;
+    with ``steady`` (a mask, e.g. from :func:`steady_temperature`) only those samples count, so the ramps between
+    the chamber's set points do not make plateaus of their own. Direction ``cw`` is positive motion (the paper's
+    clockwise), ``ccw`` negative; means are signed [N·mm]. A NaN prediction (no feedforward) leaves
+    ``predicted_nmm`` and ``residual_nmm`` NaN for the samples that lack it.
+    """
+    t = np.asarray(temperature_c, dtype=float)
+    v = np.asarray(velocity_rad_s, dtype=float)
+    meas = np.asarray(measured_nm, dtype=float)
+    pred = np.asarray(predicted_nm, dtype=float)
+    joints = np.asarray(list(joint) if joint is not None else ['axis'] * len(t))
+    ok = np.isfinite(t) & np.isfinite(v) & np.isfinite(meas)
+    if steady is not None:
+        ok &= np.asarray(steady, dtype=bool)
+    bins = np.full(t.shape, np.nan)
+    bins[ok] = temperature_bins(t[ok], bin_c)
+    out: list[dict[str, Any]] = []
+    for j in sorted(set(joints[ok].tolist())):
+        for b in np.unique(bins[ok & (joints == j)]):
+            for name, sign in (('cw', 1.0), ('ccw', -1.0)):
+                sel = ok & (joints == j) & (bins == b) & (np.sign(v) == sign)
+                n = int(sel.sum())
+                if n < min_samples:
+                    continue
+                m_mean = nmm_from_nm(float(meas[sel].mean()))
+                p_sel = pred[sel]
+                p_mean = nmm_from_nm(float(np.nanmean(p_sel))) if np.any(np.isfinite(p_sel)) else math.nan
+                out.append({'joint': j, 'temperature_c': round(float(t[sel].mean()), 3), 'direction': name,
+                            'sign': int(sign), 'measured_mean_nmm': m_mean,
+                            'measured_std_nmm': nmm_from_nm(float(meas[sel].std(ddof=1))) if n > 1 else 0.0,
+                            'predicted_nmm': p_mean, 'residual_nmm': m_mean - p_mean, 'samples': n})
+    return out

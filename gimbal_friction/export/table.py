@@ -1,0 +1,502 @@
+"""The model as an interpolation table with a stated error bound, for a controller or drive firmware (issue 12).
+
+Pure: builds the table from :func:`~gimbal_friction.physics.model.friction_torque` (the full model) and checks it
+against the full model. :mod:`gimbal_friction.export.formats` renders it as text (CSV, a C99 header, a ROS parameter
+YAML); ``gimbal-friction export`` (:mod:`gimbal_friction.cli.export_cmd`) writes the files.
+
+The axis friction magnitude is ``M(t, n) = M_R(t) + M_S(t) + M_L(t, n)``: the contact torques depend on temperature
+only, and Palmgren's viscous torque, Eq. (9) (Palmgren 1959), depends on speed only through the product ``ν(t) n``:
+
+    M_L = 1e-7 s0 (ν n)^(2/3) d_m³   if ν n ≥ 2000,   else   160e-7 s0 d_m³   (per bearing, [N·mm], n [rpm]).
+
+Two features make a plain (temperature, speed) grid a poor fit: a slope discontinuity in temperature (the loose-fit
+temperature, 43.1 °C with the defaults) and a *jump* of Eq. (9) on the curve ``ν(t) n = 2000`` (its two branches
+differ by 0.79 % there), which crosses the whole (t, n) plane. Linear interpolation across a jump cannot meet
+1e-4, however fine the grid. So the table is laid out in the coordinates of Eq. (9):
+
+* **temperature breakpoints** ``t_i`` (non-uniform): start every 5 °C plus the loose-fit kink as a breakpoint, then
+  split every interval whose midpoint check fails, until all pass (see below);
+* **switch speed** ``v*(t) = 2000/ν(t)`` [rpm → rad/s], the speed above which Eq. (9) takes its speed-dependent
+  branch, stored as ``ln v*`` at each breakpoint and interpolated linearly in temperature (ln ν is much closer to
+  linear in t than ν);
+* **speed coordinate** ``η = (|v| / v*(t))^(2/3) = (ν n / 2000)^(2/3)``: Eq. (9) switches branch at η = 1 at every
+  temperature, is constant in speed below (``torque_lower``, a table over temperature only: speed does not matter
+  there) and linear in η above (``torque_upper``, breakpoints η = 1 and η_top, η_top = η at the largest speed and the
+  coldest breakpoint). Linear interpolation in η is therefore exact along speed; all interpolation error comes from
+  temperature, which is what the refinement controls.
+
+Evaluation (the C function and :meth:`ExportTable.evaluate_nm` do exactly this)::
+
+    t ← clamp(t, t_0, t_N-1);  s ← min(|v|, v_max)
+    i: t_i ≤ t ≤ t_i+1;  w = (t − t_i)/(t_i+1 − t_i);  lerp(a) = a_i + w (a_i+1 − a_i)
+    ξ = s · exp(−lerp(ln v*))
+    M = lerp(torque_lower)                                        if ξ < 1 (or row i+1 has no upper values)
+    M = lerp(torque_upper[:, 0]) + u (lerp(torque_upper[:, 1]) − lerp(torque_upper[:, 0])),
+        u = (min(ξ^(2/3), η_top) − 1)/(η_top − 1)                 otherwise
+
+The upper table has rows only up to the first breakpoint whose switch speed exceeds ``v_max``: above that
+temperature the lubricant is thin enough that ν n < 2000 at every speed the table covers.
+
+**Error check.** The relative error ``|table − model| / model`` against the full model is evaluated at the midpoint
+of every temperature interval (speed 0; and, where the upper branch is reachable, just above the switch, at
+``v_max`` and at the η-midpoint between), at the η-midpoint of every upper row, and at ``random_points`` seeded
+random points (t uniform, |v| half uniform, half log-uniform over six decades, both signs). An interval whose
+midpoint error, or whose switch-speed deviation ``|lerp(ln v*) − ln v*|`` at its midpoint, exceeds half the bound
+is split into ``ceil(1.1 √(error / (bound/2)))`` equal parts (the error of linear interpolation scales with the
+step squared); an interval holding a random point above the bound is split too. The grid is capped at
+``max_breakpoints``; a bound that would need more is refused. Defaults: -60…120 °C (the feedforward node's table
+range), |v| ≤ 10 rad/s (573 °/s, above the slew rates of seeker gimbals; faster is clamped), bound 1e-4.
+
+**Switch band.** The table decides the Palmgren branch with the interpolated switch speed, the model with the exact
+one; they differ by at most ``switch_band`` (relative, ≤ half the bound by construction). Inside that band, i.e.
+``|ν n/2000 − 1| ≲ switch_band``, the table may sit on the other branch of Eq. (9) and differ from the model by the
+model's own jump (0.79 % of M_L). The report counts the random points that fell into it and their largest error;
+everywhere else the bound holds.
+
+>>> table = build_table('elevation', AxisParams(), FeedforwardSettings(), ExportOptions(random_points=2000))
+>>> table.report.random_max_relative_error < 1e-4, table.report.midpoint_max_relative_error < 1e-4
+(True, True)
+>>> round(float(table.evaluate_nm(-40.0, rad_s_from_rpm(1.0 / 3.0))) * 1e3, 3)   # N*mm, paper: 3.14
+3.143
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import re
+from collections.abc import Callable
+from typing import NamedTuple
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from gimbal_friction.common.errors import GimbalFrictionError, ModelDomainError, check_rules
+from gimbal_friction.common.units import nm_from_nmm, rad_s_from_rpm, rpm_from_rad_s
+from gimbal_friction.feedforward.rule import FeedforwardSettings
+from gimbal_friction.physics.friction import PALMGREN_THRESHOLD_CST_RPM
+from gimbal_friction.physics.model import FrictionResult, friction_torque, viscosity_cst
+from gimbal_friction.physics.params import MODEL_T_MAX_C, MODEL_T_MIN_C, AxisParams
+from gimbal_friction.physics.thermal import loose_fit_temperature
+
+Array = NDArray[np.float64]
+
+#: ν n at which Palmgren's Eq. (9) switches branch, [cSt·rpm] (:func:`~gimbal_friction.physics.friction.
+#: viscous_torque_Palmgren_1959`; ``test_export.py`` checks the model switches exactly here)
+PALMGREN_SWITCH_CST_RPM = PALMGREN_THRESHOLD_CST_RPM
+#: relative jump of M_L where Eq. (9) switches branch: 160 / 2000^(2/3) − 1, [-]
+PALMGREN_JUMP = 160.0 / PALMGREN_SWITCH_CST_RPM ** (2.0 / 3.0) - 1.0
+#: default largest |velocity| of the table, [rad/s] (573 °/s: above the slew rates of seeker gimbals)
+DEFAULT_MAX_SPEED_RAD_S = 10.0
+#: default relative interpolation error bound, [-]
+DEFAULT_RELATIVE_ERROR = 1e-4
+#: the model's own numerical resolution is about 1e-12 (relative); a bound below this is not checkable
+MIN_RELATIVE_ERROR = 1e-10
+#: initial temperature step of the refinement, [°C]
+INITIAL_STEP_C = 5.0
+#: temperature breakpoints never closer than this, [°C]
+MIN_STEP_C = 1e-6
+#: refinement passes before giving up
+MAX_PASSES = 60
+
+Progress = Callable[[str], None]
+
+
+@dataclasses.dataclass(frozen=True)
+class ExportOptions:
+    """What the table spans and how accurate it must be (options of ``gimbal-friction export``)."""
+
+    temperature_min_c: float = -60.0                 #: lowest table temperature [°C]
+    temperature_max_c: float = 120.0                 #: highest table temperature [°C]
+    max_speed_rad_s: float = DEFAULT_MAX_SPEED_RAD_S  #: largest |velocity| of the table [rad/s]
+    relative_error: float = DEFAULT_RELATIVE_ERROR   #: bound on |table − model| / model [-]
+    random_points: int = 20000                       #: random check points [-]
+    seed: int = 0                                    #: seed of the random check points
+    max_breakpoints: int = 5000                      #: cap on the temperature breakpoints [-]
+
+    def validate(self) -> None:
+        """Raises ConfigError naming the option and the rule it breaks."""
+        checks: list[tuple[str, bool, str]] = [
+            ('temperature_min_c', self.temperature_min_c >= MODEL_T_MIN_C, f'must be >= {MODEL_T_MIN_C:g} [degC]'),
+            ('temperature_max_c', self.temperature_max_c <= MODEL_T_MAX_C, f'must be <= {MODEL_T_MAX_C:g} [degC]'),
+            ('temperature_max_c', self.temperature_max_c > self.temperature_min_c,
+             'must exceed temperature_min_c [degC]'),
+            ('max_speed_rad_s', 0.0 < self.max_speed_rad_s <= 1e4, 'must lie in (0, 1e4] [rad/s]'),
+            ('relative_error', MIN_RELATIVE_ERROR <= self.relative_error <= 0.1,
+             f'must lie in [{MIN_RELATIVE_ERROR:g}, 0.1] (the model resolves about 1e-12)'),
+            ('random_points', 100 <= self.random_points <= 1_000_000, 'must lie in [100, 1000000]'),
+            ('max_breakpoints', 3 <= self.max_breakpoints <= 100_000, 'must lie in [3, 100000]'),
+        ]
+        check_rules(self, checks)
+
+
+class Provenance(NamedTuple):
+    """Where a table came from, recorded in every file."""
+
+    generator: str                          #: e.g. ``gimbal-friction export 0.1.0``
+    created: str                            #: ISO 8601 date and time
+    sources: tuple[tuple[str, str], ...]    #: (parameter file or ``packaged defaults``, SHA-256 of its bytes)
+
+
+class ErrorReport(NamedTuple):
+    """What the table achieved against the full model (relative errors ``|table − model| / model``)."""
+
+    relative_error_bound: float            #: requested bound [-]
+    temperatures: int                      #: temperature breakpoints [-]
+    upper_rows: int                        #: breakpoints with upper-branch values (speed matters) [-]
+    values: int                            #: numbers stored (all arrays) [-]
+    passes: int                            #: refinement passes [-]
+    midpoint_checks: int                   #: midpoint evaluations in the final check [-]
+    midpoint_max_relative_error: float     #: largest error at the midpoints [-]
+    midpoint_worst_temperature_c: float    #: where [°C]
+    midpoint_worst_speed_rad_s: float      #: where [rad/s]
+    random_points: int                     #: random points outside the switch band [-]
+    random_max_relative_error: float       #: largest error at those [-]
+    random_worst_temperature_c: float      #: where [°C]
+    random_worst_speed_rad_s: float        #: where [rad/s]
+    switch_band: float                     #: relative half-width of the Palmgren switch band [-]
+    switch_band_points: int                #: random points inside it (other branch than the model) [-]
+    switch_band_max_relative_error: float  #: largest error there (the model's own jump, ≤ 0.79 % of M_L) [-]
+    speed_matters_below_c: float | None    #: ν n ≥ 2000 is reachable (|v| ≤ v_max) only below this [°C]
+    loose_fit_c: float | None              #: loose-fit kink inside the range (a breakpoint) [°C]
+
+    def as_dict(self) -> dict[str, float | int | None]:
+        """Plain mapping (for JSON)."""
+        return dict(self._asdict())
+
+
+class TableGrid(NamedTuple):
+    """The table's arrays (what the C header and the ROS file hold) and the model results at its nodes."""
+
+    t: Array              #: breakpoints [°C], (N,)
+    ln_vs: Array          #: ln of the switch speed v* [ln(rad/s)], (N,)
+    lower_nm: Array       #: M on the speed-independent branch [N·m], (N,)
+    eta: Array            #: η breakpoints of the upper table [-], (2,)
+    upper_nm: Array       #: M on the speed-dependent branch [N·m], (K, 2)
+    lower: FrictionResult     #: model at the breakpoints, speed 0
+    upper: FrictionResult     #: model at the upper nodes, (K, 2)
+    upper_speed_rad_s: Array  #: speeds of the upper nodes [rad/s], (K, 2)
+
+
+class ExportTable(NamedTuple):
+    """The exported table of one axis, its settings and its error report."""
+
+    axis: str
+    params: AxisParams
+    settings: FeedforwardSettings
+    options: ExportOptions
+    grid: TableGrid
+    report: ErrorReport
+
+    @property
+    def temperatures_c(self) -> Array:
+        """Temperature breakpoints [°C]."""
+        return self.grid.t
+
+    @property
+    def switch_speed_rad_s(self) -> Array:
+        """Switch speed v* = 2000/ν [rpm] at each breakpoint, [rad/s]."""
+        return np.exp(self.grid.ln_vs)
+
+    def evaluate_nm(self, temperature_c: ArrayLike, speed_rad_s: ArrayLike) -> Array:
+        """Friction magnitude from the table (clamped at its edges), [N·m]; what the exported C function returns.
+
+        Parameters
+        ----------
+        temperature_c : array_like
+            Bearing temperature, [°C]; clamped to the table range.
+        speed_rad_s : array_like
+            Angular velocity, [rad/s]; its magnitude is used, clamped to ``max_speed_rad_s``.
+        """
+        return _interpolate(self.grid, self.options.max_speed_rad_s, temperature_c, speed_rad_s)[0]
+
+    def model_nm(self, temperature_c: ArrayLike, speed_rad_s: ArrayLike) -> Array:
+        """The full model at the same points (no clamping), [N·m]."""
+        return _model_nm(self.params, temperature_c, speed_rad_s)
+
+
+# ---------------------------------------------------------------------------------------------- building
+def c_identifier(axis: str) -> str:
+    """The axis name as a C identifier fragment and file-name part (anything but ``[A-Za-z0-9_]`` becomes ``_``).
+
+    >>> c_identifier('elevation'), c_identifier('gimbal/az-1')
+    ('elevation', 'gimbal_az_1')
+    """
+    return re.sub(r'[^0-9A-Za-z_]', '_', axis)
+
+
+def _model_nm(params: AxisParams, t: ArrayLike, v: ArrayLike) -> Array:
+    """Full model friction magnitude at temperature [°C] and angular velocity [rad/s], [N·m]."""
+    rpm = rpm_from_rad_s(np.abs(np.asarray(v, dtype=float)))
+    return nm_from_nmm(friction_torque(params, t, rpm).m_total_nmm)
+
+
+def _ln_switch_speed(params: AxisParams, t: ArrayLike) -> Array:
+    """ln of the switch speed v* = 2000/ν(t) [rpm] in [rad/s]; refuses a non-positive viscosity."""
+    t_arr = np.asarray(t, dtype=float)
+    nu = viscosity_cst(params, t_arr)
+    if np.any(~(nu > 0.0)):
+        bad = float(np.atleast_1d(t_arr)[np.argmax(np.atleast_1d(~(nu > 0.0)))])
+        msg = f'the lubricant parameters give a viscosity <= 0 cSt at {bad:g} degC; no table can be built'
+        raise ModelDomainError(msg)
+    return np.asarray(np.log(rad_s_from_rpm(PALMGREN_SWITCH_CST_RPM / nu)), dtype=float)
+
+
+def _upper_branch_rpm(params: AxisParams, t: Array, rpm: Array) -> Array:
+    """``rpm`` raised by a few ulp where needed so that ν(t)·rpm ≥ 2000 exactly as the model computes it."""
+    nu = viscosity_cst(params, t)
+    out = rpm.copy()
+    for _ in range(64):
+        low = nu * out < PALMGREN_SWITCH_CST_RPM
+        if not low.any():
+            return out
+        out = np.where(low, np.nextafter(out, np.inf), out)
+    msg = 'cannot place the switch-speed nodes on the upper branch of Eq. (9)'   # not seen: a few ulp suffice
+    raise ModelDomainError(msg)
+
+
+def _grid(params: AxisParams, t: Array, max_speed: float) -> TableGrid:
+    """Model values at the breakpoints ``t``: the lower branch at speed 0, the upper at η = 1 and η_top."""
+    ln_vs = _ln_switch_speed(params, t)
+    lower = friction_torque(params, t, 0.0)
+    reachable = np.flatnonzero(ln_vs <= math.log(max_speed) + 1e-9)
+    # rows 0..k: every breakpoint where the switch is reachable, plus the next one (interpolation partner)
+    k = int(reachable.max()) + 1 if reachable.size else 1
+    k = min(max(k, 1), len(t) - 1)
+    rows = slice(0, k + 1)
+    eta_top = max(float(np.max((max_speed * np.exp(-ln_vs[rows])) ** (2.0 / 3.0))), 2.0)
+    eta = np.array([1.0, eta_top])
+    # node speeds from ν directly (exp(ln v*) loses |ln v*| ulp), the η = 1 node nudged onto the upper branch
+    rpm_switch = PALMGREN_SWITCH_CST_RPM / viscosity_cst(params, t[rows])
+    rpm = np.stack([_upper_branch_rpm(params, t[rows], rpm_switch), rpm_switch * eta_top ** 1.5], axis=1)
+    t_rows = np.broadcast_to(t[rows, None], rpm.shape)
+    upper = friction_torque(params, t_rows, rpm)
+    return TableGrid(t, ln_vs, nm_from_nmm(lower.m_total_nmm), eta, nm_from_nmm(upper.m_total_nmm), lower, upper,
+                     rad_s_from_rpm(rpm))
+
+
+def _interpolate(g: TableGrid, max_speed: float, t_c: ArrayLike, v: ArrayLike) -> tuple[Array, NDArray[np.bool_]]:
+    """The table's friction magnitude [N·m] and whether it took the upper branch (the C code, vectorised)."""
+    t_in, v_in = np.broadcast_arrays(np.asarray(t_c, dtype=float), np.asarray(v, dtype=float))
+    T = g.t
+    n = len(T)
+    t = np.clip(t_in, T[0], T[-1])
+    s = np.minimum(np.abs(v_in), max_speed)
+    i = np.clip(np.searchsorted(T, t, side='right') - 1, 0, n - 2)
+    w = (t - T[i]) / (T[i + 1] - T[i])
+
+    def lerp(a: Array, j: NDArray[np.intp]) -> Array:
+        return np.asarray(a[j] + w * (a[j + 1] - a[j]), dtype=float)
+
+    xi = s * np.exp(-lerp(g.ln_vs, i))
+    lower = lerp(g.lower_nm, i)
+    k = g.upper_nm.shape[0]
+    upper_ok = (xi >= 1.0) & (i + 1 < k)
+    iu = np.minimum(i, k - 2)
+    a = g.upper_nm[iu, 0] + w * (g.upper_nm[iu + 1, 0] - g.upper_nm[iu, 0])
+    b = g.upper_nm[iu, 1] + w * (g.upper_nm[iu + 1, 1] - g.upper_nm[iu, 1])
+    c = np.cbrt(xi)
+    eta = np.minimum(c * c, g.eta[1])
+    u = (eta - g.eta[0]) / (g.eta[1] - g.eta[0])
+    upper = a + u * (b - a)
+    return np.where(upper_ok, upper, lower), upper_ok
+
+
+def _initial_breakpoints(params: AxisParams, o: ExportOptions) -> tuple[Array, float | None]:
+    """Uniform breakpoints every ≤ INITIAL_STEP_C plus the loose-fit kink (if inside the range)."""
+    n = max(int(math.ceil((o.temperature_max_c - o.temperature_min_c) / INITIAL_STEP_C)), 2)
+    t = np.linspace(o.temperature_min_c, o.temperature_max_c, n + 1)
+    kink = loose_fit_temperature(params)
+    margin = 1e-3
+    inside = math.isfinite(kink) and o.temperature_min_c + margin < kink < o.temperature_max_c - margin
+    if inside:
+        t = np.union1d(t[np.abs(t - kink) > margin], [kink])
+    return t, (kink if inside else None)
+
+
+def _midpoint_points(params: AxisParams, g: TableGrid, max_speed: float) -> tuple[Array, Array, NDArray[np.intp],
+                                                                             Array]:
+    """Check points of the refinement and the final check (module docstring): (t [°C], v [rad/s], interval index,
+    switch-band deviation |Δ ln v*| per interval)."""
+    T = g.t
+    n = len(T)
+    idx = np.arange(n - 1)
+    tm = 0.5 * (T[:-1] + T[1:])
+    ln_interp = 0.5 * (g.ln_vs[:-1] + g.ln_vs[1:])
+    ln_true = _ln_switch_speed(params, tm)
+    k = g.upper_nm.shape[0]
+    ln_max = math.log(max_speed)
+    has_upper = idx + 1 < k
+    band = np.where(has_upper, np.abs(ln_interp - ln_true), 0.0)
+    ts: list[Array] = [tm]
+    vs: list[Array] = [np.zeros(n - 1)]
+    ids: list[NDArray[np.intp]] = [idx]
+    # upper branch: just above the switch (on the upper branch for both table and model), at v_max, and half way
+    # in η between them
+    ln_lo = np.maximum(ln_interp, ln_true) + 1e-9
+    sel = has_upper & (ln_lo < ln_max)
+    if sel.any():
+        eta1 = np.exp((2.0 / 3.0) * (ln_lo[sel] - ln_interp[sel]))
+        eta2 = np.exp((2.0 / 3.0) * (ln_max - ln_interp[sel]))
+        v_mid = np.exp(ln_interp[sel]) * (0.5 * (eta1 + eta2)) ** 1.5
+        for vv in (np.exp(ln_lo[sel]), np.full(int(sel.sum()), max_speed), v_mid):
+            ts.append(tm[sel])
+            vs.append(vv)
+            ids.append(idx[sel])
+    # η-midpoints of the upper rows at the breakpoints themselves (pure speed-direction error)
+    rows = np.flatnonzero((np.arange(n) < k) & (g.ln_vs < ln_max))
+    if rows.size:
+        eta2 = np.exp((2.0 / 3.0) * (ln_max - g.ln_vs[rows]))
+        ts.append(T[rows])
+        vs.append(np.exp(g.ln_vs[rows]) * (0.5 * (1.0 + eta2)) ** 1.5)
+        ids.append(np.minimum(rows, n - 2))
+    return np.concatenate(ts), np.concatenate(vs), np.concatenate(ids), band
+
+
+def _random_points(rng: np.random.Generator, o: ExportOptions) -> tuple[Array, Array]:
+    """Seeded check points: t uniform; |v| uniform for half, log-uniform over six decades for the other half."""
+    n = o.random_points
+    t = rng.uniform(o.temperature_min_c, o.temperature_max_c, n)
+    half = n // 2
+    v_uniform = rng.uniform(-o.max_speed_rad_s, o.max_speed_rad_s, half)
+    sign = np.where(rng.uniform(size=n - half) < 0.5, -1.0, 1.0)
+    v_log = sign * o.max_speed_rad_s * 10.0 ** rng.uniform(-6.0, 0.0, n - half)
+    return t, np.concatenate([v_uniform, v_log])
+
+
+def _split(t: Array, ratio: Array, o: ExportOptions) -> Array:
+    """Split every interval whose error ratio (error / target) exceeds 1 into ``ceil(1.1 sqrt(ratio))`` equal parts
+    (linear-interpolation error scales with the step squared); refuses when the cap or the smallest step would be
+    passed."""
+    bad = ratio > 1.0
+    parts = np.clip(np.ceil(1.1 * np.sqrt(ratio[bad])), 2, 64).astype(int)
+    lo, hi = t[:-1][bad], t[1:][bad]
+    if np.any((hi - lo) / parts < MIN_STEP_C):
+        where = float(lo[np.argmin((hi - lo) / parts)])
+        msg = (f'relative error bound {o.relative_error:g} needs breakpoints closer than {MIN_STEP_C:g} degC near '
+               f'{where:.4g} degC; choose a larger bound')
+        raise GimbalFrictionError(msg)
+    new = [lo[j] + (hi[j] - lo[j]) * np.arange(1, parts[j]) / parts[j] for j in range(len(lo))]
+    count = len(t) + int(np.sum(parts - 1))
+    if count > o.max_breakpoints:
+        msg = (f'relative error bound {o.relative_error:g} needs more than {o.max_breakpoints} temperature '
+               f'breakpoints (had {len(t)}, {int(bad.sum())} intervals still above it); choose a larger bound')
+        raise GimbalFrictionError(msg)
+    return np.union1d(t, np.concatenate(new)) if new else t
+
+
+def _switch_band(params: AxisParams, g: TableGrid, band_midpoints: Array, t: Array) -> float:
+    """Largest relative deviation of the interpolated switch speed from the exact one, at the interval midpoints
+    and at the temperatures ``t`` where the table has speed-dependent values, [-]."""
+    top = g.t[g.upper_nm.shape[0] - 1]
+    t_in = t[t <= top]
+    dev = np.abs(np.interp(t_in, g.t, g.ln_vs) - _ln_switch_speed(params, t_in)) if t_in.size else np.zeros(1)
+    return float(np.expm1(max(float(np.max(band_midpoints, initial=0.0)), float(np.max(dev, initial=0.0)))))
+
+
+def _speed_matters_below(params: AxisParams, o: ExportOptions) -> float | None:
+    """Temperature below which ν n ≥ 2000 is reachable at |v| ≤ v_max, [°C] (None: nowhere in the range)."""
+    ln_max = math.log(o.max_speed_rad_s)
+    lo, hi = o.temperature_min_c, o.temperature_max_c
+    f_lo, f_hi = (float(x) - ln_max for x in _ln_switch_speed(params, np.array([lo, hi])))
+    if f_lo > 0.0:
+        return None
+    if f_hi <= 0.0:
+        return hi
+    for _ in range(60):
+        mid = 0.5 * (lo + hi)
+        if float(_ln_switch_speed(params, np.array([mid]))[0]) - ln_max > 0.0:
+            hi = mid
+        else:
+            lo = mid
+    return 0.5 * (lo + hi)
+
+
+def _relative_error(table: Array, model: Array) -> Array:
+    return np.asarray(np.abs(table - model) / np.abs(model), dtype=float)
+
+
+def build_table(axis: str, params: AxisParams, settings: FeedforwardSettings,
+                options: ExportOptions | None = None, *, progress: Progress | None = None) -> ExportTable:
+    """Build the table of one axis so that linear interpolation stays within ``options.relative_error``.
+
+    Parameters
+    ----------
+    axis : str
+        Axis (joint) name.
+    params : AxisParams
+        Model parameters of the axis.
+    settings : FeedforwardSettings
+        Feedforward settings (smooth-sign threshold, clamp) recorded with the table and used by the C feedforward.
+    options : ExportOptions, optional
+        Range, speed limit, error bound, check points.
+    progress : callable, optional
+        Called with a one-line status after each refinement pass.
+
+    Returns
+    -------
+    ExportTable
+        The table and its :class:`ErrorReport`.
+
+    Raises
+    ------
+    ConfigError
+        An option or setting breaks its rule.
+    GimbalFrictionError
+        The bound needs more than ``max_breakpoints`` breakpoints (or breakpoints closer than 1e-6 °C).
+    ModelDomainError
+        The model cannot be evaluated over the range.
+    """
+    o = options if options is not None else ExportOptions()
+    o.validate()
+    settings.validate()
+    target = 0.5 * o.relative_error
+    t, kink = _initial_breakpoints(params, o)
+    rt, rv = _random_points(np.random.default_rng(o.seed), o)
+    r_model: Array | None = None      # evaluated once, when the midpoints first pass
+    passes = 0
+    while True:
+        passes += 1
+        if passes > MAX_PASSES:
+            msg = f'relative error bound {o.relative_error:g} not reached after {MAX_PASSES} refinement passes'
+            raise GimbalFrictionError(msg)
+        g = _grid(params, t, o.max_speed_rad_s)
+        pt, pv, pi, band = _midpoint_points(params, g, o.max_speed_rad_s)
+        err = _relative_error(_interpolate(g, o.max_speed_rad_s, pt, pv)[0], _model_nm(params, pt, pv))
+        worst = np.zeros(len(t) - 1)
+        np.maximum.at(worst, pi, err)
+        ratio = np.maximum(worst, band) / target
+        if not (ratio > 1.0).any():
+            if r_model is None:
+                r_model = _model_nm(params, rt, rv)
+                r_branch = viscosity_cst(params, rt) * rpm_from_rad_s(np.abs(rv)) >= PALMGREN_SWITCH_CST_RPM
+            table_r, branch = _interpolate(g, o.max_speed_rad_s, rt, rv)
+            r_err = _relative_error(table_r, r_model)
+            in_band = branch != r_branch
+            over = (r_err > o.relative_error) & ~in_band
+            if not over.any():
+                break
+            ri = np.clip(np.searchsorted(t, rt[over], side='right') - 1, 0, len(t) - 2)
+            np.maximum.at(ratio, ri, 4.0)
+        if progress is not None:
+            progress(f'{axis}: pass {passes}: {len(t)} breakpoints, {int((ratio > 1.0).sum())} intervals above '
+                     'the bound')
+        t = _split(t, ratio, o)
+    i_mid = int(np.argmax(err))
+    out = ~in_band
+    i_rand = int(np.argmax(np.where(out, r_err, -1.0)))
+    report = ErrorReport(
+        relative_error_bound=o.relative_error, temperatures=len(t), upper_rows=int(g.upper_nm.shape[0]),
+        values=int(3 * len(t) + g.upper_nm.size + g.eta.size), passes=passes, midpoint_checks=int(err.size),
+        midpoint_max_relative_error=float(err[i_mid]), midpoint_worst_temperature_c=float(pt[i_mid]),
+        midpoint_worst_speed_rad_s=float(pv[i_mid]), random_points=int(out.sum()),
+        random_max_relative_error=float(r_err[i_rand]) if out.any() else 0.0,
+        random_worst_temperature_c=float(rt[i_rand]), random_worst_speed_rad_s=float(rv[i_rand]),
+        switch_band=_switch_band(params, g, band, rt),
+        switch_band_points=int(in_band.sum()),
+        switch_band_max_relative_error=float(r_err[in_band].max()) if in_band.any() else 0.0,
+        speed_matters_below_c=_speed_matters_below(params, o), loose_fit_c=kink)
+    if progress is not None:
+        progress(f'{axis}: {len(t)} breakpoints, max relative error {report.midpoint_max_relative_error:.2e} '
+                 f'(midpoints), {report.random_max_relative_error:.2e} (random points)')
+    return ExportTable(axis, params, settings, o, g, report)

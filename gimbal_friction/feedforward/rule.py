@@ -1,0 +1,497 @@
+r"""The feedforward of ``friction_feedforward`` as one object: the node, the offline replay, the closed-loop study
+and a controller in the same process all use :class:`Feedforward` (pure: no rclpy, no I/O).
+
+Torque of a joint = model friction magnitude at the bearing temperature and speed (the tabulated fast path,
+:class:`~gimbal_friction.physics.table.FrictionTable`) × a smooth sign of the velocity × the direction factor of the
+joint at that temperature (:func:`~gimbal_friction.physics.direction.direction_factor`: ``scale_positive`` /
+``scale_negative`` and the temperature-dependent CW/CCW asymmetry), clamped to ``max_torque_nm``
+(:func:`feedforward_torque_nm`):
+
+.. math:: \tau = \operatorname{clamp}\left(\tanh(v / v_{th})\; k_{dir}\; M(t, |v|),\ \pm\tau_{max}\right)
+
+``tanh`` reaches 0.995 at |v| = 3 v_th, so the output does not chatter around zero speed.
+
+Temperature (the rules of :mod:`gimbal_friction.streams.inputs`): the latest valid temperature received is used
+while it is fresh, i.e. while the time of the sample (joint-state stamp; arrival time if the stamp is zero) and the
+time of the temperature differ by at most ``temperature_timeout_s``; otherwise the stale policy decides
+(:func:`temperature_used`): ``hold_last`` keeps the last valid temperature (the fallback temperature before any),
+``fallback_temperature`` uses ``fallback_temperature_c``, ``zero`` outputs 0 N·m. Inputs that cannot be trusted
+(non-finite or out-of-range temperature, unknown or repeated joint names, mismatched arrays, non-finite velocity)
+never reach the output; the reason is counted (:attr:`Feedforward.counters`).
+
+Every rule is written once against the namespace ``xp`` (:mod:`gimbal_friction.common.xp`): on Python floats for a
+message or a controller tick (:meth:`Feedforward.torque_nm`, :meth:`Feedforward.message`, about 2 µs per joint) and
+on numpy arrays for a whole bag (:meth:`Feedforward.bag_torques`).
+
+>>> ff = Feedforward({'elevation': AxisParams()}, FeedforwardSettings())
+>>> ff.update_temperature(-40.0, time_s=0.0) is None
+True
+>>> round(ff.torque_nm('elevation', 0.0349066, time_s=0.01) * 1e3, 3)   # N*mm at 1/3 rpm, -40 degC
+3.143
+>>> round(ff.torque_nm('elevation', -0.0349066, time_s=10.0) * 1e3, 3)  # stale: fallback 20 degC
+-1.046
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any, NamedTuple
+
+import numpy as np
+from numpy.typing import NDArray
+
+from gimbal_friction.common.errors import ConfigError, check_rules
+from gimbal_friction.common.settings import setting
+from gimbal_friction.common.units import NS_PER_S
+from gimbal_friction.common.xp import ARRAY, SCALAR
+from gimbal_friction.physics.direction import direction_factor
+from gimbal_friction.physics.params import MODEL_T_MAX_C, MODEL_T_MIN_C, AxisParams
+from gimbal_friction.physics.table import FrictionTable
+from gimbal_friction.streams.arrays import ChamberArrays, JointStateArrays
+from gimbal_friction.streams.inputs import (
+    J_DUPLICATE,
+    J_MISMATCH,
+    J_NONE,
+    J_UNKNOWN,
+    JointIndex,
+    effective_time,
+    index_joints,
+    is_fresh,
+    temperature_rejection,
+    temperature_valid,
+)
+
+STALE_POLICIES = ('hold_last', 'fallback_temperature', 'zero')
+#: where the temperature of an output came from (codes of :func:`temperature_used`)
+SOURCE_MEASURED, SOURCE_HOLD_LAST, SOURCE_FALLBACK, SOURCE_ZERO = 0, 1, 2, 3
+SOURCE_NAMES = ('measured', 'hold_last', 'fallback_temperature', 'zero')
+#: Velocities the torque may use (the node's ``velocity_source``): the joint state's, the reference's, or the
+#: reference while it is fresh and the joint state's otherwise.
+VELOCITY_SOURCES = ('measured', 'reference', 'auto')
+NON_FINITE_VELOCITY = 'non-finite velocity'
+
+
+@dataclass(frozen=True)
+class FeedforwardSettings:
+    """Settings of the feedforward (ROS parameters of ``friction_feedforward``; units in the names)."""
+
+    velocity_threshold_rad_s: float = setting(0.002, 'rad/s', 'v_th of the smooth sign tanh(v/v_th); keep it '
+                                              'above ~5x the velocity noise; the paper\'s test speed 1/3 rpm is '
+                                              '0.0349 rad/s')
+    max_torque_nm: float = setting(0.02, 'N*m', "output clamp on the torque magnitude (the paper's largest friction is "
+                                   '3.2e-3 N*m)')
+    temperature_timeout_s: float = setting(5.0, 's', 'a temperature whose stamp differs from the joint-state stamp '
+                                           'by more than this is stale')
+    stale_policy: str = setting('fallback_temperature', '-', 'with no fresh valid temperature: hold_last (keep '
+                                'the last valid one), fallback_temperature (use fallback_temperature_c) or zero '
+                                '(publish 0 N*m)')
+    fallback_temperature_c: float = setting(20.0, 'degC', 'temperature used by the fallback_temperature policy')
+    temperature_min_c: float = setting(-60.0, 'degC', 'lowest credible bearing temperature; the model table '
+                                       'spans [temperature_min_c, temperature_max_c]')
+    temperature_max_c: float = setting(120.0, 'degC', 'highest credible bearing temperature')
+    table_step_c: float = setting(0.1, 'degC', 'temperature step of the model table')
+    velocity_source: str = setting('auto', '-', 'velocity used for the torque: measured (joint_states velocity, '
+                                   'relative to the base), reference (reference_velocity topic; 0 N*m when it is '
+                                   'stale) or auto (reference while fresh, else measured)')
+    reference_timeout_s: float = setting(0.5, 's', 'a reference velocity whose stamp differs from the joint '
+                                         'state\'s by more than this is stale')
+
+    def validate(self) -> None:
+        """Raises ConfigError naming the setting and the rule it breaks."""
+        checks = [
+            ('velocity_threshold_rad_s', 1e-6 <= self.velocity_threshold_rad_s <= 10.0,
+             'must lie in [1e-6, 10] [rad/s]'),
+            ('max_torque_nm', 0.0 < self.max_torque_nm <= 100.0, 'must lie in (0, 100] [N*m]'),
+            ('temperature_timeout_s', 0.0 < self.temperature_timeout_s <= 86400.0, 'must lie in (0, 86400] [s]'),
+            ('stale_policy', self.stale_policy in STALE_POLICIES, f'must be one of {", ".join(STALE_POLICIES)}'),
+            ('temperature_min_c', self.temperature_min_c >= MODEL_T_MIN_C, f'must be >= {MODEL_T_MIN_C:g} [degC]'),
+            ('temperature_max_c', self.temperature_max_c <= MODEL_T_MAX_C, f'must be <= {MODEL_T_MAX_C:g} [degC]'),
+            ('temperature_max_c', self.temperature_max_c > self.temperature_min_c,
+             'must exceed temperature_min_c [degC]'),
+            ('fallback_temperature_c', self.temperature_min_c <= self.fallback_temperature_c
+             <= self.temperature_max_c, 'must lie within [temperature_min_c, temperature_max_c] [degC]'),
+            ('table_step_c', 0.001 <= self.table_step_c <= 5.0, 'must lie in [0.001, 5] [degC]'),
+            ('velocity_source', self.velocity_source in VELOCITY_SOURCES,
+             f'must be one of {", ".join(VELOCITY_SOURCES)}'),
+            ('reference_timeout_s', 0.0 < self.reference_timeout_s <= 3600.0, 'must lie in (0, 3600] [s]'),
+        ]
+        check_rules(self, checks)
+
+
+# ---------------------------------------------------------------------------------------------------- the rules
+def smooth_sign(velocity_rad_s: Any, v_th: float, xp: Any) -> Any:
+    """``tanh(v / v_th)`` [-], the sign of motion without a discontinuity at zero speed."""
+    return xp.tanh(velocity_rad_s / v_th)
+
+
+def feedforward_torque_nm(magnitude_nm: Any, velocity_rad_s: Any, k_dir: Any, v_th: float, max_torque_nm: float,
+                          xp: Any) -> Any:
+    """``clamp(tanh(v/v_th) · k_dir · M, ±τ_max)``: the feedforward torque [N·m] from the model magnitude
+    ``magnitude_nm`` [N·m] at velocity ``velocity_rad_s`` [rad/s]."""
+    return xp.clip(smooth_sign(velocity_rad_s, v_th, xp) * k_dir * magnitude_nm, -max_torque_nm, max_torque_nm)
+
+
+def velocity_used(source: str, measured_rad_s: Any, reference_rad_s: Any, reference_fresh: Any, xp: Any) -> Any:
+    """The velocity [rad/s] the torque uses under ``velocity_source`` = ``source`` (:data:`VELOCITY_SOURCES`).
+
+    ``measured``: the joint state's velocity (relative to the base); ``reference``: the reference joint velocity
+    while it is fresh, else 0 (no torque); ``auto``: the reference while it is fresh, else the measured one.
+
+    >>> velocity_used('auto', 0.1, 0.2, True, SCALAR), velocity_used('auto', 0.1, 0.2, False, SCALAR)
+    (0.2, 0.1)
+    >>> velocity_used('reference', 0.1, 0.2, False, SCALAR)
+    0.0
+    """
+    if source == 'measured':
+        return measured_rad_s
+    return xp.where(reference_fresh, reference_rad_s, measured_rad_s if source == 'auto' else 0.0)
+
+
+def check_velocity_source(source: str) -> None:
+    """Raise :class:`ConfigError` unless ``source`` is one of :data:`VELOCITY_SOURCES`."""
+    if source not in VELOCITY_SOURCES:
+        raise ConfigError('velocity_source', f'must be one of {", ".join(VELOCITY_SOURCES)}', source)
+
+
+def temperature_used(last_c: Any, fresh: Any, settings: FeedforwardSettings, xp: Any) -> tuple[Any, Any]:
+    """The temperature [°C] to use and its source code (``SOURCE_*``), from the latest valid temperature
+    ``last_c`` (NaN: none yet) and whether it is ``fresh``. The ``zero`` policy gives NaN (output 0 N·m)."""
+    s = settings
+    have = last_c == last_c  # not NaN
+    if s.stale_policy == 'hold_last':
+        stale_c = xp.where(have, last_c, s.fallback_temperature_c)
+        stale_source = xp.where(have, SOURCE_HOLD_LAST, SOURCE_FALLBACK)
+    elif s.stale_policy == 'zero':
+        stale_c, stale_source = math.nan, SOURCE_ZERO
+    else:
+        stale_c, stale_source = s.fallback_temperature_c, SOURCE_FALLBACK
+    return xp.where(fresh, last_c, stale_c), xp.where(fresh, SOURCE_MEASURED, stale_source)
+
+
+# ---------------------------------------------------------------------------------------------------- the object
+@dataclass
+class FeedforwardCounters:
+    """What happened to the inputs (for ``/diagnostics``)."""
+
+    temperature_rejected: dict[str, int] = field(default_factory=dict)
+    joint_state_rejected: dict[str, int] = field(default_factory=dict)
+    reference_rejected: dict[str, int] = field(default_factory=dict)
+    saturated: dict[str, int] = field(default_factory=dict)
+    published: int = 0
+
+    def add(self, bucket: dict[str, int], reason: str, n: int = 1) -> None:
+        if n:
+            bucket[reason] = bucket.get(reason, 0) + n
+
+
+class MessageTorques(NamedTuple):
+    """The feedforward of one joint-state message."""
+
+    names: list[str]          #: configured joints present in the message, in configured order
+    torques_nm: list[float]   #: signed feedforward torque of each [N·m]
+    commands_nm: list[float]  #: torque of every configured joint in configured order (0 where absent) [N·m]
+    temperature_c: float      #: temperature used [°C] (NaN: zero policy)
+    source: int               #: SOURCE_* code
+
+
+class BagTorques(NamedTuple):
+    """The feedforward of every joint-state message of a bag (what the node would have published)."""
+
+    msg_index: NDArray[np.int64]      #: joint-state message of each output message
+    joints: tuple[str, ...]           #: the configured joints (columns of ``present`` and ``commands_nm``)
+    present: NDArray[np.bool_]        #: (messages, joints): the joint is in the output message
+    stamp_ns: NDArray[np.int64]       #: header stamp, as received [ns]
+    log_time_ns: NDArray[np.int64]    #: arrival (log) time of the joint state [ns]
+    commands_nm: NDArray[np.float64]  #: (messages, joints) torques in configured order, 0 where absent [N·m]
+    temperature_c: NDArray[np.float64]  #: temperature used per message [°C] (NaN: zero policy)
+    source: NDArray[np.int8]          #: SOURCE_* per message
+
+    def __len__(self) -> int:
+        """Number of output messages [-]."""
+        return int(self.msg_index.shape[0])
+
+    def names(self, k: int) -> list[str]:
+        """Joints of output message ``k`` (configured order)."""
+        return [j for j, p in zip(self.joints, self.present[k].tolist(), strict=True) if p]
+
+    def torques(self, k: int) -> list[float]:
+        """Torques of output message ``k`` [N·m], as published (effort of the JointState)."""
+        return self.commands_nm[k][self.present[k]].tolist()
+
+
+class Feedforward:
+    """Model-based friction feedforward of the configured joints (the object ``friction_feedforward`` runs).
+
+    Parameters
+    ----------
+    axes : Mapping[str, AxisParams]
+        Configured joints, in order, and their model parameters.
+    settings : FeedforwardSettings
+        Validated settings.
+
+    Raises
+    ------
+    ConfigError
+        Invalid settings.
+    ModelDomainError
+        Parameters for which the model cannot be tabulated over the temperature range (the whole model is built
+        and checked here, so a broken model is refused before it is used).
+    """
+
+    def __init__(self, axes: dict[str, AxisParams], settings: FeedforwardSettings) -> None:
+        settings.validate()
+        if not axes:
+            raise ConfigError('axes', 'must name at least one joint')
+        self.settings = settings
+        self.axes = dict(axes)
+        self.order = tuple(self.axes)
+        s = settings
+        self.tables = {name: FrictionTable(p, s.temperature_min_c, s.temperature_max_c, s.table_step_c)
+                       for name, p in self.axes.items()}
+        self.counters = FeedforwardCounters()
+        self._index_cache: dict[tuple[tuple[str, ...], int], JointIndex] = {}
+        #: the table's temperature terms of the last temperature per joint (scalar calls; [°C] -> terms)
+        self._scalar_terms: dict[str, tuple[float, Any]] = {}
+        #: latest reference joint velocity per joint: (velocity [rad/s], time [s])
+        self._reference: dict[str, tuple[float, float]] = {}
+        self.last_temperature_c = math.nan   #: latest valid temperature [°C] (NaN: none)
+        self.last_temperature_time_s = math.nan  #: its time [s]
+
+    def take_state(self, old: Feedforward) -> None:
+        """Continue from ``old`` after a parameter change: its counters and its latest valid temperature (if that
+        is still inside this object's credible range)."""
+        self.counters = old.counters
+        self._reference = {j: r for j, r in old._reference.items() if j in self.axes}
+        s = self.settings
+        if s.temperature_min_c <= old.last_temperature_c <= s.temperature_max_c:
+            self.last_temperature_c, self.last_temperature_time_s = old.last_temperature_c, old.last_temperature_time_s
+
+    # ------------------------------------------------------------------ temperature
+    def update_temperature(self, temperature_c: float, time_s: float) -> str | None:
+        """A bearing temperature [°C] of time ``time_s`` [s] (its stamp; the arrival time if the stamp is zero).
+        Returns the rejection reason (counted) or None."""
+        s = self.settings
+        reason = temperature_rejection(temperature_c, s.temperature_min_c, s.temperature_max_c)
+        if reason is not None:
+            self.counters.add(self.counters.temperature_rejected, reason)
+            return reason
+        self.last_temperature_c = float(temperature_c)
+        self.last_temperature_time_s = float(time_s)
+        return None
+
+    # ------------------------------------------------------------------ reference velocity
+    @property
+    def references(self) -> dict[str, tuple[float, float]]:
+        """The latest finite reference per configured joint: (velocity [rad/s], time [s]) (a copy)."""
+        return dict(self._reference)
+
+    def update_reference(self, names: list[str], velocities: list[float], time_s: float) -> str | None:
+        """A reference joint-velocity message (``/gimbal/reference_velocity``: ``names``, ``velocities`` [rad/s])
+        of time ``time_s`` [s]. The first entry of each configured joint is kept if finite. Returns the reason
+        (counted) when the message is refused whole."""
+        if len(velocities) != len(names):
+            self.counters.add(self.counters.reference_rejected, J_MISMATCH)
+            return J_MISMATCH
+        seen: set[str] = set()
+        for name, v in zip(names, velocities, strict=True):
+            if name in seen or name not in self.axes:
+                continue
+            seen.add(name)
+            value = float(v)
+            if math.isfinite(value):
+                self._reference[name] = (value, float(time_s))
+            else:
+                self.counters.add(self.counters.reference_rejected, NON_FINITE_VELOCITY)
+        return None
+
+    def velocity(self, joint: str, measured_rad_s: float, time_s: float) -> float:
+        """The velocity [rad/s] the torque of ``joint`` uses at time ``time_s`` [s] under ``velocity_source``
+        (:func:`velocity_used`), from its measured velocity and the latest reference."""
+        s = self.settings
+        if s.velocity_source == 'measured':
+            return measured_rad_s
+        v, t = self._reference.get(joint, (math.nan, math.nan))
+        return float(velocity_used(s.velocity_source, measured_rad_s, v,
+                                   is_fresh(time_s, t, s.reference_timeout_s, SCALAR), SCALAR))
+
+    def temperature(self, time_s: float) -> tuple[float, int]:
+        """Temperature [°C] to use for a sample of time ``time_s`` [s] (NaN: zero policy) and its source code."""
+        fresh = is_fresh(time_s, self.last_temperature_time_s, self.settings.temperature_timeout_s, SCALAR)
+        t, source = temperature_used(self.last_temperature_c, fresh, self.settings, SCALAR)
+        return float(t), int(source)
+
+    def temperature_age_s(self, time_s: float) -> float:
+        """``time_s`` minus the time of the latest valid temperature [s] (NaN if none)."""
+        return time_s - self.last_temperature_time_s
+
+    # ------------------------------------------------------------------ one joint (a controller tick)
+    def rule(self, joint: str, velocity_rad_s: Any, temperature_c: Any, xp: Any, terms: Any = None) -> Any:
+        """The torque rule of ``joint`` [N·m] at velocities [rad/s] and temperatures [°C] (finite), floats
+        (``xp`` = SCALAR) or arrays (ARRAY); ``terms`` may carry the table's temperature terms already computed
+        for these temperatures. No counting, no input checks: the callers below do those."""
+        s = self.settings
+        table = self.tables[joint]
+        if terms is None and xp is SCALAR:  # the temperature changes at the sensor's rate, not the joints'
+            cached = self._scalar_terms.get(joint)
+            if cached is not None and cached[0] == temperature_c:
+                terms = cached[1]
+            else:
+                terms = table.temperature_terms(temperature_c, xp)
+                self._scalar_terms[joint] = (temperature_c, terms)
+        elif terms is None:
+            terms = table.temperature_terms(temperature_c, xp)
+        magnitude = table.magnitude_from_terms(terms, velocity_rad_s, xp)
+        k_dir = direction_factor(self.axes[joint], temperature_c, velocity_rad_s, xp)
+        return feedforward_torque_nm(magnitude, velocity_rad_s, k_dir, s.velocity_threshold_rad_s, s.max_torque_nm,
+                                     xp)
+
+    def torque_at(self, joint: str, velocity_rad_s: float, temperature_c: float) -> float:
+        """Feedforward torque [N·m] of ``joint`` at ``velocity_rad_s`` [rad/s] and ``temperature_c`` [°C] (NaN:
+        zero policy, 0 N·m). Non-finite velocity gives 0 N·m. Counts saturation."""
+        if not (math.isfinite(velocity_rad_s) and temperature_c == temperature_c):
+            return 0.0
+        torque: float = self.rule(joint, velocity_rad_s, temperature_c, SCALAR)
+        if abs(torque) >= self.settings.max_torque_nm:
+            self.counters.add(self.counters.saturated, joint)
+        return torque
+
+    def torque_nm(self, joint: str, velocity_rad_s: float, time_s: float) -> float:
+        """Feedforward torque [N·m] of ``joint`` for a velocity [rad/s] relative to the base at time ``time_s``
+        [s], with the temperature rules. The in-process controller call (about 2 µs).
+
+        Raises:
+            KeyError: ``joint`` is not configured.
+        """
+        return self.torque_at(joint, velocity_rad_s, self.temperature(time_s)[0])
+
+    # ------------------------------------------------------------------ one message (the node)
+    def message(self, names: list[str], velocities: list[float], time_s: float) -> MessageTorques | None:
+        """The feedforward of one joint-state message (``names``, ``velocities`` [rad/s]) of time ``time_s`` [s]
+        (stamp, or arrival if the stamp is zero). None (reason counted) when the message is unusable."""
+        c = self.counters
+        bucket = c.joint_state_rejected
+        key = (tuple(names), len(velocities))
+        idx = self._index_cache.get(key)
+        if idx is None:  # the same names in every message: index them once
+            idx = index_joints(names, (len(velocities),), self.order)
+            if len(self._index_cache) < 64:
+                self._index_cache[key] = idx
+        if idx.mismatch:
+            c.add(bucket, J_MISMATCH)
+            return None
+        c.add(bucket, J_UNKNOWN, idx.unknown)
+        c.add(bucket, J_DUPLICATE, idx.duplicate)
+        temperature, source = self.temperature(time_s)
+        measured = self.settings.velocity_source == 'measured'
+        out_names: list[str] = []
+        torques: list[float] = []
+        commands: list[float] = []
+        for joint in self.order:
+            i = idx.position.get(joint)
+            v = float(velocities[i]) if i is not None else math.nan
+            if i is not None and not measured:
+                v = self.velocity(joint, v, time_s)
+            if i is not None and not math.isfinite(v):
+                c.add(bucket, NON_FINITE_VELOCITY)
+            if math.isfinite(v):
+                torque = self.torque_at(joint, v, temperature)
+                out_names.append(joint)
+                torques.append(torque)
+                commands.append(torque)
+            else:
+                commands.append(0.0)
+        if not out_names:
+            c.add(bucket, J_NONE)
+            return None
+        c.published += 1
+        return MessageTorques(out_names, torques, commands, temperature, source)
+
+    # ------------------------------------------------------------------ a whole bag (the offline replay)
+    def bag_torques(self, arrays: ChamberArrays) -> BagTorques:
+        """What the node would publish for every joint-state message of ``arrays`` (messages in log-time order;
+        a temperature logged at the same time as a joint state arrived before it). The same rules as
+        :meth:`message`, evaluated on arrays; counters are updated the same way (a NaN position and velocity
+        means the joint is absent from that message)."""
+        s = self.settings
+        c = self.counters
+        temp, js = arrays.temperature, arrays.joint_states
+        valid, rejected = temperature_valid(temp.temperature_c, s.temperature_min_c, s.temperature_max_c)
+        for reason, n in rejected.items():
+            c.add(c.temperature_rejected, reason, n)
+        t_log = np.asarray(temp.log_time_ns, dtype=np.int64)[valid]
+        t_val = np.asarray(temp.temperature_c, dtype=np.float64)[valid]
+        t_time = effective_time(np.asarray(temp.stamp_ns, dtype=np.int64)[valid], t_log) / NS_PER_S
+        js_log = np.asarray(js.log_time_ns, dtype=np.int64)
+        js_stamp = np.asarray(js.stamp_ns, dtype=np.int64)
+        js_time = effective_time(js_stamp, js_log) / NS_PER_S
+        k = np.searchsorted(t_log, js_log, side='right') - 1
+        have = k >= 0
+        last_c = np.where(have, t_val[np.maximum(k, 0)] if t_val.size else np.nan, np.nan)
+        last_time = np.where(have, t_time[np.maximum(k, 0)] if t_val.size else np.nan, np.nan)
+        fresh = is_fresh(js_time, last_time, s.temperature_timeout_s, ARRAY)
+        t_used, source = temperature_used(last_c, fresh, s, ARRAY)
+        t_used = np.broadcast_to(np.asarray(t_used, dtype=np.float64), js_log.shape)
+        source = np.broadcast_to(np.asarray(source, dtype=np.int8), js_log.shape)
+
+        ref = arrays.reference_velocity
+        if ref is not None:  # as update_reference: a configured joint's non-finite reference is counted
+            for joint in self.order:
+                if joint in ref.velocity:
+                    rv = np.asarray(ref.velocity[joint], dtype=np.float64)
+                    rp = np.asarray(ref.position.get(joint, np.full(rv.shape, np.nan)), dtype=np.float64)
+                    c.add(c.reference_rejected, NON_FINITE_VELOCITY,
+                          int(np.count_nonzero(~np.isfinite(rv) & ~(np.isnan(rv) & np.isnan(rp)))))
+        n_msg = js_log.shape[0]
+        commands = np.zeros((n_msg, len(self.order)))
+        present = np.zeros((n_msg, len(self.order)), dtype=bool)
+        unknown = np.zeros(n_msg, dtype=np.int64)
+        for name in js.names:
+            if name not in self.axes:
+                unknown += ~(np.isnan(js.position[name]) & np.isnan(js.velocity[name]))
+        c.add(c.joint_state_rejected, J_UNKNOWN, int(unknown.sum()))
+        for j, joint in enumerate(self.order):
+            if joint not in js.velocity:
+                continue
+            v = np.asarray(js.velocity[joint], dtype=np.float64)
+            p = np.asarray(js.position[joint], dtype=np.float64)
+            in_message = ~(np.isnan(p) & np.isnan(v))
+            if s.velocity_source != 'measured':
+                v = self._bag_velocity(joint, v, arrays.reference_velocity, js_log, js_time)
+            finite = np.isfinite(v)
+            c.add(c.joint_state_rejected, NON_FINITE_VELOCITY, int(np.count_nonzero(~finite & in_message)))
+            rows = np.flatnonzero(finite & in_message)
+            vv = v[rows]
+            tt = t_used[rows]
+            zero = np.isnan(tt)
+            with np.errstate(over='ignore', invalid='ignore'):  # absurd speeds saturate, as on floats
+                torque = self.rule(joint, vv, np.where(zero, s.fallback_temperature_c, tt), ARRAY)
+            torque = np.where(zero, 0.0, torque)
+            c.add(c.saturated, joint, int(np.count_nonzero(np.abs(torque) >= s.max_torque_nm)))
+            commands[rows, j] = torque
+            present[rows, j] = True
+        out = np.flatnonzero(present.any(axis=1))
+        c.add(c.joint_state_rejected, J_NONE, int(n_msg - out.size))
+        c.published += int(out.size)
+        return BagTorques(out.astype(np.int64), self.order, present[out], js_stamp[out], js_log[out], commands[out],
+                          t_used[out], source[out])
+
+    def _bag_velocity(self, joint: str, measured: NDArray[np.float64], reference: JointStateArrays | None,
+                      js_log: NDArray[np.int64], js_time: NDArray[np.float64]) -> NDArray[np.float64]:
+        """:meth:`velocity` for every joint state of a bag: the latest finite reference of ``joint`` logged up to
+        each joint state (one logged at the same time arrived before it), fresh within ``reference_timeout_s``."""
+        s = self.settings
+        ref_v = np.full(measured.shape, np.nan)
+        ref_time = np.full(measured.shape, np.nan)
+        if reference is not None and joint in reference.velocity and len(reference):
+            values = np.asarray(reference.velocity[joint], dtype=np.float64)
+            usable = np.isfinite(values)
+            r_log = np.asarray(reference.log_time_ns, dtype=np.int64)[usable]
+            r_time = effective_time(np.asarray(reference.stamp_ns, dtype=np.int64)[usable], r_log) / NS_PER_S
+            k = np.searchsorted(r_log, js_log, side='right') - 1
+            have = k >= 0
+            if r_log.size:
+                ref_v = np.where(have, values[usable][np.maximum(k, 0)], np.nan)
+                ref_time = np.where(have, r_time[np.maximum(k, 0)], np.nan)
+        fresh = is_fresh(js_time, ref_time, s.reference_timeout_s, ARRAY)
+        return np.asarray(velocity_used(s.velocity_source, measured, ref_v, fresh, ARRAY), dtype=np.float64)

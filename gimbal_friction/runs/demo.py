@@ -1,0 +1,239 @@
+"""The main job: a chamber-test bag replayed live through all three nodes, then refit and report.
+
+    python -m gimbal_friction.demo [--bag bags/chamber_sample] [--rate 20] [--out out/demo-<time>]
+
+1. starts ``friction_feedforward``, ``friction_estimator`` and ``residual_logger`` as processes (the packaged
+   parameter file) on a free ROS_DOMAIN_ID, loopback only (``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST``);
+2. waits until every node is connected, then ``chamber_replay`` plays the bag at ``--rate`` × recorded speed;
+3. waits for the last measurements, stops the nodes with SIGINT (the logger closes its MCAP files);
+4. ``gimbal-friction refit`` on the residual log and ``gimbal-friction report`` (figures incl. Fig. 13);
+5. prints where the residual log, the refitted parameter file and the figures are, and model vs measured by
+   temperature and direction.
+
+Processes are cleaned up on success, failure and Ctrl-C (this is also the pip-environment equivalent of
+``ros2 launch gimbal_friction gimbal_friction.launch.py`` plus ``ros2 bag play``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from collections.abc import Iterator, Sequence
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+from gimbal_friction.recording import topics
+
+NODES = ('friction_feedforward', 'friction_estimator', 'residual_logger')
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def node_command(name: str) -> list[str]:
+    """The command that starts node executable ``name`` of this environment."""
+    path = Path(sys.executable).parent / name
+    return [str(path)] if path.exists() else [sys.executable, '-m', f'gimbal_friction.nodes.{name}']
+
+
+@contextlib.contextmanager
+def packaged_params_file() -> Iterator[Path]:
+    with resources.as_file(resources.files('gimbal_friction').joinpath('data', 'gimbal_friction.yaml')) as p:
+        yield p
+
+
+class Supervisor:
+    """Starts node processes and always stops them (SIGINT, then SIGTERM, then SIGKILL)."""
+
+    def __init__(self, env: dict[str, str], log_dir: Path) -> None:
+        self.env = env
+        self.log_dir = log_dir
+        self.procs: dict[str, subprocess.Popen[bytes]] = {}
+
+    def start(self, name: str, args: Sequence[str]) -> subprocess.Popen[bytes]:
+        log = open(self.log_dir / f'{name}.log', 'wb')  # noqa: SIM115 - closed with the process
+        proc = subprocess.Popen(node_command(name) + list(args), env=self.env, stdout=log, stderr=subprocess.STDOUT,
+                                start_new_session=True)
+        self.procs[name] = proc
+        return proc
+
+    def check_alive(self) -> None:
+        for name, proc in self.procs.items():
+            if proc.poll() is not None and name != 'chamber_replay':
+                tail = (self.log_dir / f'{name}.log').read_text(errors='replace').strip().splitlines()[-3:]
+                msg = f'{name} exited early (code {proc.returncode}): ' + ' | '.join(tail)
+                raise RuntimeError(msg)
+
+    def stop_all(self) -> dict[str, int | None]:
+        for proc in self.procs.values():
+            if proc.poll() is None:
+                proc.send_signal(signal.SIGINT)
+        codes: dict[str, int | None] = {}
+        for name, proc in self.procs.items():
+            try:
+                proc.wait(15)
+            except subprocess.TimeoutExpired:
+                proc.terminate()
+                try:
+                    proc.wait(5)
+                except subprocess.TimeoutExpired:
+                    proc.kill()
+                    proc.wait()
+            codes[name] = proc.returncode
+        return codes
+
+
+class Watcher:
+    """A probe node in this process: waits for the graph to connect and counts measurements."""
+
+    def __init__(self, domain: int) -> None:
+        import rclpy
+        from rclpy.executors import SingleThreadedExecutor
+        from rclpy.node import Node
+        from sensor_msgs.msg import JointState
+        self.rclpy = rclpy
+        self.context = rclpy.Context()
+        rclpy.init(context=self.context, domain_id=domain)
+        self.node = Node('demo_watcher', context=self.context)
+        self.executor = SingleThreadedExecutor(context=self.context)
+        self.executor.add_node(self.node)
+        self.measured = 0
+        self.last_measured = time.monotonic()
+        self.node.create_subscription(JointState, topics.MEASURED, self._on_measured, 100)
+
+    def _on_measured(self, _msg: Any) -> None:
+        self.measured += 1
+        self.last_measured = time.monotonic()
+
+    def spin(self, seconds: float) -> None:
+        end = time.monotonic() + seconds
+        while time.monotonic() < end:
+            self.executor.spin_once(timeout_sec=min(0.05, max(end - time.monotonic(), 0.0)))
+
+    def connected(self) -> bool:
+        n = self.node
+        return (n.count_subscribers(topics.JOINT_STATES) >= 3 and n.count_subscribers(topics.MOTOR_CURRENT) >= 2
+                and n.count_subscribers(topics.TEMPERATURE) >= 3 and n.count_subscribers(topics.FEEDFORWARD) >= 1
+                and n.count_subscribers(topics.MEASURED) >= 2 and n.count_publishers(topics.MEASURED) >= 1
+                and n.count_publishers(topics.FEEDFORWARD) >= 1)
+
+    def close(self) -> None:
+        self.executor.shutdown()
+        self.node.destroy_node()
+        self.context.try_shutdown()
+
+
+def _bar(frac: float, label: str) -> None:
+    if sys.stderr.isatty():
+        sys.stderr.write(f'\r{label} [{"#" * int(30 * frac):<30}] {100 * frac:5.1f}%')
+        sys.stderr.flush()
+
+
+def run(bag: Path, out: Path, rate: float, domain: int) -> int:
+    from gimbal_friction.cli.main import main as cli
+    from gimbal_friction.recording.bag import open_chamber_bag
+
+    duration_s = open_chamber_bag(bag).duration_ns * 1e-9
+    out.mkdir(parents=True, exist_ok=True)
+    logs = out / 'logs'
+    logs.mkdir(exist_ok=True)
+    env = dict(os.environ, ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST',
+               ROS_LOG_DIR=str(logs / 'ros'), PYTHONUNBUFFERED='1')
+    residuals = out / 'residuals'
+    sup = Supervisor(env, logs)
+    watcher = None
+    try:
+        with packaged_params_file() as params:
+            print(f'[1/4] starting {", ".join(NODES)} (domain {domain}, loopback only)', flush=True)
+            for name in NODES:
+                extra = ['-p', f'output_dir:={residuals}'] if name == 'residual_logger' else []
+                sup.start(name, ['--ros-args', '--params-file', str(params), *extra])
+            watcher = Watcher(domain)
+            deadline = time.monotonic() + 60.0
+            while not watcher.connected():
+                sup.check_alive()
+                if time.monotonic() > deadline:
+                    raise RuntimeError('the nodes did not connect within 60 s (see logs/)')
+                watcher.spin(0.1)
+            print(f'[2/4] playing {bag} ({duration_s:.0f} s recorded) at {rate:g}x through the live nodes',
+                  flush=True)
+            replay = sup.start('chamber_replay', ['--ros-args', '-p', f'bag:={bag}', '-p', f'rate:={rate}',
+                                                  '-p', 'wait_for_subscribers:=3'])
+            t0 = time.monotonic()
+            while replay.poll() is None:
+                sup.check_alive()
+                watcher.spin(0.2)
+                _bar(min((time.monotonic() - t0) * rate / max(duration_s, 1e-9), 1.0),
+                     f'replay {watcher.measured} measurements')
+            if sys.stderr.isatty():
+                sys.stderr.write('\n')
+            if replay.returncode != 0:
+                raise RuntimeError(f'chamber_replay failed (code {replay.returncode}); see {logs}')
+            while time.monotonic() - watcher.last_measured < 2.0:  # let the last messages through
+                watcher.spin(0.1)
+        codes = sup.stop_all()
+        bad = {k: v for k, v in codes.items() if v not in (0, None)}
+        if bad:
+            raise RuntimeError(f'nodes exited with errors: {bad}; see {logs}')
+        print(f'      {watcher.measured} measurements published live; nodes stopped cleanly', flush=True)
+    finally:
+        sup.stop_all()
+        if watcher is not None:
+            watcher.close()
+    refit = out / 'refit.yaml'
+    print('[3/4] refitting the lubricant viscosity from the residual log', flush=True)
+    # CW only: the sample, like the paper, has a cold CCW/CW asymmetry from grease distribution, not viscosity
+    code = cli(['refit', str(residuals), '--out', str(refit), '--direction', 'cw', '--fit',
+                'walther_a,palmgren_factor', '--plot', str(out / 'figures' / 'fig13_refit.png')])
+    if code != 0:
+        print('demo: refit refused the data (see the reason above); the residual log is kept', file=sys.stderr)
+        return code
+    print('[4/4] report: paper figures from the model and model vs measured (Fig. 13)', flush=True)
+    code = cli(['report', '--out', str(out / 'figures'), '--residuals', str(residuals), '--compare', str(refit)])
+    if code != 0:
+        return code
+    print()
+    print(f'residual log:          {residuals}/  (open with Foxglove + {ROOT / "config" / "foxglove_layout.json"})')
+    print(f'refitted parameters:   {refit}  (layer with --config / --params-file)')
+    print(f'figures:               {out / "figures"}/')
+    print(f'node logs:             {logs}/')
+    (out / 'demo.json').write_text(json.dumps({'bag': str(bag), 'rate': rate, 'residuals': str(residuals),
+                                               'refit': str(refit), 'figures': str(out / 'figures')}, indent=1))
+    return 0
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog='python -m gimbal_friction.demo', description=__doc__.splitlines()[0])
+    parser.add_argument('--bag', type=Path, default=ROOT / 'bags' / 'chamber_sample', help='chamber-test bag')
+    parser.add_argument('--rate', type=float, default=20.0, help='playback rate factor (default 20)')
+    parser.add_argument('--out', type=Path, default=None, help='output folder (default out/demo-<time>)')
+    args = parser.parse_args(argv)
+    out = args.out or Path('out') / time.strftime('demo-%Y%m%d-%H%M%S')
+    if out.exists() and any(out.iterdir()):
+        print(f'demo: {out} is not empty; choose another --out (nothing is overwritten)', file=sys.stderr)
+        return 1
+    from domain_coordinator import domain_id
+    try:
+        with domain_id() as did:
+            return run(args.bag.resolve(), out.resolve(), args.rate, did)
+    except KeyboardInterrupt:
+        print('\ndemo: interrupted; processes stopped', file=sys.stderr)
+        return 130
+    except (RuntimeError, OSError) as err:
+        print(f'demo: error: {err}', file=sys.stderr)
+        return 1
+    except Exception as err:
+        from gimbal_friction.common.errors import GimbalFrictionError
+        if isinstance(err, GimbalFrictionError):
+            print(f'demo: error: {err}', file=sys.stderr)
+            return 1
+        raise
+
+
+if __name__ == '__main__':
+    sys.exit(main())

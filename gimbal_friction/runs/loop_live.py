@@ -1,0 +1,329 @@
+"""``gimbal-friction loop-study --live``: the real nodes in real time, on loopback, against the offline study.
+
+:func:`live_study` starts ``friction_feedforward``, ``friction_estimator`` (method ``observer``) and
+``residual_logger`` as processes with the study's parameter files, waits until they are connected, then runs
+``gimbal_sim`` once per live case (``exit_when_done``, ``wait_for_subscribers``, ``record_path``) on a free
+ROS_DOMAIN_ID with ``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST`` (the supervisor of :mod:`gimbal_friction.runs.demo`;
+processes are stopped with SIGINT on success, failure and Ctrl-C). Each ``gimbal_sim`` run writes its traces and
+latencies (:func:`save_run`); :func:`load_run` turns them into the same
+:class:`~gimbal_friction.sim.engine.BatchResult` the offline study measures, so both are measured by the same
+:func:`~gimbal_friction.sim.metrics.batch_metrics`. The same case is then simulated offline with the
+feedforward delayed by the age the live run applied it with (its median, in controller ticks), and the two LOS
+rate error RMS are compared (agreement: within 10 %).
+
+The transport latency is measured by ``gimbal_sim`` from the stamps: a feedforward message carries the stamp of the
+joint state that produced it, so latency = arrival wall time − publish wall time of that joint state.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import math
+import os
+import subprocess
+import time
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from gimbal_friction.common.errors import GimbalFrictionError
+from gimbal_friction.sim.compensation import Compensator, ControllerInputs
+from gimbal_friction.sim.config import SimConfig
+from gimbal_friction.sim.engine import BatchResult, Run, Traces, simulate
+from gimbal_friction.sim.metrics import batch_metrics
+from gimbal_friction.sim.profiles import make_profile
+from gimbal_friction.sim.realtime import RealtimeRun
+from gimbal_friction.sim.study import SHORT_DURATIONS, FeedforwardSetup
+
+__all__ = ['AGREEMENT', 'live_study', 'load_run', 'save_run']
+
+#: Live and offline agree when their LOS rate error RMS differ by at most this fraction [-].
+AGREEMENT = 0.10
+LIVE_NODES = ('friction_feedforward', 'friction_estimator', 'residual_logger')
+
+
+# ---------------------------------------------------------------------------------------------- run records
+def save_run(path: str | os.PathLike[str], run: RealtimeRun) -> Path:
+    """Write a run's traces, latencies and configuration to ``path`` (.npz; written whole or not at all)."""
+    out = Path(path)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    res = run.result()
+    meta = {'config': run.config.to_mapping(), 'profile': run.profile.name, 'case': run.case,
+            'temperature_c': run.settings.environment_temperature_c, 'seed': run.settings.run_seed,
+            'duration_s': float(run.profile.time_s.shape[0] * run.config.controller_period_s),
+            'ticks': int(res.traces.los_rate_rad_s.shape[0]), 'latency': run.latency_summary(),
+            'stale': run.stale, 'foreign': run.foreign}
+    arrays = {f'trace_{name}': np.asarray(getattr(res.traces, name))[:, 0] for name in Traces._fields}
+    tmp = out.with_name(f'.{out.name}.tmp.npz')
+    arrays.update(meta=np.frombuffer(json.dumps(meta).encode(), dtype=np.uint8), sampled=res.temperature_sampled,
+                  feedforward_age=run.feedforward_age, publish_wall_s=run.publish_wall_s,
+                  transport_latency_s=np.asarray(run.transport_latency_s, dtype=float))
+    np.savez(tmp, **arrays)  # type: ignore[arg-type]
+    os.replace(tmp, out)
+    return out
+
+
+def load_run(path: str | os.PathLike[str]) -> tuple[BatchResult, dict[str, Any], dict[str, np.ndarray]]:
+    """A run written by :func:`save_run`: (the batch of one run, its metadata, the latency arrays).
+
+    Raises:
+        GimbalFrictionError: not a readable run record.
+    """
+    try:
+        with np.load(Path(path)) as data:
+            meta = json.loads(bytes(data['meta']).decode())
+            traces = Traces(**{name: np.asarray(data[f'trace_{name}'])[:, None] for name in Traces._fields})
+            sampled = np.asarray(data['sampled'])
+            extra = {k: np.asarray(data[k]) for k in ('feedforward_age', 'publish_wall_s', 'transport_latency_s')}
+    except (OSError, KeyError, ValueError) as err:
+        msg = f'{path}: not a gimbal_sim run record ({err})'
+        raise GimbalFrictionError(msg) from None
+    config = SimConfig.from_mapping(meta['config'])
+    profile = make_profile(config, meta['profile'], meta['duration_s'])
+    n = int(meta['ticks'])
+    if n < profile.time_s.shape[0]:   # an interrupted run: the ticks simulated
+        from gimbal_friction.sim.profiles import Profile
+        p = profile
+        profile = Profile(p.name, p.time_s[:n], p.target_angle_rad[:n], p.target_rate_rad_s[:n],
+                          p.base_angle_rad[:n], p.base_rate_rad_s[:n], p.reversal_times_s, p.base_motion)
+    run = Run(meta['case'], float(meta['temperature_c']), int(meta['seed']))
+    return BatchResult(config, profile, (run,), traces, sampled), meta, extra
+
+
+# ---------------------------------------------------------------------------------------------- live study
+class _GraphProbe:
+    """A node in this process that only looks at the graph (no subscriptions: it costs no CPU per message)."""
+
+    def __init__(self, domain: int) -> None:
+        import rclpy
+        from rclpy.executors import SingleThreadedExecutor
+        from rclpy.node import Node
+        self.context = rclpy.Context()
+        rclpy.init(context=self.context, domain_id=domain)
+        self.node = Node('loop_study_probe', context=self.context)
+        self.executor = SingleThreadedExecutor(context=self.context)
+        self.executor.add_node(self.node)
+
+    def spin(self, seconds: float) -> None:
+        end = time.monotonic() + seconds
+        while time.monotonic() < end:
+            self.executor.spin_once(timeout_sec=min(0.05, max(end - time.monotonic(), 0.0)))
+
+    def close(self) -> None:
+        self.executor.shutdown()
+        self.node.destroy_node()
+        self.context.try_shutdown()
+
+
+def _wait_connected(watcher: Any, sup: Any, timeout_s: float) -> None:
+    from gimbal_friction.recording import topics
+    n = watcher.node
+    deadline = time.monotonic() + timeout_s
+    while True:
+        ok = (n.count_subscribers(topics.JOINT_STATES) >= 3 and n.count_subscribers(topics.MOTOR_CURRENT) >= 2
+              and n.count_subscribers(topics.TEMPERATURE) >= 3 and n.count_publishers(topics.FEEDFORWARD) >= 1
+              and n.count_subscribers(topics.MEASURED_DETAIL) >= 1)
+        if ok:
+            return
+        sup.check_alive()
+        if time.monotonic() > deadline:
+            msg = f'the nodes did not connect within {timeout_s:.0f} s'
+            raise GimbalFrictionError(msg)
+        watcher.spin(0.1)
+
+
+def live_study(inputs: Any, *, temperature_c: float = -40.0, profile: str = 'tracking',
+               cases: Sequence[str] = ('feedforward',), short: bool = False, duration_s: float | None = None,
+               realtime_factor: float = 1.0, publish_every_ticks: int = 2, work_dir: Path | None = None,
+               log: Callable[[str], None] = lambda text: None, connect_timeout_s: float = 60.0) -> dict[str, Any]:
+    """Run the live closed loop for each of ``cases`` (``feedforward``, ``none``) and compare with offline.
+
+    ``inputs`` is a :class:`gimbal_friction.runs.loop_study.StudyInputs`. Returns the ``live`` section of the study
+    document (with its ``records``: one per case, ``mode`` ``live``, with ``feedforward_latency_p50_s``).
+
+    Raises:
+        GimbalFrictionError: a node that does not start or connect, or a run that does not finish.
+    """
+    import tempfile
+
+    from domain_coordinator import domain_id
+
+    cfg: SimConfig = inputs.sim
+    if duration_s is None:
+        duration_s = SHORT_DURATIONS[profile] if short else cfg.profile_duration_s(profile)
+    tmp = None
+    if work_dir is None:
+        tmp = tempfile.TemporaryDirectory(prefix='loop-live-')
+        work_dir = Path(tmp.name)
+    work_dir = Path(work_dir)
+    (work_dir / 'logs').mkdir(parents=True, exist_ok=True)
+    param_files = _parameter_files(inputs, work_dir)
+    records: list[dict[str, Any]] = []
+    runs: dict[str, tuple[BatchResult, dict[str, Any], dict[str, np.ndarray]]] = {}
+    try:
+        with domain_id() as did:
+            env = dict(os.environ, ROS_DOMAIN_ID=str(did), ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST',
+                       ROS_LOG_DIR=str(work_dir / 'logs' / 'ros'), PYTHONUNBUFFERED='1')
+            sup = _supervisor(env, work_dir / 'logs')
+            watcher = None
+            try:
+                args = ['--ros-args', *(a for f in param_files for a in ('--params-file', str(f)))]
+                log(f'loop-study --live: starting {", ".join(LIVE_NODES)} (domain {did}, loopback only)')
+                for name in LIVE_NODES:
+                    more = ['-p', f'output_dir:={work_dir / "residuals"}'] if name == 'residual_logger' else []
+                    sup.start(name, [*args, *more])
+                watcher = _GraphProbe(did)
+                _wait_connected(watcher, sup, connect_timeout_s)
+                for case in cases:
+                    record = work_dir / f'run_{case}.npz'
+                    log(f'loop-study --live: gimbal_sim {case}, {profile} at {temperature_c:+g} degC for '
+                        f'{duration_s:g} s (real time x{realtime_factor:g})')
+                    use = 'true' if case == 'feedforward' else 'false'
+                    proc = sup.start_as(f'gimbal_sim_{case}', 'gimbal_sim', [
+                        *args, '-p', f'environment_temperature_c:={float(temperature_c)}', '-p', f'profile:={profile}',
+                        '-p', f'duration_s:={float(duration_s)}', '-p', 'exit_when_done:=true',
+                        '-p', f'use_feedforward:={use}', '-p', 'wait_for_subscribers:=3',
+                        '-p', f'wait_for_feedforward:={use}', '-p', f'realtime_factor:={float(realtime_factor)}',
+                        '-p', f'record_path:={record}', '-p', f'publish_every_ticks:={int(publish_every_ticks)}'])
+                    deadline = time.monotonic() + connect_timeout_s + 3.0 * duration_s / realtime_factor + 30.0
+                    while proc.poll() is None:
+                        sup.check_alive()
+                        if time.monotonic() > deadline:
+                            msg = f'gimbal_sim ({case}) did not finish in time; see {work_dir / "logs"}'
+                            raise GimbalFrictionError(msg)
+                        with contextlib.suppress(subprocess.TimeoutExpired):
+                            proc.wait(0.2)
+                    if proc.returncode != 0 or not record.exists():
+                        tail = (work_dir / 'logs' / f'gimbal_sim_{case}.log').read_text(errors='replace')
+                        last = ' | '.join(tail.strip().splitlines()[-2:])
+                        msg = f'gimbal_sim ({case}) failed (code {proc.returncode}): {last}'
+                        raise GimbalFrictionError(msg)
+                    runs[case] = load_run(record)
+                codes = sup.stop_all()
+                bad = {k: v for k, v in codes.items() if v not in (0, None) and not k.startswith('gimbal_sim')}
+                if bad:
+                    msg = f'nodes exited with errors: {bad}; see {work_dir / "logs"}'
+                    raise GimbalFrictionError(msg)
+            finally:
+                sup.stop_all()
+                if watcher is not None:
+                    watcher.close()
+    finally:
+        if tmp is not None:
+            tmp.cleanup()
+    out: dict[str, Any] = {'temperature_c': float(temperature_c), 'profile': profile, 'duration_s': duration_s,
+                           'realtime_factor': realtime_factor, 'publish_every_ticks': publish_every_ticks,
+                           'cases': list(cases)}
+    for case, (batch, meta, _) in runs.items():
+        (m,) = batch_metrics(batch)
+        rec = {'case': case, 'temperature_c': float(temperature_c), 'profile': profile, **m._asdict(),
+               'duration_s': duration_s, 'mode': 'live'}
+        lat = meta['latency']
+        rec['feedforward_latency_p50_s'] = lat['feedforward_latency_p50_s']
+        records.append(rec)
+        if case == 'feedforward':
+            out.update(lat)
+    compare = 'feedforward' if 'feedforward' in runs else next(iter(runs))
+    batch, meta, extra = runs[compare]
+    age = meta['latency'].get('feedforward_age_p50_ticks', math.nan)
+    latency_ticks = int(round(age)) if math.isfinite(age) else 0
+    nominal_ticks = cfg.latency_ticks
+    replayed = _offline_twin(inputs, batch, compare, 0, extra['feedforward_age'])
+    fixed = _offline_twin(inputs, batch, compare, latency_ticks)
+    nominal = _offline_twin(inputs, batch, compare, nominal_ticks)
+    live_rms = next(r['rate_error_rms_rad_s'] for r in records if r['case'] == compare)
+    rel = live_rms / replayed - 1.0
+    out.update({'case': compare, 'live_rate_error_rms_rad_s': live_rms,
+                'offline_rate_error_rms_rad_s': replayed, 'relative_difference': rel,
+                'agree': bool(abs(rel) <= AGREEMENT),
+                'offline_fixed_latency_ticks': latency_ticks, 'offline_fixed_latency_rate_error_rms_rad_s': fixed,
+                'offline_nominal_latency_ticks': nominal_ticks,
+                'offline_nominal_latency_rate_error_rms_rad_s': nominal, 'records': records})
+    out.setdefault('feedforward_latency_p50_s', math.nan)
+    out.setdefault('feedforward_latency_p95_s', math.nan)
+    out.setdefault('feedforward_age_p50_ticks', math.nan)
+    return out
+
+
+def _offline_twin(inputs: Any, live: BatchResult, case: str, latency_ticks: int,
+                  ages: np.ndarray | None = None) -> float:
+    """LOS rate error RMS [rad/s] of the same run offline: the feedforward ``latency_ticks`` old at every tick, or,
+    with ``ages``, exactly as old as the live run had it at each tick (its timing replayed, the controller's
+    ``feedforward_timeout_s`` included)."""
+    cfg = live.config.replace(feedforward_latency_s=latency_ticks * live.config.controller_period_s)
+    ff: FeedforwardSetup = inputs.feedforward
+    comps: dict[str, Compensator] = {}
+    if case == 'feedforward':
+        comps['feedforward'] = ff.compensator(inputs.axis) if ages is None else _replayed(
+            ff.compensator(inputs.axis), ages, cfg.timeout_ticks)
+    res = simulate(cfg, inputs.axis, live.profile, [Run(case, live.runs[0].temperature_c, live.runs[0].seed)],
+                   comps)
+    return float(batch_metrics(res)[0].rate_error_rms_rad_s)
+
+
+def _replayed(comp: Compensator, age: np.ndarray, timeout_ticks: int) -> Compensator:
+    """``comp`` applied with the per-tick age of a live run: at tick k the torque computed at tick k − age[k]
+    (0 N·m where the live run had received none yet or it was older than ``timeout_ticks``)."""
+    history: list[np.ndarray] = []
+
+    def torque(inputs: ControllerInputs) -> np.ndarray:
+        history.append(np.asarray(comp.torque(inputs), dtype=float))
+        k = len(history) - 1
+        a = int(age[k]) if k < age.shape[0] else -1
+        return history[k - a] if 0 <= a <= min(k, timeout_ticks) else np.zeros_like(history[k])
+
+    return Compensator(torque, delayed=False)
+
+
+def _parameter_files(inputs: Any, work_dir: Path) -> list[Path]:
+    """The parameter files of the live nodes: the packaged defaults, the user's ``--config`` files (their
+    ``/**`` model and node settings, their ``gimbal_sim`` section), and the study's own: the estimator in
+    observer mode, the simulator configuration the study ran with (latency and seed included)."""
+    import yaml
+
+    from gimbal_friction.config.loader import render_parameter_file
+    from gimbal_friction.runs.demo import packaged_params_file
+    with packaged_params_file() as packaged:
+        text = Path(packaged).read_text(encoding='utf-8')
+    files = [work_dir / 'packaged.yaml']
+    files[0].write_text(text, encoding='utf-8')
+    axis_file = work_dir / 'axis.yaml'
+    axis_file.write_text(render_parameter_file(axes_overrides={inputs.axis_name: inputs.axis.to_mapping()},
+                                               axes=[inputs.axis_name]), encoding='utf-8')
+    files.append(axis_file)
+    ff = inputs.feedforward
+    node = {'method': 'observer', **{k: getattr(ff.settings, k) for k in ff.settings.__dataclass_fields__},
+            'velocity_source': ff.velocity_source}
+    est = inputs.estimator
+    node.update({k: getattr(est, k) for k in est.__dataclass_fields__ if k != 'method'})
+    study = work_dir / 'study.yaml'
+    study.write_text(yaml.safe_dump({'/**': {'ros__parameters': node},
+                                     'gimbal_sim': {'ros__parameters': inputs.sim.to_mapping()}},
+                                    sort_keys=False), encoding='utf-8')
+    files.append(study)
+    return files
+
+
+def _supervisor(env: dict[str, str], log_dir: Path) -> Any:
+    """The demo's supervisor, starting ``gimbal_sim`` runs under their own names and letting them exit."""
+    from gimbal_friction.runs.demo import Supervisor, node_command
+
+    class LoopSupervisor(Supervisor):
+        def start_as(self, name: str, exe: str, args: Sequence[str]) -> subprocess.Popen[bytes]:
+            log_file = open(self.log_dir / f'{name}.log', 'wb')  # noqa: SIM115 - closed with the process
+            proc = subprocess.Popen(node_command(exe) + list(args), env=self.env, stdout=log_file,
+                                    stderr=subprocess.STDOUT, start_new_session=True)
+            self.procs[name] = proc
+            return proc
+
+        def check_alive(self) -> None:
+            for name, proc in self.procs.items():
+                if proc.poll() is not None and not name.startswith('gimbal_sim'):
+                    tail = (self.log_dir / f'{name}.log').read_text(errors='replace').strip().splitlines()[-3:]
+                    msg = f'{name} exited early (code {proc.returncode}): ' + ' | '.join(tail)
+                    raise GimbalFrictionError(msg)
+
+    return LoopSupervisor(env, log_dir)

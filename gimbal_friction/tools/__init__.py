@@ -1,1 +1,0 @@
-"""Offline tools behind the ``gimbal-friction`` command line (argparse layer + commands; no physics here)."""
