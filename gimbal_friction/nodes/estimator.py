@@ -35,8 +35,8 @@ Publishes:
 Parameters: the model parameters (K_T = ``torque_constant_nm_per_a``, I_0 = ``no_load_current_a``, J =
 ``inertia_kg_m2``, per joint via ``axis.<joint>.*``), every field of
 :class:`~gimbal_friction.estimation.estimator.EstimatorSettings` and the node's periods. ``ros2 param set`` is
-validated as a whole before it succeeds; a change of the estimator settings restarts steady-state detection, a change of a
-joint's K_T or I_0 restarts that joint's statistics.
+validated as a whole before it succeeds; a change of the estimator settings restarts steady-state detection, a
+change of a joint's K_T or I_0 restarts that joint's statistics.
 """
 
 from __future__ import annotations
