@@ -331,7 +331,7 @@ def test_cli_compression_choices(tmp_path, capsys):
 
 
 # ---------------------------------------------------------------------------------------------- shipped sample
-BAGS = Path(__file__).resolve().parents[1] / 'bags'
+BAGS = Path(__file__).resolve().parents[2] / 'bags'
 
 
 def _regenerate_args() -> list[str]:

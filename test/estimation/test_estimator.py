@@ -13,7 +13,7 @@ from hypothesis import strategies as st
 
 from gimbal_friction.chamber import synth
 from gimbal_friction.common.errors import ConfigError
-from gimbal_friction.core import estimator as est
+from gimbal_friction.estimation import estimator as est
 from gimbal_friction.estimation.estimator import EstimatorLogic, EstimatorSettings
 from gimbal_friction.physics.params import AxisParams
 from gimbal_friction.recording.bag import open_chamber_bag
