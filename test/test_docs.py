@@ -8,6 +8,8 @@ rewritten); the other checks cover every other file.
 
 from __future__ import annotations
 
+import doctest
+import math
 import re
 import subprocess
 import unicodedata
@@ -188,3 +190,64 @@ def test_citation_check_names_file_and_line(tmp_path: Path) -> None:
     (tmp_path / 'bin.dat').write_bytes(b'\xff\xfe' + FORBIDDEN[2].encode())
     assert citations([cited, tmp_path / 'bin.dat'], root=tmp_path) == [
         f'x.py:2: {FORBIDDEN[0]}', f'x.py:2: {FORBIDDEN[3]}']
+
+
+def test_ros_page_documents_every_parameter() -> None:
+    """Every model parameter and every setting of the three nodes has a row in docs/ros.md with its default."""
+    import dataclasses
+
+    from gimbal_friction.core.estimator import EstimatorSettings
+    from gimbal_friction.core.feedforward import FeedforwardSettings
+    from gimbal_friction.core.params import parameter_specs
+    from gimbal_friction.core.settings import EstimatorNodeSettings, FeedforwardNodeSettings, LoggerSettings
+
+    rows = {}
+    for line in (ROOT / 'docs' / 'ros.md').read_text(encoding='utf-8').splitlines():
+        m = re.match(r'\| `([a-z0-9_]+)` \| [a-z\[\]]+ \| ([^|]+) \|', line)
+        if m:
+            rows.setdefault(m.group(1), set()).add(m.group(2).strip())
+    expected = {s['name']: s['default'] for s in parameter_specs()}
+    for cls in (FeedforwardSettings, FeedforwardNodeSettings, EstimatorSettings, EstimatorNodeSettings,
+                LoggerSettings):
+        expected.update({f.name: f.default for f in dataclasses.fields(cls)})
+
+    def same(documented: str, default: object) -> bool:
+        if isinstance(default, bool) or not isinstance(default, (int, float)):
+            return documented.strip('`"').lower() == str(default).lower()
+        try:
+            return math.isclose(float(documented), float(default), rel_tol=1e-5)
+        except ValueError:
+            return False
+
+    missing = sorted(set(expected) - set(rows))
+    wrong = sorted(f'{name}: documented {rows[name]}, default {default!r}' for name, default in expected.items()
+                   if name in rows and not any(same(d, default) for d in rows[name]))
+    assert (missing, wrong) == ([], [])
+
+
+def test_cli_page_shows_each_subcommands_help(monkeypatch: pytest.MonkeyPatch,
+                                              capsys: pytest.CaptureFixture[str]) -> None:
+    """docs/cli.md shows each subcommand's ``--help`` verbatim (as printed 116 columns wide). After changing an option,
+    paste the output of ``COLUMNS=116 gimbal-friction SUB --help`` into its section."""
+    from gimbal_friction.tools.cli import main
+
+    text = (ROOT / 'docs' / 'cli.md').read_text(encoding='utf-8')
+    blocks = {m.group(1): m.group(0) for m in
+              re.finditer(r'```text\nusage: gimbal-friction (\S+).*?\n```', text, re.DOTALL)}
+    monkeypatch.setenv('COLUMNS', '116')
+    stale = []
+    for sub in ('model', 'calibrate-kt', 'synth-bag', 'replay', 'report', 'refit', 'export', 'fleet', 'recover',
+                'loop-study'):
+        with pytest.raises(SystemExit) as exit_info:
+            main([sub, '--help'])
+        assert exit_info.value.code == 0
+        shown = capsys.readouterr().out.rstrip()
+        if blocks.get(sub) != f'```text\n{shown}\n```':
+            stale.append(sub)
+    assert stale == []
+
+
+def test_model_page_example_runs() -> None:
+    result = doctest.testfile(str(ROOT / 'docs' / 'model.md'), module_relative=False,
+                              optionflags=doctest.NORMALIZE_WHITESPACE)
+    assert result.attempted >= 3 and result.failed == 0
