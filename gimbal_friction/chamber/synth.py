@@ -25,7 +25,7 @@ The test the paper ran, and what is generated here:
   none by default) times a synthetic cold asymmetry that is *not* in the model's form, on the CCW side only
   (the default, as before): ``|CCW|/|CW| = 1 − (1 − asym_ratio_cold) · w(T)`` with ``w(T) = clip((asym_t_ref_c − T)
   / (asym_t_ref_c − asym_t_cold_c), 0, 1)``, i.e. 2.45/3.19 ≈ 0.768 at −40 °C and 1 at +20 °C and above.
-  Positive velocity is the paper's clockwise (CONTRACT.md).
+  Positive velocity is the paper's clockwise (docs/ros.md).
 - Preset ``paper`` (:func:`preset_config`): a chamber test whose plateau means are the paper's four measured
   values (CW 3.19 / CCW −2.45 N·mm at −40 °C, CW 1.05 / CCW −1.34 at +60 °C, Sec. 6): truth lubricant, Palmgren
   factor and direction asymmetry :data:`PAPER_TRUTH_OVERRIDES` (the synthetic cold asymmetry off). The mean of

@@ -10,7 +10,7 @@ makes the result the same however the messages are batched (tested), so live and
 
 with the armature current ``I`` [A], the torque constant ``K_T`` [N·m/A], the no-load current ``I_0`` [A] and, for
 the observer, the axis inertia ``J`` [kg·m²] (``inertia_kg_m2`` of the axis) and the filtered acceleration
-``α̂`` [rad/s²]. ``T_f`` is signed like the motion (CONTRACT.md); a value of the opposite sign is not physical and
+``α̂`` [rad/s²]. ``T_f`` is signed like the motion (docs/ros.md); a value of the opposite sign is not physical and
 is refused (``'friction opposes motion'``).
 
 Two methods (``method`` setting: ``steady_state``, ``observer`` or ``both``):

@@ -2,7 +2,7 @@
 
 All functions accept numpy arrays and broadcast. Lengths in [mm], forces in [N], moduli in [MPa].
 
-Worked example (MODEL.md §4): the Table-1 ball at α = 15° and Q = 5 N, outer contact:
+Worked example (docs/model.md §4): the Table-1 ball at α = 15° and Q = 5 N, outer contact:
 
 >>> c = hertz_contact(5.0, 2.381, 21.5, 15.0 * 3.141592653589793 / 180, 0.54, 114285.714, outer=True)
 >>> round(float(c.a) * 1000, 1), round(float(c.b) * 1000, 1), round(float(c.kappa), 2)
@@ -97,7 +97,7 @@ class HertzContact(NamedTuple):
 
 def hertz_contact(Q: ArrayLike, D_w: ArrayLike, d_m: ArrayLike, alpha: ArrayLike, f: float, E_star: float, *,
                   outer: bool) -> HertzContact:
-    """Hertz contact of a ball loaded with Q on a raceway (Harris & Kotzalas), MODEL.md §4.
+    """Hertz contact of a ball loaded with Q on a raceway (Harris & Kotzalas), docs/model.md §4.
 
     Parameters
     ----------

@@ -1,4 +1,4 @@
-"""The whole friction-torque model of one gimbal axis versus temperature and speed (MODEL.md §8).
+"""The whole friction-torque model of one gimbal axis versus temperature and speed (docs/model.md §8).
 
 >>> r = friction_torque(AxisParams(), -40.0)
 >>> round(float(r.m_viscous_nmm), 2), round(float(r.m_sliding_nmm + r.m_rolling_nmm), 2)
@@ -33,7 +33,7 @@ from gimbal_friction.physics.viscosity import nu_Walther
 
 Array = NDArray[np.float64]
 
-#: Output fields of ``gimbal-friction model --format json`` (CONTRACT.md), in order.
+#: Output fields of ``gimbal-friction model --format json`` (docs/ros.md), in order.
 CONTRACT_FIELDS = ('temperature_c', 'viscosity_cst', 'free_contact_angle_deg', 'contact_angle_deg',
                    'radial_clearance_mm', 'axial_force_n', 'ball_load_n', 'm_rolling_nmm', 'm_sliding_nmm',
                    'm_viscous_nmm', 'm_total_nmm')
@@ -69,7 +69,7 @@ class FrictionResult(NamedTuple):
 
 
 def contact_torques(p: AxisParams, r: RadialState, ax: AxialState) -> tuple[Array, Array]:
-    """Per-bearing M_R (Eqs. 1–3) and M_S (Eqs. 5–8) from the loaded state, [N·mm] (MODEL.md §8 steps 7–9)."""
+    """Per-bearing M_R (Eqs. 1–3) and M_S (Eqs. 5–8) from the loaded state, [N·mm] (docs/model.md §8 steps 7–9)."""
     E_star = reduced_modulus(p.steel_youngs_modulus_mpa, p.steel_poisson_ratio, p.steel_youngs_modulus_mpa,
                              p.steel_poisson_ratio)
     ci = hertz_contact(ax.Q, r.D_w2, r.d_m, ax.alpha, p.inner_groove_curvature, E_star, outer=False)
@@ -102,7 +102,7 @@ def _check_temperatures(t: Array) -> None:
 
 def friction_torque(p: AxisParams, t_c: ArrayLike, speed_rpm: ArrayLike | None = None, *,
                     direct: bool = False) -> FrictionResult:
-    """Friction torque of the axis and its components at temperatures ``t_c``, Eqs. (1)–(22), MODEL.md §8.
+    """Friction torque of the axis and its components at temperatures ``t_c``, Eqs. (1)–(22), docs/model.md §8.
 
     Parameters
     ----------

@@ -1,7 +1,7 @@
 """Model parameters of one gimbal axis, with units, paper symbols, defaults and validation.
 
 Every physical parameter of the model is a field of :class:`AxisParams`. The defaults reproduce Yu & Shang (2017)
-with the values the paper leaves out chosen as in ``shared/design/MODEL.md`` §7. Each field carries metadata
+with the values the paper leaves out chosen as in ``docs/model.md`` §7. Each field carries metadata
 (unit, paper symbol, description, allowed range) that the ROS nodes turn into parameter descriptors and the
 README into its parameter table.
 
@@ -59,7 +59,7 @@ class AxisParams:
     """All parameters of the friction model of one gimbal axis (two identical bearings by default).
 
     Units are in the field names where not obvious (``_mm``, ``_mpa``, ``_per_c``, ``_cst``). Values are those at
-    the reference (assembly) temperature. See MODEL.md §1 and §7 for where every default comes from.
+    the reference (assembly) temperature. See docs/model.md §1 and §7 for where every default comes from.
     """
 
     # Bearing geometry, Table 1 [paper]
@@ -168,7 +168,7 @@ class AxisParams:
                                            'asymmetry (must exceed the cold one); a = direction_asymmetry_warm at '
                                            'and above it', Bound(MODEL_T_MIN_C, MODEL_T_MAX_C, True), group='direction')
 
-    # ------------------------------------------------------------------ derived quantities (MODEL.md §1.1)
+    # ------------------------------------------------------------------ derived quantities (docs/model.md §1.1)
     @property
     def pitch_diameter_mm(self) -> float:
         """Pitch diameter d_m = (d_I + d_O)/2 [mm]."""

@@ -82,7 +82,7 @@ class FrictionTable:
             raise ModelDomainError('table range must be finite with t_max > t_min')
         if not (math.isfinite(step) and step > 0.0):
             raise ModelDomainError('table step must be > 0 degC')
-        # the contact torques have a kink at the loose-fit temperature (MODEL.md §3): put a grid node on it, so
+        # the contact torques have a kink at the loose-fit temperature (docs/model.md §3): put a grid node on it, so
         # linear interpolation stays exact to the grid's error there too (the grid starts up to a step lower)
         t0 = float(t_min)
         kink = loose_fit_temperature(params)

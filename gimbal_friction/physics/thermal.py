@@ -67,7 +67,7 @@ def press_fit_Lame_Eq14(D_m1: ArrayLike, d_O1: ArrayLike, D_I1: ArrayLike, D_L1:
 
     Examples
     --------
-    In the same-material limit with a thin ring this reduces to Shigley's press fit (see tests). MODEL.md §3
+    In the same-material limit with a thin ring this reduces to Shigley's press fit (see tests). docs/model.md §3
     sanity value, Δ = 0 at −40 °C:
 
     >>> p, D2, dO2, DL2 = press_fit_Lame_Eq14(25.98175, 23.87233, 25.96615, 79.89584, 208000, 0.3, 70000, 0.33)
@@ -88,7 +88,7 @@ def press_fit_Lame_Eq14(D_m1: ArrayLike, d_O1: ArrayLike, D_I1: ArrayLike, D_L1:
 
 
 def free_contact_angle_Harris(P_d: ArrayLike, A: ArrayLike) -> tuple[Array, Array, Array]:
-    """Free (unloaded) contact angle from the radial clearance (Harris), MODEL.md §3.
+    """Free (unloaded) contact angle from the radial clearance (Harris), docs/model.md §3.
 
     ``c0 = cos α° = 1 − P_d/(2A)``; ``α° = arccos c0`` for P_d > 0, else 0 (Fig. 5 "drops to zero");
     axial clearance ``p_e = 2 A sin α°``.
@@ -132,7 +132,7 @@ class RadialState(NamedTuple):
 
 
 def radial_coupling(p: AxisParams, t_c: ArrayLike) -> RadialState:
-    """Radial coupling thermal deformation at temperatures ``t_c`` [°C], Eqs. (11)–(14), MODEL.md §8 steps 1–3."""
+    """Radial coupling thermal deformation at temperatures ``t_c`` [°C], Eqs. (11)–(14), docs/model.md §8 steps 1–3."""
     t = np.asarray(t_c, dtype=float)
     dT = t - p.reference_temperature_c
     phi_S, phi_A = p.steel_cte_per_c, p.aluminium_cte_per_c
@@ -253,7 +253,7 @@ def contact_angle_Harris_Eq19(F_a: float, Z: int, D_w: float, K: float, cos_alph
 
 
 class AxialState(NamedTuple):
-    """Loaded state of one bearing at each temperature (MODEL.md §8 steps 4–6)."""
+    """Loaded state of one bearing at each temperature (docs/model.md §8 steps 4–6)."""
 
     X: Array        #: axial squeeze [mm]
     alpha: Array    #: loaded contact angle [rad]
@@ -292,7 +292,7 @@ def _squeeze(p: AxisParams, r: RadialState) -> Array:
 
 
 def axial_coupling(p: AxisParams, r: RadialState) -> AxialState:
-    """Preload and loaded contact angle at every temperature of ``r`` (vectorised), MODEL.md §8 steps 4–6.
+    """Preload and loaded contact angle at every temperature of ``r`` (vectorised), docs/model.md §8 steps 4–6.
 
     Solves ``2 δ_P(α) + C1 F_a(α) = X`` (Eqs. 16–18) for α in (α°, 80°) by vectorised bisection at fixed K_n,
     then recomputes K_n from Hertz at the new α and repeats until K_n changes by less than 1e-13 (relative).

@@ -1,7 +1,7 @@
 """Lubricant kinematic viscosity versus temperature: Walther (Eq. 20) and improved Walther (Eq. 21).
 
 Only kinematic viscosity ν [mm²/s = cSt] appears here; nothing in this model uses dynamic viscosity η [Pa·s].
-Temperatures are absolute, ``T = t + 273`` [K] as the paper's fits use (MODEL.md §5), and ``log`` is log10.
+Temperatures are absolute, ``T = t + 273`` [K] as the paper's fits use (docs/model.md §5), and ``log`` is log10.
 
 Worked example, Table 2 of Yu & Shang (2017), Krytox 143AA at 38 °C (experimental 35 cSt):
 

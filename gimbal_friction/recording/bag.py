@@ -1,6 +1,6 @@
 """Chamber-test bags: open and check, read the three input streams into arrays, describe them; write small bags.
 
-A chamber-test bag (CONTRACT.md "Bags and logs") is a rosbag2 bag directory (MCAP or sqlite3 storage, whatever
+A chamber-test bag (docs/ros.md "Files") is a rosbag2 bag directory (MCAP or sqlite3 storage, whatever
 wrote it) or a bare ``.mcap`` / ``.db3`` file that holds at least the topics of :data:`~.topics.CHAMBER_TOPICS`.
 Reading goes through ``rosbags.rosbag2.Reader``; only the chamber topics are read and decoded (with
 :mod:`~gimbal_friction.recording.cdr`), so other topics -- service events, ``/rosout``, images, types no type store

@@ -1,6 +1,6 @@
 """Recovery of bags and residual logs that are cut short or damaged: every readable record, in a readable file.
 
-``gimbal-friction recover IN --out OUT`` (CONTRACT.md): IN is a bag folder, a bag file (``.mcap`` or ``.db3``) or a
+``gimbal-friction recover IN --out OUT`` (docs/cli.md): IN is a bag folder, a bag file (``.mcap`` or ``.db3``) or a
 residual-log folder or file; OUT is created, of the same kind, readable by the standard readers (rosbags
 ``AnyReader``, ``mcap`` ``make_reader``, and for a folder a rosbag2 ``metadata.yaml``). Nothing is overwritten: OUT
 must not exist, and it appears only when complete (written under a temporary name, then renamed).

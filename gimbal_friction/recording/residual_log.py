@@ -1,6 +1,6 @@
 """The residual log writer: a folder of MCAP files written with mcap's public writer API, readable after a crash.
 
-CONTRACT.md "Bags and logs": ROS 2 profile, ``ros2msg`` schemas, CDR messages, standard message types only,
+docs/ros.md "Files": ROS 2 profile, ``ros2msg`` schemas, CDR messages, standard message types only,
 rotated by size or duration; closed cleanly, the folder also has a rosbag2 ``metadata.yaml`` (version 9) so
 ``ros2 bag info`` and ``rosbags.highlevel.AnyReader`` open it. Chunks are small and flushed on a timer, so a
 process killed with SIGKILL leaves files whose completed chunks are read back by :mod:`.residual_read`, and

@@ -1,6 +1,6 @@
 """Reading residual logs back: the residual rows (in bulk, or streamed in bounded memory) and any decoded message.
 
-A residual log (CONTRACT.md "Bags and logs") is a folder of MCAP files ``<prefix>_<n>.mcap`` written by
+A residual log (docs/ros.md "Files") is a folder of MCAP files ``<prefix>_<n>.mcap`` written by
 :class:`~.residual_log.ResidualLogWriter` (``residual_logger`` live, ``gimbal-friction replay`` offline); a single
 ``.mcap`` file is accepted too. Files are read in write order with the tolerant scanner of :mod:`.mcap_scan`: a file
 cut short (killed writer, full disk) gives its complete chunks, a damaged chunk is skipped and counted and the

@@ -1,4 +1,4 @@
-"""Topic names and message types of the contract (CONTRACT.md), shared by nodes, bags and logs."""
+"""Topic names and message types of the contract (docs/ros.md), shared by nodes, bags and logs."""
 
 from __future__ import annotations
 
@@ -39,7 +39,7 @@ CHAMBER_TOPICS = {
 RESIDUAL_FIELDS = _RESIDUAL_FIELDS
 MEASUREMENT_FIELDS = _MEASUREMENT_FIELDS
 
-#: the MCAP profile, schema encoding and message encoding of every file the suite writes (CONTRACT.md)
+#: the MCAP profile, schema encoding and message encoding of every file the suite writes (docs/ros.md)
 MCAP_PROFILE = 'ros2'
 SCHEMA_ENCODING = 'ros2msg'
 MESSAGE_ENCODING = 'cdr'

@@ -17,7 +17,7 @@ evaluated once per fine bin (0.1 °C × direction × 2 % of speed) at its mean t
 sample, so its cost does not grow with the number of samples (10⁷ samples: about 2·10³ bins). The same code with
 one sample per cell (``exact=True``) is the per-sample refit; both agree to the bin curvature (tests).
 
-What the data can determine (MODEL.md §2, Eq. 9): M_L depends on viscosity only where ``ν·n ≥ 2000`` (the upper
+What the data can determine (docs/model.md §2, Eq. 9): M_L depends on viscosity only where ``ν·n ≥ 2000`` (the upper
 Palmgren branch; at the paper's 1/3 rpm only below about −27 °C). A Walther constant is therefore identifiable
 only from samples in that regime, under the base *and* the fitted parameters, and each such distinct temperature
 bin carries one degree of freedom of the viscosity–temperature curve: with one cold plateau only ``walther_a``

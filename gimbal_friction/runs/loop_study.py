@@ -12,7 +12,7 @@ Inputs, layered like every tool (``--config`` files over the packaged defaults, 
 Outputs in ``--out DIR``:
 
 - ``loop_study.json``: the document :func:`study_document` (also ``--format json`` on stdout): ``records`` (one
-  per case × temperature × profile, CONTRACT.md fields), ``goals`` (issue 9), ``refit``, ``notes``, ``settings``,
+  per case × temperature × profile, docs/cli.md fields), ``goals`` (issue 9), ``refit``, ``notes``, ``settings``,
   ``wall_s`` and, with ``--live``, ``live``;
 - ``loop_study.txt``: the table of :func:`table_text`;
 - ``figures/error_vs_temperature_<profile>.png`` (LOS rate and position error RMS per case vs temperature) and
@@ -56,7 +56,7 @@ __all__ = ['RECORD_FIELDS', 'STUDY_FILE', 'TABLE_FILE', 'StudyInputs', 'figures'
 
 STUDY_FILE = 'loop_study.json'
 TABLE_FILE = 'loop_study.txt'
-#: Fields of every record (CONTRACT.md ``loop-study --format json`` plus the current margin and the mode).
+#: Fields of every record (docs/cli.md ``loop-study`` JSON plus the current margin and the mode).
 RECORD_FIELDS = ('case', 'temperature_c', 'profile', 'rate_error_rms_rad_s', 'rate_error_peak_rad_s',
                  'position_error_rms_rad', 'position_error_peak_rad', 'reversal_error_peak_rad', 'current_margin',
                  'duration_s', 'mode')

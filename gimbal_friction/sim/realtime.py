@@ -9,7 +9,7 @@ steps; everything else is here, so it is tested without ROS and the offline stud
 the seeker controller does with the ``/gimbal/friction/feedforward`` effort of its joint: it adds it to its
 output), advances the loop and returns what the node publishes (:class:`TickOutput`). Stamps are the run's
 epoch plus the simulated time, so the suite's nodes see the controller's sample times. A feedforward message
-carries the stamp of the joint state that produced it (CONTRACT.md), so :meth:`RealtimeRun.on_feedforward` knows
+carries the stamp of the joint state that produced it (docs/ros.md), so :meth:`RealtimeRun.on_feedforward` knows
 its tick and measures
 
 - the **transport latency**: wall time it arrived − wall time that joint state was published [s];

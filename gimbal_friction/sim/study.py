@@ -25,7 +25,7 @@ functions the nodes and ``gimbal-friction refit`` run:
 
 Records (one per case × temperature × profile) carry at least ``case``, ``temperature_c``, ``profile``,
 ``rate_error_rms_rad_s``, ``rate_error_peak_rad_s``, ``position_error_rms_rad``, ``position_error_peak_rad``,
-``reversal_error_peak_rad``, ``current_margin`` (CONTRACT.md ``loop-study --format json``), plus ``duration_s``.
+``reversal_error_peak_rad``, ``current_margin`` (docs/cli.md ``loop-study``), plus ``duration_s``.
 :func:`goal_checks` evaluates the goals of issue 9 on them.
 """
 

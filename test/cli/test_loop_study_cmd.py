@@ -1,4 +1,4 @@
-"""``gimbal-friction loop-study`` through main(): JSON per CONTRACT.md, outputs, layering, one-line refusals."""
+"""``gimbal-friction loop-study`` through main(): JSON per docs/cli.md, outputs, layering, one-line refusals."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Hertz contact (MODEL.md §4 values), the spin closed form (Eq. 6) and Palmgren (Eq. 9)."""
+"""Hertz contact (docs/model.md §4 values), the spin closed form (Eq. 6) and Palmgren (Eq. 9)."""
 
 from __future__ import annotations
 
@@ -25,7 +25,7 @@ def test_reduced_modulus():
 
 
 def test_table1_derived_geometry():
-    """MODEL.md §1.1: d_m = 21.5, B = 0.10, P_d = 0.0162 mm, alpha0 = 14.988 deg (15 deg as Table 1)."""
+    """docs/model.md §1.1: d_m = 21.5, B = 0.10, P_d = 0.0162 mm, alpha0 = 14.988 deg (15 deg as Table 1)."""
     p = AxisParams()
     assert p.pitch_diameter_mm == pytest.approx(21.5, abs=1e-9)
     assert p.pitch_diameter_mm == pytest.approx((p.outside_diameter_mm + p.bore_diameter_mm) / 2, abs=1e-9)
@@ -40,7 +40,7 @@ def test_table1_derived_geometry():
 @pytest.mark.parametrize(('outer', 'f', 'a_um', 'b_um', 'kappa'), [(False, 0.56, 97.2, 21.0, 4.63),
                                                                      (True, 0.54, 111.5, 21.9, 5.10)])
 def test_hertz_table1_ball_15deg_5N(outer, f, a_um, b_um, kappa):
-    """MODEL.md §4 worked values, to the printed digits."""
+    """docs/model.md §4 worked values, to the printed digits."""
     c = hertz_contact(5.0, 2.381, 21.5, A15, f, E_STAR, outer=outer)
     assert float(c.a) * 1e3 == pytest.approx(a_um, abs=0.06)
     assert float(c.b) * 1e3 == pytest.approx(b_um, abs=0.06)

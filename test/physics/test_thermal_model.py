@@ -1,4 +1,4 @@
-"""Thermal coupling (Eqs. 11-19) and the whole model against MODEL.md and the paper's headline numbers."""
+"""Thermal coupling (Eqs. 11-19) and the whole model against docs/model.md and the paper's headline numbers."""
 
 from __future__ import annotations
 
@@ -41,7 +41,7 @@ def test_lame_loose_fit_gives_zero_pressure():
 
 
 def test_radial_sanity_values_delta0_minus40():
-    """MODEL.md §3 sanity values (Delta = 0, -40 degC)."""
+    """docs/model.md §3 sanity values (Delta = 0, -40 degC)."""
     p = P0.replace(interference_mm=0.0)
     assert pytest.approx(0.0156) == 26.0 * (21.7e-6 - 11.7e-6) * 60
     r = radial_coupling(p, -40.0)
@@ -61,7 +61,7 @@ def test_loose_fit_temperatures(delta, t_loose):
     r = radial_coupling(p, np.array([t_loose - 0.2, t_loose + 0.2]))
     assert r.loose.tolist() == [False, True]
     assert float(r.fit_pressure[0]) > 0.0 and float(r.fit_pressure[1]) == 0.0
-    # the literal -2 Delta reading moves the loose fit out of the plotted range (MODEL.md §3 note)
+    # the literal -2 Delta reading moves the loose fit out of the plotted range (docs/model.md §3 note)
     assert loose_fit_temperature(p.replace(interference_factor=2)) > t_loose + 15
 
 
@@ -105,7 +105,7 @@ def test_vectorised_solver_equals_direct_solve():
 
 
 def test_model_md_operating_points():
-    """MODEL.md §7 table (Delta = 0.006 mm, P = 0.03 mm)."""
+    """docs/model.md §7 table (Delta = 0.006 mm, P = 0.03 mm)."""
     r = friction_torque(P0, [-40.0, 20.0, 60.0])
     np.testing.assert_allclose(r.contact_angle_deg, [8.90, 14.44, 16.40], atol=0.006)
     np.testing.assert_allclose(r.axial_force_n, [38.5, 30.3, 34.2], atol=0.06)

@@ -44,7 +44,7 @@ def test_t_plus_273_15_would_not_reproduce_table2():
 
 
 def test_model_md_viscosity_row():
-    """MODEL.md §5 viscosities from the Eq. (21) fit, to 0.1 %."""
+    """docs/model.md §5 viscosities from the Eq. (21) fit, to 0.1 %."""
     t = np.array([-40.0, -30.0, -20.0, 0.0, 20.0, 60.0])
     expected = np.array([44702.0, 8916.0, 2407.0, 338.0, 85.8, 15.1])
     nu = nu_Walther(t + 273.0, *KRYTOX_143AA_WALTHER_IMPROVED)
