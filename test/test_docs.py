@@ -196,10 +196,10 @@ def test_ros_page_documents_every_parameter() -> None:
     """Every model parameter and every setting of the three nodes has a row in docs/ros.md with its default."""
     import dataclasses
 
-    from gimbal_friction.core.estimator import EstimatorSettings
-    from gimbal_friction.core.feedforward import FeedforwardSettings
-    from gimbal_friction.core.params import parameter_specs
-    from gimbal_friction.core.settings import EstimatorNodeSettings, FeedforwardNodeSettings, LoggerSettings
+    from gimbal_friction.estimation.estimator import EstimatorSettings
+    from gimbal_friction.feedforward.rule import FeedforwardSettings
+    from gimbal_friction.physics.params import parameter_specs
+    from gimbal_friction.common.settings import EstimatorNodeSettings, FeedforwardNodeSettings, LoggerSettings
 
     rows = {}
     for line in (ROOT / 'docs' / 'ros.md').read_text(encoding='utf-8').splitlines():
@@ -229,7 +229,7 @@ def test_cli_page_shows_each_subcommands_help(monkeypatch: pytest.MonkeyPatch,
                                               capsys: pytest.CaptureFixture[str]) -> None:
     """docs/cli.md shows each subcommand's ``--help`` verbatim (as printed 116 columns wide). After changing an option,
     paste the output of ``COLUMNS=116 gimbal-friction SUB --help`` into its section."""
-    from gimbal_friction.tools.cli import main
+    from gimbal_friction.cli.main import main
 
     text = (ROOT / 'docs' / 'cli.md').read_text(encoding='utf-8')
     blocks = {m.group(1): m.group(0) for m in
