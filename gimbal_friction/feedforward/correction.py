@@ -59,7 +59,7 @@ from gimbal_friction.core.settings import setting, settings_from
 from gimbal_friction.core.xp import ARRAY, SCALAR
 
 __all__ = ['DIRECTIONS', 'FORMAT', 'REASONS', 'VERSION', 'Correction', 'CorrectionError', 'CorrectionSettings',
-           'Learner', 'LearningSettings', 'ModelIdentity', 'model_identity']
+           'Learner', 'LearningSettings', 'ModelIdentity', 'cell_of', 'gate_code', 'model_identity']
 
 FORMAT = 'gimbal_friction/correction'
 VERSION = 1
@@ -116,7 +116,7 @@ class CorrectionSettings:
             ('prior_samples', 0.0 < self.prior_samples <= 1e9, 'must lie in (0, 1e9] [-]'),
             ('max_relative', 0.0 <= self.max_relative <= 10.0, 'must lie in [0, 10] [-]'),
             ('floor_nm', 0.0 <= self.floor_nm <= 1.0, 'must lie in [0, 1] [N*m]'),
-            ('min_speed_rad_s', 0.0 <= self.min_speed_rad_s <= 10.0, 'must lie in [0, 10] [rad/s]'),
+            ('min_speed_rad_s', 0.0 < self.min_speed_rad_s <= 10.0, 'must lie in (0, 10] [rad/s]'),
             ('position_bins', p == 0 or 4 <= p <= 4096, 'must be 0 (no map) or in [4, 4096] [-]'),
             ('position_period_rad', 0.0 < self.position_period_rad <= 2.0 * math.pi + 1e-12,
              'must lie in (0, 2 pi] [rad]'),
@@ -215,19 +215,8 @@ class _Lookup:
 
 
 class Correction:
-    """A learned correction of the configured joints (see the module notes).
-
-    Parameters
-    ----------
-    settings : CorrectionSettings
-        Layout, shrinkage, bound and gate (validated here).
-    identity : ModelIdentity
-        The model the residuals are taken against (:func:`model_identity`).
-
-    Raises
-    ------
-    ConfigError
-        Invalid settings or no joint.
+    """A learned correction of the joints of ``identity`` (the model the residuals are taken against,
+    :func:`model_identity`) laid out by ``settings`` (see the module notes). ConfigError: invalid settings, no joint.
     """
 
     def __init__(self, settings: CorrectionSettings, identity: ModelIdentity) -> None:
@@ -275,12 +264,16 @@ class Correction:
         else:
             i, w = 0, 0.0  # (NaN too)
         npos = lut.npos
-        y = -1.0 if npos == 1 else (position_rad * lut.scale) % npos - 0.5
-        if y != y or npos == 1:  # no map, or a NaN position: the cells' means
-            vals = lut.dc_cw if velocity_rad_s >= 0.0 else lut.dc_ccw
+        if npos == 1:  # no position map
+            vals = lut.cw if velocity_rad_s >= 0.0 else lut.ccw
             a = vals[i]
             c = a + w * (vals[i + 1] - a)
         else:
+            y = (position_rad * lut.scale) % npos - 0.5
+            if y != y:  # a NaN position: the cells' means
+                vals = lut.dc_cw if velocity_rad_s >= 0.0 else lut.dc_ccw
+                a = vals[i]
+                return self._bounded(a + w * (vals[i + 1] - a), lut, model_nm)
             vals = lut.cw if velocity_rad_s >= 0.0 else lut.ccw
             if y < 0.0:
                 y += npos
@@ -293,6 +286,13 @@ class Correction:
             r0 += npos
             b = vals[r0 + j]
             c = a + w * (b + u * (vals[r0 + j1] - b) - a)
+        bound = lut.rel * abs(model_nm) + lut.floor
+        if -bound <= c <= bound:
+            return c
+        return self._bounded(c, lut, model_nm)
+
+    def _bounded(self, c: float, lut: _Lookup, model_nm: float) -> float:
+        """``c`` [N·m] within the bound of ``model_nm`` [N·m]; a clipped value is counted."""
         bound = lut.rel * abs(model_nm) + lut.floor
         if -bound <= c <= bound:
             return c
@@ -557,7 +557,7 @@ class Learner:
             self.accepted += 1
         else:
             self.rejected[reason] = self.rejected.get(reason, 0) + 1
-        if self._last_step_s is None or not now_s - self._last_step_s < self.settings.step_period_s:
+        if self._last_step_s is None or not 0.0 <= now_s - self._last_step_s < self.settings.step_period_s:
             self.step(now_s)
         return reason
 

@@ -232,6 +232,11 @@ def test_the_applied_correction_changes_at_most_max_rate_per_minute():
     learner.update('elevation', -40.0, SPEED, 0.0, 1e-4, 3e-3, now_s=3630.0)
     after = learner.correction.along_nm('elevation', -40.0, SPEED, 0.0, 3e-3)
     assert 0.0 < after - before <= rate / 60.0 + 1e-15
+    # time running backwards (a restarted clock) moves nothing, and the rate limit starts again from there
+    learner.update('elevation', -40.0, SPEED, 0.0, 1e-4, 3e-3, now_s=5.0)
+    assert learner.correction.along_nm('elevation', -40.0, SPEED, 0.0, 3e-3) == after
+    learner.update('elevation', -40.0, SPEED, 0.0, 1e-4, 3e-3, now_s=6.0)
+    assert 0.0 < learner.correction.along_nm('elevation', -40.0, SPEED, 0.0, 3e-3) - after <= rate / 60.0 + 1e-15
     # given time, it reaches the learned value
     for k in range(200):
         learner.step(3631.0 + k)
