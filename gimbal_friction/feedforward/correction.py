@@ -23,6 +23,14 @@ with the caller's model torque and counts the lookups it clipped (:attr:`Correct
 Lookup interpolates linearly in temperature between bin centres (clamped at the ends) and in position between
 position-bin centres (periodic): pure float math on lists precomputed whenever the values change.
 
+File (:meth:`Correction.save`, :meth:`Correction.load`): YAML, ``format: gimbal_friction/correction``, ``version: 1``,
+the units, ``model`` (joints and the SHA-256 of their parameters, :func:`model_identity`: a file learned against
+other parameters is refused), ``settings``, ``temperature_edges_c`` and, per joint, one record per cell with data:
+``direction``, ``bin``, ``centre_c``, ``value_nm`` (applied), ``samples``, ``sum_nm``, ``mean_nm``, ``std_error_nm``,
+``saturated`` (and the sums the learning resumes from); with a position map also the applied ``values_nm`` at the
+position-bin centres, ``position_samples``, ``position_sums_nm`` and the map's harmonics ``harmonics_cos_nm`` /
+``harmonics_sin_nm`` [N·m] (map(θ) ≈ value_nm + Σ_k a_k cos(2πkθ/period) + b_k sin(2πkθ/period); for reading).
+
 Learning: :meth:`Correction.add_residuals` (arrays: the chamber test, ``refit``) and :meth:`Learner.update` (one
 sample: in service) share the gate and the cell rule (written once against ``xp``), and the value rule.
 The learner publishes rate-limited values (at most ``max_rate_nm_per_min`` per node per minute).
@@ -436,8 +444,11 @@ class Correction:
     def save(self, path: str | os.PathLike[str]) -> None:
         """Write the YAML file atomically (a temporary file renamed over ``path``). Raises CorrectionError."""
         import yaml
-        dumper = getattr(yaml, 'CSafeDumper', yaml.SafeDumper)
-        text = yaml.dump(self.to_mapping(), Dumper=dumper, sort_keys=False, default_flow_style=None, width=120)
+        # one field per line (diffable), lists of numbers on one line each
+        dumper: Any = type('Dumper', (getattr(yaml, 'CSafeDumper', yaml.SafeDumper),), {})
+        dumper.add_representer(list, lambda d, x: d.represent_sequence(
+            'tag:yaml.org,2002:seq', x, flow_style=not any(isinstance(v, dict) for v in x)))
+        text = yaml.dump(self.to_mapping(), Dumper=dumper, sort_keys=False, width=1 << 16)
         out = Path(path)
         try:
             fd, tmp = tempfile.mkstemp(prefix=f'.{out.name}.', suffix='.tmp', dir=out.parent)
