@@ -614,6 +614,11 @@ class Learner:
             return 'frozen'
         return 'saturated' if self.correction.summary()['saturated_cells'] else 'active'
 
+    def cells(self, joint: str) -> list[dict[str, Any]]:
+        """:meth:`Correction.cells` with each cell's ``state`` (``frozen``, ``saturated`` or ``active``)."""
+        return [{**rec, 'state': 'frozen' if self.frozen else 'saturated' if rec['saturated'] else 'active'}
+                for rec in self.correction.cells(joint)]
+
     def summary(self) -> dict[str, Any]:
         """:meth:`Correction.summary` with the state and the accepted/refused sample counts (status, diagnostics)."""
         return {'state': self.state, 'accepted': self.accepted, 'rejected': dict(self.rejected),

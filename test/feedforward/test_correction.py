@@ -94,12 +94,14 @@ def test_lookup_interpolates_between_bin_centres_and_clamps_at_the_ends():
 
 
 # ------------------------------------------------------------------------------------------------ learning
-CENTRES = np.arange(-40.0, 60.5, 5.0)    # the default bin centres, where the chamber test's plateaus sit [degC]
+#: the default bin centres, where the chamber test's plateaus sit [degC]. There a learned value is off by the
+#: shrinkage (n0 = 50 of about 2400 samples per cell: 2 %) and the curvature of the residual over the bin: 3 % is stated.
+CENTRES = np.arange(-40.0, 60.5, 5.0)
 BETWEEN = np.linspace(-40.0, 60.0, 201)
 
 
 def test_a_lubricant_shift_is_learned():
-    """Truth: walther_a + 0.015 (the simulator's default lubricant shift), at the chamber speed. Learned within 1 % of
+    """Truth: walther_a + 0.015 (the simulator's default lubricant shift), at the chamber speed. Learned within 3 % of
     the largest residual at the bin centres (but -25 degC, whose bin holds the jump of Palmgren's Eq. 9 at its branch
     switch, -26 degC), and within 10 % anywhere between them (linear interpolation over 5 degC of a residual that
     grows exponentially in the cold and jumps at the switch; measured 5.9 %)."""
@@ -108,7 +110,7 @@ def test_a_lubricant_shift_is_learned():
     c = learn(truth)
     err, scale = learned_error(c, truth, CENTRES[CENTRES != -25.0])
     assert scale > 5e-4                    # the shift matters: > 0.5 N*mm at -40 degC
-    assert err <= 0.01 * scale, (err, scale)
+    assert err <= 0.03 * scale, (err, scale)
     err, _ = learned_error(c, truth, BETWEEN)
     assert err <= 0.1 * scale, (err, scale)
     assert learned_error(Correction(CorrectionSettings(), IDENT), truth, CENTRES)[0] > 0.99 * scale  # (not by chance)
@@ -116,15 +118,29 @@ def test_a_lubricant_shift_is_learned():
 
 def test_a_sensor_offset_of_3_degc_is_learned():
     """Truth: the bearing is 3 degC warmer than its sensor (residual M(T + 3) - M(T) at the sensor's T). Learned
-    within 1 % of the largest residual at the bin centres (but -30 degC, whose bin holds the branch switch, now at a
+    within 3 % of the largest residual at the bin centres (but -30 degC, whose bin holds the branch switch, now at a
     sensor temperature of -29 degC), and within 10 % anywhere between them (measured 9.0 %, at the switch)."""
     truth = lambda t, v, p: (np.abs(model_nm(TABLE, np.asarray(t) + 3.0, v)) - np.abs(model_nm(TABLE, t, v)))
     c = learn(truth)
     err, scale = learned_error(c, truth, CENTRES[CENTRES != -30.0])
     assert scale > 1e-4
-    assert err <= 0.01 * scale, (err, scale)
+    assert err <= 0.03 * scale, (err, scale)
     err, _ = learned_error(c, truth, BETWEEN)
     assert err <= 0.1 * scale, (err, scale)
+
+
+def test_the_cold_cw_ccw_asymmetry_is_learned_per_direction():
+    """Truth: the paper's asymmetry (CW x (1 + a), CCW x (1 - a), a = 0.131 at -40 degC to -0.121 at +60 degC), which
+    the configured model leaves out. Learned within 3 % of the largest residual at the bin centres, 5 % between."""
+    paper = FrictionTable(BASE.replace(direction_asymmetry_cold=0.131, direction_asymmetry_warm=-0.121))
+    truth = lambda t, v, p: np.abs(model_nm(paper, t, v)) - np.abs(model_nm(TABLE, t, v))
+    c = learn(truth)
+    err, scale = learned_error(c, truth, CENTRES)
+    assert scale > 3e-4
+    assert err <= 0.03 * scale, (err, scale)
+    assert learned_error(c, truth, BETWEEN)[0] <= 0.05 * scale
+    m = abs(float(model_nm(TABLE, -40.0, SPEED)))
+    assert c.along_nm('elevation', -40.0, SPEED, 0.0, m) > 0.1 * m > 0.0 > c.along_nm('elevation', -40.0, -SPEED, 0.0, m)
 
 
 def test_a_position_ripple_is_learned_and_looked_up_at_the_position():
@@ -166,7 +182,7 @@ def test_the_bound_clips_a_cell_and_the_lookup_and_says_so():
     assert c.lookup_saturations == 1
     assert c.summary()['saturated_cells'] == 1 and c.cells('elevation')[0]['saturated'] is True
     learner = Learner(c, LearningSettings())
-    assert learner.state == 'saturated'
+    assert learner.state == 'saturated' and [r['state'] for r in learner.cells('elevation')] == ['saturated']
 
 
 def test_the_gates_refuse_the_same_samples_online_and_in_batch():
@@ -252,12 +268,13 @@ def test_freeze_stops_learning_and_keeps_the_applied_correction():
     samples = learner.correction.summary()['samples']
     learner.freeze()
     assert learner.state == 'frozen' and applied > 0.0
+    assert [r['state'] for r in learner.cells('elevation')] == ['frozen']
     assert learner.update('elevation', -40.0, SPEED, 0.0, 5e-4, 3e-3, now_s=10.0) == 'frozen'
     assert learner.step(20.0) is False
     assert learner.correction.along_nm('elevation', -40.0, SPEED, 0.0, 3e-3) == applied
     assert learner.correction.summary()['samples'] == samples
     learner.freeze(False)
-    assert learner.state == 'active'
+    assert learner.state == 'active' and [r['state'] for r in learner.cells('elevation')] == ['active']
     assert learner.update('elevation', -40.0, SPEED, 0.0, 5e-4, 3e-3, now_s=30.0) is None
     assert learner.step(31.0) is True
     assert learner.correction.along_nm('elevation', -40.0, SPEED, 0.0, 3e-3) > applied
