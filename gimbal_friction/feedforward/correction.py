@@ -23,13 +23,8 @@ with the caller's model torque and counts the lookups it clipped (:attr:`Correct
 Lookup interpolates linearly in temperature between bin centres (clamped at the ends) and in position between
 position-bin centres (periodic): pure float math on lists precomputed whenever the values change.
 
-File (:meth:`Correction.save`, :meth:`Correction.load`): YAML, ``format: gimbal_friction/correction``, ``version: 1``,
-the units, ``model`` (joints and the SHA-256 of their parameters, :func:`model_identity`: a file learned against
-other parameters is refused), ``settings``, ``temperature_edges_c`` and, per joint, one record per cell with data:
-``direction``, ``bin``, ``centre_c``, ``value_nm`` (applied), ``samples``, ``sum_nm``, ``mean_nm``, ``std_error_nm``,
-``saturated`` (and the sums the learning resumes from); with a position map also the applied ``values_nm`` at the
-position-bin centres, ``position_samples``, ``position_sums_nm`` and the map's harmonics ``harmonics_cos_nm`` /
-``harmonics_sin_nm`` [N·m] (map(θ) ≈ value_nm + Σ_k a_k cos(2πkθ/period) + b_k sin(2πkθ/period); for reading).
+File: :mod:`gimbal_friction.feedforward.correction_file` (YAML with units, the model's identity, per-cell values and
+sample counts; :meth:`Correction.save` is atomic, :meth:`Correction.load` refuses a bad file with one line).
 
 Learning: :meth:`Correction.add_residuals` (arrays: the chamber test, ``refit``) and :meth:`Learner.update` (one
 sample: in service) share the gate and the cell rule (written once against ``xp``), and the value rule.
@@ -53,25 +48,20 @@ import hashlib
 import json
 import math
 import os
-import tempfile
 from collections.abc import Mapping
-from dataclasses import asdict, dataclass, fields
-from pathlib import Path
+from dataclasses import dataclass
 from typing import Any, NamedTuple
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from gimbal_friction.core.errors import ConfigError, GimbalFrictionError, check_rules
-from gimbal_friction.core.settings import setting, settings_from
+from gimbal_friction.core.settings import setting
 from gimbal_friction.core.xp import ARRAY, SCALAR
 
-__all__ = ['DIRECTIONS', 'FORMAT', 'REASONS', 'VERSION', 'Correction', 'CorrectionError', 'CorrectionSettings',
+__all__ = ['DIRECTIONS', 'REASONS', 'Correction', 'CorrectionError', 'CorrectionSettings',
            'Learner', 'LearningSettings', 'ModelIdentity', 'cell_of', 'gate_code', 'model_identity']
 
-FORMAT = 'gimbal_friction/correction'
-VERSION = 1
-UNITS = {'torque_unit': 'N*m', 'temperature_unit': 'degC', 'position_unit': 'rad'}
 DIRECTIONS = ('cw', 'ccw')
 #: reason of a refused sample, by gate code (0 = accepted)
 REASONS = ('', 'non-finite', 'stale temperature', 'near reversal', 'temperature outside the bins')
@@ -435,105 +425,21 @@ class Correction:
                                   f'the model is {expected.params_sha256[:12]}: relearn it or delete the file')
 
     def to_mapping(self) -> dict[str, Any]:
-        """The file's content (plain Python values)."""
-        return {'format': FORMAT, 'version': VERSION, **UNITS,
-                'model': {'joints': list(self.identity.joints), 'params_sha256': self.identity.params_sha256},
-                'settings': asdict(self.settings), 'temperature_edges_c': self.settings.edges_c(),
-                'joints': {j: self.cells(j) for j in self.identity.joints}}
+        """The file's content (plain Python values; :mod:`~gimbal_friction.feedforward.correction_file`)."""
+        from gimbal_friction.feedforward.correction_file import to_mapping
+        return to_mapping(self)
 
     def save(self, path: str | os.PathLike[str]) -> None:
-        """Write the YAML file atomically (a temporary file renamed over ``path``). Raises CorrectionError."""
-        import yaml
-        # one field per line (diffable), lists of numbers on one line each
-        dumper: Any = type('Dumper', (getattr(yaml, 'CSafeDumper', yaml.SafeDumper),), {})
-        dumper.add_representer(list, lambda d, x: d.represent_sequence(
-            'tag:yaml.org,2002:seq', x, flow_style=not any(isinstance(v, dict) for v in x)))
-        text = yaml.dump(self.to_mapping(), Dumper=dumper, sort_keys=False, width=1 << 16)
-        out = Path(path)
-        try:
-            fd, tmp = tempfile.mkstemp(prefix=f'.{out.name}.', suffix='.tmp', dir=out.parent)
-            try:
-                with os.fdopen(fd, 'w', encoding='utf-8') as f:
-                    f.write(text)
-                    f.flush()
-                    os.fsync(f.fileno())
-                os.replace(tmp, out)
-            except BaseException:
-                Path(tmp).unlink(missing_ok=True)
-                raise
-        except OSError as err:
-            raise CorrectionError(f'cannot write correction file {out}: {err.strerror or err}') from None
+        """Write the YAML file atomically (:func:`~gimbal_friction.feedforward.correction_file.save`)."""
+        from gimbal_friction.feedforward.correction_file import save
+        save(self, path)
 
     @classmethod
     def load(cls, path: str | os.PathLike[str], expected: ModelIdentity | None = None) -> Correction:
-        """Read a file written by :meth:`save`; with ``expected``, refuse one learned against another model.
-
-        Raises CorrectionError (one line: the file, the cause, the fix) for a missing, corrupt, unknown-version
-        or mismatched file."""
-        import yaml
-        name = f'correction file {path}'
-        try:
-            with open(path, encoding='utf-8') as f:
-                doc = yaml.load(f, Loader=getattr(yaml, 'CSafeLoader', yaml.SafeLoader))
-        except OSError as err:
-            raise CorrectionError(f'{name}: cannot read it ({err.strerror or err})') from None
-        except yaml.YAMLError as err:
-            raise CorrectionError(f'{name}: not valid YAML ({" ".join(str(err).split())}); delete it') from None
-        try:
-            c = cls._from_mapping(doc)
-        except (KeyError, TypeError, ValueError, IndexError, AttributeError, ConfigError) as err:
-            reason = err.args[0] if isinstance(err, (CorrectionError, ConfigError)) else \
-                f'{type(err).__name__} {" ".join(str(err).split())}'
-            raise CorrectionError(f'{name}: {reason}') from None
-        if expected is not None:
-            c.check_identity(expected, name)
-        return c
-
-    @classmethod
-    def _from_mapping(cls, doc: Any) -> Correction:
-        if not isinstance(doc, dict) or doc.get('format') != FORMAT:
-            raise CorrectionError(f'not a correction file (format is not {FORMAT}); delete it or name another')
-        if doc.get('version') != VERSION:
-            raise CorrectionError(f'version {doc.get("version")!r} is not supported (this version reads {VERSION}); '
-                                  'relearn it')
-        for key, unit in UNITS.items():
-            if doc.get(key) != unit:
-                raise CorrectionError(f'{key} must be {unit}, not {doc.get(key)!r}')
-        names = {f.name for f in fields(CorrectionSettings)}
-        if set(doc['settings']) != names:
-            raise CorrectionError(f'settings must name exactly {", ".join(sorted(names))}')
-        s = settings_from(CorrectionSettings, doc['settings'])
-        if doc['temperature_edges_c'] != s.edges_c():
-            raise CorrectionError('temperature_edges_c do not match the settings; delete it')
-        model = doc['model']
-        c = cls(s, ModelIdentity(tuple(str(j) for j in model['joints']), str(model['params_sha256'])))
-        if set(doc['joints']) != set(c.identity.joints):
-            raise CorrectionError('joints do not match model.joints')
-        nt, npos = s.n_temperature, s.n_position
-        for j, cells in doc['joints'].items():
-            for rec in cells or ():
-                b = int(rec['bin'])
-                if not (0 <= b < nt) or rec['direction'] not in DIRECTIONS:
-                    raise CorrectionError(f'joint {j}: a cell has bin {b} or direction {rec["direction"]!r}, '
-                                          'out of range')
-                cell = DIRECTIONS.index(rec['direction']) * nt + b
-                nodes = slice(cell * npos, (cell + 1) * npos)
-                if s.position_bins:
-                    counts, sums, vals = rec['position_samples'], rec['position_sums_nm'], rec['values_nm']
-                    if not len(counts) == len(sums) == len(vals) == npos or sum(counts) != rec['samples']:
-                        raise CorrectionError(f'joint {j}: a cell\'s position lists do not match position_bins/samples')
-                else:
-                    counts, sums, vals = [rec['samples']], [rec['sum_nm']], [rec['value_nm']]
-                c.count[j][nodes] = [int(k) for k in counts]
-                c.sum_nm[j][nodes] = [float(x) for x in sums]
-                c.values_nm[j][nodes] = [float(x) for x in vals]
-                c.sum_sq_nm2[j][cell] = float(rec['sum_sq_nm2'])
-                c.sum_model_nm[j][cell] = float(rec['sum_abs_model_nm'])
-            numbers = (c.count[j], c.sum_nm[j], c.values_nm[j], c.sum_sq_nm2[j], c.sum_model_nm[j])
-            if not all(np.all(np.isfinite(a)) for a in numbers) or np.any(c.count[j] < 0):
-                raise CorrectionError(f'joint {j}: non-finite values or negative sample counts; delete it')
-        c._rebuild()
-        return c
+        """Read a file written by :meth:`save`; with ``expected``, refuse one learned against another model
+        (:func:`~gimbal_friction.feedforward.correction_file.load`). Raises CorrectionError (one line)."""
+        from gimbal_friction.feedforward.correction_file import load
+        return load(path, expected)
 
 
 class Learner:

@@ -1,4 +1,5 @@
-"""The learned correction (gimbal_friction.feedforward.correction): lookup, learning, bounds, learner, file."""
+"""The learned correction (gimbal_friction.feedforward.correction and its file, .correction_file): lookup, learning,
+bounds, the learner, the file."""
 
 from __future__ import annotations
 
@@ -17,6 +18,7 @@ from gimbal_friction.core.params import AxisParams
 from gimbal_friction.core.table import FrictionTable
 from gimbal_friction.core.xp import ARRAY
 from gimbal_friction.feedforward import correction as corr
+from gimbal_friction.feedforward import correction_file
 from gimbal_friction.feedforward.correction import (
     Correction,
     CorrectionError,
@@ -329,7 +331,7 @@ def test_a_failed_save_leaves_the_old_file_whole(tmp_path, monkeypatch):
     def broken(src, dst):
         raise OSError(28, 'No space left on device')
 
-    monkeypatch.setattr(corr.os, 'replace', broken)
+    monkeypatch.setattr(correction_file.os, 'replace', broken)
     with pytest.raises(CorrectionError, match='cannot write correction file') as err:
         learn(lambda t, v, p: np.full(np.shape(t), 1e-4), n=1000).save(path)
     assert '\n' not in str(err.value)
@@ -412,7 +414,7 @@ def test_module_doctests():
 
 
 def test_importing_the_module_loads_no_yaml_rclpy_or_io_layer():
-    code = ('import sys, gimbal_friction.feedforward.correction\n'
+    code = ('import sys, gimbal_friction.feedforward.correction, gimbal_friction.feedforward.correction_file\n'
             'bad = [m for m in sys.modules if m.split(".")[0] in ("yaml", "rclpy", "mcap", "rosbags") '
             'or m.startswith(("gimbal_friction.nodes", "gimbal_friction.tools", "gimbal_friction.recording"))]\n'
             'assert not bad, bad\nprint("pure")')
