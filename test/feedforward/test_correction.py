@@ -95,6 +95,27 @@ def test_lookup_interpolates_between_bin_centres_and_clamps_at_the_ends():
     assert c.along_nm('elevation', -38.0, -0.1, 0.0, 1.0) == 0.0                      # ccw is empty
 
 
+@pytest.mark.parametrize('bins', [0, 16])
+def test_the_array_lookup_gives_the_scalar_lookups_numbers(bins):
+    s = CorrectionSettings(position_bins=bins, position_period_rad=RIPPLE_PERIOD, harmonics=3, max_relative=0.2)
+    rng = np.random.default_rng(7)
+    c = Correction(s, IDENT)
+    assert np.array_equal(c.along_nm_array('elevation', [0.0, 1.0], [1.0, -1.0], 0.0, 1e-3), [0.0, 0.0])
+    c.values_nm['elevation'][:] = rng.normal(0.0, 1e-4, c.values_nm['elevation'].size)
+    c._rebuild()
+    n = 4000
+    t = np.concatenate([rng.uniform(-80.0, 140.0, n - 4), [-60.0, 120.0, math.nan, 20.0]])
+    v = np.concatenate([rng.normal(0.0, 0.05, n - 4), [0.0, -0.0, 0.1, -0.1]])
+    p = np.concatenate([rng.uniform(-1.0, 1.0, n - 4), [0.0, math.nan, 0.5, -RIPPLE_PERIOD]])
+    m = rng.uniform(0.0, 1e-3, n)
+    scalar = [c.along_nm('elevation', *row) for row in zip(t.tolist(), v.tolist(), p.tolist(), m.tolist())]
+    clipped = c.lookup_saturations
+    assert 0 < clipped < n        # the bound is exercised
+    array = c.along_nm_array('elevation', t, v, p, m)
+    np.testing.assert_allclose(array, scalar, rtol=0.0, atol=1e-15)
+    assert c.lookup_saturations == 2 * clipped
+
+
 # ------------------------------------------------------------------------------------------------ learning
 #: the default bin centres, where the chamber test's plateaus sit [degC]. There a learned value is off by the
 #: shrinkage (n0 = 50 of about 2400 samples per cell: 2 %) and the residual's curvature over the bin: 3 % is stated.
