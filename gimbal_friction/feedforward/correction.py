@@ -325,7 +325,7 @@ class Correction:
         bound = lut.rel * np.abs(m) + lut.floor
         clipped = ~((-bound <= c) & (c <= bound))
         self.lookup_saturations += int(np.count_nonzero(clipped))
-        return np.where(clipped, np.where(c > 0.0, bound, -bound), c)
+        return np.asarray(np.where(clipped, np.where(c > 0.0, bound, -bound), c), dtype=np.float64)
 
     def _bounded(self, c: float, lut: _Lookup, model_nm: float) -> float:
         """``c`` [N·m] within the bound of ``model_nm`` [N·m]; a clipped value is counted."""
