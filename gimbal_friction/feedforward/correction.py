@@ -21,7 +21,8 @@ period (like ODrive's anticogging map; looked up at the *reference* position). A
 ``max_relative`` × its mean ``|model|`` + ``floor_nm`` (``saturated`` otherwise); the lookup applies the same bound
 with the caller's model torque and counts the lookups it clipped (:attr:`Correction.lookup_saturations`).
 Lookup interpolates linearly in temperature between bin centres (clamped at the ends) and in position between
-position-bin centres (periodic): pure float math on lists precomputed whenever the values change. A map per cell
+position-bin centres (periodic): pure float math on lists precomputed whenever the values change
+(:meth:`Correction.along_nm`; on arrays :meth:`Correction.along_nm_array`, the same numbers). A map per cell
 follows a ripple that grows in the cold; each position bin has the prior n0 too, so a map needs about
 ``position_bins`` times the data of its cell's mean. There is no speed axis: a residual that depends on speed (the
 viscous part of a lubricant shift) is learned as its mean over the speeds seen (refit the lubricant for that).
