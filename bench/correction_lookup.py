@@ -1,0 +1,95 @@
+"""Per-call cost of the learned correction's scalar lookup (``Correction.along_nm``) in the caller's process.
+
+What a feedforward pays per joint and tick on top of the model: the correction at a temperature, direction and
+reference position, bounded by the model torque — without a position map and with one (64 bins) — against two
+baselines measured in the same run: an empty Python call with the same arguments (the call overhead) and one scalar
+``numpy.interp`` on a 1801-point table. Aim: ≤ 0.3 µs per lookup without a map.
+
+A benchmark, not a test: the machine is shared, so only the ratios measured in one run compare. Median of
+``--repeat`` rounds of ``--calls`` calls each.
+
+Run from the repository root: ``.venv/bin/python bench/correction_lookup.py [--calls 200000] [--repeat 5] [--json]``
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import statistics
+import sys
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from gimbal_friction.feedforward.correction import Correction, CorrectionSettings, model_identity  # noqa: E402
+
+
+def per_call_us(fn: Callable[[int], object], calls: int) -> float:
+    """Wall time per call [µs] of ``fn(i)`` for i in range(calls)."""
+    t0 = time.perf_counter()
+    for i in range(calls):
+        fn(i)
+    return (time.perf_counter() - t0) / calls * 1e6
+
+
+def learned(settings: CorrectionSettings) -> Correction:
+    """A correction with a value in every cell (so no lookup takes the empty shortcut)."""
+    c = Correction(settings, model_identity({'elevation': {}}))
+    for values in c.values_nm.values():
+        values[:] = 1e-5 * np.sin(np.arange(values.size))
+    c._rebuild()
+    return c
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument('--calls', type=int, default=200_000)
+    ap.add_argument('--repeat', type=int, default=5)
+    ap.add_argument('--json', action='store_true')
+    args = ap.parse_args(argv)
+
+    flat = learned(CorrectionSettings())
+    ripple = learned(CorrectionSettings(position_bins=64, position_period_rad=math.radians(3.4)))
+    grid = np.linspace(-60.0, 120.0, 1801)
+    values = np.sin(grid / 30.0)
+    temps = (-40.0 + 0.7 * (np.arange(1000) % 100)).tolist()
+    vels = (0.035 * np.sin(np.arange(1000) / 7.0)).tolist()
+    pos = (0.2 * np.sin(np.arange(1000) / 11.0)).tolist()
+
+    def empty(joint: str, t: float, v: float, p: float, m: float) -> float:
+        return 0.0
+
+    workloads: dict[str, Callable[[int], object]] = {
+        'empty call (baseline)': lambda i: empty('elevation', temps[i % 1000], vels[i % 1000], pos[i % 1000], 3e-3),
+        'numpy.interp scalar (baseline)': lambda i: np.interp(temps[i % 1000], grid, values),
+        'along_nm, no position map': lambda i: flat.along_nm('elevation', temps[i % 1000], vels[i % 1000],
+                                                             pos[i % 1000], 3e-3),
+        'along_nm, 64-bin position map': lambda i: ripple.along_nm('elevation', temps[i % 1000], vels[i % 1000],
+                                                                   pos[i % 1000], 3e-3),
+    }
+    results: dict[str, list[float]] = {k: [] for k in workloads}
+    for r in range(args.repeat):
+        items = list(workloads.items())
+        for name, fn in (items if r % 2 == 0 else items[::-1]):
+            results[name].append(per_call_us(fn, args.calls))
+    med = {k: statistics.median(v) for k, v in results.items()}
+    call = med['empty call (baseline)']
+    doc = {'per_call_us': med, 'net_of_call_overhead_us': {k: v - call for k, v in med.items()},
+           'ratio_to_numpy_interp': {k: v / med['numpy.interp scalar (baseline)'] for k, v in med.items()}}
+    if args.json:
+        print(json.dumps(doc, indent=2))
+    else:
+        for k, v in med.items():
+            print(f'{k:34s} {v:7.3f} us/call  (net of the call: {v - call:6.3f} us; '
+                  f'{doc["ratio_to_numpy_interp"][k]:5.2f}x numpy.interp)')
+    return 0
+
+
+if __name__ == '__main__':
+    raise SystemExit(main())
