@@ -24,7 +24,7 @@ Sliding (Coulomb) level of the truth at bearing temperature t, relative velocity
 The LuGre model (:mod:`gimbal_friction.sim.lugre`) makes it dynamic: Stribeck level
 ``g(v) = F_C + (F_S − F_C) e^{−(v/v_s)²}`` with ``F_S = breakaway_ratio · F_C`` (the breakaway torque relative to
 the sliding level at the same low speed, i.e. to M(t, 0) of the lower Palmgren branch), plus the motor's
-no-load torque ``T_0 = K_T I_0`` as a Coulomb term (the torque motor ``τ = K_T (i − sgn(ω) I_0)`` of the issue,
+no-load torque ``T_0 = K_T I_0`` as a Coulomb term (the torque motor ``τ = K_T (i − sgn(ω) I_0)``,
 with the sign smoothed by the bristle dynamics). At constant velocity the torque settles at
 :meth:`TruthFriction.static_torque_nm`.
 """

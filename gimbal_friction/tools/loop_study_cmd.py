@@ -37,7 +37,7 @@ def add_parser(sub: Any) -> None:
                         help='profiles: tracking (1/3 rpm with reversals), scan (sine), pointing (fixed target under '
                         'base motion); comma-separated (default all)')
     parser.add_argument('--cases', default='none,constant,feedforward,refit,ideal', metavar='LIST',
-                        help=f'cases, comma-separated, from {", ".join(CASE_CHOICES)} (default the five of issue 9)')
+                        help=f'cases, comma-separated, from {", ".join(CASE_CHOICES)} (default none,constant,feedforward,refit,ideal)')
     parser.add_argument('--short', action='store_true', help='short profiles (one reversal each; for CI)')
     parser.add_argument('--latency-s', type=float, metavar='S',
                         help='transport latency of the feedforward [s] (default feedforward_latency_s, 0.001)')
