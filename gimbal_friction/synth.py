@@ -35,7 +35,7 @@ The test the paper ran, and what is generated here:
   the preset takes the Palmgren floor.
 - Ripple is a sum of sines in position (amplitude as a fraction of the friction torque, spatial period in
   degrees), amplified in the cold by ``1 + ripple_cold_gain · w(T)`` ("its fluctuation was much more severe at
-  −40 °C").
+  −40 °C"): the simulator truth's :func:`~gimbal_friction.sim.truth.position_ripple` (one implementation).
 
 Everything is seeded (``numpy.random.default_rng(seed)``): the same configuration gives identical arrays.
 
@@ -61,6 +61,7 @@ from gimbal_friction.core.params import AxisParams
 from gimbal_friction.core.table import FrictionTable
 from gimbal_friction.core.units import NM_PER_NMM, NS_PER_S, rad_s_from_rpm, rpm_from_rad_s
 from gimbal_friction.recording import topics
+from gimbal_friction.sim.truth import cold_weight, position_ripple
 
 Array = NDArray[np.float64]
 
@@ -299,9 +300,9 @@ class SynthConfig:
         return float(kt), float(i0)
 
     def cold_weight(self, t_c: Any) -> Array:
-        """w(T) = clip((asym_t_ref_c − T)/(asym_t_ref_c − asym_t_cold_c), 0, 1) [-]."""
-        t = np.asarray(t_c, dtype=float)
-        return np.clip((self.asym_t_ref_c - t) / (self.asym_t_ref_c - self.asym_t_cold_c), 0.0, 1.0)
+        """w(T) = clip((asym_t_ref_c − T)/(asym_t_ref_c − asym_t_cold_c), 0, 1) [-] (the truth's
+        :func:`~gimbal_friction.sim.truth.cold_weight`)."""
+        return cold_weight(t_c, self.asym_t_cold_c, self.asym_t_ref_c)
 
     def ccw_ratio(self, t_c: Any) -> Array:
         """Configured |CCW|/|CW| friction ratio at bearing temperature ``t_c`` [°C] (cold asymmetry only)."""
@@ -533,7 +534,6 @@ def generate(cfg: SynthConfig | None = None, *, quantise: bool = True) -> SynthD
     chamber_c, bearing_c = chamber_and_bearing(cfg, tc)
     w = cfg.cold_weight(bearing_c)
     asym_neg = 1.0 - (1.0 - cfg.asym_ratio_cold) * w
-    rip_gain = 1.0 + cfg.ripple_cold_gain * w
     pos_c = np.empty((tc.size, nj))
     vel_c = np.empty((tc.size, nj))
     acc_c = np.empty((tc.size, nj))
@@ -553,13 +553,11 @@ def generate(cfg: SynthConfig | None = None, *, quantise: bool = True) -> SynthD
         pos_c[:, j], vel_c[:, j], acc_c[:, j] = pos, vel, acc
         m_nm = NM_PER_NMM * table.evaluate(bearing_c, rpm_from_rad_s(np.abs(vel)))[2]
         model[:, j] = m_nm
-        pos_deg = np.degrees(pos)
-        ripple = np.zeros_like(pos)
-        for amp, per, ph in zip(cfg.ripple_amplitude, cfg.ripple_period_deg, cfg.ripple_phase_rad, strict=False):
-            ripple += amp * np.sin(2.0 * math.pi * pos_deg / per + ph)
+        ripple = position_ripple(pos, bearing_c, cfg.ripple_amplitude, cfg.ripple_period_deg, cfg.ripple_phase_rad,
+                                 cfg.ripple_cold_gain, cfg.asym_t_cold_c, cfg.asym_t_ref_c)
         sgn = np.sign(vel)
         direction = direction_factor(p, bearing_c, sgn, ARRAY) * np.where(sgn > 0.0, 1.0, asym_neg)
-        friction[:, j] = sgn * m_nm * direction * (1.0 + ripple * rip_gain)
+        friction[:, j] = sgn * m_nm * direction * (1.0 + ripple)
         noise = rng.normal(0.0, cfg.current_noise_a, tc.size) if cfg.current_noise_a else 0.0
         current[:, j] = (friction[:, j] + cfg.inertia_kg_m2 * acc) / kt + sgn * i0 + noise
 

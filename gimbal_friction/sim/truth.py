@@ -36,6 +36,7 @@ with the sign smoothed by the bristle dynamics). At constant velocity the torque
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from typing import NamedTuple
 
 import numpy as np
@@ -52,7 +53,7 @@ from gimbal_friction.sim.lugre import lugre_g_1995, stribeck_curve_LuGre_1995
 Array = NDArray[np.float64]
 
 __all__ = ['PAPER_AXIS', 'MeanFactors', 'TemperatureTerms', 'TruthFriction', 'TruthTerms', 'cold_weight',
-           'mean_factors', 'ripple', 'truth_asymmetry', 'truth_params']
+           'mean_factors', 'position_ripple', 'ripple', 'truth_asymmetry', 'truth_params']
 
 #: Temperatures where the ripple's cold amplification is full (−40 °C) and zero (+20 °C and above) [°C].
 RIPPLE_COLD_C = -40.0
@@ -127,24 +128,36 @@ def mean_factors(config: SimConfig) -> MeanFactors:
     return MeanFactors(temps, mean / m_nmm)
 
 
-def cold_weight(t_c: ArrayLike) -> Array:
-    """Cold weight of the ripple: 1 at −40 °C and below, 0 at +20 °C and above, linear between [-]."""
+def cold_weight(t_c: ArrayLike, cold_c: float = RIPPLE_COLD_C, warm_c: float = RIPPLE_WARM_C) -> Array:
+    """Cold weight w(t): 1 at ``cold_c`` and below, 0 at ``warm_c`` and above, linear between [-] (temperatures
+    [°C]; default −40 and +20 °C, the ripple's)."""
     t = np.asarray(t_c, dtype=float)
-    return np.asarray(np.clip((RIPPLE_WARM_C - t) / (RIPPLE_WARM_C - RIPPLE_COLD_C), 0.0, 1.0))
+    return np.asarray(np.clip((warm_c - t) / (warm_c - cold_c), 0.0, 1.0))
+
+
+def position_ripple(theta_rad: ArrayLike, t_c: ArrayLike, amplitudes: Sequence[float], periods_deg: Sequence[float],
+                    phases_rad: Sequence[float], cold_gain: float, cold_c: float = RIPPLE_COLD_C,
+                    warm_c: float = RIPPLE_WARM_C) -> Array:
+    """Position ripple r(θ, t) = (1 + cold_gain · w(t)) Σ a_k sin(2π θ / p_k + φ_k), a fraction of the friction
+    [-], at joint angles ``theta_rad`` [rad] and bearing temperatures ``t_c`` [°C]: amplitudes a_k [-], spatial
+    periods p_k [deg], phases φ_k [rad], w the :func:`cold_weight` between ``cold_c`` and ``warm_c`` [°C]. The one
+    ripple of the suite's truths (the simulator's and the synthetic chamber test's)."""
+    theta_deg = np.degrees(np.asarray(theta_rad, dtype=float))
+    out = np.zeros(np.broadcast_shapes(theta_deg.shape, np.shape(t_c)))
+    for a, p, phi in zip(amplitudes, periods_deg, phases_rad, strict=True):
+        out = out + a * np.sin(2.0 * math.pi * theta_deg / p + phi)
+    return np.asarray(out * (1.0 + cold_gain * cold_weight(t_c, cold_c, warm_c)))
 
 
 def ripple(config: SimConfig, theta_rad: ArrayLike, t_c: ArrayLike) -> Array:
-    """Position ripple r(θ, t) = (1 + gain · w(t)) Σ a_k sin(2π θ / p_k + φ_k), a fraction of the friction [-].
+    """The simulator's position ripple (:func:`position_ripple` with ``config``'s ``ripple_*``) [-].
 
     >>> c = SimConfig(ripple_amplitudes=(0.1,), ripple_periods_deg=(4.0,), ripple_phases_rad=(0.0,))
     >>> [round(float(x), 6) for x in ripple(c, np.radians([1.0, 1.0]), [20.0, -40.0])]
     [0.1, 0.2]
     """
-    theta_deg = np.degrees(np.asarray(theta_rad, dtype=float))
-    out = np.zeros(np.broadcast_shapes(theta_deg.shape, np.shape(t_c)))
-    for a, p, phi in zip(config.ripple_amplitudes, config.ripple_periods_deg, config.ripple_phases_rad, strict=True):
-        out = out + a * np.sin(2.0 * math.pi * theta_deg / p + phi)
-    return np.asarray(out * (1.0 + config.ripple_cold_gain * cold_weight(t_c)))
+    return position_ripple(theta_rad, t_c, config.ripple_amplitudes, config.ripple_periods_deg,
+                           config.ripple_phases_rad, config.ripple_cold_gain)
 
 
 class TruthTerms(NamedTuple):
