@@ -12,8 +12,8 @@ Inputs, layered like every tool (``--config`` files over the packaged defaults, 
 Outputs in ``--out DIR``:
 
 - ``loop_study.json``: the document :func:`study_document` (also ``--format json`` on stdout): ``records`` (one
-  per case × temperature × profile, CONTRACT.md fields), ``goals`` (the study's goals), ``refit``, ``notes``, ``settings``,
-  ``wall_s`` and, with ``--live``, ``live``;
+  per case × temperature × profile, CONTRACT.md fields), ``goals`` (the study's goals), ``refit``, ``notes``,
+  ``settings``, ``wall_s`` and, with ``--live``, ``live``;
 - ``loop_study.txt``: the table of :func:`table_text`;
 - ``figures/error_vs_temperature_<profile>.png`` (LOS rate and position error RMS per case vs temperature) and
   ``figures/reversal_trace.png`` (the coldest plateau around the first reversal);
@@ -216,7 +216,8 @@ def table_text(doc: dict[str, Any]) -> str:
         out.append('')
     missed = [g for g in doc['goals'] if not g['met']]
     met = len(doc['goals']) - len(missed)
-    out.append(f'study goals (feedforward vs none, vs constant, refit vs ideal, reversals): {met} of {len(doc["goals"])} met')
+    out.append('study goals (feedforward vs none, vs constant, refit vs ideal, reversals): '
+               f'{met} of {len(doc["goals"])} met')
     for g in missed:
         out.append(f'  missed {g["goal"]} ({g["profile"]}, {g["temperature_c"]:+g} degC): {g["value"]:.3f} '
                    f'(target {g["target"]:g})')

@@ -568,7 +568,8 @@ def generate(cfg: SynthConfig | None = None, *, quantise: bool = True) -> SynthD
         else bearing_t
 
     if quantise:
-        pos_meas, vel_meas = quantised(pos_meas, POSITION_RESOLUTION_RAD), quantised(vel_meas, VELOCITY_RESOLUTION_RAD_S)
+        pos_meas = quantised(pos_meas, POSITION_RESOLUTION_RAD)
+        vel_meas = quantised(vel_meas, VELOCITY_RESOLUTION_RAD_S)
         current, temp_meas = quantised(current, CURRENT_RESOLUTION_A), quantised(temp_meas, TEMPERATURE_RESOLUTION_C)
     js, cs, ts = _stamps(cfg, tj), _stamps(cfg, tc), _stamps(cfg, tt)
     return SynthData(

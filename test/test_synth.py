@@ -373,8 +373,13 @@ def test_shipped_sample_is_small_complete_and_reproducible(tmp_path, capsys):
     # lies within 1e-6 of a step of a rounding boundary, i.e. within 1e-12 A / 1e-10 degC / 1e-15 rad(/s) -- a
     # thousand times more than any cross-machine difference (a few ulp: < 1e-16 A, 1e-14 degC, 1e-16 rad) -- so
     # every machine rounds to the same grid point and the exact checks below hold everywhere.
-    from gimbal_friction.synth import (CURRENT_RESOLUTION_A, POSITION_RESOLUTION_RAD, TEMPERATURE_RESOLUTION_C,
-                                       VELOCITY_RESOLUTION_RAD_S, half_step_margin)
+    from gimbal_friction.synth import (
+        CURRENT_RESOLUTION_A,
+        POSITION_RESOLUTION_RAD,
+        TEMPERATURE_RESOLUTION_C,
+        VELOCITY_RESOLUTION_RAD_S,
+        half_step_margin,
+    )
     from gimbal_friction.tools.cli import build_parser
     from gimbal_friction.tools.synth_bag_cmd import build_config
 

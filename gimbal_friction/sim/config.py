@@ -424,9 +424,10 @@ class SimConfig:
 #: the truth friction (group ``truth``: lubricant, Palmgren factor, motor, LuGre breakaway/Stribeck, ripple, CW/CCW
 #: asymmetry), the plant's inertia ratio and disturbance, the bearing's thermal lag and the temperature sensor's
 #: offset and lag. A ``loop-study --truth`` file holds only these.
-TRUTH_PARAMETERS: tuple[str, ...] = tuple(f.name for f in dataclasses.fields(SimConfig) if f.metadata['group'] == 'truth') \
-    + ('inertia_truth_ratio', 'disturbance_torque_nm', 'thermal_time_constant_s', 'temperature_bias_c',
-       'temperature_sensor_time_constant_s')
+TRUTH_PARAMETERS: tuple[str, ...] = (
+    *(f.name for f in dataclasses.fields(SimConfig) if f.metadata['group'] == 'truth'),
+    'inertia_truth_ratio', 'disturbance_torque_nm', 'thermal_time_constant_s', 'temperature_bias_c',
+    'temperature_sensor_time_constant_s')
 
 
 def with_truth(base: SimConfig, values: Mapping[str, Any]) -> SimConfig:

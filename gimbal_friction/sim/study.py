@@ -439,7 +439,8 @@ def _lookup(records: Sequence[dict[str, Any]]) -> dict[tuple[str, str, float], d
 
 
 def goal_checks(records: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
-    """The study's goals (feedforward vs none, vs constant, refit vs ideal, reversals) evaluated on study records, per profile (those the records allow).
+    """The study's goals (feedforward vs none, vs constant, refit vs ideal, reversals) evaluated on study records,
+    per profile (those the records allow).
 
     - ``c_vs_a_cold``: (c) cuts the LOS rate error RMS by ≥ 60 % vs (a) at −40 and −20 °C;
     - ``c_vs_a_all``: by ≥ 30 % at every plateau;

@@ -17,12 +17,12 @@ Sliding (Coulomb) level of the truth at bearing temperature t, relative velocity
   two anchors (0.131 at −40 °C, −0.121 at +60 °C, Sec. 6), linear between them and held beyond (the core's form,
   so a refit of ``direction_asymmetry_cold``/``_warm`` can find it).
 - ``m`` is the truth's *mean factor* (:func:`mean_factors`): the mean of the two measured directions over the
-  paper's model (:data:`PAPER_AXIS`, the datasheet lubricant) at the paper's speed (1/3 rpm) at the anchors (0.897 at −40 °C, 1.103 at
-  +60 °C), linear between them and held beyond. It is what the core's direction form cannot hold: the measured
-  mean is not the model's. With the datasheet lubricant (the default ``truth_walther_a``/``_b``,
-  ``truth_palmgren_factor``) and no lubricant shift the truth's means at 1/3 rpm are therefore exactly the paper's
-  four measured means; with the default shift (+0.015, the synthetic chamber bag's truth) the cold end is more
-  viscous (CW ≈ 3.97 N·mm at −40 °C, like the sample bag's measured 3.83).
+  paper's model (:data:`PAPER_AXIS`, the datasheet lubricant) at the paper's speed (1/3 rpm) at the anchors
+  (0.897 at −40 °C, 1.103 at +60 °C), linear between them and held beyond. It is what the core's direction form
+  cannot hold: the measured mean is not the model's. With the datasheet lubricant (the default
+  ``truth_walther_a``/``_b``, ``truth_palmgren_factor``) and no lubricant shift the truth's means at 1/3 rpm are
+  therefore exactly the paper's four measured means; with the default shift (+0.015, the synthetic chamber bag's
+  truth) the cold end is more viscous (CW ≈ 3.97 N·mm at −40 °C, like the sample bag's measured 3.83).
 - ``r`` is the position ripple of :func:`ripple`: a sum of sines in the joint angle, amplified in the cold.
 
 The LuGre model (:mod:`gimbal_friction.sim.lugre`) makes it dynamic: Stribeck level

@@ -23,8 +23,8 @@ def add_parser(sub: Any) -> None:
     parser = sub.add_parser(
         'loop-study', help='closed-loop study: the simulated axis over temperature plateaus and profiles with each '
         'compensation case; table, JSON, figures',
-        description='Simulate the seeker\'s stabilization loop of one gimbal axis (truth friction, the simulator\'s own '
-        'whatever the configuration under test says: the paper\'s bearing with a lubricant that differs from the '
+        description='Simulate the seeker\'s stabilization loop of one gimbal axis (truth friction, the simulator\'s '
+        'own whatever the configuration under test says: the paper\'s bearing with a lubricant that differs from the '
         'datasheet, LuGre breakaway and pre-sliding, position ripple, the measured CW/CCW asymmetry) over '
         'temperature plateaus and profiles, with each compensation case: none, constant (temperature-blind Coulomb '
         'tuned at +20 degC), feedforward (the suite\'s, as configured), refit (the feedforward after a refit from '
@@ -38,7 +38,8 @@ def add_parser(sub: Any) -> None:
                         help='profiles: tracking (1/3 rpm with reversals), scan (sine), pointing (fixed target under '
                         'base motion); comma-separated (default all)')
     parser.add_argument('--cases', default='none,constant,feedforward,refit,ideal', metavar='LIST',
-                        help=f'cases, comma-separated, from {", ".join(CASE_CHOICES)} (default none,constant,feedforward,refit,ideal)')
+                        help=f'cases, comma-separated, from {", ".join(CASE_CHOICES)} '
+                        '(default none,constant,feedforward,refit,ideal)')
     parser.add_argument('--truth', type=Path, metavar='PATH',
                         help='YAML file of the simulated truth\'s parameters (flat or in a gimbal_sim section; the '
                         'truth group of config/gimbal_sim.yaml plus temperature_bias_c, '

@@ -145,7 +145,7 @@ def test_the_reference_velocity_wiring_orders_the_cases_in_the_cold():
     assert rms['feedforward'] < 0.4 * rms['none']
 
 
-# ---------------------------------------------------------------------------------------------- the truth is the simulator's own
+# ------------------------------------------------------------------------------- the truth is the simulator's own
 #: the truth's lubricant (datasheet walther_a 8.6195 + the default lubricant_walther_a_shift 0.015)
 TRUTH_WALTHER_A = 8.6345
 
