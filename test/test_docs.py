@@ -196,10 +196,10 @@ def test_ros_page_documents_every_parameter() -> None:
     """Every model parameter and every setting of the three nodes has a row in docs/ros.md with its default."""
     import dataclasses
 
+    from gimbal_friction.common.settings import EstimatorNodeSettings, FeedforwardNodeSettings, LoggerSettings
     from gimbal_friction.estimation.estimator import EstimatorSettings
     from gimbal_friction.feedforward.rule import FeedforwardSettings
     from gimbal_friction.physics.params import parameter_specs
-    from gimbal_friction.common.settings import EstimatorNodeSettings, FeedforwardNodeSettings, LoggerSettings
 
     rows = {}
     for line in (ROOT / 'docs' / 'ros.md').read_text(encoding='utf-8').splitlines():

@@ -35,7 +35,7 @@ The test the paper ran, and what is generated here:
   the preset takes the Palmgren floor.
 - Ripple is a sum of sines in position (amplitude as a fraction of the friction torque, spatial period in
   degrees), amplified in the cold by ``1 + ripple_cold_gain · w(T)`` ("its fluctuation was much more severe at
-  −40 °C").
+  −40 °C"): the simulator truth's :func:`~gimbal_friction.sim.truth.position_ripple` (one implementation).
 
 Everything is seeded (``numpy.random.default_rng(seed)``): the same configuration gives identical arrays.
 
@@ -61,6 +61,7 @@ from gimbal_friction.physics.direction import ARRAY, direction_factor
 from gimbal_friction.physics.params import AxisParams
 from gimbal_friction.physics.table import FrictionTable
 from gimbal_friction.recording import topics
+from gimbal_friction.sim.truth import cold_weight, position_ripple
 
 Array = NDArray[np.float64]
 
@@ -94,6 +95,39 @@ PRESETS: Mapping[str, Mapping[str, Any]] = {
 
 #: Default epoch of the first sample, [ns since the Unix epoch] (2017-05-01T00:00:00Z, the paper's year).
 DEFAULT_START_NS = 1_493_596_800_000_000_000
+
+#: Resolution the measured streams are written with (``generate(quantise=True)``, the default): motor current
+#: [A], temperature [°C], position [rad], velocity [rad/s]. Far below each sensor's noise (2 mA, 0.05 °C, 1e-5 rad,
+#: 1e-4 rad/s: 2000x, 500x, 10^4x, 10^5x), so no statistic moves, but far above the last bit of the values: the
+#: vectorised math (sin, exp, log, pow) may differ by an ulp between CPU instruction sets, and rounding to this grid
+#: makes the written values, and so a regenerated bag, the same bytes on every machine. The margin: a value is
+#: written differently only if it lies within its cross-machine error (a few ulp, < 1e-14 of the value's unit)
+#: of a half-step; :func:`half_step_margin` measures how close the values come (the shipped sample's test checks it
+#: exceeds 1e-6 of a step, i.e. 1e-12 A, 1e-10 degC, 1e-15 rad, 1e-15 rad/s).
+CURRENT_RESOLUTION_A = 1e-6
+TEMPERATURE_RESOLUTION_C = 1e-4
+POSITION_RESOLUTION_RAD = 1e-9
+VELOCITY_RESOLUTION_RAD_S = 1e-9
+
+
+def quantised(x: Any, step: float) -> Array:
+    """``x`` rounded to the nearest multiple of ``step`` (same unit as ``x``; ties to even) [unit of ``x``].
+
+    >>> quantised([0.12345678949, -2.5e-7], 1e-6).tolist()
+    [0.123457, -0.0]
+    """
+    return np.asarray(np.rint(np.asarray(x, dtype=float) / step) * step)
+
+
+def half_step_margin(x: Any, step: float) -> float:
+    """Smallest distance of ``x / step`` from a half-integer (a rounding boundary of :func:`quantised`), in steps
+    [-] (0.5 = every value on the grid; 0 = a value exactly on a boundary). ``inf`` for no values.
+
+    >>> round(half_step_margin([0.1234564, 0.1234566], 1e-6), 6)
+    0.1
+    """
+    r = np.asarray(x, dtype=float).ravel() / step
+    return float(np.min(np.abs(r - np.floor(r) - 0.5))) if r.size else math.inf
 
 
 def _tuple_f(values: Any, name: str) -> tuple[float, ...]:
@@ -266,9 +300,9 @@ class SynthConfig:
         return float(kt), float(i0)
 
     def cold_weight(self, t_c: Any) -> Array:
-        """w(T) = clip((asym_t_ref_c − T)/(asym_t_ref_c − asym_t_cold_c), 0, 1) [-]."""
-        t = np.asarray(t_c, dtype=float)
-        return np.clip((self.asym_t_ref_c - t) / (self.asym_t_ref_c - self.asym_t_cold_c), 0.0, 1.0)
+        """w(T) = clip((asym_t_ref_c − T)/(asym_t_ref_c − asym_t_cold_c), 0, 1) [-] (the truth's
+        :func:`~gimbal_friction.sim.truth.cold_weight`)."""
+        return cold_weight(t_c, self.asym_t_cold_c, self.asym_t_ref_c)
 
     def ccw_ratio(self, t_c: Any) -> Array:
         """Configured |CCW|/|CW| friction ratio at bearing temperature ``t_c`` [°C] (cold asymmetry only)."""
@@ -469,10 +503,13 @@ def _jitter(cfg: SynthConfig, rng: np.random.Generator, stamps: NDArray[np.int64
     return stamps + np.floor(rng.uniform(0.0, cfg.log_jitter_s * 1e9, stamps.size)).astype(np.int64)
 
 
-def generate(cfg: SynthConfig | None = None) -> SynthData:
+def generate(cfg: SynthConfig | None = None, *, quantise: bool = True) -> SynthData:
     """Generate the synthetic chamber test described by ``cfg`` (default :class:`SynthConfig`).
 
-    Deterministic for a given configuration (seeded ``numpy.random.default_rng(cfg.seed)``).
+    Deterministic for a given configuration (seeded ``numpy.random.default_rng(cfg.seed)``). With ``quantise``
+    (default) the measured streams are rounded to :data:`CURRENT_RESOLUTION_A`, :data:`TEMPERATURE_RESOLUTION_C`,
+    :data:`POSITION_RESOLUTION_RAD` and :data:`VELOCITY_RESOLUTION_RAD_S` (the same bytes on every machine); the
+    truth arrays are never rounded.
     """
     cfg = cfg if cfg is not None else SynthConfig()
     rng = np.random.default_rng(cfg.seed)
@@ -497,7 +534,6 @@ def generate(cfg: SynthConfig | None = None) -> SynthData:
     chamber_c, bearing_c = chamber_and_bearing(cfg, tc)
     w = cfg.cold_weight(bearing_c)
     asym_neg = 1.0 - (1.0 - cfg.asym_ratio_cold) * w
-    rip_gain = 1.0 + cfg.ripple_cold_gain * w
     pos_c = np.empty((tc.size, nj))
     vel_c = np.empty((tc.size, nj))
     acc_c = np.empty((tc.size, nj))
@@ -517,13 +553,11 @@ def generate(cfg: SynthConfig | None = None) -> SynthData:
         pos_c[:, j], vel_c[:, j], acc_c[:, j] = pos, vel, acc
         m_nm = NM_PER_NMM * table.evaluate(bearing_c, rpm_from_rad_s(np.abs(vel)))[2]
         model[:, j] = m_nm
-        pos_deg = np.degrees(pos)
-        ripple = np.zeros_like(pos)
-        for amp, per, ph in zip(cfg.ripple_amplitude, cfg.ripple_period_deg, cfg.ripple_phase_rad, strict=False):
-            ripple += amp * np.sin(2.0 * math.pi * pos_deg / per + ph)
+        ripple = position_ripple(pos, bearing_c, cfg.ripple_amplitude, cfg.ripple_period_deg, cfg.ripple_phase_rad,
+                                 cfg.ripple_cold_gain, cfg.asym_t_cold_c, cfg.asym_t_ref_c)
         sgn = np.sign(vel)
         direction = direction_factor(p, bearing_c, sgn, ARRAY) * np.where(sgn > 0.0, 1.0, asym_neg)
-        friction[:, j] = sgn * m_nm * direction * (1.0 + ripple * rip_gain)
+        friction[:, j] = sgn * m_nm * direction * (1.0 + ripple)
         noise = rng.normal(0.0, cfg.current_noise_a, tc.size) if cfg.current_noise_a else 0.0
         current[:, j] = (friction[:, j] + cfg.inertia_kg_m2 * acc) / kt + sgn * i0 + noise
 
@@ -533,6 +567,10 @@ def generate(cfg: SynthConfig | None = None) -> SynthData:
     temp_meas = bearing_t + rng.normal(0.0, cfg.temperature_noise_c, tt.size) if cfg.temperature_noise_c \
         else bearing_t
 
+    if quantise:
+        pos_meas = quantised(pos_meas, POSITION_RESOLUTION_RAD)
+        vel_meas = quantised(vel_meas, VELOCITY_RESOLUTION_RAD_S)
+        current, temp_meas = quantised(current, CURRENT_RESOLUTION_A), quantised(temp_meas, TEMPERATURE_RESOLUTION_C)
     js, cs, ts = _stamps(cfg, tj), _stamps(cfg, tc), _stamps(cfg, tt)
     return SynthData(
         config=cfg, joints=joints, plateaus=plateaus, duration_s=duration,

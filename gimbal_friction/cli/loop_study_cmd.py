@@ -24,8 +24,9 @@ def add_parser(sub: Any) -> None:
     parser = sub.add_parser(
         'loop-study', help='closed-loop study: the simulated axis over temperature plateaus and profiles with each '
         'compensation case; table, JSON, figures',
-        description='Simulate the seeker\'s stabilization loop of one gimbal axis (truth friction: the model with a '
-        'shifted lubricant, LuGre breakaway and pre-sliding, position ripple, the measured CW/CCW asymmetry) over '
+        description='Simulate the seeker\'s stabilization loop of one gimbal axis (truth friction, the simulator\'s '
+        'own whatever the configuration under test says: the paper\'s bearing with a lubricant that differs from the '
+        'datasheet, LuGre breakaway and pre-sliding, position ripple, the measured CW/CCW asymmetry) over '
         'temperature plateaus and profiles, with each compensation case: none, constant (temperature-blind Coulomb '
         'tuned at +20 degC), feedforward (the suite\'s, as configured), refit (the feedforward after a refit from '
         'the residual rows the suite\'s estimator collected in the same simulation), ideal (the truth cancelled). '
@@ -38,7 +39,13 @@ def add_parser(sub: Any) -> None:
                         help='profiles: tracking (1/3 rpm with reversals), scan (sine), pointing (fixed target under '
                         'base motion); comma-separated (default all)')
     parser.add_argument('--cases', default='none,constant,feedforward,refit,ideal', metavar='LIST',
-                        help=f'cases, comma-separated, from {", ".join(CASE_CHOICES)} (default the five of issue 9)')
+                        help=f'cases, comma-separated, from {", ".join(CASE_CHOICES)} '
+                        '(default none,constant,feedforward,refit,ideal)')
+    parser.add_argument('--truth', type=Path, metavar='PATH',
+                        help='YAML file of the simulated truth\'s parameters (flat or in a gimbal_sim section; the '
+                        'truth group of config/gimbal_sim.yaml plus temperature_bias_c, '
+                        'temperature_sensor_time_constant_s, thermal_time_constant_s, inertia_truth_ratio, '
+                        'disturbance_torque_nm), layered over the configuration; default the packaged truth')
     parser.add_argument('--short', action='store_true', help='short profiles (one reversal each; for CI)')
     parser.add_argument('--latency-s', type=float, metavar='S',
                         help='transport latency of the feedforward [s] (default feedforward_latency_s, 0.001)')
@@ -104,7 +111,8 @@ def run(args: argparse.Namespace) -> int:
     if args.out is not None and (args.out / 'residuals').exists() and any((args.out / 'residuals').iterdir()):
         raise ConfigError('--out', f'{args.out / "residuals"} already holds a log; choose another --out '
                           '(nothing is overwritten)')
-    inputs = load_study_inputs(args.config, args.axis, latency_s=args.latency_s, seed=args.seed)
+    inputs = load_study_inputs(args.config, args.axis, latency_s=args.latency_s, seed=args.seed,
+                               truth_path=args.truth)
 
     def show(stage: str, frac: float) -> None:
         progress(int(frac * 1000), 1000, f'loop-study {stage[:44]:<44}')

@@ -1,4 +1,5 @@
-"""Text forms of the exported model table (issue 12): CSV with units, a C99 header, a ROS parameter YAML.
+"""Text forms of the exported model table (for a controller or drive firmware):
+CSV with units, a C99 header, a ROS parameter YAML.
 
 The table, its grid and its error check are :mod:`gimbal_friction.export.table` (pure); this module only renders
 them, each with the provenance (parameters, parameter-file hashes, error bound) and the lookup rule.

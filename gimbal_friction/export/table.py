@@ -1,4 +1,4 @@
-"""The model as an interpolation table with a stated error bound, for a controller or drive firmware (issue 12).
+"""The model as an interpolation table with a stated error bound, for a controller or drive firmware.
 
 Pure: builds the table from :func:`~gimbal_friction.physics.model.friction_torque` (the full model) and checks it
 against the full model. :mod:`gimbal_friction.export.formats` renders it as text (CSV, a C99 header, a ROS parameter

@@ -1,8 +1,9 @@
 """``gimbal_sim``: a simulated gimbal axis in closed loop with its seeker controller, at wall-clock pace.
 
 A thin adapter around :class:`gimbal_friction.sim.realtime.RealtimeRun` (the very closed loop the offline
-``gimbal-friction loop-study`` runs): the rigid axis with the truth friction (the model with a shifted lubricant,
-LuGre breakaway and pre-sliding, position ripple, the measured CW/CCW asymmetry), the torque motor and its current
+``gimbal-friction loop-study`` runs): the rigid axis with the truth friction (the node's own parameters, never the
+configured model: the paper's bearing with a lubricant that differs from the datasheet, LuGre breakaway and
+pre-sliding, position ripple, the measured CW/CCW asymmetry), the torque motor and its current
 loop, the bearing temperature behind the environment, the sensors and the seeker's own stabilization controller
 (rate PI on the LOS gyro at ``rate_loop_hz``, outer track loop). A thread steps the loop one controller tick at a
 time when the tick is due (``realtime_factor`` simulated seconds per wall second) and publishes, stamped with the
@@ -29,10 +30,11 @@ measures the transport latency (arrival − publication of that joint state) and
 Parameters: the ``gimbal_sim`` section of ``config/gimbal_sim.yaml`` (every :class:`~gimbal_friction.sim.config.
 SimConfig` parameter and the node settings :class:`~gimbal_friction.sim.config.RealtimeSettings`: profile,
 environment temperature, duration, ``repeat`` / ``exit_when_done``, rates, ``record_path``), plus the model
-parameters of the suite (``model.*``, ``axis.<joint>.*``: K_T, I_0, J and the friction model the truth is built
-from). ``ros2 param set`` is validated as a whole; a change applies to the next run. With ``exit_when_done`` the
-process ends after one run (exit code 0; 1 if it could not start). SIGINT ends it cleanly (the run so far is
-recorded when ``record_path`` is set).
+parameters of the suite (``model.*``, ``axis.<joint>.*``: the configured K_T and J the seeker controller uses; the
+truth friction, the plant's K_T and I_0 are the ``truth`` group of the ``gimbal_sim`` section, whatever the model
+parameters say; the plant's J is the configured J times ``inertia_truth_ratio``). ``ros2 param set`` is validated
+as a whole; a change applies to the next run. With ``exit_when_done`` the process ends after one run (exit code
+0; 1 if it could not start). SIGINT ends it cleanly (the run so far is recorded when ``record_path`` is set).
 """
 
 from __future__ import annotations

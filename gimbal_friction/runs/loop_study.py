@@ -12,8 +12,8 @@ Inputs, layered like every tool (``--config`` files over the packaged defaults, 
 Outputs in ``--out DIR``:
 
 - ``loop_study.json``: the document :func:`study_document` (also ``--format json`` on stdout): ``records`` (one
-  per case × temperature × profile, docs/cli.md fields), ``goals`` (issue 9), ``refit``, ``notes``, ``settings``,
-  ``wall_s`` and, with ``--live``, ``live``;
+  per case × temperature × profile, docs/cli.md fields), ``goals`` (the study's goals), ``refit``, ``notes``,
+  ``settings``, ``wall_s`` and, with ``--live``, ``live``;
 - ``loop_study.txt``: the table of :func:`table_text`;
 - ``figures/error_vs_temperature_<profile>.png`` (LOS rate and position error RMS per case vs temperature) and
   ``figures/reversal_trace.png`` (the coldest plateau around the first reversal);
@@ -39,7 +39,7 @@ from gimbal_friction.estimation.estimator import EstimatorSettings
 from gimbal_friction.feedforward.rule import FeedforwardSettings
 from gimbal_friction.physics.params import AxisParams
 from gimbal_friction.sim.compensation import CASES, EXTRA_CASES
-from gimbal_friction.sim.config import SECTION, SimConfig
+from gimbal_friction.sim.config import SECTION, SimConfig, truth_differences, with_truth
 from gimbal_friction.sim.study import (
     DEFAULT_REFIT_FIT,
     DEFAULT_TEMPERATURES,
@@ -87,10 +87,14 @@ def _sim_config(paths: Sequence[str | Path]) -> SimConfig:
 
 
 def load_study_inputs(config_paths: Sequence[str | Path] = (), axis: str | None = None, *,
-                      latency_s: float | None = None, seed: int | None = None) -> StudyInputs:
+                      latency_s: float | None = None, seed: int | None = None,
+                      truth_path: str | Path | None = None) -> StudyInputs:
     """The study's inputs from the packaged defaults and ``config_paths`` (layered in order).
 
-    ``latency_s`` [s] overrides ``feedforward_latency_s``, ``seed`` the simulator's noise seed.
+    ``latency_s`` [s] overrides ``feedforward_latency_s``, ``seed`` the simulator's noise seed; ``truth_path`` is a
+    YAML file of truth parameters (:data:`~gimbal_friction.sim.config.TRUTH_PARAMETERS`, flat or in a
+    ``gimbal_sim`` section) layered over the simulator's configuration. The truth never reads the configured model
+    (``model.*``, ``axis.<joint>.*``): a wrong configuration costs, it does not move the truth.
 
     Raises:
         ConfigError: an unreadable file, an unknown axis, or a value that breaks a rule (named).
@@ -102,6 +106,12 @@ def load_study_inputs(config_paths: Sequence[str | Path] = (), axis: str | None 
     source = ff_settings.velocity_source
     est = settings_from_parameters(EstimatorSettings, params)
     sim = _sim_config(config_paths)
+    if truth_path is not None:
+        data = read_yaml(truth_path)   # an unreadable file is named as a file
+        try:
+            sim = with_truth(sim, data)
+        except ConfigError as err:
+            raise ConfigError(f'{truth_path}: {err.parameter}', err.rule, err.value) from None
     if latency_s is not None:
         sim = sim.replace(feedforward_latency_s=latency_s)
     if seed is not None:
@@ -171,6 +181,7 @@ def study_document(result: StudyResult, inputs: StudyInputs, *, live: dict[str, 
                      'velocity_threshold_rad_s': inputs.feedforward.settings.velocity_threshold_rad_s,
                      'feedforward_latency_s': result.config.feedforward_latency_s,
                      'controller_hz': result.config.rate_loop_hz, 'seed': result.config.seed,
+                     'truth_differs_from_default': truth_differences(result.config),
                      'durations_s': {p: result.config.profile_duration_s(p) for p in
                                      dict.fromkeys(r['profile'] for r in result.records)}},
         'wall_s': {k: round(v, 3) for k, v in result.wall_s.items()},
@@ -205,7 +216,8 @@ def table_text(doc: dict[str, Any]) -> str:
         out.append('')
     missed = [g for g in doc['goals'] if not g['met']]
     met = len(doc['goals']) - len(missed)
-    out.append(f'goals of issue 9: {met} of {len(doc["goals"])} met')
+    out.append('study goals (feedforward vs none, vs constant, refit vs ideal, reversals): '
+               f'{met} of {len(doc["goals"])} met')
     for g in missed:
         out.append(f'  missed {g["goal"]} ({g["profile"]}, {g["temperature_c"]:+g} degC): {g["value"]:.3f} '
                    f'(target {g["target"]:g})')

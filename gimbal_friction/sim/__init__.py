@@ -6,7 +6,8 @@ adapters around it.
 
 - :mod:`~gimbal_friction.sim.config`: :class:`SimConfig`, every simulator parameter with its unit;
 - :mod:`~gimbal_friction.sim.lugre`: the LuGre model (Canudas de Wit et al. 1995);
-- :mod:`~gimbal_friction.sim.truth`: the truth friction (model + lubricant shift + LuGre + ripple + asymmetry);
+- :mod:`~gimbal_friction.sim.truth`: the truth friction, the simulator's own whatever the configuration under test
+  says (the paper's bearing with its own lubricant and motor + LuGre + ripple + asymmetry);
 - :mod:`~gimbal_friction.sim.profiles`: tracking / scan / pointing references and base motion;
 - :mod:`~gimbal_friction.sim.compensation`: the compensation hook and the cases;
 - :mod:`~gimbal_friction.sim.engine`: the vectorised closed-loop simulation;

@@ -6,7 +6,7 @@ angle and rate relative to the base, the reference joint velocity, the gyro) as 
 and adds the torque [N·m] it returns, as current τ/K_T, to the controller's output, delayed by the transport
 latency for the cases that run as a separate node (:class:`Compensator` ``delayed``).
 
-Cases of the loop study (issue 9):
+Cases of the loop study (the default five):
 
 ``none``
     no compensation.

@@ -2,11 +2,16 @@
 
 One frozen dataclass, :class:`SimConfig`, holds the simulator's own parameters (plant, motor drive, sensors, the
 seeker's stabilization controller, the truth friction beyond the model, the thermal lag, base motion, the
-feedforward transport latency and the study profiles). The *model* parameters of the axis (K_T, I_0, the
-bearing and lubricant of the friction model) are not repeated here: they come from the suite's
-:class:`~gimbal_friction.physics.params.AxisParams`, and the truth is that model with the lubricant shifted by
-``lubricant_walther_a_shift`` plus what the model does not know (LuGre pre-sliding and Stribeck breakaway,
-position ripple, a CW/CCW asymmetry that grows in the cold).
+feedforward transport latency and the study profiles). The *configured* model of the axis (K_T, I_0, J, the
+bearing and lubricant of the friction model: the configuration under test, what the controller, the feedforward
+and the estimator use) comes from the suite's :class:`~gimbal_friction.physics.params.AxisParams`. The *truth* is the
+simulator's own and never reads that configuration (group ``truth``, plus the sensor, thermal and plant groups): the
+paper's bearing with its own lubricant (``truth_walther_a`` + ``lubricant_walther_a_shift``, ``truth_walther_b``),
+Palmgren factor and motor (``truth_torque_constant_nm_per_a``, ``truth_no_load_current_a``), plus what the model
+does not know (LuGre pre-sliding and Stribeck breakaway, position ripple, a CW/CCW asymmetry that grows in the
+cold), a temperature sensor with its own offset (``temperature_bias_c``) and lag
+(``temperature_sensor_time_constant_s``), the bearing's thermal lag. The one exception is the plant's inertia,
+stated relative to the configured J (``inertia_truth_ratio``).
 
 It is read from the ``gimbal_sim`` section of a ROS 2 parameter file (``gimbal_sim: ros__parameters: {...}``,
 see ``config/gimbal_sim.yaml``) with :meth:`SimConfig.from_mapping`, so the (later) ``gimbal_sim`` node and the
@@ -61,7 +66,8 @@ of the pre-sliding resonance at √(σ0/J)/2π = 159 Hz), Stribeck velocity 0.00
 sliding level by ≈ 3 v_s = 0.006 rad/s, well below the paper's 0.0349 rad/s test speed, so the measured means are
 sliding values) and breakaway ratio F_S/F_C = 1.5 (the 1995 paper's example); position ripple 6 % at 3.4° and
 3 % at 0.85° (as the synthetic chamber bag), doubled at −40 °C ("its fluctuation was much more severe at −40 ℃");
-lubricant ``walther_a`` shifted by +0.015 (the synthetic chamber bag's truth: +46 % viscosity at −40 °C) and the
+the datasheet lubricant (``truth_walther_a``/``_b`` = the packaged model's) with ``walther_a`` shifted by +0.015 (the
+synthetic chamber bag's truth: +46 % viscosity at −40 °C), the model's Palmgren factor and motor constants, and the
 paper's measured CW/CCW means (3.19 / −2.45 N·mm at −40 °C, 1.05 / −1.34 N·mm at +60 °C) as a direction asymmetry
 and a mean factor (see :mod:`gimbal_friction.sim.truth`).
 
@@ -159,9 +165,23 @@ class SimConfig:
                                                        'each sine (0.5-10 Hz)', 'base')
     base_motion_phases_rad: tuple[float, ...] = _p((0.0, 1.0, 2.0), 'rad', 'missile body rate: phase of each '
                                                    'sine', 'base')
-    # --- truth friction (beyond the model)
-    lubricant_walther_a_shift: float = _p(0.015, '-', 'truth walther_a minus the configured one (a lubricant '
-                                          'that differs from the configuration)', 'truth')
+    # --- truth friction: the simulated axis's own, never read from the configuration under test (the truth's
+    # bearing is the paper's, Table 1; see gimbal_friction.sim.truth)
+    truth_walther_a: float = _p(8.6195, '-', 'Walther constant a1 (Eq. 22, improved Walther form) of the truth '
+                                'lubricant before lubricant_walther_a_shift (default: the datasheet Krytox 143AA, '
+                                'the packaged model\'s walther_a)', 'truth')
+    truth_walther_b: float = _p(-21.2471, '-', 'Walther slope b1 (Eq. 22) of the truth lubricant, < 0 (default: the '
+                                'datasheet\'s)', 'truth')
+    lubricant_walther_a_shift: float = _p(0.015, '-', 'truth walther_a minus truth_walther_a (a lubricant that '
+                                          'differs from the datasheet: +0.015 is +46 % viscosity at -40 degC); the '
+                                          'truth lubricant\'s a1 is truth_walther_a + this', 'truth')
+    truth_palmgren_factor: float = _p(1.917, '-', 'Palmgren factor f0 of the truth bearing (Eq. 9; the low-speed '
+                                      'floor of the lubricant moment)', 'truth')
+    truth_torque_constant_nm_per_a: float = _p(0.05, 'N*m/A', 'true motor torque constant K_T of the plant (the '
+                                               'controller, feedforward and estimator use the configured one)',
+                                               'truth')
+    truth_no_load_current_a: float = _p(0.0, 'A', 'true motor no-load current I_0 of the plant (a Coulomb torque '
+                                        'K_T I_0 against the motion)', 'truth')
     sigma0_nm_per_rad: float = _p(100.0, 'N*m/rad', 'LuGre bristle stiffness sigma0', 'truth')
     sigma1_nm_s_per_rad: float = _p(0.1, 'N*m*s/rad', 'LuGre bristle damping sigma1', 'truth')
     stribeck_velocity_rad_s: float = _p(0.002, 'rad/s', 'LuGre Stribeck velocity v_s', 'truth')
@@ -347,7 +367,14 @@ class SimConfig:
              'base_motion_amplitudes_rad_s, _frequencies_hz and _phases_rad must have the same length'),
             ('base_motion_frequencies_hz', all(0.0 < f < 0.5 * s.rate_loop_hz for f in s.base_motion_frequencies_hz),
              'must lie in (0, rate_loop_hz / 2) [Hz]'),
+            ('truth_walther_a', 0.0 < s.truth_walther_a <= 100.0, 'must lie in (0, 100] [-]'),
+            ('truth_walther_b', -1000.0 <= s.truth_walther_b < 0.0, 'must lie in [-1000, 0) [-]'),
             ('lubricant_walther_a_shift', abs(s.lubricant_walther_a_shift) <= 1.0, 'must lie in [-1, 1] [-]'),
+            ('truth_palmgren_factor', 0.0 < s.truth_palmgren_factor <= 100.0, 'must lie in (0, 100] [-]'),
+            ('truth_torque_constant_nm_per_a', 0.0 < s.truth_torque_constant_nm_per_a <= 100.0,
+             'must lie in (0, 100] [N*m/A]'),
+            ('truth_no_load_current_a', 0.0 <= s.truth_no_load_current_a <= s.current_limit_a,
+             'must lie in [0, current_limit_a] [A]'),
             ('sigma0_nm_per_rad', s.sigma0_nm_per_rad > 0.0, 'must be > 0 [N*m/rad]'),
             ('sigma1_nm_s_per_rad', s.sigma1_nm_s_per_rad >= 0.0, 'must be >= 0 [N*m*s/rad]'),
             ('stribeck_velocity_rad_s', s.stribeck_velocity_rad_s > 0.0, 'must be > 0 [rad/s]'),
@@ -391,6 +418,44 @@ class SimConfig:
         low, high = (*self.tracking_travel_deg, 0.0, 0.0)[:2]
         speed_deg_s = self.tracking_speed_rpm * 6.0
         return speed_deg_s * self.tracking_reversal_s < (high - low)
+
+
+#: The parameters that make up the simulated axis's truth, none of them read from the configuration under test:
+#: the truth friction (group ``truth``: lubricant, Palmgren factor, motor, LuGre breakaway/Stribeck, ripple, CW/CCW
+#: asymmetry), the plant's inertia ratio and disturbance, the bearing's thermal lag and the temperature sensor's
+#: offset and lag. A ``loop-study --truth`` file holds only these.
+TRUTH_PARAMETERS: tuple[str, ...] = (
+    *(f.name for f in dataclasses.fields(SimConfig) if f.metadata['group'] == 'truth'),
+    'inertia_truth_ratio', 'disturbance_torque_nm', 'thermal_time_constant_s', 'temperature_bias_c',
+    'temperature_sensor_time_constant_s')
+
+
+def with_truth(base: SimConfig, values: Mapping[str, Any]) -> SimConfig:
+    """``base`` with the truth parameters of ``values`` (a flat mapping, a ``gimbal_sim`` section or a parameter
+    file holding one), validated; every other parameter keeps ``base``'s value.
+
+    >>> with_truth(SimConfig(), {'temperature_bias_c': 3.0}).temperature_bias_c
+    3.0
+    >>> with_truth(SimConfig(), {'rate_bandwidth_hz': 30.0})  # doctest: +ELLIPSIS
+    Traceback (most recent call last):
+    ...
+    gimbal_friction.common.errors.ConfigError: parameter 'rate_bandwidth_hz' = 30.0: is not a truth parameter (...)
+
+    Raises:
+        ConfigError: a name that is not a truth parameter, a wrong type, or a value that breaks a rule.
+    """
+    values = _section(values)
+    for name, value in values.items():
+        if name not in TRUTH_PARAMETERS:
+            raise ConfigError(str(name), f'is not a truth parameter (a truth holds only {", ".join(TRUTH_PARAMETERS)}; '
+                              'put the simulator\'s other parameters in --config)', value)
+    return SimConfig.from_mapping(values, base=base)
+
+
+def truth_differences(config: SimConfig) -> dict[str, Any]:
+    """The truth parameters of ``config`` that differ from the defaults (tuples as lists) [units of each]."""
+    default, mine = SimConfig().to_mapping(), config.to_mapping()
+    return {k: mine[k] for k in TRUTH_PARAMETERS if mine[k] != default[k]}
 
 
 @dataclass(frozen=True)
@@ -513,10 +578,12 @@ def parameter_specs(*, node: bool = False) -> list[dict[str, Any]]:
 _FILE_HEADER = """\
 # gimbal_sim parameters: the closed-loop gimbal-axis simulator (gimbal_friction.sim), a ROS 2 parameters file
 # section read by the gimbal_sim node and by gimbal-friction loop-study (--config, layered key by key).
-# Model parameters of the axis (K_T, I_0, J = inertia_kg_m2, bearing, lubricant) are NOT repeated here: they come
-# from config/gimbal_friction.yaml (/** model.*, axis.<joint>.*); the truth friction is that model with the
-# lubricant shifted by lubricant_walther_a_shift, plus LuGre pre-sliding/breakaway, position ripple and the paper's
-# measured CW/CCW means. Units are in the names and the comments; every value is SI except where named.
+# The configured model of the axis (K_T, I_0, J = inertia_kg_m2, bearing, lubricant: what the controller, the
+# feedforward and the estimator use) comes from config/gimbal_friction.yaml (/** model.*, axis.<joint>.*). The
+# truth is this file's own (group 'truth', plus the sensors' bias and lag and the thermal lag) and never reads that
+# configuration: the paper's bearing with the truth lubricant (truth_walther_a + lubricant_walther_a_shift,
+# truth_walther_b), Palmgren factor and motor, LuGre pre-sliding/breakaway, position ripple and the paper's measured
+# CW/CCW means. Units are in the names and the comments; every value is SI except where named.
 # Why each default: see the docstring of gimbal_friction/sim/config.py. The 'node' group is read by the gimbal_sim
 # node only. This file is generated by gimbal_friction.sim.config.parameter_file_text() (tested to match).
 """

@@ -149,8 +149,8 @@ class Plant:
     config : SimConfig
         Inertia ratio, disturbance, current loop, sub-steps.
     axis : AxisParams
-        K_T of the motor, the configured J (the plant's is ``J · inertia_truth_ratio``) and the configured model
-        the truth is built from (see :class:`TruthFriction`).
+        The configured J (the plant's is ``J · inertia_truth_ratio``); the truth friction and the plant's K_T are
+        the simulator's own (``config``, see :class:`TruthFriction`), whatever the configured model says.
     theta, omega : array_like
         Initial angle [rad] and rate [rad/s], one per run.
     cancel_friction : array_like of bool, optional
@@ -160,9 +160,9 @@ class Plant:
     def __init__(self, config: SimConfig, axis: AxisParams, theta: Array, omega: Array,
                  cancel_friction: NDArray[np.bool_] | None = None) -> None:
         m = theta.shape[0]
-        self.truth = TruthFriction(axis, config)
+        self.truth = TruthFriction(config)
         self.J = axis.inertia_kg_m2 * config.inertia_truth_ratio
-        self.K_T = axis.torque_constant_nm_per_a
+        self.K_T = config.truth_torque_constant_nm_per_a
         self.substeps = config.plant_substeps
         self.h = config.plant_step_s
         tau_i = config.current_loop_time_constant_s
@@ -405,7 +405,8 @@ def simulate(config: SimConfig, axis: AxisParams, profile: Profile, runs: Sequen
     config : SimConfig
         Simulator configuration.
     axis : AxisParams
-        The configured model of the axis (K_T, I_0 and the friction model; the truth shifts its lubricant).
+        The configured model of the axis (K_T, I_0, J and the friction model: the configuration under test, used by
+        the controller and the compensations; the truth is ``config``'s own).
     profile : Profile
         Reference and base motion (:func:`~gimbal_friction.sim.profiles.make_profile` with the same config).
     runs : sequence of Run

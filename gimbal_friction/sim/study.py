@@ -26,7 +26,8 @@ functions the nodes and ``gimbal-friction refit`` run:
 Records (one per case × temperature × profile) carry at least ``case``, ``temperature_c``, ``profile``,
 ``rate_error_rms_rad_s``, ``rate_error_peak_rad_s``, ``position_error_rms_rad``, ``position_error_peak_rad``,
 ``reversal_error_peak_rad``, ``current_margin`` (docs/cli.md ``loop-study``), plus ``duration_s``.
-:func:`goal_checks` evaluates the goals of issue 9 on them.
+:func:`goal_checks` evaluates the study's goals on them (the feedforward against no compensation, the
+constant and the ideal; at reversals).
 """
 
 from __future__ import annotations
@@ -439,7 +440,8 @@ def _lookup(records: Sequence[dict[str, Any]]) -> dict[tuple[str, str, float], d
 
 
 def goal_checks(records: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
-    """The goals of issue 9 evaluated on study records, per profile (those the records allow).
+    """The study's goals (feedforward vs none, vs constant, refit vs ideal, reversals) evaluated on study records,
+    per profile (those the records allow).
 
     - ``c_vs_a_cold``: (c) cuts the LOS rate error RMS by ≥ 60 % vs (a) at −40 and −20 °C;
     - ``c_vs_a_all``: by ≥ 30 % at every plateau;

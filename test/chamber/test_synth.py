@@ -367,6 +367,31 @@ def test_shipped_sample_is_small_complete_and_reproducible(tmp_path, capsys):
                 if np.ptp(pos[seg]) > 16.5:
                     runs[1 if vel[seg].mean() > 0 else -1] += 1
         assert runs[1] >= 2 and runs[-1] >= 2, (plateau, runs)
+    # What the vectorised math computes may differ by an ulp between CPU instruction sets; the written streams are
+    # rounded to a grid (synth.*_RESOLUTION_*) so that they do not. Tolerance check of the unrounded values: within
+    # half a step (+ 1e-12 of a step) of the shipped ones. Margin check: no unrounded value of this configuration
+    # lies within 1e-6 of a step of a rounding boundary, i.e. within 1e-12 A / 1e-10 degC / 1e-15 rad(/s) -- a
+    # thousand times more than any cross-machine difference (a few ulp: < 1e-16 A, 1e-14 degC, 1e-16 rad) -- so
+    # every machine rounds to the same grid point and the exact checks below hold everywhere.
+    from gimbal_friction.chamber.synth import (
+        CURRENT_RESOLUTION_A,
+        POSITION_RESOLUTION_RAD,
+        TEMPERATURE_RESOLUTION_C,
+        VELOCITY_RESOLUTION_RAD_S,
+        half_step_margin,
+    )
+    from gimbal_friction.cli.main import build_parser
+    from gimbal_friction.cli.synth_bag_cmd import build_config
+
+    raw = generate(build_config(build_parser().parse_args(_regenerate_args())), quantise=False)
+    for unrounded, written, step in ((raw.current_a[:, 0], shipped.motor_current.effort['elevation'],
+                                      CURRENT_RESOLUTION_A),
+                                     (raw.temperature_c, shipped.temperature.temperature_c, TEMPERATURE_RESOLUTION_C),
+                                     (raw.position_rad[:, 0], js.position['elevation'], POSITION_RESOLUTION_RAD),
+                                     (raw.velocity_rad_s[:, 0], js.velocity['elevation'], VELOCITY_RESOLUTION_RAD_S)):
+        np.testing.assert_allclose(written, unrounded, rtol=0.0, atol=step * (0.5 + 1e-12))
+        assert half_step_margin(unrounded, step) > 1e-6, step
+        assert np.array_equal(written, np.rint(written / step) * step), step   # on the grid
     # bags/regenerate.sh regenerates exactly the shipped contents
     args = _regenerate_args()
     args[args.index('--out') + 1] = str(tmp_path / 'again')
@@ -376,6 +401,9 @@ def test_shipped_sample_is_small_complete_and_reproducible(tmp_path, capsys):
     again = open_chamber_bag(tmp_path / 'again').read_arrays()
     np.testing.assert_array_equal(again.motor_current.effort['elevation'], shipped.motor_current.effort['elevation'])
     np.testing.assert_array_equal(again.joint_states.position['elevation'], js.position['elevation'])
+    np.testing.assert_array_equal(again.joint_states.velocity['elevation'], js.velocity['elevation'])
+    np.testing.assert_array_equal(again.temperature.temperature_c, shipped.temperature.temperature_c)
+    np.testing.assert_array_equal(again.motor_current.log_time_ns, shipped.motor_current.log_time_ns)
     np.testing.assert_array_equal(again.temperature.log_time_ns, shipped.temperature.log_time_ns)
     assert (tmp_path / 'truth.yaml').read_text() == (BAGS / 'chamber_sample.truth.yaml').read_text()
 

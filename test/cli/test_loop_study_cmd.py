@@ -82,6 +82,7 @@ def test_table_is_the_default_output_and_the_configuration_is_layered(tmp_path, 
     (['--latency-s', '-1'], '--latency-s'),
     (['--refit-fit', 'walther_z'], '--refit-fit'),
     (['--config', '/nonexistent/file.yaml'], 'parameter file /nonexistent/file.yaml: cannot read'),
+    (['--truth', '/nonexistent/truth.yaml'], 'parameter file /nonexistent/truth.yaml: cannot read'),
 ])
 def test_bad_input_is_refused_in_one_line(args, needle, capsys):
     code = main(['loop-study', '--short', *args])
@@ -96,5 +97,40 @@ def test_help_names_the_options(capsys):
         main(['loop-study', '--help'])
     assert info.value.code == 0
     text = capsys.readouterr().out
-    for opt in ('--temperatures', '--profiles', '--cases', '--short', '--latency-s', '--out', '--live', '--seed'):
+    for opt in ('--temperatures', '--profiles', '--cases', '--short', '--latency-s', '--out', '--live', '--seed',
+                '--truth'):
         assert opt in text
+
+
+def _records(capsys, *args: str) -> tuple[dict, dict]:
+    assert main([*SHORT, '--temperatures', '-40', '--cases', 'none,feedforward', '--format', 'json', *args]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    return {r['case']: r['rate_error_rms_rad_s'] for r in doc['records']}, doc['settings']
+
+
+def test_the_feedforwards_configuration_does_not_move_the_truth_and_a_wrong_lubricant_costs(tmp_path, capsys):
+    """--config with another lubricant (walther_a 0.03 below the truth's) changes the feedforward, not the truth:
+    the uncompensated run is the same, the feedforward's error grows (the truth's lubricant is 8.6345)."""
+    right, wrong = tmp_path / 'right.yaml', tmp_path / 'wrong.yaml'
+    right.write_text('/**:\n  ros__parameters:\n    model:\n      walther_a: 8.6345\n')
+    wrong.write_text('/**:\n  ros__parameters:\n    model:\n      walther_a: 8.6045\n')
+    good, settings = _records(capsys, '--config', str(right))
+    bad, _ = _records(capsys, '--config', str(wrong))
+    assert bad['none'] == pytest.approx(good['none'], rel=1e-12)
+    assert bad['feedforward'] > 1.3 * good['feedforward']
+    assert settings['truth_differs_from_default'] == {}
+
+
+def test_truth_file_sets_the_simulated_truth_and_refuses_other_parameters(tmp_path, capsys):
+    base, _ = _records(capsys)
+    truth = tmp_path / 'truth.yaml'
+    truth.write_text('gimbal_sim:\n  ros__parameters:\n    truth_walther_a: 8.6045\n    temperature_bias_c: 3.0\n')
+    thin, settings = _records(capsys, '--truth', str(truth))
+    assert settings['truth_differs_from_default'] == {'truth_walther_a': 8.6045, 'temperature_bias_c': 3.0}
+    assert thin['none'] < 0.9 * base['none']          # a thinner truth lubricant: less friction in the cold
+    bad = tmp_path / 'bad.yaml'
+    bad.write_text('rate_bandwidth_hz: 30.0\n')
+    assert main([*SHORT, '--truth', str(bad)]) != 0
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and 'rate_bandwidth_hz' in err[0] and 'not a truth parameter' in err[0]
+    assert '--config' in err[0]

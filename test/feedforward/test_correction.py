@@ -12,10 +12,7 @@ import numpy as np
 import pytest
 import yaml
 
-from gimbal_friction.physics.direction import direction_factor
 from gimbal_friction.common.errors import ConfigError
-from gimbal_friction.physics.params import AxisParams
-from gimbal_friction.physics.table import FrictionTable
 from gimbal_friction.common.xp import ARRAY
 from gimbal_friction.feedforward import correction as corr
 from gimbal_friction.feedforward import correction_file
@@ -27,6 +24,9 @@ from gimbal_friction.feedforward.correction import (
     LearningSettings,
     model_identity,
 )
+from gimbal_friction.physics.direction import direction_factor
+from gimbal_friction.physics.params import AxisParams
+from gimbal_friction.physics.table import FrictionTable
 
 BASE = AxisParams()
 TABLE = FrictionTable(BASE)

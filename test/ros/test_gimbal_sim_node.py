@@ -101,3 +101,28 @@ def _exited(node, timeout: float = 20.0) -> bool:
     except subprocess.TimeoutExpired:
         return False
     return True
+
+
+def test_the_truth_is_the_nodes_own_and_the_configured_model_does_not_move_it(spawn, tmp_path):
+    """The configured model (model.walther_a, what the feedforward and the estimator use) leaves the simulated
+    truth friction as it is; the node's own truth parameter (truth_walther_a) moves it."""
+    def friction(name: str, *extra: str) -> tuple[np.ndarray, dict]:
+        record = tmp_path / f'{name}.npz'
+        node = spawn('gimbal_sim', '--ros-args', '--params-file', SIM_YAML, '-p', 'profile:=tracking',
+                     '-p', 'duration_s:=0.5', '-p', 'environment_temperature_c:=-40.0', '-p', 'exit_when_done:=true',
+                     '-p', 'use_feedforward:=false', '-p', 'realtime_factor:=5.0', '-p', f'record_path:={record}',
+                     *extra)
+        assert _exited(node, 60.0), f'gimbal_sim ({name}) did not finish its run'
+        code, output = node.stop()
+        assert code == 0, output
+        batch, meta, _ = load_run(record)
+        return batch.traces.friction_nm[:, 0], meta
+
+    base, meta = friction('default')
+    configured, _ = friction('configured', '-p', 'model.walther_a:=8.55')
+    thinner, meta_thin = friction('truth', '-p', 'truth_walther_a:=8.60')
+    assert meta['config']['truth_walther_a'] == 8.6195 and meta_thin['config']['truth_walther_a'] == 8.60
+    assert base.shape == configured.shape == thinner.shape and base.shape[0] == 500
+    np.testing.assert_allclose(configured, base, rtol=1e-12, atol=0.0)
+    moving = np.abs(base) > 0.5 * np.max(np.abs(base))
+    assert np.mean(np.abs(thinner[moving])) < 0.9 * np.mean(np.abs(base[moving]))

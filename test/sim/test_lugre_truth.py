@@ -8,7 +8,6 @@ import numpy as np
 import pytest
 
 from gimbal_friction.common.units import RAD_S_PER_RPM
-from gimbal_friction.physics.params import AxisParams
 from gimbal_friction.sim.config import SimConfig
 from gimbal_friction.sim.lugre import (
     lugre_force_1995,
@@ -17,7 +16,7 @@ from gimbal_friction.sim.lugre import (
     lugre_z_step,
     stribeck_curve_LuGre_1995,
 )
-from gimbal_friction.sim.truth import TruthFriction, mean_factors, ripple, truth_asymmetry
+from gimbal_friction.sim.truth import TruthFriction, mean_factors, ripple, truth_asymmetry, truth_params
 
 VELOCITIES = [-0.2, -0.01, -0.002, -0.0005, 0.0003, 0.001, 0.004, 0.0349, 0.5]
 
@@ -57,8 +56,7 @@ def test_z_step_never_overshoots_in_the_stiff_sliding_regime():
 
 
 def test_truth_static_torque_is_the_lugre_steady_state():
-    axis = AxisParams(no_load_current_a=0.01)
-    truth = TruthFriction(axis, SimConfig())
+    truth = TruthFriction(SimConfig(truth_no_load_current_a=0.01))
     temps = np.array([-40.0, -20.0, 20.0, 60.0])
     theta = np.radians([0.3, 1.1, -2.0, 5.0])
     for v in VELOCITIES:
@@ -76,7 +74,7 @@ def test_truth_static_torque_is_the_lugre_steady_state():
 def test_truth_reproduces_the_papers_four_measured_means_without_lubricant_shift():
     """CW 3.19 vs CCW -2.45 N*mm at -40 degC, 1.05 vs -1.34 at +60 (paper Sec. 6), at 1/3 rpm."""
     cfg = SimConfig(lubricant_walther_a_shift=0.0, ripple_amplitudes=(0.0, 0.0))
-    truth = TruthFriction(AxisParams(), cfg)
+    truth = TruthFriction(cfg)
     v = RAD_S_PER_RPM / 3.0
     got = truth.static_torque_nm([-40.0, -40.0, 60.0, 60.0], [v, -v, v, -v]) * 1e3
     # (the truth's model part is the core's table: its interpolation of M_R + M_S is within 1e-6 of the model)
@@ -85,7 +83,7 @@ def test_truth_reproduces_the_papers_four_measured_means_without_lubricant_shift
     # between the anchors both are linear in temperature, beyond them held
     a_cold, a_warm = truth_asymmetry(cfg)
     assert a_cold == pytest.approx((3.19 - 2.45) / (3.19 + 2.45)) and a_warm == pytest.approx((1.05 - 1.34) / 2.39)
-    m = mean_factors(AxisParams(), cfg)
+    m = mean_factors(cfg)
     terms = truth.terms(np.array([-60.0, 10.0, 100.0]))
     assert terms.k_positive[0] == pytest.approx(m.factors[0] * (1.0 + a_cold))
     assert terms.k_negative[2] == pytest.approx(m.factors[1] * (1.0 - a_warm))
@@ -94,8 +92,8 @@ def test_truth_reproduces_the_papers_four_measured_means_without_lubricant_shift
 
 
 def test_lubricant_shift_raises_the_cold_friction_only():
-    base = TruthFriction(AxisParams(), SimConfig(lubricant_walther_a_shift=0.0, ripple_amplitudes=(0.0, 0.0)))
-    shifted = TruthFriction(AxisParams(), SimConfig(ripple_amplitudes=(0.0, 0.0)))
+    base = TruthFriction(SimConfig(lubricant_walther_a_shift=0.0, ripple_amplitudes=(0.0, 0.0)))
+    shifted = TruthFriction(SimConfig(ripple_amplitudes=(0.0, 0.0)))
     v = RAD_S_PER_RPM / 3.0
     cold = shifted.static_torque_nm(-40.0, v) / base.static_torque_nm(-40.0, v)
     warm = shifted.static_torque_nm(20.0, v) / base.static_torque_nm(20.0, v)
@@ -105,9 +103,40 @@ def test_lubricant_shift_raises_the_cold_friction_only():
 
 def test_breakaway_is_breakaway_ratio_times_the_low_speed_level():
     cfg = SimConfig(ripple_amplitudes=(0.0, 0.0), asymmetry_enabled=False, breakaway_ratio=1.5)
-    truth = TruthFriction(AxisParams(), cfg)
+    truth = TruthFriction(cfg)
     tiny = 1e-9
     near_zero = float(truth.static_torque_nm(20.0, tiny))
     sliding = float(truth.static_torque_nm(20.0, 20 * cfg.stribeck_velocity_rad_s))
     assert near_zero == pytest.approx(1.5 * sliding, rel=1e-6)
     assert math.isclose(float(truth.static_torque_nm(20.0, -tiny)), -near_zero, rel_tol=1e-12)
+
+
+def test_the_truth_is_the_simulators_own_parameters():
+    """Each truth parameter moves the truth the way its declaration says; the configured model has no way in."""
+    v = RAD_S_PER_RPM / 3.0
+    flat = {'ripple_amplitudes': (0.0, 0.0), 'asymmetry_enabled': False}
+    base = TruthFriction(SimConfig(**flat))
+    # the lubricant: a shift is relative to the truth's own walther_a; equal sums are the same lubricant
+    same = TruthFriction(SimConfig(**flat, truth_walther_a=8.6245, lubricant_walther_a_shift=0.010))
+    assert truth_params(same.config).walther_a == pytest.approx(truth_params(base.config).walther_a, abs=1e-12)
+    assert float(same.static_torque_nm(-40.0, v)) == pytest.approx(float(base.static_torque_nm(-40.0, v)), rel=1e-9)
+    thinner = TruthFriction(SimConfig(**flat, truth_walther_a=8.5895))
+    assert float(thinner.static_torque_nm(-40.0, v)) < 0.8 * float(base.static_torque_nm(-40.0, v))
+    steeper = TruthFriction(SimConfig(**flat, truth_walther_b=-21.4))
+    assert float(steeper.static_torque_nm(-40.0, v)) != pytest.approx(float(base.static_torque_nm(-40.0, v)), rel=1e-3)
+    # the Palmgren floor and the motor's no-load torque (T_0 = K_T I_0, against the motion)
+    floor = TruthFriction(SimConfig(**flat, truth_palmgren_factor=2.2))
+    assert float(floor.static_torque_nm(60.0, v)) > 1.05 * float(base.static_torque_nm(60.0, v))
+    motor = TruthFriction(SimConfig(**flat, truth_torque_constant_nm_per_a=0.08, truth_no_load_current_a=0.01))
+    assert float(motor.static_torque_nm(20.0, v) - base.static_torque_nm(20.0, v)) == pytest.approx(0.08 * 0.01)
+    assert float(motor.static_torque_nm(20.0, -v) - base.static_torque_nm(20.0, -v)) == pytest.approx(-0.08 * 0.01)
+
+
+@pytest.mark.parametrize(('name', 'value'), [('truth_walther_b', 0.5), ('truth_walther_a', -1.0),
+                                             ('truth_torque_constant_nm_per_a', 0.0), ('truth_no_load_current_a', 3.0),
+                                             ('truth_palmgren_factor', 0.0)])
+def test_a_truth_parameter_out_of_range_is_refused_by_name(name, value):
+    from gimbal_friction.common.errors import ConfigError
+
+    with pytest.raises(ConfigError, match=name):
+        SimConfig.from_mapping({name: value})
