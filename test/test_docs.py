@@ -196,7 +196,7 @@ def test_ros_page_documents_every_parameter() -> None:
     """Every model parameter and every setting of the three nodes has a row in docs/ros.md with its default."""
     import dataclasses
 
-    from gimbal_friction.common.settings import EstimatorNodeSettings, FeedforwardNodeSettings, LoggerSettings
+    from gimbal_friction.config.node_settings import EstimatorNodeSettings, FeedforwardNodeSettings, LoggerSettings
     from gimbal_friction.estimation.estimator import EstimatorSettings
     from gimbal_friction.feedforward.rule import FeedforwardSettings
     from gimbal_friction.physics.params import parameter_specs
@@ -228,7 +228,7 @@ def test_ros_page_documents_every_parameter() -> None:
 def test_cli_page_shows_each_subcommands_help(monkeypatch: pytest.MonkeyPatch,
                                               capsys: pytest.CaptureFixture[str]) -> None:
     """docs/cli.md shows each subcommand's ``--help`` verbatim (as printed 116 columns wide). After changing an option,
-    paste the output of ``COLUMNS=116 gimbal-friction SUB --help`` into its section."""
+    run ``.venv/bin/python scripts/cli_reference.py``."""
     from gimbal_friction.cli.main import main
 
     text = (ROOT / 'docs' / 'cli.md').read_text(encoding='utf-8')
