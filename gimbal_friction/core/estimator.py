@@ -89,6 +89,7 @@ from gimbal_friction.core.inputs import effective_time, is_fresh, temperature_va
 from gimbal_friction.core.kt import friction_from_current_Eq23
 from gimbal_friction.core.measurement import METHOD_OBSERVER, METHOD_STEADY_STATE, Measurement, MeasurementArrays
 from gimbal_friction.core.params import MODEL_T_MAX_C, MODEL_T_MIN_C, AxisParams
+from gimbal_friction.core.plateaus import plateau_of
 from gimbal_friction.core.settings import setting
 from gimbal_friction.core.statistics import GroupStatistics
 from gimbal_friction.core.units import NS_PER_S, ns_from_seconds
@@ -233,11 +234,6 @@ class EstimatorCounters:
         return {'accepted': dict(self.accepted),
                 'rejected': {j: dict(r) for j, r in self.rejected.items()},
                 'temperature_rejected': dict(self.temperature_rejected)}
-
-
-def plateau_of(temperature_c: Any, bin_c: float) -> Any:
-    """Statistics plateau of a temperature: ``round(t / bin) * bin`` [°C] (half to even; arrays too)."""
-    return np.round(np.asarray(temperature_c, dtype=np.float64) / bin_c) * bin_c + 0.0
 
 
 class _History(NamedTuple):

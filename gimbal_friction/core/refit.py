@@ -92,6 +92,7 @@ from gimbal_friction.core.errors import ConfigError, FitError, GimbalFrictionErr
 from gimbal_friction.core.friction import PALMGREN_THRESHOLD_CST_RPM, viscous_torque_Palmgren_1959
 from gimbal_friction.core.model import friction_torque
 from gimbal_friction.core.params import MODEL_T_MAX_C, MODEL_T_MIN_C, AxisParams
+from gimbal_friction.core.plateaus import plateau_of
 from gimbal_friction.core.sufficient import SufficientStats
 from gimbal_friction.core.thermal import radial_coupling
 from gimbal_friction.core.units import NM_PER_NMM
@@ -382,7 +383,7 @@ class _Groups(NamedTuple):
 
 
 def _group(pts: _Points, bin_width_c: float, min_bin_samples: int) -> _Groups:
-    t_bin = np.round(pts.t / bin_width_c) * bin_width_c + 0.0
+    t_bin = plateau_of(pts.t, bin_width_c)  # the one plateau rule (replay's summary and report use it too)
     s_bin = np.round(np.log(pts.n) / math.log(SPEED_BIN_RATIO)).astype(np.int64)
     d = np.where(pts.d > 0, 1, -1).astype(np.int64)
     keys = np.column_stack([t_bin, d.astype(float), s_bin.astype(float)])
