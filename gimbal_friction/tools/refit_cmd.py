@@ -53,7 +53,14 @@ from gimbal_friction.core.refit import (
 from gimbal_friction.core.sufficient import SufficientStats, accumulate_rows
 from gimbal_friction.recording.residual_read import ReadReport, iter_residual_rows
 from gimbal_friction.recording.topics import RESIDUAL_DETAIL
-from gimbal_friction.tools._common import add_common, format_table, print_json, write_text_atomic
+from gimbal_friction.tools._common import (
+    add_common,
+    format_table,
+    print_json,
+    print_read_note,
+    refuse_existing,
+    write_text_atomic,
+)
 
 DEFAULT_FIT = 'walther_a'
 #: ``--fit`` shorthand for both anchors of the direction asymmetry
@@ -136,7 +143,10 @@ def add_parser(sub: Any) -> None:
     parser.add_argument('logs', nargs='+', type=Path, metavar='LOG_DIR',
                         help='residual-log folder (or .mcap file) written by residual_logger or replay')
     parser.add_argument('--out', type=Path, required=True, metavar='FILE.yaml',
-                        help='parameter file to write (only after a successful fit)')
+                        help='parameter file to write (only after a successful fit; an existing file is refused '
+                        'unless --force)')
+    parser.add_argument('--force', action='store_true',
+                        help='replace an existing --out file (and --plot figure)')
     add_common(parser)
     parser.add_argument('--axis', action='append', metavar='NAME',
                         help='axis to refit (repeatable; default: every configured axis present in the logs)')
@@ -388,6 +398,16 @@ def _print_axis(f: AxisRefit) -> None:
               'the viscous torque does not depend on viscosity at these speeds')
 
 
+def _empty_reason(data: AxisData, direction: str) -> str:
+    """Why an axis of the logs has no usable sample ('' if it has some): its rows, what was skipped, the filter."""
+    if data.stats.n_samples > 0:
+        return ''
+    if data.rows == 0:
+        return f'the logs hold no rows of it moving {direction.upper()} (--direction {direction})'
+    return (f'all {data.rows} rows skipped ({data.skipped_nonfinite} with a non-finite temperature, velocity or '
+            f'measurement, {data.skipped_standstill} at standstill)')
+
+
 def calibration_se_by_axis(args: argparse.Namespace, axes: list[str]) -> dict[str, float | None]:
     """The T_0 uncertainty [N*m] to compare each axis' offset with, from --calibration-se or --calibration."""
     out: dict[str, float | None] = dict.fromkeys(axes)
@@ -411,6 +431,9 @@ def run(args: argparse.Namespace) -> int:
     if out.is_dir():
         msg = f'--out {out} is a directory; give a file name such as refit.yaml'
         raise GimbalFrictionError(msg)
+    refuse_existing(out, '--out', force=args.force)
+    if args.plot is not None:
+        refuse_existing(args.plot, '--plot', force=args.force)
     if not (math.isfinite(args.bin_width) and args.bin_width > 0.0):
         raise ConfigError('--bin-width', 'must be > 0 [degC]', args.bin_width)
     fit = parse_fit(args.fit)
@@ -419,12 +442,18 @@ def run(args: argparse.Namespace) -> int:
         read_calibration_se(args.calibration)  # refuse a bad file before reading the logs
     report = ReadReport()
     data_by_joint = read_stats(list(args.logs), direction=args.direction, report=report)
+    print_read_note(report)
     where = ', '.join(str(p) for p in args.logs)
     if not data_by_joint:
-        msg = f'{where}: the residual log holds no {RESIDUAL_DETAIL} samples'
+        msg = f'{where}: the residual log holds no {RESIDUAL_DETAIL} samples ({report.summary()})'
         raise FitError(msg)
     present = sorted(data_by_joint)
     axes, ignored = _select_axes(args, cfg, present)
+    for axis in axes:
+        empty = _empty_reason(data_by_joint[axis], args.direction)
+        if empty:
+            msg = f'{where}: no usable samples of axis {axis!r}: {empty}'
+            raise FitError(msg)
     cal_se = calibration_se_by_axis(args, axes)
     fits: list[AxisRefit] = []
     for axis in axes:
@@ -450,14 +479,15 @@ def run(args: argparse.Namespace) -> int:
 
     if args.format == 'json':
         print_json({'logs': [str(p) for p in args.logs], 'files': [str(p) for p in report.files],
-                    'truncated_files': [str(p) for p in report.truncated_files], 'out': str(out),
+                    'truncated_files': [str(p) for p in report.truncated_files], 'read': report.as_dict(),
+                    'out': str(out),
                     'plot': None if args.plot is None else str(args.plot), 'fit': list(fit),
                     'config': [str(c) for c in args.config], 'offset_mode': args.offset,
                     'ignored_joints': ignored, 'axes': {f.axis: _axis_record(f) for f in fits}})
         print(f'wrote {out}' + ('' if args.plot is None else f', plot: {args.plot}'), file=sys.stderr)
         return 0
     print(f'refit of {", ".join(fit)} from {len(report.files)} file(s) in {where}'
-          + (f' ({len(report.truncated_files)} truncated)' if report.truncated_files else ''))
+          + (f' (skipped: {report.summary()})' if report.skipped else ''))
     if ignored:
         print(f'joints not configured, ignored: {", ".join(ignored)}')
     for f in fits:

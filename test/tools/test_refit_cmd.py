@@ -225,12 +225,77 @@ def test_refuses_a_foreign_bag_and_keeps_an_existing_output(tmp_path, capsys):
     bag = write_chamber_bag(tmp_path / 'chamber', messages)
     out = tmp_path / 'refit.yaml'
     out.write_text('keep me\n')
-    _refused(['refit', str(bag), '--out', str(out)], capsys, out, 'not a residual log')
+    _refused(['refit', str(bag), '--out', str(out), '--force'], capsys, out, 'not a residual log')
     not_mcap = tmp_path / 'foreign'
     not_mcap.mkdir()
     (not_mcap / 'x.mcap').write_bytes(b'this is not mcap at all')
-    _refused(['refit', str(not_mcap), '--out', str(out)], capsys, out, 'not an MCAP file')
+    _refused(['refit', str(not_mcap), '--out', str(out), '--force'], capsys, out, 'not an MCAP file')
     assert out.read_text() == 'keep me\n'
+
+
+def test_an_existing_output_is_refused_unless_force(log_dir, tmp_path, capsys):
+    """One rule for every command's outputs (replay refuses a folder that holds a log): nothing is overwritten
+    without notice."""
+    out = tmp_path / 'refit.yaml'
+    out.write_text('keep me\n')
+    err = _refused(['refit', str(log_dir), '--out', str(out)], capsys, out, 'already exists; nothing written')
+    assert str(out) in err and '--force' in err
+    plot = tmp_path / 'fig.png'
+    plot.write_bytes(b'old')
+    _refused(['refit', str(log_dir), '--out', str(tmp_path / 'new.yaml'), '--plot', str(plot)], capsys, out,
+             '--plot')
+    assert plot.read_bytes() == b'old' and not (tmp_path / 'new.yaml').exists()
+    assert main(['refit', str(log_dir), '--out', str(out), '--force']) == 0
+    assert 'walther_a' in yaml.safe_load(out.read_text())['/**']['ros__parameters']['axis']['elevation']
+
+
+def test_damaged_chunks_are_counted_in_the_output_and_the_json(tmp_path, capsys):
+    """Every command that skips data says how much: a damaged chunk of the log is a note and a JSON count."""
+    from gimbal_friction.recording.mcap_scan import McapScanner
+    folder = tmp_path / 'damaged'
+    rows, stamps = detail_rows(truth_params())
+    with ResidualLogWriter(folder, chunk_size=4096) as writer:
+        for row, stamp in zip(rows, stamps, strict=True):
+            writer.write(RESIDUAL_DETAIL, FLOAT64_MULTI_ARRAY_TYPE, stamp, make_float64_multi_array(row, 'elevation'))
+    (path,) = folder.glob('*.mcap')
+    data = bytearray(path.read_bytes())
+    pos, k = 8, 0
+    while True:  # zero 16 bytes in the middle of the fourth chunk
+        length = int.from_bytes(data[pos + 1:pos + 9], 'little')
+        if data[pos] == 0x06:
+            if k == 3:
+                data[pos + 9 + length // 2:pos + 25 + length // 2] = bytes(16)
+                break
+            k += 1
+        pos += 9 + length
+    path.write_bytes(bytes(data))
+    scan = McapScanner(path)
+    sum(len(b) for b in scan.blocks())
+    lost = scan.report.lost_messages
+    assert lost > 0
+    assert main(['refit', str(folder), '--out', str(tmp_path / 'a.yaml')]) == 0
+    captured = capsys.readouterr()
+    note = f'1 damaged chunks skipped ({lost} messages lost)'
+    assert note in captured.err and note in captured.out.splitlines()[0]
+    assert main(['refit', str(folder), '--out', str(tmp_path / 'b.yaml'), '--format', 'json']) == 0
+    captured = capsys.readouterr()
+    read = json.loads(captured.out)['read']
+    assert (read['damaged_chunks'], read['lost_messages'], read['skipped']) == (1, lost, True)
+    assert note in captured.err
+
+
+def test_no_samples_in_the_asked_direction_is_refused_naming_why(tmp_path, capsys):
+    folder = tmp_path / 'ccw'
+    rows, stamps = detail_rows(truth_params())
+    with ResidualLogWriter(folder) as writer:
+        for row, stamp in zip(rows, stamps, strict=True):
+            if row[3] < 0.0:  # CCW only
+                writer.write(RESIDUAL_DETAIL, FLOAT64_MULTI_ARRAY_TYPE, stamp,
+                             make_float64_multi_array(row, 'elevation'))
+    out = tmp_path / 'refit.yaml'
+    err = _refused(['refit', str(folder), '--out', str(out), '--direction', 'cw'], capsys, out,
+                   "no usable samples of axis 'elevation'")
+    assert '--direction cw' in err and str(folder) in err
 
 
 def test_refuses_a_log_without_residual_samples(tmp_path, capsys):
