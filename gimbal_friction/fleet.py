@@ -42,6 +42,7 @@ from gimbal_friction.core.params import AxisParams
 from gimbal_friction.core.refit import RefitResult, refit_stats
 from gimbal_friction.core.residual_row import residual_rows
 from gimbal_friction.core.sufficient import SufficientStats, accumulate_rows
+from gimbal_friction.recording.residual_read import ReadReport
 from gimbal_friction.recording.topics import RESIDUAL_DETAIL, TEMPERATURE
 
 #: Messages of a chamber bag decoded at once on a worker (about 1 kB each while processed) [-].
@@ -176,11 +177,12 @@ def discover_units(paths: Sequence[Path]) -> list[UnitSpec]:
 # one unit (runs on a worker)
 
 
-def unit_stats_from_log(path: str, direction: str) -> dict[str, SufficientStats]:
-    """Per-joint statistics of a residual log, streamed (the one place a fleet worker reads a log)."""
+def unit_stats_from_log(path: str, direction: str, report: ReadReport | None = None) -> dict[str, SufficientStats]:
+    """Per-joint statistics of a residual log, streamed (the one place a fleet worker reads a log); ``report``
+    (filled) says what the read skipped."""
     from gimbal_friction.tools.refit_cmd import read_stats
 
-    return {joint: data.stats for joint, data in read_stats([Path(path)], direction=direction,
+    return {joint: data.stats for joint, data in read_stats([Path(path)], direction=direction, report=report,
                                                             label='fleet: reading').items()}
 
 
@@ -238,14 +240,21 @@ def process_unit(unit: UnitSpec, settings: FitSettings) -> dict[str, Any]:
         if unit.kind == 'bag':
             stats = unit_stats_from_bag(unit.path, settings.config_paths, settings.direction)
         else:
-            stats = unit_stats_from_log(unit.path, settings.direction)
+            report = ReadReport()
+            try:
+                stats = unit_stats_from_log(unit.path, settings.direction, report)
+            finally:
+                rec['read'] = report.as_dict()
         rec['read_s'] = time.perf_counter() - t0
         axes = [a for a in settings.axes if a in stats]
         if not axes:
+            damage = f'; read: {rec["read"]["summary"]}' if rec.get('read', {}).get('skipped') else ''
             msg = (f'no samples of a configured axis (joints present: {", ".join(sorted(stats)) or "none"}; '
-                   f'configured: {", ".join(settings.axes)})')
+                   f'configured: {", ".join(settings.axes)}{damage})')
             raise FitError(msg)
         rec['rows'] = {a: stats[a].tally.rows for a in axes}
+        rec['skipped_rows'] = {a: {'nonfinite': stats[a].tally.skipped_nonfinite,
+                                   'standstill': stats[a].tally.skipped_standstill} for a in axes}
         rec['cells'] = {a: len(stats[a]) for a in axes}
         for axis in axes:
             base = settings.axes[axis]
@@ -411,6 +420,9 @@ def progress_line(done: int, total: int, rec: Mapping[str, Any], stream: Any = N
     """One line per finished unit on stderr."""
     out = stream if stream is not None else sys.stderr
     status = f'error: {rec["error"]}' if rec.get('error') else 'ok'
+    read = rec.get('read') or {}
+    if read.get('skipped'):  # every command that skips data says how much
+        status += f'; skipped: {read["summary"]}'
     out.write(f'fleet: {done}/{total} {rec["unit"]} ({rec.get("seconds", math.nan):.1f} s) {status}\n')
     out.flush()
 

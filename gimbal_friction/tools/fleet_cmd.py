@@ -32,8 +32,19 @@ from gimbal_friction.fleet import (
     progress_line,
     run_fleet,
 )
-from gimbal_friction.tools._common import add_common, csv_text, format_table, json_finite, print_json, write_text_atomic
+from gimbal_friction.tools._common import (
+    add_common,
+    csv_text,
+    format_table,
+    json_finite,
+    print_json,
+    refuse_existing,
+    write_text_atomic,
+)
 from gimbal_friction.tools.refit_cmd import parse_fit
+
+#: the files a fleet run writes into --out
+OUT_FILES = ('fleet.json', 'fleet.csv', 'fleet.png')
 
 
 def add_parser(sub: Any) -> None:
@@ -46,6 +57,8 @@ def add_parser(sub: Any) -> None:
     parser.add_argument('paths', nargs='+', type=Path, metavar='LOG_DIR_OR_BAG',
                         help='a unit (residual log, replay output folder, chamber bag) or a folder of units')
     parser.add_argument('--out', type=Path, required=True, metavar='DIR', help='folder for fleet.json/.csv/.png')
+    parser.add_argument('--force', action='store_true',
+                        help='replace the fleet.json/.csv/.png of an earlier run in --out (refused otherwise)')
     add_common(parser)
     parser.add_argument('--scheduler', metavar='ADDRESS',
                         help='Dask scheduler address (e.g. tcp://10.0.0.5:8786); default: an embedded local cluster')
@@ -122,6 +135,8 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError('--z-max', 'must be > 0', args.z_max)
     if args.calibration_se is not None and not (math.isfinite(args.calibration_se) and args.calibration_se >= 0.0):
         raise ConfigError('--calibration-se', 'must be a finite torque >= 0 [N*m]', args.calibration_se)
+    for name in OUT_FILES:  # the one rule of every command's outputs
+        refuse_existing(out / name, '--out', force=args.force)
     fit = parse_fit(args.fit)
     axes = all_axis_params(load_parameters(args.config))
     units = discover_units(list(args.paths))
@@ -153,6 +168,9 @@ def run(args: argparse.Namespace) -> int:
     if args.format == 'json':
         print_json(doc)
         return 0
+    for r in result.records:  # what was skipped, per unit (also in fleet.json: units[].read)
+        if (r.get('read') or {}).get('skipped'):
+            print(f'note: unit {r["unit"]}: residual log: {r["read"]["summary"]}')
     shown = [f for f in fields if f not in ('reason', 'kind')]
     print(format_table([[_fmt(r[f]) if isinstance(r[f], float) else str(r[f]) for f in shown] for r in rows],
                        shown))
