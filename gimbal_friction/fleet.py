@@ -205,6 +205,8 @@ def unit_stats_from_bag(path: str, config_paths: Sequence[str], direction: str,
 
 
 def _axis_record(result: RefitResult, base: AxisParams) -> dict[str, Any]:
+    from gimbal_friction.tools.refit_cmd import confounding_record
+
     p = result.params
     temps = np.asarray(REPORT_TEMPERATURES_C)
     torque = friction_torque(p, temps, base.speed_rpm).m_total_nmm
@@ -225,6 +227,7 @@ def _axis_record(result: RefitResult, base: AxisParams) -> dict[str, Any]:
                    'exceeds_calibration': o.exceeds_calibration},
         'rms_before_nmm': 1e3 * result.rms_before_nm,
         'rms_after_nmm': 1e3 * result.rms_after_nm,
+        'offset_confounding': confounding_record(result),
         'warnings': list(result.warnings),
     }
 

@@ -328,6 +328,7 @@ def _axis_record(f: AxisRefit) -> dict[str, Any]:
         'message': r.message,
         'fine_bins': r.n_bins,
         'offset': offset_record(r),
+        'offset_confounding': confounding_record(r),
         'warnings': list(r.warnings),
     }
 
@@ -341,6 +342,16 @@ def offset_record(r: RefitResult) -> dict[str, Any]:
             'calibration_se_nmm': 1e3 * o.calibration_se_nm, 'exceeds_calibration': o.exceeds_calibration,
             'torque_constant_nm_per_a': o.torque_constant_nm_per_a, 'no_load_current_a': o.no_load_current_a,
             'implied_no_load_current_a': o.implied_no_load_current_a}
+
+
+def confounding_record(r: RefitResult) -> dict[str, Any]:
+    """How far a calibration offset the fit set could not separate moves the result, as JSON (torque in N*mm;
+    ``checked`` false: the offset was fitted, switched off, or the data could not have determined it)."""
+    c = r.offset_confounding
+    return {'checked': c.checked, 'confounded': list(c.confounded),
+            'reference_offset_nmm': 1e3 * c.reference_offset_nm, 'reference': c.reference,
+            'shifts': dict(c.shifts), 'shifts_in_standard_errors': dict(c.shifts_in_se),
+            'viscosity_shift_percent': [{'temperature_c': t, 'percent': 100.0 * x} for t, x in c.viscosity_shift_rel]}
 
 
 def offset_text(r: RefitResult) -> str:
