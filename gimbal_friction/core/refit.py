@@ -39,7 +39,10 @@ that ``calibrate-kt`` prints): a warning is raised when ``|c| − 1.96 se_c > σ
 the calibration's 1-sigma even at the near end of its own 95 % interval (an I_0 off by 2 σ is flagged once the
 offset is known to better than about σ/2). A requested ``palmgren_factor`` (whose low-speed floor is a constant
 torque too) switches the automatic offset off; with ``offset='on'`` both are fitted and the offset, lowest in
-priority, is the one held if they turn out collinear.
+priority, is the one held if they turn out collinear. Either way any offset of the measurement then goes into the
+fitted parameters: when the data could have determined it, the result's ``offset_confounding`` gives the linear
+response of every fitted parameter (and of ν at the viscous plateaus) to a 1-sigma offset (the calibration's
+σ_T0, else K_T × 1 mA), and a warning names the parameters it moves by more than one standard error.
 ``offset='on'`` always fits it, ``'off'`` never. The offset is not a model parameter: the written parameters and
 the feedforward do not contain it.
 

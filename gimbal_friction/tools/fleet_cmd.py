@@ -8,6 +8,8 @@ installed). Writes ``DIR/fleet.json`` (every unit's fit with intervals, the popu
 parameter, the outliers with their reason), ``DIR/fleet.csv`` (one row per unit and axis) and ``DIR/fleet.png``;
 prints the table (or, with ``--format json``, the JSON document). Progress on stderr, one line per unit.
 Exit 0 when at least one unit was refitted (units that could not be are listed with their error), else 1.
+What a unit's read skipped (damaged chunks, lost messages, files cut short) is in its record (``units[].read``),
+its progress line and a note under the table. An earlier run's files in ``--out`` are refused unless ``--force``.
 """
 
 from __future__ import annotations

@@ -20,7 +20,17 @@ Output file: a layerable parameter file holding **only the refitted parameters**
 order, so the refit takes effect even over a user file with per-axis lubricant values, and an axis without data
 (e.g. a newly configured one) keeps its own values. The header records the logs, the date, the samples and the
 RMS residual before and after. The file is written (atomically) only after every axis was refitted; on any
-refusal nothing is written and an existing file is left untouched.
+refusal nothing is written. An existing ``--out`` (or ``--plot``) is refused unless ``--force`` (the rule of
+every command's outputs, :func:`~gimbal_friction.tools._common.refuse_existing`).
+
+What the read skipped (damaged chunks and the messages lost with them, files cut short, messages that are not
+rows) is said on stderr and in the header line, and counted in the JSON ``read`` record; an axis without usable
+samples is refused naming the logs, the direction filter and the rows skipped.
+
+A fit set that cannot separate its parameters from the calibration offset (``palmgren_factor`` switches it off)
+is checked: the JSON ``offset_confounding`` record and a warning say which parameters a 1-sigma offset (the
+calibration's, else K_T × 1 mA) moves by more than their standard error, by how much, and the viscosity at the
+coldest plateau.
 """
 
 from __future__ import annotations

@@ -68,7 +68,7 @@ def _run(args: argparse.Namespace) -> int:
         files.append(plot_model_vs_measured(summary, models, args.out / FIG13_FILE,
                                             title=f'{axis}: model vs measured by direction (paper Fig. 13)'))
     if args.format == 'json':
-        doc = {'axis': axis, 'figures': [str(f) for f in files], 'fig11': rows}
+        doc: dict[str, Any] = {'axis': axis, 'figures': [str(f) for f in files], 'fig11': rows}
         if summary is not None:
             doc['fig13'] = summary
             doc['read'] = read
