@@ -1167,8 +1167,9 @@ def _confounding_text(c: OffsetConfounding, why: str) -> str:
     moves = ', '.join(f'{name} by {c.shifts[name]:+.3g} ({c.shifts_in_se[name]:.1f} standard errors)'
                       for name in c.confounded)
     nu = ''.join(f', the viscosity at {t:.1f} degC by {100 * x:+.1f} %' for t, x in c.viscosity_shift_rel[:1])
-    return (f'{", ".join(c.confounded)} cannot be told apart from a calibration torque offset here (offset not '
-            f'fitted: {why or "collinear"}), so any offset goes into them: an offset of '
+    held = 'switched off' if why.startswith('auto') else (why or 'not fitted')
+    return (f'{", ".join(c.confounded)} cannot be told apart from a calibration torque offset here (the offset is '
+            f'{held} with this fit set), so any offset goes into them: an offset of '
             f'{1e3 * c.reference_offset_nm:.3g} N*mm ({c.reference}) moves {moves}{nu}. To keep the calibration '
             'out of the lubricant, refit without palmgren_factor (the offset is then fitted; both directions with '
             '--fit walther_a,direction_asymmetry where the unit has a CW/CCW asymmetry), or check the calibration '
