@@ -61,6 +61,9 @@ def test_plot_written(tmp_path, capsys):
     assert main(['model', '--plot', str(png), '--format', 'json']) == 0
     json.loads(capsys.readouterr().out)  # stdout stays pure JSON
     assert png.stat().st_size > 10000 and png.read_bytes()[:4] == b'\x89PNG'
+    assert main(['model', '--plot', str(png)]) == 1  # the one rule of every command's outputs
+    assert 'already exists; nothing written' in capsys.readouterr().err
+    assert main(['model', '--plot', str(png), '--force']) == 0
 
 
 @pytest.mark.parametrize(('argv', 'needle', 'code'), [
