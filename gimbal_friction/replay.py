@@ -39,9 +39,8 @@ from gimbal_friction.core.inputs import effective_time
 from gimbal_friction.core.measurement import MEASUREMENT_FIELDS, MeasurementArrays, detail_matrix
 from gimbal_friction.core.params import AxisParams
 from gimbal_friction.core.residual_row import RESIDUAL_FIELDS, ResidualRows, residual_rows
-from gimbal_friction.core.residuals import match_predictions, plateau_summary, steady_temperature
+from gimbal_friction.core.residuals import match_predictions, plateau_summary
 from gimbal_friction.core.settings import settings_from_parameters
-from gimbal_friction.core.units import NS_PER_S
 from gimbal_friction.recording import topics
 from gimbal_friction.recording.bag import ChamberBag, default_typestore, open_chamber_bag
 from gimbal_friction.recording.cdr import float64_multi_array_cdr_rows, joint_state_cdr_rows, split_rows
@@ -138,11 +137,9 @@ def replay_bag(bag_path: str | Path, out_dir: str | Path | None, *, config_paths
     ff, ff_logic, measured, measured_log, est_logic, rows = replay_arrays(arrays, axes, ff_settings, est_settings)
     report('nodes', 1.0)
     report('summary', 0.0)
-    t = arrays.temperature
-    t_time = effective_time(np.asarray(t.stamp_ns, dtype=np.int64), np.asarray(t.log_time_ns, dtype=np.int64))
-    steady = steady_temperature(rows.stamp_s, t_time / NS_PER_S, t.temperature_c)
+    # the plateaus by the one rule (core/plateaus.py), judged on the samples' own temperatures
     summary = plateau_summary(rows.temperature_c, rows.velocity_rad_s, rows.measured_nm, rows.predicted_nm,
-                              joint=rows.joint.tolist(), bin_c=est_settings.temperature_bin_c, steady=steady)
+                              joint=rows.joint.tolist(), bin_c=est_settings.temperature_bin_c, stamp_s=rows.stamp_s)
     report('summary', 1.0)
     messages_out = 0
     residual_dir = None

@@ -137,14 +137,17 @@ def steady_temperature(sample_time_s: ArrayLike, temperature_time_s: ArrayLike, 
 
 def plateau_summary(temperature_c: ArrayLike, velocity_rad_s: ArrayLike, measured_nm: ArrayLike,
                     predicted_nm: ArrayLike, *, bin_c: float = 5.0, min_samples: int = 10,
-                    joint: Iterable[str] | None = None, steady: ArrayLike | None = None) -> list[dict[str, Any]]:
+                    joint: Iterable[str] | None = None, steady: ArrayLike | None = None,
+                    stamp_s: ArrayLike | None = None) -> list[dict[str, Any]]:
     """One record per temperature plateau and direction: the paper's per-temperature means (Fig. 13).
 
     Samples are assigned to plateaus by the one rule of :mod:`gimbal_friction.core.plateaus` (the refit's): bins
     of width ``bin_c`` [°C], every usable sample of a bin counted; a record needs ``min_samples`` per direction.
     With ``steady`` (a mask, e.g. from :func:`steady_temperature`) only bins holding at least ``min_samples``
     steady samples are plateaus, so the ramps between the chamber's set points do not make plateaus of their own
-    (the mask decides which bins are listed, not which samples they count). Direction ``cw`` is positive motion
+    (the mask decides which bins are listed, not which samples they count). Without a mask but with the samples'
+    times ``stamp_s`` [s], the mask is :func:`steady_temperature` of each joint's samples' own temperatures (no
+    second time base to align: what ``replay`` and ``report`` use). Direction ``cw`` is positive motion
     (the paper's clockwise), ``ccw`` negative; means are signed [N·mm]. A NaN prediction (no feedforward) leaves
     ``predicted_nmm`` and ``residual_nmm`` NaN for the samples that lack it.
     """
@@ -156,6 +159,12 @@ def plateau_summary(temperature_c: ArrayLike, velocity_rad_s: ArrayLike, measure
     ok = usable_samples(t, v, meas)
     bins = np.where(ok, plateau_of(t, bin_c), np.nan)
     mask = None if steady is None else np.asarray(steady, dtype=bool)
+    if mask is None and stamp_s is not None:
+        stamps = np.asarray(stamp_s, dtype=float)
+        mask = np.zeros(t.shape, dtype=bool)
+        for j in set(joints[ok].tolist()):
+            mine = ok & (joints == j)
+            mask[mine] = steady_temperature(stamps[mine], stamps[mine], t[mine])
     out: list[dict[str, Any]] = []
     for j in sorted(set(joints[ok].tolist())):
         mine = ok & (joints == j)

@@ -112,8 +112,8 @@ def _fig13_data(args: argparse.Namespace, axis: str,
     """
     from gimbal_friction.config import load_parameters
     from gimbal_friction.core.direction import SCALAR, direction_factor
-    from gimbal_friction.core.residuals import plateau_summary, steady_temperature
-    from gimbal_friction.recording.residual_read import read_residual_rows, read_temperature_stream
+    from gimbal_friction.core.residuals import plateau_summary
+    from gimbal_friction.recording.residual_read import read_residual_rows
     d, report = read_residual_rows(args.residuals)
     print_read_note(report)
     where = ', '.join(str(p) for p in args.residuals)
@@ -123,16 +123,13 @@ def _fig13_data(args: argparse.Namespace, axis: str,
         why = (f'joints present: {", ".join(present)}; pass --axis with one of them or --config with those axes'
                if present else f'no residual rows at all: {report.summary()}')
         raise GimbalFrictionError(f'{where}: the residual logs hold no samples of axis {axis!r} ({why})')
-    t_time, t_value = read_temperature_stream(args.residuals)
-    if t_time.size < 2:  # the inputs were not logged: judge the plateaus on the samples' own temperatures
-        t_time, t_value = d.stamp_s[sel], d.temperature_c[sel]
-    steady = steady_temperature(d.stamp_s[sel], t_time, t_value)
+    # the plateaus by the one rule of replay and refit (core/plateaus.py), on the samples' own temperatures
     summary = plateau_summary(d.temperature_c[sel], d.velocity_rad_s[sel], d.measured_nm[sel],
-                              d.predicted_nm[sel], joint=d.joint[sel], steady=steady)
+                              d.predicted_nm[sel], joint=d.joint[sel], stamp_s=d.stamp_s[sel])
     if not summary:
-        msg = (f'{where}: no temperature plateau of axis {axis!r} to compare with ({int(sel.sum())} rows, '
-               f'{int(steady.sum())} taken while the bearing temperature held within 1 degC/min over 30 s; a '
-               'plateau needs 10 such samples and 10 samples per direction)')
+        msg = (f'{where}: no temperature plateau of axis {axis!r} to compare with ({int(sel.sum())} rows; a '
+               'plateau needs 10 samples taken while the bearing temperature held within 1 degC/min over 30 s, '
+               'and 10 samples per direction)')
         raise GimbalFrictionError(msg)
     models = {'configured': params}
     if args.compare is not None:
