@@ -6,8 +6,9 @@ statistics, the refit's groups (:mod:`gimbal_friction.core.refit`) and the per-p
 ``report`` (:func:`gimbal_friction.core.residuals.plateau_summary`) all bin with it, and count every usable sample
 of a bin (finite temperature, velocity and measurement; moving). A bin is listed as a *plateau* in a summary when
 at least ``min_steady`` of its samples were taken while the bearing temperature held steady
-(:func:`gimbal_friction.core.residuals.steady_temperature`), so a ramp the chamber only passed through is not a
-plateau of its own; that choice decides which bins are shown, never which samples a shown bin counts. So the
+(:func:`gimbal_friction.core.residuals.steady_temperature`, judged on the samples' own temperatures), so a ramp the
+chamber only passed through is not a plateau of its own; that choice decides which bins are shown, never which
+samples a shown bin counts. So the
 summary's ``samples`` of a plateau and direction equal the refit's count of the same bin and direction.
 
 >>> plateau_of([-39.2, -37.6, 2.4, float('nan')], 5.0).tolist()
