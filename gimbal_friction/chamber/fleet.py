@@ -39,6 +39,7 @@ import yaml
 from gimbal_friction.common.errors import FitError, GimbalFrictionError
 from gimbal_friction.physics.model import friction_torque, viscosity_cst
 from gimbal_friction.physics.params import AxisParams
+from gimbal_friction.recording.residual_read import ReadReport
 from gimbal_friction.recording.topics import RESIDUAL_DETAIL, TEMPERATURE
 from gimbal_friction.refit.fit import RefitResult, refit_stats
 from gimbal_friction.refit.sufficient import SufficientStats, accumulate_rows
@@ -176,11 +177,12 @@ def discover_units(paths: Sequence[Path]) -> list[UnitSpec]:
 # one unit (runs on a worker)
 
 
-def unit_stats_from_log(path: str, direction: str) -> dict[str, SufficientStats]:
-    """Per-joint statistics of a residual log, streamed (the one place a fleet worker reads a log)."""
-    from gimbal_friction.cli.refit_cmd import read_stats
+def unit_stats_from_log(path: str, direction: str, report: ReadReport | None = None) -> dict[str, SufficientStats]:
+    """Per-joint statistics of a residual log, streamed (the one place a fleet worker reads a log); ``report``
+    (filled) says what the read skipped."""
+    from gimbal_friction.refit.logs import read_stats
 
-    return {joint: data.stats for joint, data in read_stats([Path(path)], direction=direction,
+    return {joint: data.stats for joint, data in read_stats([Path(path)], direction=direction, report=report,
                                                             label='fleet: reading').items()}
 
 
@@ -203,6 +205,8 @@ def unit_stats_from_bag(path: str, config_paths: Sequence[str], direction: str,
 
 
 def _axis_record(result: RefitResult, base: AxisParams) -> dict[str, Any]:
+    from gimbal_friction.refit.records import confounding_record
+
     p = result.params
     temps = np.asarray(REPORT_TEMPERATURES_C)
     torque = friction_torque(p, temps, base.speed_rpm).m_total_nmm
@@ -223,6 +227,7 @@ def _axis_record(result: RefitResult, base: AxisParams) -> dict[str, Any]:
                    'exceeds_calibration': o.exceeds_calibration},
         'rms_before_nmm': 1e3 * result.rms_before_nm,
         'rms_after_nmm': 1e3 * result.rms_after_nm,
+        'offset_confounding': confounding_record(result),
         'warnings': list(result.warnings),
     }
 
@@ -238,14 +243,21 @@ def process_unit(unit: UnitSpec, settings: FitSettings) -> dict[str, Any]:
         if unit.kind == 'bag':
             stats = unit_stats_from_bag(unit.path, settings.config_paths, settings.direction)
         else:
-            stats = unit_stats_from_log(unit.path, settings.direction)
+            report = ReadReport()
+            try:
+                stats = unit_stats_from_log(unit.path, settings.direction, report)
+            finally:
+                rec['read'] = report.as_dict()
         rec['read_s'] = time.perf_counter() - t0
         axes = [a for a in settings.axes if a in stats]
         if not axes:
+            damage = f'; read: {rec["read"]["summary"]}' if rec.get('read', {}).get('skipped') else ''
             msg = (f'no samples of a configured axis (joints present: {", ".join(sorted(stats)) or "none"}; '
-                   f'configured: {", ".join(settings.axes)})')
+                   f'configured: {", ".join(settings.axes)}{damage})')
             raise FitError(msg)
         rec['rows'] = {a: stats[a].tally.rows for a in axes}
+        rec['skipped_rows'] = {a: {'nonfinite': stats[a].tally.skipped_nonfinite,
+                                   'standstill': stats[a].tally.skipped_standstill} for a in axes}
         rec['cells'] = {a: len(stats[a]) for a in axes}
         for axis in axes:
             base = settings.axes[axis]
@@ -411,6 +423,9 @@ def progress_line(done: int, total: int, rec: Mapping[str, Any], stream: Any = N
     """One line per finished unit on stderr."""
     out = stream if stream is not None else sys.stderr
     status = f'error: {rec["error"]}' if rec.get('error') else 'ok'
+    read = rec.get('read') or {}
+    if read.get('skipped'):  # every command that skips data says how much
+        status += f'; skipped: {read["summary"]}'
     out.write(f'fleet: {done}/{total} {rec["unit"]} ({rec.get("seconds", math.nan):.1f} s) {status}\n')
     out.flush()
 

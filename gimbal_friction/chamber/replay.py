@@ -27,10 +27,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from gimbal_friction.common.settings import settings_from_parameters
-from gimbal_friction.common.units import NS_PER_S
 from gimbal_friction.config.loader import all_axis_params, check_config_files, load_parameters
 from gimbal_friction.estimation.estimator import EstimatorCounters, EstimatorLogic, EstimatorSettings
-from gimbal_friction.estimation.residuals import match_predictions, plateau_summary, steady_temperature
+from gimbal_friction.estimation.residuals import match_predictions, plateau_summary
 from gimbal_friction.feedforward.rule import (
     SOURCE_MEASURED,
     BagTorques,
@@ -139,11 +138,9 @@ def replay_bag(bag_path: str | Path, out_dir: str | Path | None, *, config_paths
     ff, ff_logic, measured, measured_log, est_logic, rows = replay_arrays(arrays, axes, ff_settings, est_settings)
     report('nodes', 1.0)
     report('summary', 0.0)
-    t = arrays.temperature
-    t_time = effective_time(np.asarray(t.stamp_ns, dtype=np.int64), np.asarray(t.log_time_ns, dtype=np.int64))
-    steady = steady_temperature(rows.stamp_s, t_time / NS_PER_S, t.temperature_c)
+    # the plateaus by the one rule (core/plateaus.py), judged on the samples' own temperatures
     summary = plateau_summary(rows.temperature_c, rows.velocity_rad_s, rows.measured_nm, rows.predicted_nm,
-                              joint=rows.joint.tolist(), bin_c=est_settings.temperature_bin_c, steady=steady)
+                              joint=rows.joint.tolist(), bin_c=est_settings.temperature_bin_c, stamp_s=rows.stamp_s)
     report('summary', 1.0)
     messages_out = 0
     residual_dir = None

@@ -11,13 +11,14 @@ from typing import Any
 import numpy as np
 
 from gimbal_friction.common.errors import ConfigError
-from gimbal_friction.common.files import os_error_text, write_text_atomic
+from gimbal_friction.common.files import os_error_text, refuse_existing, write_bytes_atomic, write_text_atomic
 from gimbal_friction.common.text import csv_text, format_table, json_finite
 from gimbal_friction.config.loader import axis_names, axis_params, load_parameters
 from gimbal_friction.physics.params import AxisParams
 
 __all__ = ['add_common', 'add_common_noformat', 'csv_text', 'format_table', 'json_finite', 'load_axis', 'os_error_text',
-           'parse_temperature_spec', 'print_json', 'progress', 'write_text_atomic']
+           'parse_temperature_spec', 'print_json', 'print_read_note', 'progress', 'refuse_existing',
+           'write_bytes_atomic', 'write_text_atomic']
 
 
 def add_common_noformat(parser: argparse.ArgumentParser) -> None:
@@ -88,3 +89,9 @@ def progress(done: int, total: int, label: str, *, stream: Any = None) -> None:
         out.write('\n')
     out.flush()
 
+
+def print_read_note(report: Any) -> None:
+    """``note: residual logs: ...`` on stderr when a read of residual logs skipped data (a file cut short, damaged
+    chunks, messages that are not rows): how much, from :meth:`ReadReport.summary`."""
+    if report.skipped:
+        print(f'note: residual logs: {report.summary()}', file=sys.stderr)

@@ -22,7 +22,7 @@ from typing import Any, NamedTuple
 import numpy as np
 from numpy.typing import NDArray
 
-from gimbal_friction.cli._common import add_common, format_table, print_json, write_text_atomic
+from gimbal_friction.cli._common import add_common, format_table, print_json, refuse_existing, write_text_atomic
 from gimbal_friction.common.errors import ConfigError, FitError, GimbalFrictionError
 from gimbal_friction.config.loader import axis_names, axis_params, load_parameters, render_parameter_file
 from gimbal_friction.estimation.kt import OUTLIER_THRESHOLD, KtFit, fit_kt
@@ -64,7 +64,9 @@ def add_parser(sub: Any) -> None:
                         f'.mcap) with {CURRENT_TOPIC} and {TORQUE_TOPIC}')
     parser.add_argument('--axis', metavar='NAME', help='configured axis (default: the first in axes)')
     parser.add_argument('--out', type=Path, required=True, metavar='FILE.yaml',
-                        help='parameter file to write (only when the fit is accepted)')
+                        help='parameter file to write (only when the fit is accepted; an existing file is refused '
+                        'unless --force)')
+    parser.add_argument('--force', action='store_true', help='replace an existing --out file (and --plot figure)')
     add_common(parser)
     parser.add_argument('--plot', type=Path, metavar='PNG', help='draw data, fit and residuals (outliers marked)')
     parser.add_argument('--max-dt', type=float, default=DEFAULT_MAX_DT_S, metavar='S',
@@ -328,6 +330,9 @@ def run(args: argparse.Namespace) -> int:
     if out.exists() and out.resolve() == source.resolve():
         msg = f'--out {out} is the input file; choose another name'
         raise GimbalFrictionError(msg)
+    refuse_existing(out, '--out', force=args.force)  # the one rule of every command's outputs
+    if args.plot is not None:
+        refuse_existing(args.plot, '--plot', force=args.force)
     if args.max_dt <= 0.0:
         raise ConfigError('--max-dt', 'must be > 0 [s]', args.max_dt)
     data = read_bag(source, axis, args.max_dt) if _is_bag(source) else read_csv(source)

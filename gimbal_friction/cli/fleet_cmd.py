@@ -9,6 +9,8 @@ installed). Writes ``DIR/fleet.json`` (every unit's fit with intervals, the popu
 parameter, the outliers with their reason), ``DIR/fleet.csv`` (one row per unit and axis) and ``DIR/fleet.png``;
 prints the table (or, with ``--format json``, the JSON document). Progress on stderr, one line per unit.
 Exit 0 when at least one unit was refitted (units that could not be are listed with their error), else 1.
+What a unit's read skipped (damaged chunks, lost messages, files cut short) is in its record (``units[].read``),
+its progress line and a note under the table. An earlier run's files in ``--out`` are refused unless ``--force``.
 """
 
 from __future__ import annotations
@@ -30,11 +32,22 @@ from gimbal_friction.chamber.fleet import (
     progress_line,
     run_fleet,
 )
-from gimbal_friction.cli._common import add_common, csv_text, format_table, json_finite, print_json, write_text_atomic
+from gimbal_friction.cli._common import (
+    add_common,
+    csv_text,
+    format_table,
+    json_finite,
+    print_json,
+    refuse_existing,
+    write_text_atomic,
+)
 from gimbal_friction.cli.refit_cmd import parse_fit
 from gimbal_friction.common.errors import ConfigError, GimbalFrictionError
 from gimbal_friction.config.loader import all_axis_params, load_parameters
 from gimbal_friction.refit.fit import OFFSET_MODES
+
+#: the files a fleet run writes into --out
+OUT_FILES = ('fleet.json', 'fleet.csv', 'fleet.png')
 
 
 def add_parser(sub: Any) -> None:
@@ -47,6 +60,8 @@ def add_parser(sub: Any) -> None:
     parser.add_argument('paths', nargs='+', type=Path, metavar='LOG_DIR_OR_BAG',
                         help='a unit (residual log, replay output folder, chamber bag) or a folder of units')
     parser.add_argument('--out', type=Path, required=True, metavar='DIR', help='folder for fleet.json/.csv/.png')
+    parser.add_argument('--force', action='store_true',
+                        help='replace the fleet.json/.csv/.png of an earlier run in --out (refused otherwise)')
     add_common(parser)
     parser.add_argument('--scheduler', metavar='ADDRESS',
                         help='Dask scheduler address (e.g. tcp://10.0.0.5:8786); default: an embedded local cluster')
@@ -123,6 +138,8 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError('--z-max', 'must be > 0', args.z_max)
     if args.calibration_se is not None and not (math.isfinite(args.calibration_se) and args.calibration_se >= 0.0):
         raise ConfigError('--calibration-se', 'must be a finite torque >= 0 [N*m]', args.calibration_se)
+    for name in OUT_FILES:  # the one rule of every command's outputs
+        refuse_existing(out / name, '--out', force=args.force)
     fit = parse_fit(args.fit)
     axes = all_axis_params(load_parameters(args.config))
     units = discover_units(list(args.paths))
@@ -154,6 +171,9 @@ def run(args: argparse.Namespace) -> int:
     if args.format == 'json':
         print_json(doc)
         return 0
+    for r in result.records:  # what was skipped, per unit (also in fleet.json: units[].read)
+        if (r.get('read') or {}).get('skipped'):
+            print(f'note: unit {r["unit"]}: residual log: {r["read"]["summary"]}')
     shown = [f for f in fields if f not in ('reason', 'kind')]
     print(format_table([[_fmt(r[f]) if isinstance(r[f], float) else str(r[f]) for f in shown] for r in rows],
                        shown))

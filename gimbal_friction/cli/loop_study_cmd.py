@@ -14,7 +14,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from gimbal_friction.cli._common import add_common, parse_temperature_spec, print_json, progress
+from gimbal_friction.cli._common import add_common, parse_temperature_spec, print_json, progress, refuse_existing
 from gimbal_friction.common.errors import ConfigError
 
 CASE_CHOICES = ('none', 'constant', 'feedforward', 'refit', 'ideal', 'feedforward_measured', 'feedforward_reference')
@@ -108,9 +108,8 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError('--live-profile', f'must be one of {", ".join(PROFILES)}', args.live_profile)
     if args.out is not None and args.out.exists() and not args.out.is_dir():
         raise ConfigError('--out', 'must be a folder', str(args.out))
-    if args.out is not None and (args.out / 'residuals').exists() and any((args.out / 'residuals').iterdir()):
-        raise ConfigError('--out', f'{args.out / "residuals"} already holds a log; choose another --out '
-                          '(nothing is overwritten)')
+    if args.out is not None:
+        refuse_existing(args.out / 'residuals', '--out', what='a log')
     inputs = load_study_inputs(args.config, args.axis, latency_s=args.latency_s, seed=args.seed,
                                truth_path=args.truth)
 

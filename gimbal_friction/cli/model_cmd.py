@@ -15,6 +15,7 @@ from gimbal_friction.cli._common import (
     load_axis,
     parse_temperature_spec,
     print_json,
+    refuse_existing,
 )
 from gimbal_friction.physics.model import CONTRACT_FIELDS, friction_torque
 from gimbal_friction.physics.thermal import loose_fit_temperature
@@ -49,12 +50,16 @@ def add_parser(sub: Any) -> None:
     parser.add_argument('--speed-rpm', type=float, metavar='X', help='shaft speed [rpm] (default: model.speed_rpm)')
     parser.add_argument('--interference-mm', type=float, metavar='X', help='override interference Delta [mm]')
     parser.add_argument('--gasket-mm', type=float, metavar='X', help='override gasket thickness P [mm]')
-    parser.add_argument('--plot', type=Path, metavar='PNG', help='also draw M_L, M_S+M_R and M (paper Fig. 11)')
+    parser.add_argument('--plot', type=Path, metavar='PNG', help='also draw M_L, M_S+M_R and M (paper Fig. 11; an '
+                        'existing file is refused unless --force)')
+    parser.add_argument('--force', action='store_true', help='replace an existing --plot file')
     parser.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
     axis, params, _ = load_axis(args)
+    if args.plot is not None:
+        refuse_existing(args.plot, '--plot', force=args.force)  # the one rule of every command's outputs
     changes: dict[str, float] = {}
     if args.interference_mm is not None:
         changes['interference_mm'] = args.interference_mm

@@ -20,7 +20,17 @@ Output file: a layerable parameter file holding **only the refitted parameters**
 order, so the refit takes effect even over a user file with per-axis lubricant values, and an axis without data
 (e.g. a newly configured one) keeps its own values. The header records the logs, the date, the samples and the
 RMS residual before and after. The file is written (atomically) only after every axis was refitted; on any
-refusal nothing is written and an existing file is left untouched.
+refusal nothing is written. An existing ``--out`` (or ``--plot``) is refused unless ``--force`` (the rule of
+every command's outputs, :func:`~gimbal_friction.cli._common.refuse_existing`).
+
+What the read skipped (damaged chunks and the messages lost with them, files cut short, messages that are not
+rows) is said on stderr and in the header line, and counted in the JSON ``read`` record; an axis without usable
+samples is refused naming the logs, the direction filter and the rows skipped.
+
+A fit set that cannot separate its parameters from the calibration offset (``palmgren_factor`` switches it off)
+is checked: the JSON ``offset_confounding`` record and a warning say which parameters a 1-sigma offset (the
+calibration's, else K_T × 1 mA) moves by more than their standard error, by how much, and the viscosity at the
+coldest plateau.
 """
 
 from __future__ import annotations
@@ -30,19 +40,25 @@ import datetime as dt
 import math
 import re
 import sys
-from collections.abc import Sequence
 from pathlib import Path
 from typing import Any, NamedTuple
 
 import numpy as np
 
-from gimbal_friction.cli._common import add_common, format_table, print_json, write_text_atomic
+from gimbal_friction.cli._common import (
+    add_common,
+    format_table,
+    print_json,
+    print_read_note,
+    refuse_existing,
+    write_text_atomic,
+)
 from gimbal_friction.common.errors import ConfigError, FitError, GimbalFrictionError
 from gimbal_friction.config.loader import axis_names, axis_params, load_parameters, render_parameter_file
 from gimbal_friction.physics.direction import ARRAY, direction_factor
 from gimbal_friction.physics.model import friction_torque
 from gimbal_friction.physics.params import AxisParams
-from gimbal_friction.recording.residual_read import ReadReport, iter_residual_rows
+from gimbal_friction.recording.residual_read import ReadReport
 from gimbal_friction.recording.topics import RESIDUAL_DETAIL
 from gimbal_friction.refit.fit import (
     ASYMMETRY_PARAMETERS,
@@ -53,40 +69,12 @@ from gimbal_friction.refit.fit import (
     palmgren_threshold_temperature,
     refit_stats,
 )
-from gimbal_friction.refit.sufficient import SufficientStats, accumulate_rows
+from gimbal_friction.refit.logs import AxisData, read_stats
+from gimbal_friction.refit.records import confounding_record, offset_record
 
 DEFAULT_FIT = 'walther_a'
 #: ``--fit`` shorthand for both anchors of the direction asymmetry
 FIT_ALIASES = {'direction_asymmetry': ASYMMETRY_PARAMETERS}
-#: rows per chunk read from the logs (bounds the memory of a refit or a fleet worker)
-CHUNK_ROWS = 1 << 18
-
-
-class AxisData(NamedTuple):
-    """What the logs held for one axis: the statistics, and what was skipped."""
-
-    stats: SufficientStats
-    rows: int
-    skipped_nonfinite: int
-    skipped_standstill: int
-
-
-def read_stats(logs: Sequence[Path], *, joints: list[str] | None = None, direction: str = 'both',
-               report: ReadReport | None = None, label: str = 'refit: reading') -> dict[str, AxisData]:
-    """Per-joint sufficient statistics of the logs, streamed chunk by chunk with bounded memory
-    (:func:`~gimbal_friction.recording.residual_read.iter_residual_rows`; progress on a terminal's stderr)."""
-    stats: dict[str, SufficientStats] = {}
-    done = 0
-    for chunk in iter_residual_rows(list(logs), chunk_rows=CHUNK_ROWS, report=report):
-        accumulate_rows(chunk, stats, joints=joints, direction=direction)
-        done += len(chunk)
-        if sys.stderr.isatty():
-            sys.stderr.write(f'\r{label}: {done} rows')
-            sys.stderr.flush()
-    if done and sys.stderr.isatty():
-        sys.stderr.write('\n')
-    return {j: AxisData(s, s.tally.rows, s.tally.skipped_nonfinite, s.tally.skipped_standstill)
-            for j, s in stats.items()}
 
 
 _T0_LINE = re.compile(r'T_0 = (\S+) \+/- (\S+) N\*m')
@@ -136,7 +124,10 @@ def add_parser(sub: Any) -> None:
     parser.add_argument('logs', nargs='+', type=Path, metavar='LOG_DIR',
                         help='residual-log folder (or .mcap file) written by residual_logger or replay')
     parser.add_argument('--out', type=Path, required=True, metavar='FILE.yaml',
-                        help='parameter file to write (only after a successful fit)')
+                        help='parameter file to write (only after a successful fit; an existing file is refused '
+                        'unless --force)')
+    parser.add_argument('--force', action='store_true',
+                        help='replace an existing --out file (and --plot figure)')
     add_common(parser)
     parser.add_argument('--axis', action='append', metavar='NAME',
                         help='axis to refit (repeatable; default: every configured axis present in the logs)')
@@ -318,19 +309,9 @@ def _axis_record(f: AxisRefit) -> dict[str, Any]:
         'message': r.message,
         'fine_bins': r.n_bins,
         'offset': offset_record(r),
+        'offset_confounding': confounding_record(r),
         'warnings': list(r.warnings),
     }
-
-
-def offset_record(r: RefitResult) -> dict[str, Any]:
-    """The calibration offset of a refit as JSON (torques in N*mm)."""
-    o = r.offset
-    return {'mode': o.mode, 'estimated': o.estimated, 'reason': o.reason, 'value_nmm': 1e3 * o.value_nm,
-            'standard_error_nmm': 1e3 * o.standard_error_nm,
-            'ci95_nmm': [1e3 * o.confidence_interval_nm[0], 1e3 * o.confidence_interval_nm[1]],
-            'calibration_se_nmm': 1e3 * o.calibration_se_nm, 'exceeds_calibration': o.exceeds_calibration,
-            'torque_constant_nm_per_a': o.torque_constant_nm_per_a, 'no_load_current_a': o.no_load_current_a,
-            'implied_no_load_current_a': o.implied_no_load_current_a}
 
 
 def offset_text(r: RefitResult) -> str:
@@ -388,6 +369,16 @@ def _print_axis(f: AxisRefit) -> None:
               'the viscous torque does not depend on viscosity at these speeds')
 
 
+def _empty_reason(data: AxisData, direction: str) -> str:
+    """Why an axis of the logs has no usable sample ('' if it has some): its rows, what was skipped, the filter."""
+    if data.stats.n_samples > 0:
+        return ''
+    if data.rows == 0:
+        return f'the logs hold no rows of it moving {direction.upper()} (--direction {direction})'
+    return (f'all {data.rows} rows skipped ({data.skipped_nonfinite} with a non-finite temperature, velocity or '
+            f'measurement, {data.skipped_standstill} at standstill)')
+
+
 def calibration_se_by_axis(args: argparse.Namespace, axes: list[str]) -> dict[str, float | None]:
     """The T_0 uncertainty [N*m] to compare each axis' offset with, from --calibration-se or --calibration."""
     out: dict[str, float | None] = dict.fromkeys(axes)
@@ -411,6 +402,9 @@ def run(args: argparse.Namespace) -> int:
     if out.is_dir():
         msg = f'--out {out} is a directory; give a file name such as refit.yaml'
         raise GimbalFrictionError(msg)
+    refuse_existing(out, '--out', force=args.force)
+    if args.plot is not None:
+        refuse_existing(args.plot, '--plot', force=args.force)
     if not (math.isfinite(args.bin_width) and args.bin_width > 0.0):
         raise ConfigError('--bin-width', 'must be > 0 [degC]', args.bin_width)
     fit = parse_fit(args.fit)
@@ -419,12 +413,18 @@ def run(args: argparse.Namespace) -> int:
         read_calibration_se(args.calibration)  # refuse a bad file before reading the logs
     report = ReadReport()
     data_by_joint = read_stats(list(args.logs), direction=args.direction, report=report)
+    print_read_note(report)
     where = ', '.join(str(p) for p in args.logs)
     if not data_by_joint:
-        msg = f'{where}: the residual log holds no {RESIDUAL_DETAIL} samples'
+        msg = f'{where}: the residual log holds no {RESIDUAL_DETAIL} samples ({report.summary()})'
         raise FitError(msg)
     present = sorted(data_by_joint)
     axes, ignored = _select_axes(args, cfg, present)
+    for axis in axes:
+        empty = _empty_reason(data_by_joint[axis], args.direction)
+        if empty:
+            msg = f'{where}: no usable samples of axis {axis!r}: {empty}'
+            raise FitError(msg)
     cal_se = calibration_se_by_axis(args, axes)
     fits: list[AxisRefit] = []
     for axis in axes:
@@ -450,14 +450,15 @@ def run(args: argparse.Namespace) -> int:
 
     if args.format == 'json':
         print_json({'logs': [str(p) for p in args.logs], 'files': [str(p) for p in report.files],
-                    'truncated_files': [str(p) for p in report.truncated_files], 'out': str(out),
+                    'truncated_files': [str(p) for p in report.truncated_files], 'read': report.as_dict(),
+                    'out': str(out),
                     'plot': None if args.plot is None else str(args.plot), 'fit': list(fit),
                     'config': [str(c) for c in args.config], 'offset_mode': args.offset,
                     'ignored_joints': ignored, 'axes': {f.axis: _axis_record(f) for f in fits}})
         print(f'wrote {out}' + ('' if args.plot is None else f', plot: {args.plot}'), file=sys.stderr)
         return 0
     print(f'refit of {", ".join(fit)} from {len(report.files)} file(s) in {where}'
-          + (f' ({len(report.truncated_files)} truncated)' if report.truncated_files else ''))
+          + (f' (skipped: {report.summary()})' if report.skipped else ''))
     if ignored:
         print(f'joints not configured, ignored: {", ".join(ignored)}')
     for f in fits:

@@ -9,7 +9,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from gimbal_friction.cli._common import add_common, print_json, progress, write_text_atomic
+from gimbal_friction.cli._common import add_common, print_json, progress, refuse_existing, write_text_atomic
 from gimbal_friction.common.errors import ConfigError
 from gimbal_friction.recording.topics import CHAMBER_TOPICS
 
@@ -74,9 +74,7 @@ def run(args: argparse.Namespace) -> int:
     topic_map = parse_topic_options(args.topic)
     joint_map = parse_joint_options(args.joint)
     out: Path = args.out
-    if (out / 'residuals').exists() and any((out / 'residuals').iterdir()):
-        raise ConfigError('--out', f'{out / "residuals"} already holds a log; choose another --out '
-                          '(nothing is overwritten)')
+    refuse_existing(out / 'residuals', '--out', what='a log')  # the one rule of every command's outputs
     t0 = time.perf_counter()
     stages: dict[str, int] = {}
 

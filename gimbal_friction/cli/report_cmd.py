@@ -3,11 +3,18 @@
 from __future__ import annotations
 
 import argparse
-import sys
 from pathlib import Path
 from typing import Any, cast
 
-from gimbal_friction.cli._common import add_common, format_table, load_axis, os_error_text, print_json
+from gimbal_friction.cli._common import (
+    add_common,
+    format_table,
+    load_axis,
+    os_error_text,
+    print_json,
+    print_read_note,
+    refuse_existing,
+)
 from gimbal_friction.common.errors import GimbalFrictionError
 from gimbal_friction.config.loader import axis_params, load_parameters
 from gimbal_friction.physics.model import friction_torque
@@ -29,6 +36,8 @@ def add_parser(sub: Any) -> None:
     parser.add_argument('--compare', type=Path, metavar='FILE.yaml',
                         help='a parameter file (e.g. from refit) layered over --config: drawn as a second model '
                         'curve in Fig. 13')
+    parser.add_argument('--force', action='store_true',
+                        help='replace figures of an earlier report in --out (refused otherwise)')
     parser.set_defaults(func=run)
 
 
@@ -40,22 +49,29 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _run(args: argparse.Namespace) -> int:
-    from gimbal_friction.plots.figures import model_figures
+    from gimbal_friction.plots.figures import FIG13_FILE, MODEL_FIGURE_FILES, model_figures, plot_model_vs_measured
     axis, params, _ = load_axis(args)
     if args.compare is not None:  # refuse a bad --compare file before drawing anything
         load_parameters([*args.config, args.compare])
+    names = [*MODEL_FIGURE_FILES, *([FIG13_FILE] if args.residuals else [])]
+    for name in names:  # one rule for every command's outputs: nothing existing is overwritten without --force
+        refuse_existing(args.out / name, '--out', force=args.force)
+    summary = None
+    read: dict[str, Any] = {}
+    if args.residuals:  # read (and refuse empty logs) before drawing anything
+        summary, models, read = _fig13_data(args, axis, params)
     files = model_figures(params, args.out)
     temps = [-40.0, -20.0, 0.0, 20.0, 40.0, 60.0]
     res = friction_torque(params, temps)
     rows = res.records()
-    summary = None
-    if args.residuals:
-        summary, fig13 = _fig13(args, axis, params)
-        files.append(fig13)
+    if summary is not None:
+        files.append(plot_model_vs_measured(summary, models, args.out / FIG13_FILE,
+                                            title=f'{axis}: model vs measured by direction (paper Fig. 13)'))
     if args.format == 'json':
-        doc = {'axis': axis, 'figures': [str(f) for f in files], 'fig11': rows}
+        doc: dict[str, Any] = {'axis': axis, 'figures': [str(f) for f in files], 'fig11': rows}
         if summary is not None:
             doc['fig13'] = summary
+            doc['read'] = read
         print_json(doc)
         return 0
     print(f'axis {axis}: figures written to {args.out}/')
@@ -87,24 +103,34 @@ def summary_table(summary: list[dict[str, Any]]) -> str:
     return format_table(rows, header)
 
 
-def _fig13(args: argparse.Namespace, axis: str, params: Any) -> tuple[list[dict[str, Any]], Path]:
+def _fig13_data(args: argparse.Namespace, axis: str,
+                params: Any) -> tuple[list[dict[str, Any]], dict[str, Any], dict[str, Any]]:
+    """Fig. 13's plateau summary of the residual logs, the models to draw, and what the read skipped.
+
+    Raises:
+        GimbalFrictionError: the logs hold no samples of ``axis``, or no temperature plateau (named, with why).
+    """
     from gimbal_friction.config.loader import load_parameters
-    from gimbal_friction.estimation.residuals import plateau_summary, steady_temperature
+    from gimbal_friction.estimation.residuals import plateau_summary
     from gimbal_friction.physics.direction import SCALAR, direction_factor
-    from gimbal_friction.plots.figures import plot_model_vs_measured
-    from gimbal_friction.recording.residual_read import read_residual_rows, read_temperature_stream
+    from gimbal_friction.recording.residual_read import read_residual_rows
     d, report = read_residual_rows(args.residuals)
-    if report.truncated_files or report.bad_chunks or report.skipped_rows:
-        print(f'note: residual logs: {report.summary()}', file=sys.stderr)
+    print_read_note(report)
+    where = ', '.join(str(p) for p in args.residuals)
     sel = d.joint == axis
     if not sel.any():
-        raise GimbalFrictionError(f'the residual logs hold no samples of axis {axis!r}')
-    t_time, t_value = read_temperature_stream(args.residuals)
-    if t_time.size < 2:  # the inputs were not logged: judge the plateaus on the samples' own temperatures
-        t_time, t_value = d.stamp_s[sel], d.temperature_c[sel]
-    steady = steady_temperature(d.stamp_s[sel], t_time, t_value)
+        present = sorted({str(j) for j in d.joint.tolist()})
+        why = (f'joints present: {", ".join(present)}; pass --axis with one of them or --config with those axes'
+               if present else f'no residual rows at all: {report.summary()}')
+        raise GimbalFrictionError(f'{where}: the residual logs hold no samples of axis {axis!r} ({why})')
+    # the plateaus by the one rule of replay and refit (core/plateaus.py), on the samples' own temperatures
     summary = plateau_summary(d.temperature_c[sel], d.velocity_rad_s[sel], d.measured_nm[sel],
-                              d.predicted_nm[sel], joint=d.joint[sel], steady=steady)
+                              d.predicted_nm[sel], joint=d.joint[sel], stamp_s=d.stamp_s[sel])
+    if not summary:
+        msg = (f'{where}: no temperature plateau of axis {axis!r} to compare with ({int(sel.sum())} rows; a '
+               'plateau needs 10 samples taken while the bearing temperature held within 1 degC/min over 30 s, '
+               'and 10 samples per direction)')
+        raise GimbalFrictionError(msg)
     models = {'configured': params}
     if args.compare is not None:
         compared = axis_params(load_parameters([*args.config, args.compare]), axis)
@@ -114,6 +140,4 @@ def _fig13(args: argparse.Namespace, axis: str, params: Any) -> tuple[list[dict[
             t_c = float(cast('float', r['temperature_c']))
             m = float(friction_torque(compared, t_c).m_total_nmm)
             r['compare_nmm'] = sign * direction_factor(compared, t_c, sign, SCALAR) * m
-    path = plot_model_vs_measured(summary, models, args.out / 'fig13_model_vs_measured.png',
-                                  title=f'{axis}: model vs measured by direction (paper Fig. 13)')
-    return summary, path
+    return summary, models, report.as_dict()

@@ -6,12 +6,21 @@ import os
 import tempfile
 from pathlib import Path
 
-from gimbal_friction.common.errors import GimbalFrictionError
+from gimbal_friction.common.errors import ConfigError, GimbalFrictionError
 
 
 def write_text_atomic(path: Path, text: str) -> None:
-    """Write ``text`` to ``path`` through a temporary file and a rename: an existing file is replaced whole or
-    not at all (nothing half-written, nothing lost on a refused or failed run).
+    """Write ``text`` (UTF-8) to ``path`` atomically: :func:`write_bytes_atomic`.
+
+    Raises:
+        GimbalFrictionError: ``path`` is a directory or cannot be written.
+    """
+    write_bytes_atomic(path, text.encode('utf-8'))
+
+
+def write_bytes_atomic(path: Path, data: bytes) -> None:
+    """Write ``data`` to ``path`` through a temporary file in the same folder and a rename: an existing file is
+    replaced whole or not at all, and a failed write (full disk, read-only) leaves no partial file behind.
 
     Raises:
         GimbalFrictionError: ``path`` is a directory or cannot be written.
@@ -23,8 +32,8 @@ def write_text_atomic(path: Path, text: str) -> None:
         path.parent.mkdir(parents=True, exist_ok=True)
         fd, tmp = tempfile.mkstemp(prefix=f'.{path.name}.', suffix='.tmp', dir=path.parent)
         try:
-            with os.fdopen(fd, 'w', encoding='utf-8') as f:
-                f.write(text)
+            with os.fdopen(fd, 'wb') as f:
+                f.write(data)
             os.replace(tmp, path)
         except BaseException:
             Path(tmp).unlink(missing_ok=True)
@@ -32,6 +41,28 @@ def write_text_atomic(path: Path, text: str) -> None:
     except OSError as err:
         msg = f'cannot write {path}: {os_error_text(err)}'
         raise GimbalFrictionError(msg) from None
+
+
+def refuse_existing(path: Path, option: str = '--out', *, force: bool | None = None, what: str = 'files') -> None:
+    """The one rule of every command's outputs: an existing file, or a folder that is not empty, is not
+    overwritten. ``force`` None: the command has no ``--force`` (choose another path); False: refused, naming
+    ``--force``; True: allowed.
+
+    Raises:
+        ConfigError: ``path`` exists (one line: the path, that nothing was written, the fix).
+    """
+    if force:
+        return
+    if path.is_dir():
+        if not any(path.iterdir()):
+            return
+        held = f'already holds {what}'
+    elif path.exists() or path.is_symlink():
+        held = 'already exists'
+    else:
+        return
+    fix = f'choose another {option}' + ('' if force is None else ', or pass --force to replace it')
+    raise ConfigError(option, f'{path} {held}; nothing written ({fix})')
 
 
 def os_error_text(err: OSError) -> str:

@@ -82,6 +82,7 @@ from gimbal_friction.common.settings import setting
 from gimbal_friction.common.units import NS_PER_S, ns_from_seconds
 from gimbal_friction.common.xp import ARRAY
 from gimbal_friction.estimation.kt import friction_from_current_Eq23
+from gimbal_friction.estimation.plateaus import plateau_of
 from gimbal_friction.estimation.statistics import GroupStatistics
 from gimbal_friction.physics.params import MODEL_T_MAX_C, MODEL_T_MIN_C, AxisParams
 from gimbal_friction.streams.arrays import (
@@ -233,11 +234,6 @@ class EstimatorCounters:
         return {'accepted': dict(self.accepted),
                 'rejected': {j: dict(r) for j, r in self.rejected.items()},
                 'temperature_rejected': dict(self.temperature_rejected)}
-
-
-def plateau_of(temperature_c: Any, bin_c: float) -> Any:
-    """Statistics plateau of a temperature: ``round(t / bin) * bin`` [°C] (half to even; arrays too)."""
-    return np.round(np.asarray(temperature_c, dtype=np.float64) / bin_c) * bin_c + 0.0
 
 
 class _History(NamedTuple):

@@ -16,6 +16,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from gimbal_friction.common.units import nmm_from_nm
+from gimbal_friction.estimation.plateaus import plateau_bins, plateau_of, usable_samples
 from gimbal_friction.estimation.statistics import GroupStatistics
 from gimbal_friction.streams.residual_row import ResidualRows
 
@@ -100,10 +101,8 @@ class ResidualStats:
 
 
 def temperature_bins(t_c: ArrayLike, bin_c: float) -> NDArray[np.float64]:
-    """Centre of the temperature bin of each temperature [°C] (NaN stays NaN)."""
-    t = np.asarray(t_c, dtype=np.float64)
-    with np.errstate(invalid='ignore'):
-        return np.round(t / bin_c) * bin_c + 0.0
+    """Centre of the temperature bin of each temperature [°C] (NaN stays NaN): :func:`plateau_of`."""
+    return np.asarray(plateau_of(t_c, bin_c), dtype=np.float64)
 
 
 def steady_temperature(sample_time_s: ArrayLike, temperature_time_s: ArrayLike, temperature_c: ArrayLike, *,
@@ -138,13 +137,18 @@ def steady_temperature(sample_time_s: ArrayLike, temperature_time_s: ArrayLike, 
 
 def plateau_summary(temperature_c: ArrayLike, velocity_rad_s: ArrayLike, measured_nm: ArrayLike,
                     predicted_nm: ArrayLike, *, bin_c: float = 5.0, min_samples: int = 10,
-                    joint: Iterable[str] | None = None, steady: ArrayLike | None = None) -> list[dict[str, Any]]:
+                    joint: Iterable[str] | None = None, steady: ArrayLike | None = None,
+                    stamp_s: ArrayLike | None = None) -> list[dict[str, Any]]:
     """One record per temperature plateau and direction: the paper's per-temperature means (Fig. 13).
 
-    Plateaus are temperature bins of width ``bin_c`` [°C] holding at least ``min_samples`` samples per direction;
-    with ``steady`` (a mask, e.g. from :func:`steady_temperature`) only those samples count, so the ramps between
-    the chamber's set points do not make plateaus of their own. Direction ``cw`` is positive motion (the paper's
-    clockwise), ``ccw`` negative; means are signed [N·mm]. A NaN prediction (no feedforward) leaves
+    Samples are assigned to plateaus by the one rule of :mod:`gimbal_friction.estimation.plateaus` (the refit's): bins
+    of width ``bin_c`` [°C], every usable sample of a bin counted; a record needs ``min_samples`` per direction.
+    With ``steady`` (a mask, e.g. from :func:`steady_temperature`) only bins holding at least ``min_samples``
+    steady samples are plateaus, so the ramps between the chamber's set points do not make plateaus of their own
+    (the mask decides which bins are listed, not which samples they count). Without a mask but with the samples'
+    times ``stamp_s`` [s], the mask is :func:`steady_temperature` of each joint's samples' own temperatures (no
+    second time base to align: what ``replay`` and ``report`` use). Direction ``cw`` is positive motion
+    (the paper's clockwise), ``ccw`` negative; means are signed [N·mm]. A NaN prediction (no feedforward) leaves
     ``predicted_nmm`` and ``residual_nmm`` NaN for the samples that lack it.
     """
     t = np.asarray(temperature_c, dtype=float)
@@ -152,16 +156,21 @@ def plateau_summary(temperature_c: ArrayLike, velocity_rad_s: ArrayLike, measure
     meas = np.asarray(measured_nm, dtype=float)
     pred = np.asarray(predicted_nm, dtype=float)
     joints = np.asarray(list(joint) if joint is not None else ['axis'] * len(t))
-    ok = np.isfinite(t) & np.isfinite(v) & np.isfinite(meas)
-    if steady is not None:
-        ok &= np.asarray(steady, dtype=bool)
-    bins = np.full(t.shape, np.nan)
-    bins[ok] = temperature_bins(t[ok], bin_c)
+    ok = usable_samples(t, v, meas)
+    bins = np.where(ok, plateau_of(t, bin_c), np.nan)
+    mask = None if steady is None else np.asarray(steady, dtype=bool)
+    if mask is None and stamp_s is not None:
+        stamps = np.asarray(stamp_s, dtype=float)
+        mask = np.zeros(t.shape, dtype=bool)
+        for j in set(joints[ok].tolist()):
+            mine = ok & (joints == j)
+            mask[mine] = steady_temperature(stamps[mine], stamps[mine], t[mine])
     out: list[dict[str, Any]] = []
     for j in sorted(set(joints[ok].tolist())):
-        for b in np.unique(bins[ok & (joints == j)]):
+        mine = ok & (joints == j)
+        for b in plateau_bins(bins[mine], None if mask is None else mask[mine], min_steady=min_samples):
             for name, sign in (('cw', 1.0), ('ccw', -1.0)):
-                sel = ok & (joints == j) & (bins == b) & (np.sign(v) == sign)
+                sel = mine & (bins == b) & (np.sign(v) == sign)
                 n = int(sel.sum())
                 if n < min_samples:
                     continue
@@ -171,5 +180,6 @@ def plateau_summary(temperature_c: ArrayLike, velocity_rad_s: ArrayLike, measure
                 out.append({'joint': j, 'temperature_c': round(float(t[sel].mean()), 3), 'direction': name,
                             'sign': int(sign), 'measured_mean_nmm': m_mean,
                             'measured_std_nmm': nmm_from_nm(float(meas[sel].std(ddof=1))) if n > 1 else 0.0,
-                            'predicted_nmm': p_mean, 'residual_nmm': m_mean - p_mean, 'samples': n})
+                            'predicted_nmm': p_mean, 'residual_nmm': m_mean - p_mean, 'samples': n,
+                            'plateau_c': float(b)})
     return out

@@ -8,7 +8,6 @@ from typing import Any
 
 import numpy as np
 
-from gimbal_friction.common.errors import GimbalFrictionError
 from gimbal_friction.common.xp import ARRAY
 from gimbal_friction.physics.direction import direction_factor
 from gimbal_friction.physics.model import FrictionResult, friction_torque
@@ -17,6 +16,12 @@ from gimbal_friction.physics.params import AxisParams
 #: Paper test means, Sec. 6 / Fig. 13: (temperature [°C], |torque| [N·mm]) per direction.
 PAPER_TEST_CW = ((-40.0, 3.19), (60.0, 1.05))
 PAPER_TEST_CCW = ((-40.0, 2.45), (60.0, 1.34))
+#: The files :func:`model_figures` writes, in order.
+MODEL_FIGURE_FILES = ('fig05_free_contact_angle.png', 'fig07_axial_force_gasket.png',
+                      'fig08_axial_force_interference.png', 'fig09_torque_gasket.png', 'fig10_torque_interference.png',
+                      'fig11_components.png')
+#: The file of ``report``'s Fig. 13 (model vs measured).
+FIG13_FILE = 'fig13_model_vs_measured.png'
 
 
 def pyplot() -> Any:
@@ -28,16 +33,18 @@ def pyplot() -> Any:
 
 
 def save_figure(fig: Any, path: Path) -> Path:
-    """Save ``fig`` as PNG at ``path`` (folders created) and close it; an unwritable path is a
-    GimbalFrictionError with the reason."""
-    path.parent.mkdir(parents=True, exist_ok=True)
+    """Save ``fig`` as PNG at ``path`` (folders created; written atomically) and close it; an unwritable path is
+    a GimbalFrictionError with the reason."""
+    import io
+
+    from gimbal_friction.common.files import write_bytes_atomic
+
+    buf = io.BytesIO()
     try:
-        fig.savefig(path, dpi=110)
-    except OSError as err:
-        msg = f'cannot write {path}: {err.strerror}'
-        raise GimbalFrictionError(msg) from None
+        fig.savefig(buf, format='png', dpi=110)
     finally:
         pyplot().close(fig)
+    write_bytes_atomic(path, buf.getvalue())  # whole or not at all: a full disk leaves no partial PNG
     return path
 
 
@@ -87,30 +94,30 @@ def model_figures(params: AxisParams, out_dir: Path, t_min: float = -40.0, t_max
     out = []
     deltas = [0.0, 0.004, 0.006, 0.008]
     res = _family(params, t, 'interference_mm', deltas)
-    out.append(_family_plot(out_dir / 'fig05_free_contact_angle.png', t, res, [f'Δ = {d:g} mm' for d in deltas],
+    out.append(_family_plot(out_dir / MODEL_FIGURE_FILES[0], t, res, [f'Δ = {d:g} mm' for d in deltas],
                             'free_contact_angle_deg', 'free contact angle α° [deg]',
                             'Free contact angle vs temperature for several interferences (paper Fig. 5)'))
     gaskets = [0.0, 0.01, 0.02, 0.03]
     res_p = _family(params, t, 'gasket_thickness_mm', gaskets)
     labels_p = [f'P = {g:g} mm' for g in gaskets]
     d_now = params.interference_mm
-    out.append(_family_plot(out_dir / 'fig07_axial_force_gasket.png', t, res_p, labels_p, 'axial_force_n',
+    out.append(_family_plot(out_dir / MODEL_FIGURE_FILES[1], t, res_p, labels_p, 'axial_force_n',
                             'axial force per bearing F_a [N]',
                             f'Axial force for several gasket thicknesses, Δ = {d_now:g} mm (paper Fig. 7)'))
     deltas8 = [0.004, 0.006, 0.008]
     res_d = _family(params, t, 'interference_mm', deltas8)
     labels_d = [f'Δ = {d:g} mm' for d in deltas8]
     p_now = params.gasket_thickness_mm
-    out.append(_family_plot(out_dir / 'fig08_axial_force_interference.png', t, res_d, labels_d, 'axial_force_n',
+    out.append(_family_plot(out_dir / MODEL_FIGURE_FILES[2], t, res_d, labels_d, 'axial_force_n',
                             'axial force per bearing F_a [N]',
                             f'Axial force for several interferences, P = {p_now:g} mm (paper Fig. 8)'))
-    out.append(_family_plot(out_dir / 'fig09_torque_gasket.png', t, res_p, labels_p, 'ms_mr',
+    out.append(_family_plot(out_dir / MODEL_FIGURE_FILES[3], t, res_p, labels_p, 'ms_mr',
                             '$M_S + M_R$ of the axis [N·mm]',
                             f'$M_S + M_R$ for several gasket thicknesses, Δ = {d_now:g} mm (paper Fig. 9)'))
-    out.append(_family_plot(out_dir / 'fig10_torque_interference.png', t, res_d, labels_d, 'ms_mr',
+    out.append(_family_plot(out_dir / MODEL_FIGURE_FILES[4], t, res_d, labels_d, 'ms_mr',
                             '$M_S + M_R$ of the axis [N·mm]',
                             f'$M_S + M_R$ for several interferences, P = {p_now:g} mm (paper Fig. 10)'))
-    out.append(plot_components(friction_torque(params, t), out_dir / 'fig11_components.png'))
+    out.append(plot_components(friction_torque(params, t), out_dir / MODEL_FIGURE_FILES[5]))
     return out
 
 

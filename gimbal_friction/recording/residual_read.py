@@ -104,6 +104,19 @@ class ReadReport:
             parts.append(f'{self.skipped_rows} residual_detail messages that are not rows skipped')
         return '; '.join(parts)
 
+    @property
+    def skipped(self) -> bool:
+        """Some data were not read: a file cut short, a damaged chunk, or residual_detail messages that are not
+        rows (every command that reads logs says so, with :meth:`summary`)."""
+        return bool(self.truncated_files or self.bad_chunks or self.unknown_loss or self.skipped_rows)
+
+    def as_dict(self) -> dict[str, Any]:
+        """What was read and what was skipped, JSON-ready (the ``read`` record of refit, report and fleet)."""
+        return {'files': len(self.files), 'rows': self.rows,
+                'truncated_files': [str(p) for p in self.truncated_files], 'damaged_chunks': self.bad_chunks,
+                'lost_messages': self.lost_messages, 'unknown_loss': self.unknown_loss,
+                'skipped_messages': self.skipped_rows, 'skipped': self.skipped, 'summary': self.summary()}
+
 
 class LogMessage(NamedTuple):
     """One decoded message of a residual log."""

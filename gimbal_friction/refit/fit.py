@@ -39,7 +39,10 @@ that ``calibrate-kt`` prints): a warning is raised when ``|c| − 1.96 se_c > σ
 the calibration's 1-sigma even at the near end of its own 95 % interval (an I_0 off by 2 σ is flagged once the
 offset is known to better than about σ/2). A requested ``palmgren_factor`` (whose low-speed floor is a constant
 torque too) switches the automatic offset off; with ``offset='on'`` both are fitted and the offset, lowest in
-priority, is the one held if they turn out collinear.
+priority, is the one held if they turn out collinear. Either way any offset of the measurement then goes into the
+fitted parameters: when the data could have determined it, the result's ``offset_confounding`` gives the linear
+response of every fitted parameter (and of ν at the viscous plateaus) to a 1-sigma offset (the calibration's
+σ_T0, else K_T × 1 mA), and a warning names the parameters it moves by more than one standard error.
 ``offset='on'`` always fits it, ``'off'`` never. The offset is not a model parameter: the written parameters and
 the feedforward do not contain it.
 
@@ -89,6 +92,7 @@ from scipy.special import stdtrit
 
 from gimbal_friction.common.errors import ConfigError, FitError, GimbalFrictionError
 from gimbal_friction.common.units import NM_PER_NMM
+from gimbal_friction.estimation.plateaus import plateau_of
 from gimbal_friction.physics.direction import ARRAY, asymmetry_weight, direction_asymmetry, direction_factor
 from gimbal_friction.physics.friction import PALMGREN_THRESHOLD_CST_RPM, viscous_torque_Palmgren_1959
 from gimbal_friction.physics.model import friction_torque
@@ -191,6 +195,28 @@ class OffsetResult(NamedTuple):
     implied_no_load_current_a: float = math.nan  #: I_0 that removes the offset, I_0 + c/K_T [A]
 
 
+class OffsetConfounding(NamedTuple):
+    """How far a calibration torque offset that the fit did not estimate moves the fitted parameters.
+
+    Checked when the data could determine the offset (a viscous-regime and a warmer plateau) but the requested
+    fit set switched it off or made it collinear (``palmgren_factor``: its low-speed floor is a constant torque
+    too): any offset of the measurement then goes into the fitted parameters. The shifts are the linear response of
+    the weighted least-squares solution to a constant torque ``reference_offset_nm`` added to every group mean.
+    """
+
+    checked: bool                   #: the check ran (see above)
+    reference_offset_nm: float      #: the offset the shifts are for [N·m]
+    reference: str                  #: what that offset is (the calibration's T_0 1-sigma, or 1 mA of I_0)
+    shifts: dict[str, float]        #: parameter change for that offset [unit of the parameter]
+    shifts_in_se: dict[str, float]  #: the same in standard errors of the parameter [-]
+    viscosity_shift_rel: tuple[tuple[float, float], ...]  #: (temperature [°C], relative change of ν [-])
+    confounded: tuple[str, ...]     #: parameters moved by more than one standard error
+
+
+#: Not checked (the offset was fitted, switched off, or the data could not have determined it).
+NOT_CHECKED = OffsetConfounding(False, math.nan, '', {}, {}, (), ())
+
+
 class RefitResult(NamedTuple):
     """Outcome of :func:`refit_model`. Parameter dicts are keyed by the requested names, in priority order."""
 
@@ -213,6 +239,7 @@ class RefitResult(NamedTuple):
     offset: OffsetResult = OffsetResult('off', False, 'not requested')  #: calibration offset
     warnings: tuple[str, ...] = ()              #: things a user must look at (e.g. an offset beyond calibration)
     n_bins: int = 0                             #: fine bins the model was evaluated on [-]
+    offset_confounding: OffsetConfounding = NOT_CHECKED  #: an offset the fit set could not separate
 
     @property
     def refitted(self) -> dict[str, float]:
@@ -382,7 +409,7 @@ class _Groups(NamedTuple):
 
 
 def _group(pts: _Points, bin_width_c: float, min_bin_samples: int) -> _Groups:
-    t_bin = np.round(pts.t / bin_width_c) * bin_width_c + 0.0
+    t_bin = plateau_of(pts.t, bin_width_c)  # the one plateau rule (replay's summary and report use it too)
     s_bin = np.round(np.log(pts.n) / math.log(SPEED_BIN_RATIO)).astype(np.int64)
     d = np.where(pts.d > 0, 1, -1).astype(np.int64)
     keys = np.column_stack([t_bin, d.astype(float), s_bin.astype(float)])
@@ -835,6 +862,8 @@ def refit_stats(base: AxisParams, stats: SufficientStats, *, fit: Sequence[str] 
     requested = [name for name in FIT_PARAMETERS if name in fit]
     reasons = _a_priori_reasons(base, model, pts, used, requested, visc_temps0, groups)
     offset_on, offset_why = _offset_mode(offset, visc_temps0, groups, requested)
+    # the data could fix an offset (a cold and a warm plateau): if the fit set does not, say what it costs
+    offset_separable = offset != 'off' and bool(visc_temps0) and bool(set(groups.t_bin.tolist()) - set(visc_temps0))
     active = [name for name in requested if name not in reasons]
     if offset_on:
         active.append(OFFSET)
@@ -877,7 +906,7 @@ def refit_stats(base: AxisParams, stats: SufficientStats, *, fit: Sequence[str] 
         msg = f'the data determine none of the requested parameters ({why})'
         raise FitError(msg)
     return _result(base, stats, problem, groups, model, pts, tau0, upper0, visc_temps, requested, active, reasons,
-                   sol, offset, calibration_se_nm)
+                   sol, offset, calibration_se_nm, offset_separable)
 
 
 def _a_priori_reasons(base: AxisParams, model: SampleModel, pts: _Points, used: NDArray[np.bool_],
@@ -1003,7 +1032,7 @@ def _relative_se(problem: _Problem, active: Sequence[str], sol: _Solution) -> li
 def _result(base: AxisParams, stats: SufficientStats, problem: _Problem, groups: _Groups, model: SampleModel,
             pts: _Points, tau0: Array, upper0: NDArray[np.bool_], visc_temps: list[float], requested: list[str],
             active: list[str], reasons: dict[str, str], sol: _Solution, offset_mode: str,
-            calibration_se_nm: float | None) -> RefitResult:
+            calibration_se_nm: float | None, offset_separable: bool = False) -> RefitResult:
     cov_int, dof = _covariance(sol, problem.absolute)
     cov = sol.to_raw @ cov_int @ sol.to_raw.T
     se_active = dict(zip(active, np.sqrt(np.abs(np.diag(cov))).tolist(), strict=False))
@@ -1068,7 +1097,16 @@ def _result(base: AxisParams, stats: SufficientStats, problem: _Problem, groups:
             f'torque offset {1e3 * off.value_nm:+.4g} N*mm exceeds the calibration uncertainty (T_0 1-sigma '
             f'{1e3 * off.calibration_se_nm:.3g} N*mm): the no-load current is probably off (I_0 = '
             f'{off.implied_no_load_current_a:.6g} A would remove it; configured {off.no_load_current_a:.6g} A), or the '
-            'warm friction differs from the model; recalibrate (calibrate-kt), or refit with --fit ...,palmgren_factor')
+            'warm friction differs from the model. The fitted offset already keeps it out of the lubricant: check '
+            'that --calibration is the calibration the logs were measured with, recalibrate (calibrate-kt) and '
+            'replay or re-log with the new I_0, and refit with both directions (do not add palmgren_factor: it '
+            'switches the offset off and puts the calibration error into the viscosity)')
+    confounding = NOT_CHECKED
+    if offset_separable and not off.estimated:
+        confounding = _offset_confounding(problem, sol, active, model, viscosity, se_active, off,
+                                          calibration_se_nm)
+        if confounding.confounded:
+            warnings.append(_confounding_text(confounding, reasons.get(OFFSET, '')))
     n_used = float(c[used].sum())
     message = (f'fitted {", ".join(_label(n) for n in active)} from {int(round(n_used))} samples in '
                f'{groups.size.shape[0]} groups, {int(np.count_nonzero(used))} bins ({sol.nfev} evaluations: '
@@ -1081,7 +1119,61 @@ def _result(base: AxisParams, stats: SufficientStats, problem: _Problem, groups:
         bins=tuple(bins), viscous_temperatures_c=tuple(visc_temps), viscosity=viscosity,
         n_samples=int(round(n_used)), n_dropped=int(round(float(c[~used].sum()))), cost=sol.cost,
         success=sol.status > 0, message=message, offset=off, warnings=tuple(warnings),
-        n_bins=int(np.count_nonzero(used)))
+        n_bins=int(np.count_nonzero(used)), offset_confounding=confounding)
+
+
+#: Without a calibration uncertainty, the confounding check uses an I_0 error of this much [A].
+REFERENCE_I0_ERROR_A = 1e-3
+
+
+def _offset_confounding(problem: _Problem, sol: _Solution, active: Sequence[str], model: SampleModel,
+                        viscosity: Sequence[ViscosityInterval], se_active: Mapping[str, float], off: OffsetResult,
+                        calibration_se_nm: float | None) -> OffsetConfounding:
+    """Linear response of the fitted parameters (and of ν where the data determine it) to a constant torque
+    offset of every group mean: the calibration's T_0 1-sigma when given, else K_T × 1 mA of I_0."""
+    kt = off.torque_constant_nm_per_a
+    if calibration_se_nm is not None and calibration_se_nm > 0.0:
+        ref, label = float(calibration_se_nm), 'the calibration T_0 1-sigma'
+    else:
+        ref = kt * REFERENCE_I0_ERROR_A
+        label = f'an I_0 error of {1e3 * REFERENCE_I0_ERROR_A:g} mA at K_T = {kt:.4g} N*m/A'
+    J = sol.jac_internal
+    try:  # r = (y - model)/se: y + c changes r by c/se; Gauss-Newton step of the solution
+        d_int = -np.linalg.lstsq(J, ref / problem.se, rcond=None)[0]
+    except np.linalg.LinAlgError:
+        return NOT_CHECKED
+    d_raw = sol.to_raw @ d_int
+    names = list(active)
+    shifts = {name: float(d_raw[k]) for k, name in enumerate(names) if name != OFFSET}
+    in_se = {name: abs(x) / se_active[name] if se_active.get(name, 0.0) > 0.0 else math.inf
+             for name, x in shifts.items()}
+    visc = [name for name in names if name in VISCOSITY_PARAMETERS]
+    nu_shift = []
+    if visc:
+        col = {'walther_a': 0, 'walther_b': 1, 'viscosity_offset_cst': 2}
+        v1 = sol.values
+        for vi in viscosity:
+            T = np.array([vi.temperature_c + model.base.kelvin_offset_k])
+            jac = nu_Walther_fitting_jacobian(T, v1['walther_a'], v1['walther_b'], v1['viscosity_offset_cst'],
+                                              model.base.viscosity_model)[0]
+            g = np.array([jac[col[name]] for name in visc]) / vi.after_cst
+            nu_shift.append((vi.temperature_c, float(math.expm1(float(g @ np.array([shifts[n] for n in visc]))))))
+    confounded = tuple(name for name, k in in_se.items() if k > 1.0)
+    return OffsetConfounding(True, ref, label, shifts, in_se, tuple(nu_shift), confounded)
+
+
+def _confounding_text(c: OffsetConfounding, why: str) -> str:
+    """The warning of a fit set that cannot separate its parameters from a calibration offset (with numbers)."""
+    moves = ', '.join(f'{name} by {c.shifts[name]:+.3g} ({c.shifts_in_se[name]:.1f} standard errors)'
+                      for name in c.confounded)
+    nu = ''.join(f', the viscosity at {t:.1f} degC by {100 * x:+.1f} %' for t, x in c.viscosity_shift_rel[:1])
+    held = 'switched off' if why.startswith('auto') else (why or 'not fitted')
+    return (f'{", ".join(c.confounded)} cannot be told apart from a calibration torque offset here (the offset is '
+            f'{held} with this fit set), so any offset goes into them: an offset of '
+            f'{1e3 * c.reference_offset_nm:.3g} N*mm ({c.reference}) moves {moves}{nu}. To keep the calibration '
+            'out of the lubricant, refit without palmgren_factor (the offset is then fitted; both directions with '
+            '--fit walther_a,direction_asymmetry where the unit has a CW/CCW asymmetry), or check the calibration '
+            '(--calibration FILE from calibrate-kt)')
 
 
 def _offset_result(mode: str, reasons: dict[str, str], se_active: dict[str, float], sol: _Solution, q: float,

@@ -3,9 +3,9 @@
 :func:`live_study` starts ``friction_feedforward``, ``friction_estimator`` (method ``observer``) and
 ``residual_logger`` as processes with the study's parameter files, waits until they are connected, then runs
 ``gimbal_sim`` once per live case (``exit_when_done``, ``wait_for_subscribers``, ``record_path``) on a free
-ROS_DOMAIN_ID with ``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST`` (the supervisor of :mod:`gimbal_friction.runs.demo`;
-processes are stopped with SIGINT on success, failure and Ctrl-C). Each ``gimbal_sim`` run writes its traces and
-latencies (:func:`save_run`); :func:`load_run` turns them into the same
+ROS_DOMAIN_ID with ``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST`` (the supervisor of
+:mod:`gimbal_friction.runs.supervisor`; processes are stopped with SIGINT on success, failure and Ctrl-C). Each
+``gimbal_sim`` run writes its traces and latencies (:func:`save_run`); :func:`load_run` turns them into the same
 :class:`~gimbal_friction.sim.engine.BatchResult` the offline study measures, so both are measured by the same
 :func:`~gimbal_friction.sim.metrics.batch_metrics`. The same case is then simulated offline with the
 feedforward delayed by the age the live run applied it with (its median, in controller ticks), and the two LOS
@@ -285,7 +285,7 @@ def _parameter_files(inputs: Any, work_dir: Path) -> list[Path]:
     import yaml
 
     from gimbal_friction.config.loader import render_parameter_file
-    from gimbal_friction.runs.demo import packaged_params_file
+    from gimbal_friction.runs.supervisor import packaged_params_file
     with packaged_params_file() as packaged:
         text = Path(packaged).read_text(encoding='utf-8')
     files = [work_dir / 'packaged.yaml']
@@ -309,7 +309,7 @@ def _parameter_files(inputs: Any, work_dir: Path) -> list[Path]:
 
 def _supervisor(env: dict[str, str], log_dir: Path) -> Any:
     """The demo's supervisor, starting ``gimbal_sim`` runs under their own names and letting them exit."""
-    from gimbal_friction.runs.demo import Supervisor, node_command
+    from gimbal_friction.runs.supervisor import Supervisor, node_command
 
     class LoopSupervisor(Supervisor):
         def start_as(self, name: str, exe: str, args: Sequence[str]) -> subprocess.Popen[bytes]:

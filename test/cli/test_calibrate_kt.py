@@ -131,13 +131,25 @@ def test_refusals_are_one_line_and_keep_existing_output(tmp_path, capsys, header
     path = write_csv(tmp_path / 'bad.csv', rows, header)
     out = tmp_path / 'kt.yaml'
     out.write_text('# previous calibration\n')
-    assert main(['calibrate-kt', str(path), '--out', str(out)]) == 1
+    assert main(['calibrate-kt', str(path), '--out', str(out), '--force']) == 1
     err = capsys.readouterr().err
     assert err.startswith('gimbal-friction calibrate-kt: error: ')
     assert reason in err
     assert err.count('\n') == 1
     assert out.read_text() == '# previous calibration\n'  # nothing lost
     assert sorted(p.name for p in tmp_path.iterdir()) == ['bad.csv', 'kt.yaml']  # no temp file left
+
+
+def test_an_existing_output_is_refused_unless_force(synthetic_csv, tmp_path, capsys):
+    path, *_ = synthetic_csv
+    out = tmp_path / 'kt.yaml'
+    out.write_text('# previous calibration\n')
+    assert main(['calibrate-kt', str(path), '--out', str(out)]) == 1
+    err = capsys.readouterr().err
+    assert err.count('\n') == 1 and 'already exists; nothing written' in err and '--force' in err
+    assert out.read_text() == '# previous calibration\n'
+    assert main(['calibrate-kt', str(path), '--out', str(out), '--force']) == 0
+    assert out.read_text().startswith('# gimbal-friction calibrate-kt')
 
 
 def test_refused_fit_creates_no_file(tmp_path, capsys):

@@ -28,10 +28,10 @@ SPEED = 2.0 * math.pi / 180.0   # 1/3 rpm [rad/s]
 
 
 def write_unit(folder: Path, truth: AxisParams, seed: int, plateaus=(-40.0, -20.0, 0.0, 20.0, 40.0, 60.0),
-               n_per: int = 80) -> Path:
+               n_per: int = 80, **writer_kwargs) -> Path:
     rng = np.random.default_rng(seed)
     k = 0
-    with ResidualLogWriter(folder) as writer:
+    with ResidualLogWriter(folder, **writer_kwargs) as writer:
         for plateau in plateaus:
             for sign in (1.0, -1.0):
                 t = plateau + rng.normal(0.0, 0.05, n_per)
@@ -118,6 +118,49 @@ def test_a_broken_unit_is_reported_not_fatal(fleet_dir, tmp_path, capsys):
     err = next(u['error'] for u in doc['units'] if u['unit'] == 'broken')
     assert err and 'mcap' in err.lower()
     assert 'broken' in capsys.readouterr().err
+
+
+def test_damaged_chunks_of_a_unit_are_counted_and_said(tmp_path):
+    """Every command that skips data says how much: the unit's record carries the count, its progress line says it."""
+    import io
+
+    from gimbal_friction.chamber.fleet import progress_line
+    from gimbal_friction.recording.mcap_scan import McapScanner
+    folder = write_unit(tmp_path / 'unit', AxisParams().replace(walther_a=AxisParams().walther_a + 0.02), seed=3,
+                        chunk_size=4096)
+    (path,) = folder.glob('*.mcap')
+    data = bytearray(path.read_bytes())
+    pos, k = 8, 0
+    while True:  # zero 16 bytes in the middle of the third chunk
+        length = int.from_bytes(data[pos + 1:pos + 9], 'little')
+        if data[pos] == 0x06:
+            if k == 2:
+                data[pos + 9 + length // 2:pos + 25 + length // 2] = bytes(16)
+                break
+            k += 1
+        pos += 9 + length
+    path.write_bytes(bytes(data))
+    scan = McapScanner(path)
+    sum(len(b) for b in scan.blocks())
+    lost = scan.report.lost_messages
+    settings = FitSettings(axes={'elevation': AxisParams()}, config_paths=(), fit=('walther_a',))
+    rec = process_unit(UnitSpec('unit', str(folder), 'log'), settings)
+    assert rec['error'] is None and rec['axes']['elevation']['samples'] == 960 - lost
+    assert (rec['read']['damaged_chunks'], rec['read']['lost_messages'], rec['read']['skipped']) == (1, lost, True)
+    line = io.StringIO()
+    progress_line(1, 1, rec, stream=line)
+    assert f'ok; skipped: 1 files, {960 - lost} residual rows; 1 damaged chunks skipped ({lost} messages lost)' \
+        in line.getvalue()
+
+
+def test_an_earlier_run_in_out_is_refused_unless_force(fleet_dir, tmp_path, capsys):
+    out = tmp_path / 'o'
+    out.mkdir()
+    (out / 'fleet.json').write_text('{}')
+    assert main(['fleet', str(fleet_dir / 'seeker_01'), '--out', str(out), '--threads']) == 1
+    err = capsys.readouterr().err.strip()
+    assert 'fleet.json already exists; nothing written' in err and '--force' in err
+    assert (out / 'fleet.json').read_text() == '{}'
 
 
 def test_refusals_are_one_line(tmp_path, capsys):

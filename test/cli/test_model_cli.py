@@ -61,6 +61,9 @@ def test_plot_written(tmp_path, capsys):
     assert main(['model', '--plot', str(png), '--format', 'json']) == 0
     json.loads(capsys.readouterr().out)  # stdout stays pure JSON
     assert png.stat().st_size > 10000 and png.read_bytes()[:4] == b'\x89PNG'
+    assert main(['model', '--plot', str(png)]) == 1  # the one rule of every command's outputs
+    assert 'already exists; nothing written' in capsys.readouterr().err
+    assert main(['model', '--plot', str(png), '--force']) == 0
 
 
 @pytest.mark.parametrize(('argv', 'needle', 'code'), [
@@ -107,3 +110,34 @@ def test_console_script_runs_and_help(tmp_path):
     out = subprocess.run(exe + ['model', '-t', '-40', '--format', 'json'], capture_output=True, text=True,
                          timeout=60)
     assert out.returncode == 0 and json.loads(out.stdout)[0]['temperature_c'] == -40.0
+
+
+def test_report_refuses_logs_without_the_axis_naming_the_joints_and_draws_nothing(tmp_path, capsys):
+    import numpy as np
+
+    from gimbal_friction.recording.bag import make_float64_multi_array
+    from gimbal_friction.recording.residual_log import ResidualLogWriter
+    from gimbal_friction.recording.topics import FLOAT64_MULTI_ARRAY_TYPE, RESIDUAL_DETAIL
+    t0 = 1_700_000_000_000_000_000
+    log = tmp_path / 'other'
+    with ResidualLogWriter(log) as writer:
+        for i in range(50):
+            row = np.full(12, 1.0)
+            row[1] = 20.0
+            writer.write(RESIDUAL_DETAIL, FLOAT64_MULTI_ARRAY_TYPE, t0 + i, make_float64_multi_array(row, 'joint_2'))
+    out = tmp_path / 'rep'
+    assert main(['report', '--residuals', str(log), '--out', str(out)]) == 1
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and str(log) in err and "axis 'elevation'" in err and 'joint_2' in err
+    assert not out.exists()  # refused before drawing anything
+
+
+def test_report_refuses_to_overwrite_figures_unless_force(tmp_path, capsys):
+    assert main(['report', '--out', str(tmp_path)]) == 0
+    before = (tmp_path / 'fig11_components.png').stat().st_mtime_ns
+    capsys.readouterr()
+    assert main(['report', '--out', str(tmp_path)]) == 1
+    err = capsys.readouterr().err
+    assert 'already exists; nothing written' in err and '--force' in err
+    assert (tmp_path / 'fig11_components.png').stat().st_mtime_ns == before
+    assert main(['report', '--out', str(tmp_path), '--force']) == 0

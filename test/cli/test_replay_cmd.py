@@ -197,3 +197,22 @@ def test_a_recorded_reference_velocity_drives_the_replayed_feedforward_as_live(t
     assert np.all(measured > 0.0)
     with AnyReader([tmp_path / 'auto' / 'residuals']) as reader:
         assert topics.REFERENCE_VELOCITY not in {c.topic for c in reader.connections}
+
+
+def test_summary_counts_equal_the_refit_counts_on_every_plateau(sample_replay, tmp_path, capsys):
+    """One rule decides which samples belong to a plateau: replay's summary and refit on its log agree."""
+    from gimbal_friction.estimation.plateaus import plateau_of
+    summary = json.loads((sample_replay / 'summary.json').read_text())
+    capsys.readouterr()
+    assert main(['refit', str(sample_replay / 'residuals'), '--out', str(tmp_path / 'r.yaml'),
+                 '--format', 'json']) == 0
+    bins = json.loads(capsys.readouterr().out)['axes']['elevation']['bins']
+    refit_counts: dict[tuple[float, str], int] = {}
+    for b in bins:  # summed over speed groups
+        key = (b['temperature_bin_c'], b['direction'])
+        refit_counts[key] = refit_counts.get(key, 0) + b['samples']
+    assert len(summary) == 12
+    for r in summary:
+        key = (float(plateau_of(r['temperature_c'], 5.0)), r['direction'])
+        assert r['samples'] == refit_counts[key], key
+        assert r['samples'] > 700  # every sample of the bin, not only those of the steady stretch

@@ -43,10 +43,15 @@ def test_recover_onto_a_full_disk_leaves_nothing_behind(tmp_path: Path, full_dis
     assert not target.exists() and not [p for p in disk.folder.iterdir() if p.name.startswith('.fixed')]
 
 
-def test_report_onto_a_full_disk(full_disk, rb) -> None:
+def test_report_onto_a_full_disk_leaves_no_partial_figure(full_disk, rb) -> None:
     disk = full_disk(64 * 1024)
-    line = rb.refused(rb.run('report', '--out', str(disk.folder / 'rep'), preexec=disk.preexec), 'report')
+    rep = disk.folder / 'rep'
+    line = rb.refused(rb.run('report', '--out', str(rep), preexec=disk.preexec), 'report')
     assert 'cannot write' in line
+    left = list(rep.iterdir()) if rep.exists() else []
+    assert not [p for p in left if not p.name.endswith('.png')], left  # no temporary file left behind
+    for png in left:  # every figure that is there is whole (a PNG ends with its IEND chunk)
+        assert png.read_bytes().endswith(b'IEND\xaeB`\x82'), png
 
 
 @pytest.mark.parametrize('command', ['replay', 'recover', 'report', 'refit'])

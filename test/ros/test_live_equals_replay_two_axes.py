@@ -20,7 +20,7 @@ from gimbal_friction.cli.synth_bag_cmd import write_bag
 from gimbal_friction.config.loader import render_parameter_file
 from gimbal_friction.recording import topics
 from gimbal_friction.recording.bag import default_typestore
-from gimbal_friction.runs import demo
+from gimbal_friction.runs import supervisor
 from gimbal_friction.streams.residual_row import RESIDUAL_FIELDS
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
@@ -62,8 +62,8 @@ def test_live_and_replay_logs_are_the_same(two_axis_runs, spawn, ros_env) -> Non
     live_dir = root / 'live' / 'residuals'
     nodes = [spawn(name, '--ros-args', '--params-file', str(cfg),
                    *(['-p', f'output_dir:={live_dir}'] if name == 'residual_logger' else []))
-             for name in demo.NODES]
-    watcher = demo.Watcher(ros_env[0])
+             for name in supervisor.NODES]
+    watcher = supervisor.Watcher(ros_env[0])
     try:
         deadline = time.monotonic() + 60.0
         while not watcher.connected():

@@ -10,10 +10,10 @@ import pytest
 
 from gimbal_friction.chamber.replay import replay_bag
 from gimbal_friction.chamber.synth import SynthConfig
+from gimbal_friction.cli import demo
 from gimbal_friction.cli.main import main
 from gimbal_friction.config.loader import axis_params, load_parameters
 from gimbal_friction.recording.residual_read import read_residual_rows
-from gimbal_friction.runs import demo
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 
