@@ -184,7 +184,7 @@ def test_topic_map_remaps_bag_names(tmp_path: Path) -> None:
     path = write_chamber_bag(
         tmp_path / 'bag', chamber_messages(joint_topic='/gimbal/joint_states', current_topic='/drive/current')
     )
-    with pytest.raises(RecordingError, match='required topic /joint_states is missing'):
+    with pytest.raises(RecordingError, match='required topics /joint_states, /gimbal/motor_current are missing'):
         open_chamber_bag(path)
     with pytest.raises(RecordingError, match=r'/joint_states \(recorded as /wrong\) is missing'):
         open_chamber_bag(path, {JOINT_STATES: '/wrong', MOTOR_CURRENT: '/drive/current'})
