@@ -345,10 +345,11 @@ def foreign_serialization(path: str | os.PathLike[str]) -> str | None:
     """Why a bag (folder, ``.mcap`` or ``.db3``) is one the readers cannot decode, as a phrase; None if its
     serialization is CDR or cannot be told (a damaged file: then recovery may help).
 
-    Not decodable: rosbag2 metadata listing a topic whose ``serialization_format`` is not ``cdr`` (rosbags refuses
-    the whole bag), an MCAP file whose profile is not ``ros2`` (likewise), or a storage file none of whose topics
-    is CDR (an MCAP channel's ``message_encoding``, a sqlite3 topic's ``serialization_format``). A few records are
-    read: the metadata, the MCAP header and summary (or first chunk), the sqlite3 ``topics`` table.
+    Not decodable (rosbags refuses to open the whole bag): rosbag2 metadata listing a topic whose
+    ``serialization_format`` is not ``cdr``; an MCAP file whose profile is not ``ros2`` or with a channel whose
+    ``message_encoding`` is not ``cdr``; and a sqlite3 file none of whose topics is CDR (rosbags opens one with
+    some foreign topics, and only the inputs are decoded). A few records are read: the metadata, the MCAP header
+    and summary (or first chunk), the sqlite3 ``topics`` table.
     """
     bag = Path(path)
     if bag.is_dir():
@@ -396,9 +397,8 @@ def _file_serialization(path: Path) -> str | None:
         if profile is not None and profile != _ROS2_PROFILE:
             shown = f', {_formats_phrase(formats)}' if formats else ''
             return f'an MCAP file of profile {profile!r}, not {_ROS2_PROFILE!r}{shown}'
-        if formats and all(f != CDR for f in formats.values()):
-            return _formats_phrase(formats)
-        return None
+        foreign = {t: f for t, f in formats.items() if f != CDR}
+        return _formats_phrase(foreign) if foreign else None  # rosbags opens no MCAP with a foreign channel
     if path.suffix == '.db3':
         import sqlite3
         from urllib.parse import quote
