@@ -316,7 +316,8 @@ def _missing_topics(bag: Path, missing: Sequence[str], mapping: Mapping[str, str
         examples.append(f'--topic {contract}={like[0] if len(like) == 1 else "BAG_TOPIC"}')
     what = f'required topic {shown[0]} is' if len(shown) == 1 else f'required topics {", ".join(shown)} are'
     return RecordingError(f'bag {bag}: {what} missing (topics in bag: {have}); map each to the topic it was '
-                          f'recorded under with {" ".join(examples)}')
+                          f'recorded under with {" ".join(examples)} (chamber_replay: the same CONTRACT=BAG entries '
+                          f'in its parameter topic_map)')
 
 
 #: the one message serialization the readers decode: ROS 2's CDR, what ``ros2 bag record`` writes
@@ -706,7 +707,7 @@ class ChamberBag:
         last_log = None
         for conn, log_time, data in self._messages(selected):
             if max_messages is not None and window.count >= max_messages and log_time != last_log:
-                yield seen.add(window.finish())
+                yield seen.add(window)
                 window = _Window(self, bag_reference)
             last_log = log_time
             if raw_sink is not None and conn.topic in inputs:
@@ -727,7 +728,7 @@ class ChamberBag:
                 window.t_log.append(log_time)
                 window.t_stamp.append(fast[0])
                 window.t_value.append(fast[1])
-        last = seen.add(window.finish())
+        last = seen.add(window)
         self._require_axes(seen)
         yield last
 
@@ -737,9 +738,9 @@ class ChamberBag:
         for the configured axes", with the joints present, the mapping used and the option that fixes it."""
         inverse = {v: k for k, v in self.joint_map.items()}
         js_topic, mc_topic = self.topic_map[JOINT_STATES], self.topic_map[MOTOR_CURRENT]
-        recorded = ', '.join(repr(inverse.get(n, n)) for n in seen.joints) or 'none'
+        recorded = ', '.join(repr(n) for n in seen.recorded_joints) or 'none'
         for bag_name, axis in self.joint_map.items():
-            if axis not in seen.joints and axis not in seen.currents:
+            if bag_name not in seen.recorded:
                 msg = (f'bag {self.path}: --joint {axis}={bag_name}: no joint {bag_name!r} in {js_topic} or '
                        f'{mc_topic} (joints recorded: {recorded}); name a recorded joint')
                 raise EmptyInputError(msg)
@@ -748,7 +749,7 @@ class ChamberBag:
         axes = ', '.join(repr(a) for a in self.axes)
         mapping = ', '.join(f'{v}={k}' for k, v in self.joint_map.items()) or 'none'
         if not any(a in seen.joints for a in self.axes):
-            names = [inverse.get(n, n) for n in seen.joints]
+            names = list(seen.recorded_joints)
             example = (f'--joint {self.axes[0]}={names[0]}' if len(self.axes) == 1 and len(names) == 1
                        else '--joint AXIS=RECORDED')
             msg = (f'bag {self.path}: no configured axis is in {js_topic} (axes: {axes}; joints recorded: '
@@ -841,11 +842,20 @@ class _JointsSeen:
     """Joint names met over the windows of one read: in the joint states, and with effort in the motor current."""
 
     def __init__(self) -> None:
-        self.joints: dict[str, None] = {}    # an ordered set
+        self.joints: dict[str, None] = {}    # an ordered set (names after the joint map)
         self.currents: dict[str, None] = {}
+        self.recorded: set[str] = set()      # names as recorded, on both topics
+        self.recorded_joints: dict[str, None] = {}  # names as recorded in the joint states, in order
 
-    def add(self, arrays: ChamberArrays) -> ChamberArrays:
-        """Note the names of one window; returns it."""
+    def add(self, window: _Window) -> ChamberArrays:
+        """Finish one window and note its names; returns its arrays."""
+        bag = window.bag
+        for topic in (bag.topic_map[MOTOR_CURRENT], bag.topic_map[JOINT_STATES]):
+            for names in window.joint_collectors[topic].name_sets:
+                self.recorded.update(names)
+                if topic == bag.topic_map[JOINT_STATES]:
+                    self.recorded_joints.update(dict.fromkeys(names))
+        arrays = window.finish()
         self.joints.update(dict.fromkeys(arrays.joint_states.names))
         effort = arrays.motor_current.effort
         self.currents.update(dict.fromkeys(n for n in arrays.motor_current.names

@@ -9,10 +9,9 @@ these tests are about.
 
 from __future__ import annotations
 
-import math
-
 import contextlib
 import io
+import math
 import os
 import resource
 import shutil
