@@ -198,7 +198,7 @@ def unit_stats_from_bag(path: str, config_paths: Sequence[str], direction: str,
     axes, _, est_settings = node_settings([Path(p) for p in config_paths])
     logic = EstimatorLogic(axes, est_settings)
     stats: dict[str, SufficientStats] = {}
-    for window in open_chamber_bag(path).iter_arrays(window_messages):
+    for window in open_chamber_bag(path, axes=list(axes)).iter_arrays(window_messages):  # none of them: refused
         measured = logic.feed(window)   # the refit's samples of these rows, as from a residual log
         accumulate_rows(residual_rows(measured, np.full(len(measured), np.nan)), stats, direction=direction)
     return stats

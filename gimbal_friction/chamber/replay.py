@@ -41,6 +41,7 @@ from gimbal_friction.physics.params import AxisParams
 from gimbal_friction.recording import topics
 from gimbal_friction.recording.bag import ChamberBag, default_typestore, open_chamber_bag
 from gimbal_friction.recording.cdr import float64_multi_array_cdr_rows, joint_state_cdr_rows, split_rows
+from gimbal_friction.recording.errors import EmptyInputError
 from gimbal_friction.recording.residual_log import ResidualLogWriter
 from gimbal_friction.streams.arrays import ChamberArrays
 from gimbal_friction.streams.inputs import effective_time
@@ -121,7 +122,9 @@ def replay_bag(bag_path: str | Path, out_dir: str | Path | None, *, config_paths
     estimator's reasons, no temperature plateau).
 
     Raises:
-        RecordingError: the bag is missing, not a bag, lacks a contract topic or has a wrong type (named).
+        RecordingError: the bag is missing, not a bag, not CDR, lacks contract topics or has a wrong type (named).
+        EmptyInputError: no configured axis in the bag (the joints present, the mapping, ``--joint``), or no
+            friction sample accepted (the estimator's reasons); raised before anything is written.
         ConfigError: a bad parameter file.
     """
     def report(stage: str, frac: float) -> None:
@@ -130,13 +133,18 @@ def replay_bag(bag_path: str | Path, out_dir: str | Path | None, *, config_paths
 
     axes, ff_settings, est_settings = node_settings(list(config_paths))
     bag = open_chamber_bag(bag_path, dict(topic_map) if topic_map else None,
-                           joint_map=dict(joint_map) if joint_map else None)
+                           joint_map=dict(joint_map) if joint_map else None, axes=list(axes))
     report('reading bag', 0.0)
     arrays, raw = _read_inputs(bag, log_inputs and out_dir is not None)
     report('reading bag', 1.0)
     report('nodes', 0.0)
     ff, ff_logic, measured, measured_log, est_logic, rows = replay_arrays(arrays, axes, ff_settings, est_settings)
     report('nodes', 1.0)
+    if not len(measured):   # nothing usable: refuse before anything is written
+        why = [f for f in bag.describe(arrays).findings(list(axes)) + _findings(ff, measured, est_logic, [])
+               if not f.startswith('not read')]
+        msg = f'bag {bag.path}: no friction sample was accepted, nothing written: {"; ".join(why)}'
+        raise EmptyInputError(msg)
     report('summary', 0.0)
     # the plateaus by the one rule (core/plateaus.py), judged on the samples' own temperatures
     summary = plateau_summary(rows.temperature_c, rows.velocity_rad_s, rows.measured_nm, rows.predicted_nm,

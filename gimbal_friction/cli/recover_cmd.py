@@ -17,7 +17,8 @@ def add_parser(sub: Any) -> None:
         'record by record, skipping what is damaged, and write every readable message into OUT, of the same '
         'kind: complete MCAP files (or a sqlite3 database) and, for a folder, a rosbag2 metadata.yaml, so '
         'ros2 bag, rosbags, the mcap readers, Foxglove, replay and refit open it. Prints how many messages were '
-        'kept and lost. IN is only read; OUT must not exist.')
+        'kept and lost. IN is only read; OUT must not exist. A bag whose messages are not CDR (JSON, protobuf, '
+        'ROS 1, an MCAP profile other than ros2) is refused as not supported: it is not damaged.')
     parser.add_argument('source', type=Path, metavar='IN', help='bag folder, .mcap / .db3 file, or residual log')
     parser.add_argument('--out', type=Path, required=True, metavar='OUT', help='what to create (must not exist)')
     add_common(parser)

@@ -22,7 +22,9 @@ def add_parser(sub: Any) -> None:
                             description='Replay a chamber-test bag (rosbag2 MCAP or sqlite3, or a bare .mcap) '
                             'through the feedforward, estimator and residual-logger logic in log-time order. '
                             'Writes OUT/residuals/ (the residual log) and OUT/summary.json (per temperature '
-                            'plateau and direction).')
+                            'plateau and direction). A bag in which no configured axis is found, or no friction '
+                            'sample is accepted, is refused (exit 1, nothing written) with the joints it records '
+                            'and the option that maps them.')
     parser.add_argument('bag', type=Path, metavar='BAG', help='chamber-test bag directory or .mcap file')
     parser.add_argument('--out', type=Path, required=True, metavar='DIR', help='output folder')
     add_common(parser)

@@ -37,7 +37,7 @@ from gimbal_friction.recording.cdr import (
     make_temperature,
     temperature_from_cdr,
 )
-from gimbal_friction.recording.errors import LIBRARY_READ_ERRORS, RecordingError, recover_hint
+from gimbal_friction.recording.errors import LIBRARY_READ_ERRORS, EmptyInputError, RecordingError, recover_hint
 from gimbal_friction.recording.topics import (
     CHAMBER_TOPICS,
     JOINT_STATE_TYPE,
@@ -62,6 +62,7 @@ if TYPE_CHECKING:
 
 __all__ = [
     'BAG_SUFFIXES',
+    'CDR',
     'DEFAULT_STORE',
     'BagDescription',
     'ChamberArrays',
@@ -74,11 +75,13 @@ __all__ = [
     'TemperatureArrays',
     'TopicInfo',
     'default_typestore',
+    'foreign_serialization',
     'make_float64_multi_array',
     'make_header',
     'make_joint_state',
     'make_temperature',
     'open_chamber_bag',
+    'unsupported_serialization',
     'write_chamber_bag',
 ]
 
@@ -280,6 +283,9 @@ def _check_path(bag: Path) -> None:
             return
         stored = sorted(p.name for p in bag.iterdir() if p.suffix in BAG_SUFFIXES)
         if stored:
+            phrase = foreign_serialization(bag)
+            if phrase is not None:
+                raise unsupported_serialization(bag, phrase)
             msg = (f'not a rosbag2 bag: {bag} has {", ".join(stored[:3])}{" ..." if len(stored) > 3 else ""} but no '
                    f'metadata.yaml (a recording cut short?); {recover_hint(bag)}')
         else:
@@ -298,12 +304,127 @@ def _read_error(bag: Path, doing: str, err: BaseException) -> RecordingError:
                           f'{recover_hint(bag)}')
 
 
+def _missing_topics(bag: Path, missing: Sequence[str], mapping: Mapping[str, str],
+                    bag_topics: Mapping[str, tuple[str, int]]) -> RecordingError:
+    """The one-line refusal naming every missing input topic and the option that maps them (``--topic``)."""
+    shown = [c if mapping.get(c, c) == c else f'{c} (recorded as {mapping[c]})' for c in missing]
+    have = ', '.join(f'{t} ({m or "several types"})' for t, (m, _) in sorted(bag_topics.items())) or 'none'
+    examples = []
+    for contract in missing:  # a bag topic of the right type and the same last name is the likely one
+        leaf = contract.rsplit('/', 1)[-1]
+        like = [t for t, (m, _) in bag_topics.items() if m == CHAMBER_TOPICS[contract] and t.endswith('/' + leaf)]
+        examples.append(f'--topic {contract}={like[0] if len(like) == 1 else "BAG_TOPIC"}')
+    what = f'required topic {shown[0]} is' if len(shown) == 1 else f'required topics {", ".join(shown)} are'
+    return RecordingError(f'bag {bag}: {what} missing (topics in bag: {have}); map each to the topic it was '
+                          f'recorded under with {" ".join(examples)} (chamber_replay: the same CONTRACT=BAG entries '
+                          f'in its parameter topic_map)')
+
+
+#: the one message serialization the readers decode: ROS 2's CDR, what ``ros2 bag record`` writes
+CDR = 'cdr'
+_ROS2_PROFILE = 'ros2'
+
+
+def _formats_phrase(formats: Mapping[str, str]) -> str:
+    """``{topic: format}`` -> "serialized as 'json' (/a, /b), not CDR"."""
+    by_format: dict[str, list[str]] = {}
+    for topic, fmt in sorted(formats.items()):
+        by_format.setdefault(fmt, []).append(topic)
+    parts = [f'{fmt!r} ({", ".join(t[:3])}{" ..." if len(t) > 3 else ""})' for fmt, t in by_format.items()]
+    return f'its messages are serialized as {" and ".join(parts)}, not CDR'
+
+
+def unsupported_serialization(path: object, phrase: str, *, prefix: str = 'bag') -> RecordingError:
+    """The one-line refusal of a bag that is not damaged but in a serialization the readers do not decode
+    (``phrase``: what :func:`foreign_serialization` says; ``prefix``: what the line starts with)."""
+    return RecordingError(f'{prefix} {path}: {phrase}: not supported (gimbal-friction reads ROS 2 bags whose '
+                          f'messages are CDR, as ros2 bag record writes them); it is not damaged (nothing for '
+                          f'recover to do): record it, or convert it, as a ROS 2 (CDR) bag')
+
+
+def foreign_serialization(path: str | os.PathLike[str]) -> str | None:
+    """Why a bag (folder, ``.mcap`` or ``.db3``) is one the readers cannot decode, as a phrase; None if its
+    serialization is CDR or cannot be told (a damaged file: then recovery may help).
+
+    Not decodable (rosbags refuses to open the whole bag): rosbag2 metadata listing a topic whose
+    ``serialization_format`` is not ``cdr``; an MCAP file whose profile is not ``ros2`` or with a channel whose
+    ``message_encoding`` is not ``cdr``; and a sqlite3 file none of whose topics is CDR (rosbags opens one with
+    some foreign topics, and only the inputs are decoded). A few records are read: the metadata, the MCAP header
+    and summary (or first chunk), the sqlite3 ``topics`` table.
+    """
+    bag = Path(path)
+    if bag.is_dir():
+        meta = _metadata_formats(bag / 'metadata.yaml')
+        foreign = {t: f for t, f in (meta or {}).items() if f != CDR}
+        if foreign:
+            return _formats_phrase(foreign)
+        files = sorted(p for p in bag.iterdir() if p.suffix in BAG_SUFFIXES and p.is_file())
+        for file in files:
+            phrase = _file_serialization(file)
+            if phrase is not None:
+                return f'{file.name}: {phrase}' if len(files) > 1 else phrase
+        return None
+    return _file_serialization(bag) if bag.is_file() else None
+
+
+def _metadata_formats(path: Path) -> dict[str, str] | None:
+    """Topic -> serialization format of a rosbag2 metadata.yaml (None if absent or unreadable)."""
+    import yaml
+
+    try:
+        entries = yaml.safe_load(path.read_text(encoding='utf-8'))['rosbag2_bagfile_information'][
+            'topics_with_message_count']
+        return {str(e['topic_metadata']['name']): str(e['topic_metadata']['serialization_format'])
+                for e in entries}
+    except (OSError, UnicodeDecodeError, yaml.YAMLError, KeyError, TypeError, IndexError):
+        return None
+
+
+def _file_serialization(path: Path) -> str | None:
+    """:func:`foreign_serialization` of one storage file."""
+    if path.suffix == '.mcap':
+        from gimbal_friction.recording.mcap_scan import McapScanner
+
+        scan = McapScanner(path)
+        blocks = scan.blocks()
+        try:
+            next(blocks, None)  # the header, the summary (complete file) or the first chunk's channels
+        except RecordingError:
+            return None
+        finally:
+            blocks.close()
+        formats = {c.topic: c.message_encoding for c in scan.channels.values()}
+        profile = scan.report.profile
+        if profile is not None and profile != _ROS2_PROFILE:
+            shown = f', {_formats_phrase(formats)}' if formats else ''
+            return f'an MCAP file of profile {profile!r}, not {_ROS2_PROFILE!r}{shown}'
+        foreign = {t: f for t, f in formats.items() if f != CDR}
+        return _formats_phrase(foreign) if foreign else None  # rosbags opens no MCAP with a foreign channel
+    if path.suffix == '.db3':
+        import sqlite3
+        from urllib.parse import quote
+
+        try:
+            con = sqlite3.connect(f'file:{quote(str(path.resolve()))}?mode=ro&immutable=1', uri=True)
+            try:
+                rows = con.execute('SELECT name, serialization_format FROM topics').fetchall()
+            finally:
+                con.close()
+        except (sqlite3.Error, OSError):
+            return None
+        formats = {str(name): str(fmt) for name, fmt in rows}
+        if formats and all(f != CDR for f in formats.values()):
+            return _formats_phrase(formats)
+    return None
+
+
 def open_chamber_bag(
     path: str | os.PathLike[str],
     topic_map: Mapping[str, str] | None = None,
     *,
     joint_map: Mapping[str, str] | None = None,
     typestore: Typestore | None = None,
+    axes: Sequence[str] | None = None,
 ) -> ChamberBag:
     """Open a chamber-test bag and check it holds the contract's input topics with the right types.
 
@@ -312,10 +433,15 @@ def open_chamber_bag(
         topic_map: contract topic name -> topic name in the bag, for bags recorded under other names.
         joint_map: joint name recorded in the bag -> configured joint name; the arrays carry the configured names.
         typestore: type store for the messages the fast decoders do not read (default :data:`DEFAULT_STORE`).
+        axes: the configured axes (joint names after ``joint_map``). Given, a read of the arrays
+            (:meth:`~ChamberBag.read_arrays`, the end of :meth:`~ChamberBag.iter_arrays`) that finds none of them
+            with both a joint state and a motor current raises :class:`~.errors.EmptyInputError`.
 
     Raises:
         RecordingError: not a bag, unreadable (cut short or damaged: the message names ``gimbal-friction recover``),
-            a required topic missing, empty or of another type (the message names the topic), or a bad map.
+            not CDR (:func:`foreign_serialization`: not supported, recovery would not help), required topics
+            missing (all named, with ``--topic``), empty or of another type (the message names the topic), or a bad
+            map.
     """
     bag = Path(path)
     _check_path(bag)
@@ -342,10 +468,14 @@ def open_chamber_bag(
             bag_topics: dict[str, tuple[str, int]] = {}
             for name, info in reader.topics.items():
                 bag_topics[name] = (info.msgtype or '', int(info.msgcount))
+            formats = {c.topic: str(getattr(c.ext, 'serialization_format', CDR) or CDR) for c in reader.connections}
             count = reader.message_count
             start_ns = reader.start_time if count else 0
             duration_ns = max(0, reader.end_time - 1 - reader.start_time) if count else 0
     except LIBRARY_READ_ERRORS as err:
+        phrase = foreign_serialization(bag)  # not damaged: another format (recover would not help)
+        if phrase is not None:
+            raise unsupported_serialization(bag, phrase) from err
         raise _read_error(bag, 'opening', err) from err
 
     # contract name -> bag name for every visible topic: mapped ones; the input topics under their own name
@@ -363,13 +493,12 @@ def open_chamber_bag(
         if name not in mapping and name not in mapped_bag_names:
             contract_to_bag[name] = name
 
+    missing = [c for c in CHAMBER_TOPICS if c not in contract_to_bag]
+    if missing:
+        raise _missing_topics(bag, missing, mapping, bag_topics)
     for contract, want in CHAMBER_TOPICS.items():
         recorded = mapping.get(contract, contract)
         shown = contract if recorded == contract else f'{contract} (recorded as {recorded})'
-        if contract not in contract_to_bag:
-            have = ', '.join(sorted(bag_topics)) or 'none'
-            msg = f'bag {bag}: required topic {shown} is missing (topics in bag: {have})'
-            raise RecordingError(msg)
         msgtype, n = bag_topics[contract_to_bag[contract]]
         if msgtype != want:
             got = msgtype if msgtype else 'several types'
@@ -378,6 +507,12 @@ def open_chamber_bag(
         if n <= 0:
             msg = f'bag {bag}: required topic {shown} has no messages'
             raise RecordingError(msg)
+
+    read = [*CHAMBER_TOPICS, *([REFERENCE_VELOCITY] if REFERENCE_VELOCITY in contract_to_bag else [])]
+    foreign = {contract_to_bag[c]: formats.get(contract_to_bag[c], CDR) for c in read}
+    foreign = {t: f for t, f in foreign.items() if f != CDR}
+    if foreign:
+        raise unsupported_serialization(bag, _formats_phrase(foreign))
 
     topics = {contract: TopicInfo(*bag_topics[recorded]) for contract, recorded in contract_to_bag.items()}
     return ChamberBag(
@@ -388,6 +523,7 @@ def open_chamber_bag(
         duration_ns=int(duration_ns),
         typestore=store,
         joint_map=joints,
+        axes=axes,
     )
 
 
@@ -412,6 +548,7 @@ class ChamberBag:
         duration_ns: int,
         typestore: Typestore,
         joint_map: dict[str, str] | None = None,
+        axes: Sequence[str] | None = None,
     ) -> None:
         """Hold what :func:`open_chamber_bag` found (use that function, not this constructor)."""
         self.path = path
@@ -426,6 +563,8 @@ class ChamberBag:
         self.typestore = typestore
         #: recorded joint name -> configured joint name
         self.joint_map = dict(joint_map or {})
+        #: configured axes a read of the arrays must find (empty: not checked)
+        self.axes = tuple(axes or ())
         self._bag_to_contracts: dict[str, list[str]] = {}
         for contract, recorded in topic_map.items():
             self._bag_to_contracts.setdefault(recorded, []).append(contract)
@@ -535,6 +674,8 @@ class ChamberBag:
         Raises:
             RecordingError: the bag cannot be read, a message cannot be decoded, or the joint map would give two
                 joints one name.
+            EmptyInputError: a ``joint_map`` entry names a joint the bag does not record, or none of :attr:`axes`
+                has both a joint state and a motor current (the joints present and the option that fixes it).
         """
         return next(self._windows(None, raw_sink))
 
@@ -546,7 +687,8 @@ class ChamberBag:
 
         Raises:
             ValueError: ``max_messages`` < 1.
-            RecordingError: as :meth:`read_arrays`.
+            RecordingError: as :meth:`read_arrays` (an :class:`~.errors.EmptyInputError` instead of the last
+                window).
         """
         if max_messages < 1:
             msg = f'max_messages must be >= 1, not {max_messages}'
@@ -561,10 +703,11 @@ class ChamberBag:
         bag_reference = self.topic_map[REFERENCE_VELOCITY] if self.has_reference else None
         selected = inputs if bag_reference is None else self._select([*CHAMBER_TOPICS, REFERENCE_VELOCITY])
         window = _Window(self, bag_reference)
+        seen = _JointsSeen()
         last_log = None
         for conn, log_time, data in self._messages(selected):
             if max_messages is not None and window.count >= max_messages and log_time != last_log:
-                yield window.finish()
+                yield seen.add(window)
                 window = _Window(self, bag_reference)
             last_log = log_time
             if raw_sink is not None and conn.topic in inputs:
@@ -585,7 +728,39 @@ class ChamberBag:
                 window.t_log.append(log_time)
                 window.t_stamp.append(fast[0])
                 window.t_value.append(fast[1])
-        yield window.finish()
+        last = seen.add(window)
+        self._require_axes(seen)
+        yield last
+
+    def _require_axes(self, seen: _JointsSeen) -> None:
+        """Refuse a read in which a ``joint_map`` entry names a joint the bag does not record, or none of
+        :attr:`axes` has both a joint state and a motor current (effort): the one rule of "the bag holds nothing
+        for the configured axes", with the joints present, the mapping used and the option that fixes it."""
+        inverse = {v: k for k, v in self.joint_map.items()}
+        js_topic, mc_topic = self.topic_map[JOINT_STATES], self.topic_map[MOTOR_CURRENT]
+        recorded = ', '.join(repr(n) for n in seen.recorded_joints) or 'none'
+        for bag_name, axis in self.joint_map.items():
+            if bag_name not in seen.recorded:
+                msg = (f'bag {self.path}: --joint {axis}={bag_name}: no joint {bag_name!r} in {js_topic} or '
+                       f'{mc_topic} (joints recorded: {recorded}); name a recorded joint')
+                raise EmptyInputError(msg)
+        if not self.axes or any(a in seen.joints and a in seen.currents for a in self.axes):
+            return
+        axes = ', '.join(repr(a) for a in self.axes)
+        mapping = ', '.join(f'{v}={k}' for k, v in self.joint_map.items()) or 'none'
+        if not any(a in seen.joints for a in self.axes):
+            names = list(seen.recorded_joints)
+            example = (f'--joint {self.axes[0]}={names[0]}' if len(self.axes) == 1 and len(names) == 1
+                       else '--joint AXIS=RECORDED')
+            msg = (f'bag {self.path}: no configured axis is in {js_topic} (axes: {axes}; joints recorded: '
+                   f'{recorded}; joint map: {mapping}): map each axis to its recorded joint with {example}, or '
+                   f'set the parameter axes to the recorded names (--config)')
+        else:
+            currents = ', '.join(repr(inverse.get(n, n)) for n in seen.currents) or 'none'
+            msg = (f'bag {self.path}: {mc_topic} carries no motor current (effort) for the configured axes '
+                   f'(axes: {axes}; joints with effort there: {currents}; joint map: {mapping}): map the topic '
+                   f'that carries it with --topic {MOTOR_CURRENT}=BAG_TOPIC')
+        raise EmptyInputError(msg)
 
     def describe(self, arrays: ChamberArrays | None = None) -> BagDescription:
         """What the three input streams hold (counts, joints and their fields, zero stamps) and what is not read.
@@ -661,6 +836,31 @@ def _joint_summary(data: JointStateArrays, name: str, recorded: str) -> JointSum
     pos, vel, eff = present(data.position), present(data.velocity), present(data.effort)
     return JointSummary(name, recorded, int(np.count_nonzero(pos | vel | eff)), int(np.count_nonzero(pos)),
                         int(np.count_nonzero(vel)), int(np.count_nonzero(eff)))
+
+
+class _JointsSeen:
+    """Joint names met over the windows of one read: in the joint states, and with effort in the motor current."""
+
+    def __init__(self) -> None:
+        self.joints: dict[str, None] = {}    # an ordered set (names after the joint map)
+        self.currents: dict[str, None] = {}
+        self.recorded: set[str] = set()      # names as recorded, on both topics
+        self.recorded_joints: dict[str, None] = {}  # names as recorded in the joint states, in order
+
+    def add(self, window: _Window) -> ChamberArrays:
+        """Finish one window and note its names; returns its arrays."""
+        bag = window.bag
+        for topic in (bag.topic_map[MOTOR_CURRENT], bag.topic_map[JOINT_STATES]):
+            for names in window.joint_collectors[topic].name_sets:
+                self.recorded.update(names)
+                if topic == bag.topic_map[JOINT_STATES]:
+                    self.recorded_joints.update(dict.fromkeys(names))
+        arrays = window.finish()
+        self.joints.update(dict.fromkeys(arrays.joint_states.names))
+        effort = arrays.motor_current.effort
+        self.currents.update(dict.fromkeys(n for n in arrays.motor_current.names
+                                           if n in effort and not np.all(np.isnan(effort[n]))))
+        return arrays
 
 
 class _Window:

@@ -9,7 +9,7 @@ from rosbags.rosbag2 import ReaderError
 
 from gimbal_friction.common.errors import GimbalFrictionError
 
-__all__ = ['LIBRARY_READ_ERRORS', 'RecordingError', 'recover_hint']
+__all__ = ['LIBRARY_READ_ERRORS', 'EmptyInputError', 'RecordingError', 'recover_hint']
 
 
 class RecordingError(GimbalFrictionError):
@@ -17,6 +17,14 @@ class RecordingError(GimbalFrictionError):
 
     The message names the path and, where one is at fault, the topic, so a tool can print it as its one-line
     reason. Lower errors (``OSError``, rosbags and mcap errors) are wrapped with that context.
+    """
+
+
+class EmptyInputError(RecordingError):
+    """A bag or log was read but gives no usable data: no configured axis in it, or nothing accepted.
+
+    The message (one line) names the input that was empty, why (the joint names present, the mapping used) and
+    the option that fixes it; tools exit non-zero and write nothing.
     """
 
 

@@ -32,6 +32,7 @@ import yaml
 from mcap.writer import CompressionType
 from mcap.writer import Writer as McapWriter
 
+from gimbal_friction.recording.bag import foreign_serialization, unsupported_serialization
 from gimbal_friction.recording.errors import RecordingError
 from gimbal_friction.recording.mcap_scan import McapScanner, MessageBlock
 from gimbal_friction.recording.residual_read import file_write_order
@@ -522,11 +523,15 @@ def recover(
         progress: called as ``progress(done, total, file_name)`` per file.
 
     Raises:
-        RecordingError: ``dst`` exists, ``src`` is not a bag or residual log, nothing in it can be read, or writing
-            fails. Output already written is removed.
+        RecordingError: ``dst`` exists, ``src`` is not a bag or residual log, its serialization is not CDR
+            (:func:`~.bag.foreign_serialization`: nothing to recover, it would stay unreadable), nothing in it can be
+            read, or writing fails. Output already written is removed.
     """
     source, target = Path(src), Path(dst)
     _check_target(target)
+    phrase = foreign_serialization(source)  # not damaged, and not readable once copied: say so
+    if phrase is not None:
+        raise unsupported_serialization(source, phrase, prefix='recover:')
     if source.is_file():
         storage = _STORAGES.get(source.suffix)
         if storage is None:

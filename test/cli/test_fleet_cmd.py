@@ -204,6 +204,31 @@ def test_process_unit_records_an_unconfigured_joint(fleet_dir):
     assert rec['error'].startswith('no samples of a configured axis (joints present: elevation')
 
 
+def test_a_bag_unit_without_a_configured_axis_says_which_joints_it_has(tmp_path):
+    """A chamber bag read by fleet goes through the reader's rule (issue 19, 3): its record's error names the joints
+    recorded in the bag (not 'joints present: none'), the mapping and the fix."""
+    from gimbal_friction.recording.bag import make_joint_state, make_temperature, write_chamber_bag
+    from gimbal_friction.recording.topics import (
+        JOINT_STATE_TYPE,
+        JOINT_STATES,
+        MOTOR_CURRENT,
+        TEMPERATURE,
+        TEMPERATURE_TYPE,
+    )
+
+    msgs = []
+    for i in range(50):
+        t = 1_000_000_000 + i * 20_000_000
+        msgs += [(TEMPERATURE, TEMPERATURE_TYPE, t, make_temperature(t, 20.0)),
+                 (JOINT_STATES, JOINT_STATE_TYPE, t, make_joint_state(t, ['joint_2'], [0.0], [0.035])),
+                 (MOTOR_CURRENT, JOINT_STATE_TYPE, t + 1, make_joint_state(t, ['joint_2'], effort=[0.2]))]
+    bag = write_chamber_bag(tmp_path / 'robot_bag', msgs)
+    rec = process_unit(UnitSpec('u', str(bag), 'bag'), FitSettings(axes={'elevation': AxisParams()},
+                                                                    config_paths=()))
+    assert "no configured axis is in /joint_states (axes: 'elevation'; joints recorded: 'joint_2'" in rec['error']
+    assert '--joint elevation=joint_2' in rec['error'] and rec['axes'] == {}
+
+
 def test_a_bag_unit_is_read_in_windows_with_the_same_statistics(tmp_path, capsys):
     """A chamber bag is fed to the estimator window by window (bounded memory): the same samples and statistics
     as one pass over the whole bag, and as many samples as the offline replay accepts."""

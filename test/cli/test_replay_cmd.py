@@ -24,6 +24,7 @@ from gimbal_friction.recording.bag import (
     open_chamber_bag,
     write_chamber_bag,
 )
+from gimbal_friction.recording.errors import EmptyInputError
 from gimbal_friction.recording.residual_read import read_residual_rows
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -216,3 +217,81 @@ def test_summary_counts_equal_the_refit_counts_on_every_plateau(sample_replay, t
         key = (float(plateau_of(r['temperature_c'], 5.0)), r['direction'])
         assert r['samples'] == refit_counts[key], key
         assert r['samples'] > 700  # every sample of the bin, not only those of the steady stretch
+
+
+# ------------------------------------------------------------------------ empty input, missing topics, non-CDR bags
+
+
+def _one_line_refusal(capsys, command: str) -> str:
+    captured = capsys.readouterr()
+    lines = captured.err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith(f'gimbal-friction {command}: error: '), captured.err
+    assert 'Traceback' not in captured.err
+    return lines[0]
+
+
+def test_an_axis_absent_from_the_bag_is_refused_and_nothing_is_written(tmp_path, capsys):
+    """Was: 0 samples accepted, exit 0, an empty summary and log. Now: exit 1, one line with the joints present, the
+    mapping used and the option; no output folder."""
+    bag = _tiny_bag(tmp_path / 'bag')   # joint 'elevation'
+    axes = tmp_path / 'axes.yaml'
+    axes.write_text('/**:\n  ros__parameters:\n    axes: ["pitch"]\n')
+    out = tmp_path / 'out'
+    assert main(['replay', str(bag), '--out', str(out), '--config', str(axes)]) == 1
+    line = _one_line_refusal(capsys, 'replay')
+    assert "no configured axis is in /joint_states (axes: 'pitch'; joints recorded: 'elevation'; joint map: none)" \
+        in line and '--joint pitch=elevation' in line
+    assert not out.exists()
+    assert main(['replay', str(bag), '--out', str(out), '--joint', 'elevation=joint_2']) == 1
+    line = _one_line_refusal(capsys, 'replay')
+    assert "--joint elevation=joint_2: no joint 'joint_2'" in line and "joints recorded: 'elevation'" in line
+    assert not out.exists()
+    assert main(['replay', str(bag), '--out', str(out), '--config', str(axes), '--joint', 'pitch=elevation',
+                 '--format', 'json']) == 0
+    assert json.loads(capsys.readouterr().out)['accepted_samples'] > 0
+
+
+def test_a_replay_that_accepts_no_sample_is_refused_with_the_estimators_reasons(tmp_path, capsys):
+    """The axis is there but no sample qualifies (the test ran at another speed): exit 1, the reasons, nothing
+    written; the API raises EmptyInputError before writing too."""
+    bag = _tiny_bag(tmp_path / 'bag')
+    slow = tmp_path / 'slow.yaml'
+    slow.write_text('/**:\n  ros__parameters:\n    commanded_speed_rad_s: 0.5\n')
+    out = tmp_path / 'out'
+    assert main(['replay', str(bag), '--out', str(out), '--config', str(slow)]) == 1
+    line = _one_line_refusal(capsys, 'replay')
+    assert 'no friction sample was accepted, nothing written' in line and 'speed off command' in line
+    assert not out.exists()
+    with pytest.raises(EmptyInputError):
+        replay_bag(bag, out, config_paths=[slow])
+    assert not out.exists()
+
+
+def test_every_missing_topic_and_the_topic_option_are_named(tmp_path, capsys):
+    bag = _tiny_bag(tmp_path / 'bag', rename={topics.JOINT_STATES: '/gimbal/joint_states',
+                                              topics.MOTOR_CURRENT: '/drive/current'})
+    assert main(['replay', str(bag), '--out', str(tmp_path / 'out')]) == 1
+    line = _one_line_refusal(capsys, 'replay')
+    assert f'required topics {topics.JOINT_STATES}, {topics.MOTOR_CURRENT} are missing' in line
+    assert f'--topic {topics.JOINT_STATES}=/gimbal/joint_states --topic {topics.MOTOR_CURRENT}=BAG_TOPIC' in line
+    assert not (tmp_path / 'out').exists()
+    assert main(['replay', str(bag), '--out', str(tmp_path / 'out'), '--topic',
+                 f'{topics.JOINT_STATES}=/gimbal/joint_states', '--topic',
+                 f'{topics.MOTOR_CURRENT}=/drive/current']) == 0
+
+
+@pytest.mark.parametrize('storage', ['mcap', 'sqlite3'])
+def test_a_bag_not_in_cdr_is_unsupported_for_replay_and_for_recover(tmp_path, capsys, storage):
+    """Was: replay 'damaged, run recover', recover 'nothing to recover' (the advice looped). Now both say the
+    serialization and that it is not supported, and neither writes anything."""
+    bag = _tiny_bag(tmp_path / 'bag', storage=storage)
+    meta = bag / 'metadata.yaml'
+    meta.write_text(meta.read_text().replace('serialization_format: cdr', 'serialization_format: protobuf'))
+    assert main(['replay', str(bag), '--out', str(tmp_path / 'out')]) == 1
+    line = _one_line_refusal(capsys, 'replay')
+    assert "serialized as 'protobuf'" in line and 'not supported' in line and 'recover' in line
+    assert 'damaged or cut short' not in line and '--out NEW' not in line
+    assert main(['recover', str(bag), '--out', str(tmp_path / 'fixed')]) == 1
+    line = _one_line_refusal(capsys, 'recover')
+    assert "serialized as 'protobuf'" in line and 'not supported' in line
+    assert not (tmp_path / 'out').exists() and not (tmp_path / 'fixed').exists()

@@ -3,22 +3,26 @@
 from __future__ import annotations
 
 import math
+import sqlite3
+from contextlib import closing
 from pathlib import Path
 
 import numpy as np
 import pytest
+from mcap.writer import Writer as McapWriter
 from rosbags.highlevel import AnyReader
 from rosbags.rosbag2 import StoragePlugin, Writer
 
 from gimbal_friction.common.errors import GimbalFrictionError
-from gimbal_friction.recording.bag import ChamberArrays, open_chamber_bag, write_chamber_bag
+from gimbal_friction.recording.bag import ChamberArrays, foreign_serialization, open_chamber_bag, write_chamber_bag
 from gimbal_friction.recording.cdr import (
     default_typestore,
     make_float64_multi_array,
     make_joint_state,
     make_temperature,
 )
-from gimbal_friction.recording.errors import RecordingError
+from gimbal_friction.recording.errors import EmptyInputError, RecordingError
+from gimbal_friction.recording.recover import recover
 from gimbal_friction.recording.topics import (
     FLOAT64_MULTI_ARRAY_TYPE,
     JOINT_STATE_TYPE,
@@ -184,7 +188,7 @@ def test_topic_map_remaps_bag_names(tmp_path: Path) -> None:
     path = write_chamber_bag(
         tmp_path / 'bag', chamber_messages(joint_topic='/gimbal/joint_states', current_topic='/drive/current')
     )
-    with pytest.raises(RecordingError, match='required topic /joint_states is missing'):
+    with pytest.raises(RecordingError, match='required topics /joint_states, /gimbal/motor_current are missing'):
         open_chamber_bag(path)
     with pytest.raises(RecordingError, match=r'/joint_states \(recorded as /wrong\) is missing'):
         open_chamber_bag(path, {JOINT_STATES: '/wrong', MOTOR_CURRENT: '/drive/current'})
@@ -449,3 +453,160 @@ def test_windows_together_equal_the_whole_bag(tmp_path: Path, window: int) -> No
             np.testing.assert_array_equal(joined, getattr(whole.joint_states, field)[name], err_msg=field)
     with pytest.raises(ValueError, match='max_messages'):
         bag.iter_arrays(0)
+
+
+# ---------------------------------------------------------------------------------------------- issue 19 (3, 4, 5)
+
+
+@pytest.mark.parametrize('storage', ['mcap', 'sqlite3'])
+def test_every_missing_topic_is_named_with_the_option_that_maps_it(tmp_path: Path, storage: str) -> None:
+    """Two inputs recorded under other names: one refusal names both and ``--topic`` (with the likely bag topic)."""
+    msgs = chamber_messages(joint_topic='/gimbal/joint_states', temperature_topic='/chamber/temp')
+    path = write_chamber_bag(tmp_path / 'bag', msgs, storage=storage)
+    with pytest.raises(RecordingError) as info:
+        open_chamber_bag(path)
+    text = str(info.value)
+    assert '\n' not in text
+    assert f'required topics {TEMPERATURE}, {JOINT_STATES} are missing' in text
+    assert f'--topic {JOINT_STATES}=/gimbal/joint_states' in text
+    assert f'--topic {TEMPERATURE}=BAG_TOPIC' in text  # no bag topic ends like it: the placeholder
+    assert '/chamber/temp (sensor_msgs/msg/Temperature)' in text  # what the bag holds, to pick from
+    bag = open_chamber_bag(path, {JOINT_STATES: '/gimbal/joint_states', TEMPERATURE: '/chamber/temp'})
+    assert len(bag.read_arrays().temperature) == 3
+
+
+def robot_joint_bag(path: Path, *, effort: bool = True) -> Path:
+    """Joint states and currents of a joint named 'joint_2' (no configured axis)."""
+    msgs = []
+    for i in range(6):
+        t = T0 + i * 1_000_000
+        msgs.append((TEMPERATURE, TEMPERATURE_TYPE, t, make_temperature(t, 20.0)))
+        msgs.append((JOINT_STATES, JOINT_STATE_TYPE, t + 1,
+                     make_joint_state(t, ['joint_2'], position=[0.01], velocity=[0.035])))
+        msgs.append((MOTOR_CURRENT, JOINT_STATE_TYPE, t + 2,
+                     make_joint_state(t, ['joint_2'], effort=[0.2] if effort else None, velocity=[0.0])))
+    return write_chamber_bag(path, msgs)
+
+
+def test_a_read_with_no_configured_axis_is_refused_naming_the_joints_and_the_mapping(tmp_path: Path) -> None:
+    """The reader's rule (replay and fleet both read through it): no configured axis in the bag, or a --joint naming
+    an absent joint, is an EmptyInputError naming the joints present, the mapping used and the fix."""
+    path = robot_joint_bag(tmp_path / 'bag')
+    for read in (lambda b: b.read_arrays(), lambda b: list(b.iter_arrays(4))):
+        with pytest.raises(EmptyInputError) as info:
+            read(open_chamber_bag(path, axes=['elevation']))
+        text = str(info.value)
+        assert "no configured axis is in /joint_states (axes: 'elevation'; joints recorded: 'joint_2'" in text
+        assert 'joint map: none' in text and '--joint elevation=joint_2' in text and '\n' not in text
+    with pytest.raises(EmptyInputError, match=r"--joint elevation=joint_7: no joint 'joint_7' in /joint_states .*"
+                                              r"\(joints recorded: 'joint_2'\)"):
+        open_chamber_bag(path, joint_map={'joint_7': 'elevation'}, axes=['elevation']).read_arrays()
+    mapped = open_chamber_bag(path, joint_map={'joint_2': 'elevation'}, axes=['elevation']).read_arrays()
+    assert mapped.joint_states.names == ('elevation',)
+    assert open_chamber_bag(path).read_arrays().joint_states.names == ('joint_2',)  # no axes given: not checked
+    # two axes, one present: a note of the replay, not a refusal
+    assert len(open_chamber_bag(path, joint_map={'joint_2': 'elevation'}, axes=['elevation', 'azimuth'])
+               .read_arrays().joint_states) == 6
+    no_current = robot_joint_bag(tmp_path / 'no_current', effort=False)
+    with pytest.raises(EmptyInputError, match=r"/gimbal/motor_current carries no motor current \(effort\) .*"
+                                              r"joints with effort there: none; joint map: elevation=joint_2\).*"
+                                              r"--topic /gimbal/motor_current="):
+        open_chamber_bag(no_current, joint_map={'joint_2': 'elevation'}, axes=['elevation']).read_arrays()
+
+
+def _retag_rosbag2(path: Path, fmt: str) -> Path:
+    """A rosbag2 folder whose metadata (and sqlite3 topics table) say ``fmt`` instead of cdr."""
+    meta = path / 'metadata.yaml'
+    meta.write_text(meta.read_text().replace('serialization_format: cdr', f'serialization_format: {fmt}'))
+    for db3 in path.glob('*.db3'):
+        with closing(sqlite3.connect(db3)) as con:
+            con.execute('UPDATE topics SET serialization_format = ?', (fmt,))
+            con.commit()
+    return path
+
+
+def _foreign_mcap(path: Path, encoding: str, profile: str) -> Path:
+    """An MCAP file with the chamber topics in another message encoding (another middleware's bag)."""
+    schema_encoding = {'json': 'jsonschema', 'protobuf': 'protobuf', 'ros1': 'ros1msg'}[encoding]
+    with path.open('wb') as stream:
+        writer = McapWriter(stream)
+        writer.start(profile=profile, library='another middleware')
+        channels = [writer.register_channel(topic, encoding, writer.register_schema(msgtype, schema_encoding, b'{}'))
+                    for topic, msgtype in ((TEMPERATURE, TEMPERATURE_TYPE), (JOINT_STATES, JOINT_STATE_TYPE),
+                                           (MOTOR_CURRENT, JOINT_STATE_TYPE))]
+        for i in range(5):
+            for channel in channels:
+                writer.add_message(channel, T0 + i, b'{"x": 1}', T0 + i)
+        writer.finish()
+    return path
+
+
+def _foreign_bag(tmp_path: Path, kind: str) -> tuple[Path, str]:
+    if kind in ('mcap folder', 'sqlite3 folder'):
+        storage = kind.split()[0]
+        return _retag_rosbag2(write_chamber_bag(tmp_path / 'bag', chamber_messages(), storage=storage), 'json'), \
+            'json'
+    if kind == 'bare db3':
+        folder = _retag_rosbag2(write_chamber_bag(tmp_path / 'bag', chamber_messages(), storage='sqlite3'), 'json')
+        (db3,) = folder.glob('*.db3')
+        return db3, 'json'
+    encoding, profile = kind.split()[1:]
+    return _foreign_mcap(tmp_path / 'foreign.mcap', encoding, '' if profile == '-' else profile), encoding
+
+
+FOREIGN = ['mcap folder', 'sqlite3 folder', 'bare db3', 'mcap json -', 'mcap protobuf -', 'mcap ros1 -',
+           'mcap json ros2']
+
+
+@pytest.mark.parametrize('kind', FOREIGN)
+def test_a_bag_not_in_cdr_is_named_unsupported_by_the_reader_and_by_recover(tmp_path: Path, kind: str) -> None:
+    """Not 'damaged, use recover' (then 'nothing to recover'): both say what the bag is and that it is not
+    supported, and recover writes nothing."""
+    path, fmt = _foreign_bag(tmp_path, kind)
+    assert foreign_serialization(path) is not None or kind == 'mcap json ros2'
+    with pytest.raises(RecordingError) as info:
+        open_chamber_bag(path)
+    text = str(info.value)
+    assert f"serialized as '{fmt}'" in text and 'not CDR: not supported' in text and '\n' not in text
+    assert 'damaged or cut short' not in text and '--out NEW' not in text
+    if kind.endswith(' -'):
+        assert "profile '', not 'ros2'" in text
+    if kind == 'mcap json ros2':
+        return  # rosbags reads a ros2-profile MCAP whatever a channel's encoding: the reader refuses the topics
+    with pytest.raises(RecordingError) as info:
+        recover(path, tmp_path / 'recovered')
+    text = str(info.value)
+    assert text.startswith(f'recover: {path}: ') and f"serialized as '{fmt}'" in text and 'not supported' in text
+    assert not (tmp_path / 'recovered').exists()
+    assert not list(tmp_path.glob('.recovered*'))
+
+
+def test_one_foreign_side_topic_refuses_an_mcap_bag_but_not_a_sqlite3_one(tmp_path: Path) -> None:
+    """rosbags opens no MCAP file with a channel in another encoding (named, the CDR inputs aside); a sqlite3 bag
+    with one is read (only the inputs are decoded)."""
+    store = default_typestore()
+    path = tmp_path / 'mixed.mcap'
+    with path.open('wb') as stream:
+        writer = McapWriter(stream)
+        writer.start(profile='ros2', library='rosbag2 (imitated)')
+        channels = {}
+        for topic, msgtype in ((TEMPERATURE, TEMPERATURE_TYPE), (JOINT_STATES, JOINT_STATE_TYPE),
+                               (MOTOR_CURRENT, JOINT_STATE_TYPE)):
+            text, _ = store.generate_msgdef(msgtype, ros_version=2)
+            channels[topic] = writer.register_channel(topic, 'cdr', writer.register_schema(msgtype, 'ros2msg',
+                                                                                           text.encode()))
+        notes = writer.register_channel('/annotations', 'json', writer.register_schema('Note', 'jsonschema', b'{}'))
+        for topic, msgtype, t, msg in chamber_messages():
+            writer.add_message(channels[topic], t, bytes(store.serialize_cdr(msg, msgtype)), t)
+        writer.add_message(notes, T0, b'{}', T0)
+        writer.finish()
+    with pytest.raises(RecordingError, match=r"serialized as 'json' \(/annotations\), not CDR: not supported"):
+        open_chamber_bag(path)
+    msgs = [*chamber_messages(), ('/status', TEMPERATURE_TYPE, T0, make_temperature(T0, 1.0))]
+    folder = write_chamber_bag(tmp_path / 'db3', msgs, storage='sqlite3')
+    (db3,) = folder.glob('*.db3')
+    with closing(sqlite3.connect(db3)) as con:
+        con.execute("UPDATE topics SET serialization_format = 'json' WHERE name = '/status'")
+        con.commit()
+    assert foreign_serialization(db3) is None
+    assert len(open_chamber_bag(db3).read_arrays().joint_states) == 6

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import contextlib
 import io
+import math
 import os
 import resource
 import shutil
@@ -78,12 +79,14 @@ def one_line_error(run: Run, command: str) -> str:
 
 
 def chamber_messages(n: int = 300, joint: str = 'elevation') -> list[tuple[str, str, int, object]]:
-    """A small chamber run: joint states at 1 kHz, currents at 500 Hz, temperatures at 100 Hz."""
+    """A small chamber run: joint states at 250 Hz, currents at 125 Hz, temperatures at 25 Hz, at the commanded
+    speed (0.6 s each way, inside the position window), so the estimator accepts samples (a replay that accepts
+    none is refused)."""
     msgs: list[tuple[str, str, int, object]] = []
     for i in range(n):
-        t = T0 + i * 1_000_000
-        v = 0.05 if (i // 50) % 2 == 0 else -0.05
-        msgs.append((JOINT_STATES, JOINT_STATE_TYPE, t, make_joint_state(t, [joint], [0.001 * i], [v])))
+        t = T0 + i * 4_000_000
+        v = math.radians(2.0) * (1 if (i // 150) % 2 == 0 else -1)
+        msgs.append((JOINT_STATES, JOINT_STATE_TYPE, t, make_joint_state(t, [joint], [0.0005 * i], [v])))
         if i % 2 == 0:
             msgs.append((MOTOR_CURRENT, JOINT_STATE_TYPE, t + 1, make_joint_state(t, [joint], effort=[0.2])))
         if i % 10 == 0:

@@ -12,9 +12,16 @@ from mcap.writer import Writer as McapWriter
 from gimbal_friction.recording.bag import open_chamber_bag, write_chamber_bag
 from gimbal_friction.recording.cdr import default_typestore
 from gimbal_friction.recording.mcap_scan import McapScanner
-from gimbal_friction.recording.topics import CHAMBER_TOPICS, FEEDFORWARD, MEASURED, RESIDUAL, RESIDUAL_DETAIL
+from gimbal_friction.recording.topics import (
+    CHAMBER_TOPICS,
+    FEEDFORWARD,
+    MEASURED,
+    MEASURED_DETAIL,
+    RESIDUAL,
+    RESIDUAL_DETAIL,
+)
 
-GENERATED = {FEEDFORWARD, MEASURED, RESIDUAL, RESIDUAL_DETAIL}
+GENERATED = {FEEDFORWARD, MEASURED, MEASURED_DETAIL, RESIDUAL, RESIDUAL_DETAIL}
 
 
 def recorded_with_all(path: Path, rb) -> Path:
