@@ -70,6 +70,7 @@ SOURCE_NAMES = ('measured', 'hold_last', 'fallback_temperature', 'zero')
 #: reference while it is fresh and the joint state's otherwise.
 VELOCITY_SOURCES = ('measured', 'reference', 'auto')
 NON_FINITE_VELOCITY = 'non-finite velocity'
+_NO_REFERENCE = (math.nan, math.nan)  # (velocity [rad/s], time [s]) of a joint without a reference yet
 
 
 @dataclass(frozen=True)
@@ -247,6 +248,7 @@ class Feedforward:
         # (settings read per scalar call, as attributes: one lookup instead of two)
         self._v_th, self._max_torque_nm = settings.velocity_threshold_rad_s, settings.max_torque_nm
         self._timeout_s = settings.temperature_timeout_s
+        self._velocity_source, self._reference_timeout_s = settings.velocity_source, settings.reference_timeout_s
         self.axes = dict(axes)
         self.order = tuple(self.axes)
         s = settings
@@ -326,12 +328,12 @@ class Feedforward:
     def velocity(self, joint: str, measured_rad_s: float, time_s: float) -> float:
         """The velocity [rad/s] the torque of ``joint`` uses at time ``time_s`` [s] under ``velocity_source``
         (:func:`velocity_used`), from its measured velocity and the latest reference."""
-        s = self.settings
-        if s.velocity_source == 'measured':
+        source = self._velocity_source
+        if source == 'measured':
             return measured_rad_s
-        v, t = self._reference.get(joint, (math.nan, math.nan))
-        return float(velocity_used(s.velocity_source, measured_rad_s, v,
-                                   is_fresh(time_s, t, s.reference_timeout_s, SCALAR), SCALAR))
+        v, t = self._reference.get(joint, _NO_REFERENCE)
+        return float(velocity_used(source, measured_rad_s, v, is_fresh(time_s, t, self._reference_timeout_s, SCALAR),
+                                   SCALAR))
 
     def temperature(self, time_s: float) -> tuple[float, int]:
         """Temperature [°C] to use for a sample of time ``time_s`` [s] (NaN: zero policy) and its source code."""
@@ -402,7 +404,7 @@ class Feedforward:
             c.add(bucket, J_UNKNOWN, idx.unknown)
             c.add(bucket, J_DUPLICATE, idx.duplicate)
         temperature, source = self.temperature(time_s)
-        measured = self.settings.velocity_source == 'measured'
+        measured = self._velocity_source == 'measured'
         position = idx.position
         out_names: list[str] = []
         torques: list[float] = []
