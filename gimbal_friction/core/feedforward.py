@@ -20,7 +20,7 @@ time of the temperature differ by at most ``temperature_timeout_s``; otherwise t
 never reach the output; the reason is counted (:attr:`Feedforward.counters`).
 
 Every rule is written once against the namespace ``xp`` (:mod:`gimbal_friction.core.xp`): on Python floats for a
-message or a controller tick (:meth:`Feedforward.torque_nm`, :meth:`Feedforward.message`, about 2 µs per joint) and
+message or a controller tick (:meth:`Feedforward.torque_nm`, :meth:`Feedforward.message`, about 1 µs per joint) and
 on numpy arrays for a whole bag (:meth:`Feedforward.bag_torques`).
 
 >>> ff = Feedforward({'elevation': AxisParams()}, FeedforwardSettings())
@@ -376,7 +376,8 @@ class Feedforward:
 
     def torque_nm(self, joint: str, velocity_rad_s: float, time_s: float) -> float:
         """Feedforward torque [N·m] of ``joint`` for a velocity [rad/s] relative to the base at time ``time_s``
-        [s], with the temperature rules. The in-process controller call (about 2 µs).
+        [s], with the temperature rules. The in-process controller call (about 1 µs: what depends on temperature
+        only is computed once per temperature, see :meth:`torque_at`).
 
         Raises:
             KeyError: ``joint`` is not configured.

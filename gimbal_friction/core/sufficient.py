@@ -294,7 +294,7 @@ def _cells(ti: IntArray, d: IntArray | NDArray[np.bool_], si: IntArray, batch: I
         key_b += lows[2]
         key_d = np.where(key_d > 0, 1, -1)
     else:  # (key ranges beyond 2^62 cells: rows of keys)
-        stacked = np.column_stack((ti, positive, si, batch))
+        stacked: IntArray = np.column_stack((ti, positive, si, batch)).astype(np.int64)
         uniq, inverse, counts = np.unique(stacked, axis=0, return_inverse=True, return_counts=True)
         count = counts.astype(np.float64)
         key_t, key_s, key_b = uniq[:, 0], uniq[:, 2], uniq[:, 3]
