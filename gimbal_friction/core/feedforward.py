@@ -332,8 +332,10 @@ class Feedforward:
         if source == 'measured':
             return measured_rad_s
         v, t = self._reference.get(joint, _NO_REFERENCE)
-        return float(velocity_used(source, measured_rad_s, v, is_fresh(time_s, t, self._reference_timeout_s, SCALAR),
-                                   SCALAR))
+        # (floats in, a float out: the measured or the reference velocity, or 0.0)
+        used: float = velocity_used(source, measured_rad_s, v, is_fresh(time_s, t, self._reference_timeout_s, SCALAR),
+                                    SCALAR)
+        return used
 
     def temperature(self, time_s: float) -> tuple[float, int]:
         """Temperature [°C] to use for a sample of time ``time_s`` [s] (NaN: zero policy) and its source code."""
@@ -407,6 +409,7 @@ class Feedforward:
         temperature, source = self.temperature(time_s)
         measured = self._velocity_source == 'measured'
         position = idx.position
+        velocity, torque_at = self.velocity, self.torque_at
         out_names: list[str] = []
         torques: list[float] = []
         commands: list[float] = []
@@ -417,12 +420,12 @@ class Feedforward:
                 continue
             v = float(velocities[i])
             if not measured:
-                v = self.velocity(joint, v, time_s)
+                v = velocity(joint, v, time_s)
             if v - v != 0.0:  # not finite (inf - inf and NaN - NaN are NaN)
                 c.add(bucket, NON_FINITE_VELOCITY)
                 commands.append(0.0)
                 continue
-            torque = self.torque_at(joint, v, temperature)
+            torque = torque_at(joint, v, temperature)
             out_names.append(joint)
             torques.append(torque)
             commands.append(torque)
