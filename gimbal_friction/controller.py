@@ -12,7 +12,7 @@ A controller loop (Python, e.g. a custom rclpy control node or a test-bench scri
     ff = load_feedforward('config/gimbal_friction.yaml', 'refit.yaml')
     ...
     ff.update_temperature(bearing_temperature_c, time_s=t)           # whenever a temperature arrives
-    u = rate_pi(error) + ff.torque_nm('elevation', joint_velocity_rad_s, time_s=t)   # every tick, ~2 µs
+    u = rate_pi(error) + ff.torque_nm('elevation', joint_velocity_rad_s, time_s=t)   # every tick, ~1 µs
 
 ``joint_velocity_rad_s`` is the rate of the gimbal relative to the base (the resolver's), or the reference joint
 rate the controller commands; never the inertial LOS rate of the gyro. Times are seconds on any clock, as long as

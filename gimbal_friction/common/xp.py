@@ -26,6 +26,11 @@ from typing import Any
 import numpy as np
 
 
+def _cbrt(x: float) -> float:
+    """Real cube root of a float (``math.cbrt`` before Python 3.11)."""
+    return math.copysign(abs(x) ** (1.0 / 3.0), x)
+
+
 class _Scalar:
     """numpy's names on Python floats (``where`` and ``clip`` evaluate like numpy's, on one value)."""
 
@@ -53,9 +58,7 @@ class _Scalar:
     def maximum(a: float, b: float) -> float:
         return a if a > b else b
 
-    @staticmethod
-    def cbrt(x: float) -> float:
-        return math.copysign(abs(x) ** (1.0 / 3.0), x)
+    cbrt = staticmethod(getattr(math, 'cbrt', _cbrt))  # math.cbrt: Python >= 3.11
 
     @staticmethod
     def floor_index(x: float, hi: int) -> int:

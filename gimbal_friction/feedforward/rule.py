@@ -20,7 +20,7 @@ time of the temperature differ by at most ``temperature_timeout_s``; otherwise t
 never reach the output; the reason is counted (:attr:`Feedforward.counters`).
 
 Every rule is written once against the namespace ``xp`` (:mod:`gimbal_friction.common.xp`): on Python floats for a
-message or a controller tick (:meth:`Feedforward.torque_nm`, :meth:`Feedforward.message`, about 2 µs per joint) and
+message or a controller tick (:meth:`Feedforward.torque_nm`, :meth:`Feedforward.message`, about 1 µs per joint) and
 on numpy arrays for a whole bag (:meth:`Feedforward.bag_torques`).
 
 >>> ff = Feedforward({'elevation': AxisParams()}, FeedforwardSettings())
@@ -45,9 +45,9 @@ from gimbal_friction.common.errors import ConfigError, check_rules
 from gimbal_friction.common.settings import setting
 from gimbal_friction.common.units import NS_PER_S
 from gimbal_friction.common.xp import ARRAY, SCALAR
-from gimbal_friction.physics.direction import direction_factor
+from gimbal_friction.physics.direction import direction_factors, select_direction
 from gimbal_friction.physics.params import MODEL_T_MAX_C, MODEL_T_MIN_C, AxisParams
-from gimbal_friction.physics.table import FrictionTable
+from gimbal_friction.physics.table import FrictionTable, TemperatureTerms, magnitude_from_terms
 from gimbal_friction.streams.arrays import ChamberArrays, JointStateArrays
 from gimbal_friction.streams.inputs import (
     J_DUPLICATE,
@@ -70,6 +70,7 @@ SOURCE_NAMES = ('measured', 'hold_last', 'fallback_temperature', 'zero')
 #: reference while it is fresh and the joint state's otherwise.
 VELOCITY_SOURCES = ('measured', 'reference', 'auto')
 NON_FINITE_VELOCITY = 'non-finite velocity'
+_NO_REFERENCE = (math.nan, math.nan)  # (velocity [rad/s], time [s]) of a joint without a reference yet
 
 
 @dataclass(frozen=True)
@@ -120,16 +121,16 @@ class FeedforwardSettings:
 
 
 # ---------------------------------------------------------------------------------------------------- the rules
-def smooth_sign(velocity_rad_s: Any, v_th: float, xp: Any) -> Any:
-    """``tanh(v / v_th)`` [-], the sign of motion without a discontinuity at zero speed."""
-    return xp.tanh(velocity_rad_s / v_th)
-
-
-def feedforward_torque_nm(magnitude_nm: Any, velocity_rad_s: Any, k_dir: Any, v_th: float, max_torque_nm: float,
-                          xp: Any) -> Any:
-    """``clamp(tanh(v/v_th) · k_dir · M, ±τ_max)``: the feedforward torque [N·m] from the model magnitude
-    ``magnitude_nm`` [N·m] at velocity ``velocity_rad_s`` [rad/s]."""
-    return xp.clip(smooth_sign(velocity_rad_s, v_th, xp) * k_dir * magnitude_nm, -max_torque_nm, max_torque_nm)
+def feedforward_torque_nm(terms: TemperatureTerms, k_positive: Any, k_negative: Any, velocity_rad_s: Any,
+                          v_th: float, max_torque_nm: float, xp: Any) -> Any:
+    """``clamp(tanh(v/v_th) · k_dir · M, ±τ_max)``: the feedforward torque [N·m] at velocity ``velocity_rad_s``
+    [rad/s] from what depends on temperature only: the table's ``terms`` (:meth:`FrictionTable.temperature_terms`,
+    giving the magnitude M [N·m] with :func:`~gimbal_friction.physics.table.magnitude_from_terms`) and the direction
+    factors ``k_positive``, ``k_negative`` [-] (:func:`~gimbal_friction.physics.direction.direction_factors`);
+    ``tanh(v / v_th)`` [-] is the sign of motion without a discontinuity at zero speed."""
+    magnitude_nm = magnitude_from_terms(terms, velocity_rad_s, xp)
+    k_dir = select_direction(velocity_rad_s, k_positive, k_negative, xp)
+    return xp.clip(xp.tanh(velocity_rad_s / v_th) * k_dir * magnitude_nm, -max_torque_nm, max_torque_nm)
 
 
 def velocity_used(source: str, measured_rad_s: Any, reference_rad_s: Any, reference_fresh: Any, xp: Any) -> Any:
@@ -244,6 +245,10 @@ class Feedforward:
         if not axes:
             raise ConfigError('axes', 'must name at least one joint')
         self.settings = settings
+        # (settings read per scalar call, as attributes: one lookup instead of two)
+        self._v_th, self._max_torque_nm = settings.velocity_threshold_rad_s, settings.max_torque_nm
+        self._timeout_s = settings.temperature_timeout_s
+        self._velocity_source, self._reference_timeout_s = settings.velocity_source, settings.reference_timeout_s
         self.axes = dict(axes)
         self.order = tuple(self.axes)
         s = settings
@@ -251,12 +256,27 @@ class Feedforward:
                        for name, p in self.axes.items()}
         self.counters = FeedforwardCounters()
         self._index_cache: dict[tuple[tuple[str, ...], int], JointIndex] = {}
-        #: the table's temperature terms of the last temperature per joint (scalar calls; [°C] -> terms)
-        self._scalar_terms: dict[str, tuple[float, Any]] = {}
+        #: per joint, the terms of the rule at the last temperature of a scalar call: (temperature [°C], the
+        #: table's temperature terms, k_+ [-], k_- [-]) (the temperature changes at the sensor's rate, not the
+        #: joints')
+        self._scalar_terms: dict[str, tuple[float, TemperatureTerms, float, float]] = {}
         #: latest reference joint velocity per joint: (velocity [rad/s], time [s])
         self._reference: dict[str, tuple[float, float]] = {}
+        #: :func:`temperature_used` of the latest valid temperature when stale and when fresh (index: fresh)
+        self._used: tuple[tuple[float, int], tuple[float, int]] = ((math.nan, SOURCE_ZERO),) * 2
         self.last_temperature_c = math.nan   #: latest valid temperature [°C] (NaN: none)
         self.last_temperature_time_s = math.nan  #: its time [s]
+
+    @property
+    def last_temperature_c(self) -> float:
+        """Latest valid temperature [°C] (NaN: none)."""
+        return self._last_temperature_c
+
+    @last_temperature_c.setter
+    def last_temperature_c(self, value: float) -> None:
+        self._last_temperature_c = value
+        self._used = tuple((float(t), int(source)) for t, source in  # type: ignore[assignment]
+                           (temperature_used(value, fresh, self.settings, SCALAR) for fresh in (False, True)))
 
     def take_state(self, old: Feedforward) -> None:
         """Continue from ``old`` after a parameter change: its counters and its latest valid temperature (if that
@@ -308,18 +328,19 @@ class Feedforward:
     def velocity(self, joint: str, measured_rad_s: float, time_s: float) -> float:
         """The velocity [rad/s] the torque of ``joint`` uses at time ``time_s`` [s] under ``velocity_source``
         (:func:`velocity_used`), from its measured velocity and the latest reference."""
-        s = self.settings
-        if s.velocity_source == 'measured':
+        source = self._velocity_source
+        if source == 'measured':
             return measured_rad_s
-        v, t = self._reference.get(joint, (math.nan, math.nan))
-        return float(velocity_used(s.velocity_source, measured_rad_s, v,
-                                   is_fresh(time_s, t, s.reference_timeout_s, SCALAR), SCALAR))
+        v, t = self._reference.get(joint, _NO_REFERENCE)
+        # (floats in, a float out: the measured or the reference velocity, or 0.0)
+        used: float = velocity_used(source, measured_rad_s, v, is_fresh(time_s, t, self._reference_timeout_s, SCALAR),
+                                    SCALAR)
+        return used
 
     def temperature(self, time_s: float) -> tuple[float, int]:
         """Temperature [°C] to use for a sample of time ``time_s`` [s] (NaN: zero policy) and its source code."""
-        fresh = is_fresh(time_s, self.last_temperature_time_s, self.settings.temperature_timeout_s, SCALAR)
-        t, source = temperature_used(self.last_temperature_c, fresh, self.settings, SCALAR)
-        return float(t), int(source)
+        # temperature_used of the latest valid temperature, evaluated when it arrived (last_temperature_c)
+        return self._used[is_fresh(time_s, self.last_temperature_time_s, self._timeout_s, SCALAR)]
 
     def temperature_age_s(self, time_s: float) -> float:
         """``time_s`` minus the time of the latest valid temperature [s] (NaN if none)."""
@@ -330,20 +351,11 @@ class Feedforward:
         """The torque rule of ``joint`` [N·m] at velocities [rad/s] and temperatures [°C] (finite), floats
         (``xp`` = SCALAR) or arrays (ARRAY); ``terms`` may carry the table's temperature terms already computed
         for these temperatures. No counting, no input checks: the callers below do those."""
-        s = self.settings
         table = self.tables[joint]
-        if terms is None and xp is SCALAR:  # the temperature changes at the sensor's rate, not the joints'
-            cached = self._scalar_terms.get(joint)
-            if cached is not None and cached[0] == temperature_c:
-                terms = cached[1]
-            else:
-                terms = table.temperature_terms(temperature_c, xp)
-                self._scalar_terms[joint] = (temperature_c, terms)
-        elif terms is None:
+        if terms is None:
             terms = table.temperature_terms(temperature_c, xp)
-        magnitude = table.magnitude_from_terms(terms, velocity_rad_s, xp)
-        k_dir = direction_factor(self.axes[joint], temperature_c, velocity_rad_s, xp)
-        return feedforward_torque_nm(magnitude, velocity_rad_s, k_dir, s.velocity_threshold_rad_s, s.max_torque_nm,
+        k_positive, k_negative = direction_factors(self.axes[joint], temperature_c, xp)
+        return feedforward_torque_nm(terms, k_positive, k_negative, velocity_rad_s, self._v_th, self._max_torque_nm,
                                      xp)
 
     def torque_at(self, joint: str, velocity_rad_s: float, temperature_c: float) -> float:
@@ -351,19 +363,30 @@ class Feedforward:
         zero policy, 0 N·m). Non-finite velocity gives 0 N·m. Counts saturation."""
         if not (math.isfinite(velocity_rad_s) and temperature_c == temperature_c):
             return 0.0
-        torque: float = self.rule(joint, velocity_rad_s, temperature_c, SCALAR)
-        if abs(torque) >= self.settings.max_torque_nm:
+        cached = self._scalar_terms.get(joint)
+        if cached is None or cached[0] != temperature_c:  # :meth:`rule`'s terms, once per temperature
+            table = self.tables[joint]
+            cached = (temperature_c, table.temperature_terms(temperature_c, SCALAR),
+                      *direction_factors(self.axes[joint], temperature_c, SCALAR))
+            self._scalar_terms[joint] = cached
+        _, terms, k_positive, k_negative = cached
+        torque: float = feedforward_torque_nm(terms, k_positive, k_negative, velocity_rad_s, self._v_th,
+                                              self._max_torque_nm, SCALAR)
+        if abs(torque) >= self._max_torque_nm:
             self.counters.add(self.counters.saturated, joint)
         return torque
 
     def torque_nm(self, joint: str, velocity_rad_s: float, time_s: float) -> float:
         """Feedforward torque [N·m] of ``joint`` for a velocity [rad/s] relative to the base at time ``time_s``
-        [s], with the temperature rules. The in-process controller call (about 2 µs).
+        [s], with the temperature rules. The in-process controller call (about 1 µs: what depends on temperature
+        only is computed once per temperature, see :meth:`torque_at`).
 
         Raises:
             KeyError: ``joint`` is not configured.
         """
-        return self.torque_at(joint, velocity_rad_s, self.temperature(time_s)[0])
+        # (self.temperature(time_s)[0], one call less)
+        used = self._used[is_fresh(time_s, self.last_temperature_time_s, self._timeout_s, SCALAR)]
+        return self.torque_at(joint, velocity_rad_s, used[0])
 
     # ------------------------------------------------------------------ one message (the node)
     def message(self, names: list[str], velocities: list[float], time_s: float) -> MessageTorques | None:
@@ -380,27 +403,32 @@ class Feedforward:
         if idx.mismatch:
             c.add(bucket, J_MISMATCH)
             return None
-        c.add(bucket, J_UNKNOWN, idx.unknown)
-        c.add(bucket, J_DUPLICATE, idx.duplicate)
+        if idx.unknown or idx.duplicate:
+            c.add(bucket, J_UNKNOWN, idx.unknown)
+            c.add(bucket, J_DUPLICATE, idx.duplicate)
         temperature, source = self.temperature(time_s)
-        measured = self.settings.velocity_source == 'measured'
+        measured = self._velocity_source == 'measured'
+        position = idx.position
+        velocity, torque_at = self.velocity, self.torque_at
         out_names: list[str] = []
         torques: list[float] = []
         commands: list[float] = []
         for joint in self.order:
-            i = idx.position.get(joint)
-            v = float(velocities[i]) if i is not None else math.nan
-            if i is not None and not measured:
-                v = self.velocity(joint, v, time_s)
-            if i is not None and not math.isfinite(v):
-                c.add(bucket, NON_FINITE_VELOCITY)
-            if math.isfinite(v):
-                torque = self.torque_at(joint, v, temperature)
-                out_names.append(joint)
-                torques.append(torque)
-                commands.append(torque)
-            else:
+            i = position.get(joint)
+            if i is None:
                 commands.append(0.0)
+                continue
+            v = float(velocities[i])
+            if not measured:
+                v = velocity(joint, v, time_s)
+            if v - v != 0.0:  # not finite (inf - inf and NaN - NaN are NaN)
+                c.add(bucket, NON_FINITE_VELOCITY)
+                commands.append(0.0)
+                continue
+            torque = torque_at(joint, v, temperature)
+            out_names.append(joint)
+            torques.append(torque)
+            commands.append(torque)
         if not out_names:
             c.add(bucket, J_NONE)
             return None

@@ -69,7 +69,8 @@ import numpy as np
 from gimbal_friction.common.xp import ARRAY, SCALAR
 from gimbal_friction.physics.params import AxisParams
 
-__all__ = ['ARRAY', 'SCALAR', 'asymmetry_weight', 'direction_asymmetry', 'direction_factor']
+__all__ = ['ARRAY', 'SCALAR', 'asymmetry_weight', 'direction_asymmetry', 'direction_factor', 'direction_factors',
+           'select_direction']
 
 _ = np  # the doctests use numpy
 
@@ -98,6 +99,20 @@ def direction_asymmetry(p: AxisParams, temperature_c: Any, xp: Any) -> Any:
     return a_c + (p.direction_asymmetry_warm - a_c) * asymmetry_weight(p, temperature_c, xp)
 
 
+def direction_factors(p: AxisParams, temperature_c: Any, xp: Any) -> tuple[Any, Any]:
+    """The factors ``(k_+(T), k_-(T)) = (s_+ (1 + a(T)), s_- (1 - a(T)))`` of the two directions at
+    ``temperature_c`` [°C], [-] (they depend on temperature only: a per-call caller computes them once per
+    temperature and picks one with :func:`select_direction`)."""
+    a = direction_asymmetry(p, temperature_c, xp)
+    return p.scale_positive * (1.0 + a), p.scale_negative * (1.0 - a)
+
+
+def select_direction(velocity_sign: Any, k_positive: Any, k_negative: Any, xp: Any) -> Any:
+    """The factor of the direction of ``velocity_sign``: ``>= 0`` is the positive direction (the paper's CW),
+    [-]."""
+    return xp.where(velocity_sign >= 0.0, k_positive, k_negative)
+
+
 def direction_factor(p: AxisParams, temperature_c: Any, velocity_sign: Any, xp: Any) -> Any:
     """Factor on the model magnitude for motion in the direction of ``velocity_sign`` at ``temperature_c``:
     ``k_d(T) = s_d (1 + d a(T))``, [-].
@@ -118,6 +133,5 @@ def direction_factor(p: AxisParams, temperature_c: Any, velocity_sign: Any, xp: 
     k : float or ndarray
         Direction factor, [-]; equals ``scale_positive`` / ``scale_negative`` with the default (zero) asymmetry.
     """
-    a = direction_asymmetry(p, temperature_c, xp)
-    positive = velocity_sign >= 0.0
-    return xp.where(positive, p.scale_positive * (1.0 + a), p.scale_negative * (1.0 - a))
+    k_positive, k_negative = direction_factors(p, temperature_c, xp)
+    return select_direction(velocity_sign, k_positive, k_negative, xp)

@@ -136,9 +136,24 @@ def viscous_torque_Palmgren_1959(s0: float, nu0: Any, n: Any, d_m: Any, xp: Any 
     """
     if xp is ARRAY:
         nu0, n, d_m = (np.asarray(x, dtype=float) for x in (nu0, n, d_m))
+    return viscous_torque_from_coefficient(palmgren_coefficient(s0, d_m), nu0, n, xp)
+
+
+def palmgren_coefficient(s0: float, d_m: Any) -> Any:
+    """The part of Eq. (9) that does not depend on viscosity or speed: ``1e-7 s0 d_m³``, [N·mm] (``s0`` [-],
+    pitch diameter ``d_m`` [mm]; floats or arrays)."""
+    return 1e-7 * s0 * (d_m * d_m * d_m)
+
+
+def viscous_torque_from_coefficient(coefficient_nmm: Any, nu0: Any, n: Any, xp: Any) -> Any:
+    """Eq. (9) from :func:`palmgren_coefficient` [N·mm], the viscosity ``nu0`` [mm²/s] and the speed ``n`` [rpm]
+    (magnitude used): ``coefficient · (ν0 n)^(2/3)`` if ``ν0 n ≥ 2000``, else ``coefficient · 160``, [N·mm].
+
+    The split lets a caller whose temperature changes slowly (the feedforward, per controller tick) compute the
+    coefficient and the viscosity once per temperature."""
     vn = nu0 * xp.abs(n)
-    dm3 = d_m * d_m * d_m
-    return xp.where(vn >= PALMGREN_THRESHOLD_CST_RPM, 1e-7 * s0 * xp.cbrt(vn) ** 2 * dm3, 160e-7 * s0 * dm3)
+    c = xp.cbrt(vn)  # (c * c is numpy's c ** 2, and cheaper on a float)
+    return coefficient_nmm * xp.where(vn >= PALMGREN_THRESHOLD_CST_RPM, c * c, 160.0)
 
 
 def total_torque_Eq10(M_R: ArrayLike, M_S: ArrayLike, M_L: ArrayLike) -> Array:

@@ -24,13 +24,13 @@ from numpy.typing import ArrayLike, NDArray
 from gimbal_friction.common.errors import ModelDomainError
 from gimbal_friction.common.units import NM_PER_NMM, NMM_PER_NM, RAD_S_PER_RPM, RPM_PER_RAD_S
 from gimbal_friction.common.xp import ARRAY, SCALAR
-from gimbal_friction.physics.friction import viscous_torque_Palmgren_1959
+from gimbal_friction.physics.friction import palmgren_coefficient, viscous_torque_from_coefficient
 from gimbal_friction.physics.model import friction_torque
 from gimbal_friction.physics.params import MODEL_T_MAX_C, MODEL_T_MIN_C, AxisParams
 from gimbal_friction.physics.thermal import loose_fit_temperature, thermal_expansion_Eq11
 from gimbal_friction.physics.viscosity import nu_Walther
 
-__all__ = ['FrictionTable', 'TemperatureTerms', 'interp_uniform']
+__all__ = ['FrictionTable', 'TemperatureTerms', 'interp_uniform', 'magnitude_from_terms']
 
 
 def interp_uniform(values: Any, x: Any, x0: float, step: float, n: int, xp: Any) -> Any:
@@ -54,6 +54,15 @@ class TemperatureTerms(NamedTuple):
     m_contact_nmm: Any   #: M_R + M_S of the axis, interpolated [N·mm]
     viscosity_cst: Any   #: kinematic viscosity ν (Eq. 20/21) [mm²/s]
     pitch_mm: Any        #: pitch diameter d_m at temperature (Eq. 11) [mm]
+    viscous_nmm: Any     #: the viscosity- and speed-free part of M_L of the axis, bearings × 1e-7 s0 d_m³ [N·mm]
+
+
+def magnitude_from_terms(terms: TemperatureTerms, omega_rad_s: Any, xp: Any = SCALAR) -> Any:
+    """Friction torque magnitude [N·m] from the temperature terms of a table
+    (:meth:`FrictionTable.temperature_terms`) and the angular velocity ``omega_rad_s`` [rad/s] (magnitude used):
+    interpolated M_R + M_S plus the exact M_L of Eq. (9) of all bearings of the axis."""
+    m_l = viscous_torque_from_coefficient(terms.viscous_nmm, terms.viscosity_cst, omega_rad_s * RPM_PER_RAD_S, xp)
+    return (terms.m_contact_nmm + m_l) * NM_PER_NMM
 
 
 class FrictionTable:
@@ -134,14 +143,12 @@ class FrictionTable:
         nu = nu_Walther(t + p.kelvin_offset_k, p.walther_a, p.walther_b, p.viscosity_offset_cst, p.viscosity_model,
                         xp)
         d_m = thermal_expansion_Eq11(p.pitch_diameter_mm, p.steel_cte_per_c, t - p.reference_temperature_c, xp)
-        return TemperatureTerms(m_rs, nu, d_m)
+        return TemperatureTerms(m_rs, nu, d_m, p.bearings_per_axis * palmgren_coefficient(p.palmgren_factor, d_m))
 
     def magnitude_from_terms(self, terms: TemperatureTerms, omega_rad_s: Any, xp: Any = SCALAR) -> Any:
-        """:meth:`magnitude_nm` from :meth:`temperature_terms` and the angular velocity [rad/s], [N·m]."""
-        p = self.params
-        m_l = p.bearings_per_axis * viscous_torque_Palmgren_1959(p.palmgren_factor, terms.viscosity_cst,
-                                                                  omega_rad_s * RPM_PER_RAD_S, terms.pitch_mm, xp)
-        return (terms.m_contact_nmm + m_l) * NM_PER_NMM
+        """:meth:`magnitude_nm` from :meth:`temperature_terms` and the angular velocity [rad/s], [N·m]
+        (:func:`magnitude_from_terms`)."""
+        return magnitude_from_terms(terms, omega_rad_s, xp)
 
     def viscosity_cst(self, t_c: float) -> float:
         """Kinematic viscosity of the lubricant at ``t_c`` [°C] (Eq. 20/21, exact), [mm²/s]."""
