@@ -19,7 +19,7 @@ Prints a table (or ``--json``); progress on stderr once a minute. Run from the r
     .venv/bin/python bench/soak.py                 # 10 minutes at 1 kHz
     .venv/bin/python bench/soak.py --minutes 2     # a short try
 
-Numbers of this machine: see bench/README.md and the README's robustness section.
+Numbers of this machine: see bench/README.md and docs/robustness.md.
 """
 
 from __future__ import annotations

@@ -1,7 +1,7 @@
-"""Print the README's parameter tables from the code (the one source of names, defaults, units and meanings).
+"""Print the parameter tables of docs/ros.md from the code (the one source of names, defaults, units and meanings).
 
-Run from the repository root: ``.venv/bin/python scripts/param_tables.py`` and paste the output into README.md
-(``test/test_readme.py`` checks that every parameter is documented there).
+Run from the repository root: ``.venv/bin/python scripts/param_tables.py`` and paste the output into docs/ros.md
+(``test/test_docs.py`` checks that every parameter is documented there with its default).
 """
 
 from __future__ import annotations

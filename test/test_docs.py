@@ -2,8 +2,6 @@
 repository (and to a heading, where it names one), and no file of the repository cites documents that are not in
 it (the design notes and the paper text the project was written from).
 
-README.md is checked for such citations by ``check_readme_cites_nothing_outside`` (enabled once README.md is
-rewritten); the other checks cover every other file.
 """
 
 from __future__ import annotations
@@ -153,15 +151,8 @@ def test_docs_index_links_every_document() -> None:
 
 
 def test_nothing_cites_documents_outside_the_repository() -> None:
-    """Every file but README.md (see check_readme_cites_nothing_outside)."""
-    files = [p for p in repository_files() if p != ROOT / 'README.md']
-    assert citations(files) == []
-
-
-def check_readme_cites_nothing_outside() -> None:
-    """README.md cites nothing outside the repository. Not collected yet (README.md is being rewritten): rename to
-    ``test_readme_cites_nothing_outside`` once its citations are replaced by links into docs/."""
-    assert citations([ROOT / 'README.md']) == []
+    """Every file of the repository, README.md included."""
+    assert citations(repository_files()) == []
 
 
 def test_link_checker_reports_missing_files_and_anchors(tmp_path: Path) -> None:
