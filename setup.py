@@ -24,6 +24,8 @@ setup(
         'ros': ['ros-rclpy[fastrtps]==9.1.2', 'ros-std-msgs==5.5.1', 'ros-sensor-msgs==5.5.1',
                 'ros-diagnostic-msgs==5.5.1'],
         'core': ['numpy', 'scipy', 'PyYAML', 'matplotlib', 'mcap', 'mcap-ros2-support', 'rosbags'],
+        # `gimbal-friction fleet` only (refused in one line without it); rosdep has no key for Dask
+        'fleet': ['dask[distributed]'],
     },
     zip_safe=True,
     maintainer='gimbal_friction developers',

@@ -30,6 +30,7 @@ from gimbal_friction.fleet import (
     discover_units,
     plot_fleet,
     progress_line,
+    require_dask,
     run_fleet,
 )
 from gimbal_friction.tools._common import add_common, csv_text, format_table, json_finite, print_json, write_text_atomic
@@ -110,6 +111,7 @@ def table_rows(run: FleetRun) -> tuple[list[dict[str, Any]], list[str]]:
 
 
 def run(args: argparse.Namespace) -> int:
+    require_dask()  # before any work: without Dask, one line that says how to install it
     out: Path = args.out
     if out.exists() and not out.is_dir():
         msg = f'--out {out} exists and is not a directory'
