@@ -25,7 +25,13 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.signals import SignalHandlerOptions
 
-from gimbal_friction.config import axis_names, check_parameter_names, command_line_parameters, load_parameters
+from gimbal_friction.config import (
+    AXES_DESCRIPTION,
+    axis_names,
+    check_parameter_names,
+    command_line_parameters,
+    load_parameters,
+)
 from gimbal_friction.core.errors import ConfigError, GimbalFrictionError, ModelDomainError
 from gimbal_friction.core.params import AxisParams, parameter_specs
 from gimbal_friction.core.settings import settings_from
@@ -67,9 +73,8 @@ def declare_axes(node: Node, default: list[str] | None = None) -> list[str]:
     """
     if default is None:
         default = axis_names(load_parameters())
-    node.declare_parameter('axes', default, ParameterDescriptor(
-        description='configured gimbal axes = joint names in /joint_states (read-only)', read_only=True,
-        dynamic_typing=True))
+    node.declare_parameter('axes', default, ParameterDescriptor(description=AXES_DESCRIPTION, read_only=True,
+                                                                dynamic_typing=True))
     return axis_names({'axes': _value(node.get_parameter('axes'))})
 
 
@@ -406,6 +411,43 @@ def startup_overrides(argv: Sequence[str], node_name: str) -> tuple[list[Paramet
     return [Parameter(name, value=cl.values[name]) for name in cl.ignored_by_rcl], cl.sources
 
 
+def wants_help(argv: Sequence[str]) -> bool:
+    """``-h`` or ``--help`` among the program's own arguments (before ``--ros-args``; ``argv[0]`` is the
+    program)."""
+    own = list(argv[1:])
+    if '--ros-args' in own:
+        own = own[:own.index('--ros-args')]
+    return any(arg in ('-h', '--help') for arg in own)
+
+
+def node_help(exe: str, doc: str | None) -> str:
+    """The ``--help`` text of executable ``exe``: usage, ``doc`` (the node module's docstring: what it subscribes
+    and publishes) and every parameter with its default and unit (:func:`gimbal_friction.config.node_parameter_specs`,
+    the table the node declares from)."""
+    from gimbal_friction.config import node_parameter_specs
+
+    lines = [f'usage: {exe} [-h] [--ros-args [--params-file FILE] [-p NAME:=VALUE] [-r FROM:=TO] ...]',
+             f'       ros2 run gimbal_friction {exe} [--ros-args ...]', '']
+    if doc:
+        lines += [line.replace('``', '') for line in inspect.cleandoc(doc).splitlines()] + ['']
+    lines.append('parameters (name = default [unit]: description; set with -p NAME:=VALUE or --params-file):')
+    for spec in node_parameter_specs(exe):
+        default = 'unset' if spec['default'] is None else repr(spec['default'])
+        unit = spec['unit'] if spec['unit'] not in ('', '-') else ''
+        unit_txt = f' [{unit}]' if unit else ''
+        lines.append(f'  {spec["name"]} = {default}{unit_txt}: {spec["description"]}')
+    return '\n'.join(lines) + '\n'
+
+
+def print_help_if_asked(exe: str, argv: Sequence[str], doc: str | None) -> bool:
+    """Print :func:`node_help` on stdout and return True if ``argv`` asks for it (then the node must not start:
+    ROS is not initialised)."""
+    if not wants_help(argv):
+        return False
+    sys.stdout.write(node_help(exe, doc))
+    return True
+
+
 def run_node(exe: str, factory: Callable[..., Node], args: Sequence[str] | None = None, *,
              suite_node: str | None = None) -> int:
     """Standard ``main``: init, build the node, spin with the EventsExecutor, clean exit on SIGINT/SIGTERM.
@@ -420,6 +462,8 @@ def run_node(exe: str, factory: Callable[..., Node], args: Sequence[str] | None 
     applied (and validated) instead of the file's value.
     """
     argv = list(sys.argv if args is None else args)
+    if print_help_if_asked(exe, argv, getattr(sys.modules.get(factory.__module__), '__doc__', None)):
+        return 0
     stop = threading.Event()
 
     def request_stop(signum: int, frame: Any) -> None:

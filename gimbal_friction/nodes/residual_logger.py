@@ -19,7 +19,8 @@ A measurement whose feedforward has not arrived after ``pairing_timeout_s`` is l
 
 Files: ``output_dir/residuals_<n>.mcap`` (ROS 2 profile, CDR, standard types only), flushed every
 ``flush_period_s`` in small chunks, rotated by ``max_file_mb`` / ``max_file_duration_s``, closed with footer and
-``metadata.yaml`` on SIGINT/SIGTERM. If ``output_dir`` already holds a log, a timestamped sub-folder is used. A write
+``metadata.yaml`` on SIGINT/SIGTERM. If ``output_dir`` already holds a log (an earlier run, or another logger started
+with the same folder), this run writes beside it in ``<output_dir>_<UTC yyyymmdd_HHMMSS>`` (:func:`open_own_folder`). A write
 error (full disk, unwritable folder) is reported on ``/diagnostics`` (ERROR) and retried every ``retry_period_s``;
 the node stays up. ``/diagnostics`` also carries messages logged, bytes, current file and the residual RMS per axis
 and temperature bin.
@@ -84,6 +85,40 @@ _SETTINGS = field_names(LoggerSettings)
 _LIVE = {'pairing_timeout_s', 'residual_bin_c', 'diagnostics_period_s', 'flush_period_s', 'retry_period_s'}
 
 
+def holds_log(folder: Path) -> bool:
+    """``folder`` holds (part of) a residual log: residual MCAP files or a rosbag2 ``metadata.yaml``."""
+    try:
+        return folder.is_dir() and (bool(residual_log_files(folder)) or (folder / 'metadata.yaml').exists())
+    except GimbalFrictionError:
+        return True  # something is there that is not ours to write into
+
+
+def open_own_folder(wanted: Path, open_writer: Callable[[Path], ResidualLogWriter], *,
+                    now: Callable[[], float] = time.time) -> tuple[Path, ResidualLogWriter]:
+    """A log folder of this run's own and its writer: ``wanted`` if it holds no log, else the first free sibling
+    ``<wanted>_<UTC yyyymmdd_HHMMSS>[_<n>]`` (never a folder inside another run's log). Two loggers started at once
+    with the same folder each get their own: the writer creates its first file exclusively, and the one that loses
+    that race moves on to the next sibling.
+
+    Raises:
+        GimbalFrictionError: the folder cannot be written (not because another run took it).
+    """
+    stamp = time.strftime('%Y%m%d_%H%M%S', time.gmtime(now()))
+    candidates = [wanted, wanted.with_name(f'{wanted.name}_{stamp}')]
+    candidates += [wanted.with_name(f'{wanted.name}_{stamp}_{n}') for n in range(2, 100)]
+    for folder in candidates:
+        if holds_log(folder):
+            continue
+        try:
+            return folder, open_writer(folder)
+        except GimbalFrictionError:
+            if holds_log(folder):  # another logger took it between the look and the first file
+                continue
+            raise
+    msg = f'residual log folder {wanted}: it and 99 timestamped siblings already hold logs; choose another output_dir'
+    raise GimbalFrictionError(msg)
+
+
 class ResidualLogger(Node):
     """The residual logger node (adapter around the core's pairing and rows, and ResidualLogWriter)."""
 
@@ -130,20 +165,16 @@ class ResidualLogger(Node):
     # ------------------------------------------------------------------ log file lifecycle
     def _open_writer(self) -> None:
         s = self.settings
-        folder = Path(s.output_dir).expanduser()
+        wanted = Path(s.output_dir).expanduser().absolute()
         try:
-            if folder.exists() and (residual_log_files(folder) or (folder / 'metadata.yaml').exists()):
-                folder = folder / time.strftime('%Y%m%d_%H%M%S', time.gmtime())
-        except GimbalFrictionError:
-            pass
-        try:
-            self.writer = ResidualLogWriter(
-                folder, chunk_size=s.chunk_kib * 1024, flush_interval_s=s.flush_period_s,
+            folder, self.writer = open_own_folder(wanted, lambda f: ResidualLogWriter(
+                f, chunk_size=s.chunk_kib * 1024, flush_interval_s=s.flush_period_s,
                 max_bytes=int(s.max_file_mb * 1e6) if s.max_file_mb > 0 else None,
-                max_duration_s=s.max_file_duration_s if s.max_file_duration_s > 0 else None)
+                max_duration_s=s.max_file_duration_s if s.max_file_duration_s > 0 else None))
             self.folder = folder
             self.error = None
-            self.get_logger().info(f'residual log: {folder}')
+            why = '' if folder == wanted else f' ({wanted} already holds a log: this run writes beside it)'
+            self.get_logger().info(f'residual log: {folder}{why}')
         except GimbalFrictionError as err:
             self.writer = None
             self._report_error(str(err))

@@ -129,7 +129,35 @@ def test_pairs_and_closes_a_readable_log(spawn, probe, tmp_path):
     rc2, out2 = node2.stop()
     assert rc2 == 0, out2
     assert len(read_residual_rows([folder])[0]) == 40
-    assert [p for p in folder.iterdir() if p.is_dir()]
+    assert not [p for p in folder.iterdir() if p.is_dir()]  # not nested inside the first log
+    siblings = [p for p in folder.parent.iterdir() if p.name.startswith(f'{folder.name}_')]
+    assert len(siblings) == 1 and (siblings[0] / 'metadata.yaml').exists()
+
+
+def test_two_loggers_on_one_folder_each_write_their_own_sibling_log(spawn, probe, tmp_path):
+    """Started at once with the same output_dir, two loggers write two separate logs side by side, each named in
+    its log line; neither log is inside the other, and each closes cleanly."""
+    folder = tmp_path / 'shared'
+    nodes = [_start(spawn, folder), _start(spawn, folder)]
+
+    def folders():
+        out = []
+        for node in nodes:
+            lines = [x for x in node.output().splitlines() if 'residual log: ' in x]
+            out.append(lines[0].split('residual log: ', 1)[1].split(' (')[0] if lines else None)
+        return out
+
+    probe.spin_until(lambda: None not in folders(), what='both loggers opened their log')
+    first, second = (Path(f) for f in folders())
+    assert first != second and first.parent == second.parent == tmp_path
+    assert folder in (first, second)
+    other = second if first == folder else first
+    assert other.name.startswith('shared_')  # shared_<UTC yyyymmdd_HHMMSS>, beside the first
+    for node in nodes:
+        rc, out = node.stop()
+        assert rc == 0, out
+    for f in (first, second):
+        assert (f / 'metadata.yaml').exists() and not [p for p in f.iterdir() if p.is_dir()]
 
 
 def test_sigkill_leaves_readable_chunks_and_rotation(spawn, probe, tmp_path):
