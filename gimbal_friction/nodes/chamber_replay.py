@@ -36,7 +36,7 @@ from rclpy.qos import QoSProfile
 
 from gimbal_friction.config import CHAMBER_REPLAY_SPECS
 from gimbal_friction.core.errors import ConfigError, GimbalFrictionError
-from gimbal_friction.nodes._common import print_help_if_asked, startup_overrides
+from gimbal_friction.nodes._common import name_undeclared_parameters, print_help_if_asked, startup_overrides
 from gimbal_friction.recording import topics
 from gimbal_friction.recording.bag import open_chamber_bag
 
@@ -114,6 +114,7 @@ class ChamberReplay(Node):
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__('chamber_replay', **kwargs)
+        name_undeclared_parameters(self)
         self.bag_path = str(self._param('bag'))
         self.rate = float(self._param('rate'))
         self.loop = bool(self._param('loop'))
