@@ -323,23 +323,28 @@ class InputCounter:
         self._last: dict[tuple[str, bytes], int] = {}
         self._reported: dict[str, int] = {}
 
-    def count(self, topic: str, info: Mapping[str, Any] | None) -> None:
-        """One message received on ``topic`` with its message info."""
-        self.received[topic] = self.received.get(topic, 0) + 1
+    def count(self, topic: str, info: Mapping[str, Any] | None) -> bool:
+        """One message received on ``topic`` with its message info. Returns False for a message already received
+        (the same publisher's sequence number again: two subscriptions of one topic overlap while the logger
+        changes its QoS), which is not counted and must not be handled twice."""
         seq = info.get('publication_sequence_number') if info else None
         gid = info.get('publisher_gid') if info else None
         if not isinstance(seq, int) or not isinstance(gid, Mapping) or 'data' not in gid:
+            self.received[topic] = self.received.get(topic, 0) + 1
             self.unknown.add(topic)
-            return
+            return True
         key = (topic, bytes(gid['data']))
         last = self._last.get(key)
+        if last is not None and seq <= last:
+            return False
+        self.received[topic] = self.received.get(topic, 0) + 1
         if last is None:
             if len(self._last) >= self.MAX_PUBLISHERS:  # publishers come and go: forget the oldest
                 self._last.pop(next(iter(self._last)))
         elif seq > last + 1:
             self.lost[topic] = self.lost.get(topic, 0) + seq - last - 1
-        if last is None or seq > last:
-            self._last[key] = seq
+        self._last[key] = seq
+        return True
 
     def total_lost(self) -> int:
         """Messages lost on every topic so far [-]."""
@@ -369,7 +374,7 @@ _MESSAGE_WITH_INFO = inspect.Signature([inspect.Parameter('msg', inspect.Paramet
 def subscribe(node: Node, counter: InputCounter, msg_type: Any, topic: str, callback: Callable[[Any], None],
               qos: Any, *, raw: bool = False) -> Any:
     """``node.create_subscription`` whose messages are counted by ``counter`` (received, lost) before
-    ``callback(msg)`` runs.
+    ``callback(msg)`` runs (not for a message already received: see :meth:`InputCounter.count`).
 
     The message info (publisher sequence numbers) needs rclpy's "callback with message info" form, which rclpy
     infers from the callback's signature (two parameters). rclpy 9's EventsExecutor then passes the ``(msg, info)``
@@ -381,8 +386,8 @@ def subscribe(node: Node, counter: InputCounter, msg_type: Any, topic: str, call
 
     def on_message(*args: Any) -> None:
         msg, info = args if len(args) == 2 else args[0]
-        count(topic, info)
-        callback(msg)
+        if count(topic, info):
+            callback(msg)
 
     on_message.__signature__ = _MESSAGE_WITH_INFO  # type: ignore[attr-defined]
     return node.create_subscription(msg_type, topic, on_message, qos, raw=raw)

@@ -40,7 +40,7 @@ import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.node import Node
 from rclpy.parameter import Parameter
-from rclpy.qos import QoSProfile, qos_profile_sensor_data
+from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.serialization import deserialize_message
 from sensor_msgs.msg import JointState, Temperature
 from std_msgs.msg import Float64MultiArray
@@ -77,6 +77,8 @@ from gimbal_friction.recording.residual_read import residual_log_files
 
 #: subscription depth: a burst of this many messages is buffered, not dropped
 DEPTH = 1000
+#: how often the temperature subscription's reliability is matched to the publishers' [s]
+QOS_CHECK_PERIOD_S = 0.2
 #: feedforward entries kept for pairing [-] (several seconds at 1 kHz with two joints)
 FEEDFORWARD_HORIZON = 16384
 
@@ -148,12 +150,18 @@ class ResidualLogger(Node):
         self._open_writer()
         self.pub_diag = self.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, 10)
         qos = QoSProfile(depth=DEPTH)
-        for msg_type, topic, type_name, topic_qos in (
-                (Temperature, topics.TEMPERATURE, topics.TEMPERATURE_TYPE, qos_profile_sensor_data),
-                (JointState, topics.JOINT_STATES, topics.JOINT_STATE_TYPE, qos),
-                (JointState, topics.MOTOR_CURRENT, topics.JOINT_STATE_TYPE, qos),
-                (JointState, topics.MEASURED, topics.JOINT_STATE_TYPE, qos)):
-            subscribe(self, self.inputs, msg_type, topic, self._raw_logger(topic, type_name), topic_qos, raw=True)
+        for msg_type, topic, type_name in (
+                (JointState, topics.JOINT_STATES, topics.JOINT_STATE_TYPE),
+                (JointState, topics.MOTOR_CURRENT, topics.JOINT_STATE_TYPE),
+                (JointState, topics.MEASURED, topics.JOINT_STATE_TYPE)):
+            subscribe(self, self.inputs, msg_type, topic, self._raw_logger(topic, type_name), qos, raw=True)
+        # temperature sensors often publish best-effort, which a reliable subscription would not hear: start
+        # best-effort (matches every publisher) with a deep queue, and go reliable while every publisher is
+        # (follow_temperature_publishers)
+        self._temperature_reliable = False
+        self._temperature_sub = self._subscribe_temperature(reliable=False)
+        self._temperature_next: Any = None
+        self._qos_timer = self.create_timer(QOS_CHECK_PERIOD_S, self.follow_temperature_publishers)
         subscribe(self, self.inputs, JointState, topics.FEEDFORWARD, self.on_feedforward, qos, raw=True)
         subscribe(self, self.inputs, Float64MultiArray, topics.MEASURED_DETAIL, self.on_measured_detail, qos,
                   raw=True)
@@ -161,6 +169,34 @@ class ResidualLogger(Node):
         self._flush_timer = self.create_timer(self.settings.flush_period_s, self.on_flush_timer)
         self._diag_timer = self.create_timer(self.settings.diagnostics_period_s, self.publish_diagnostics)
         parameter_guard(self, self._validate_params, self._apply_params)
+
+    # ------------------------------------------------------------------ temperature QoS
+    def _subscribe_temperature(self, *, reliable: bool) -> Any:
+        if reliable:  # keep all: a full queue holds the publisher back (it resends) instead of dropping the oldest
+            qos = QoSProfile(depth=DEPTH, history=HistoryPolicy.KEEP_ALL, reliability=ReliabilityPolicy.RELIABLE)
+        else:
+            qos = QoSProfile(depth=DEPTH, reliability=ReliabilityPolicy.BEST_EFFORT)
+        return subscribe(self, self.inputs, Temperature, topics.TEMPERATURE,
+                         self._raw_logger(topics.TEMPERATURE, topics.TEMPERATURE_TYPE), qos, raw=True)
+
+    def follow_temperature_publishers(self) -> None:
+        """Make the temperature subscription reliable while every publisher of the topic is reliable (the
+        publisher then resends what the queue could not take: nothing is lost), best-effort as soon as one is not
+        (a reliable subscription would not hear it). The new subscription is made first and the old one dropped
+        once the new one hears every publisher; a message both deliver is logged once (publisher sequence
+        numbers, :meth:`InputCounter.count`)."""
+        infos = self.get_publishers_info_by_topic(topics.TEMPERATURE)
+        if self._temperature_next is not None:
+            if self._temperature_next.get_publisher_count() >= len(infos):
+                self.destroy_subscription(self._temperature_sub)
+                self._temperature_sub, self._temperature_next = self._temperature_next, None
+                self._temperature_reliable = not self._temperature_reliable
+            return
+        if not infos:
+            return
+        reliable = all(i.qos_profile.reliability == ReliabilityPolicy.RELIABLE for i in infos)
+        if reliable != self._temperature_reliable:
+            self._temperature_next = self._subscribe_temperature(reliable=reliable)
 
     # ------------------------------------------------------------------ log file lifecycle
     def _open_writer(self) -> None:
@@ -388,6 +424,7 @@ class ResidualLogger(Node):
             'no_feedforward': self.no_feedforward,
             'waiting_for_feedforward': len(self._waiting),
             'dropped': self.dropped,
+            'temperature_qos': 'reliable' if self._temperature_reliable else 'best_effort',
         }
         for reason, count in sorted(self.refused.items()):
             values[f'refused: {reason}'] = count
