@@ -19,11 +19,16 @@ A measurement whose feedforward has not arrived after ``pairing_timeout_s`` is l
 
 Files: ``output_dir/residuals_<n>.mcap`` (ROS 2 profile, CDR, standard types only), flushed every
 ``flush_period_s`` in small chunks, rotated by ``max_file_mb`` / ``max_file_duration_s``, closed with footer and
-``metadata.yaml`` on SIGINT/SIGTERM. If ``output_dir`` already holds a log (an earlier run, or another logger started
-with the same folder), this run writes beside it in ``<output_dir>_<UTC yyyymmdd_HHMMSS>`` (:func:`open_own_folder`). A write
-error (full disk, unwritable folder) is reported on ``/diagnostics`` (ERROR) and retried every ``retry_period_s``;
-the node stays up. ``/diagnostics`` also carries messages logged, bytes, current file and the residual RMS per axis
-and temperature bin.
+``metadata.yaml`` on SIGINT/SIGTERM. If ``output_dir`` already holds a log (an earlier run, or another logger
+started with the same folder), this run writes beside it in ``<output_dir>_<UTC yyyymmdd_HHMMSS>``
+(:func:`open_own_folder`). A write error (full disk, unwritable folder) is reported on ``/diagnostics`` (ERROR) and
+retried every ``retry_period_s``; the node stays up. ``/diagnostics`` also carries messages logged, bytes, current
+file and the residual RMS per axis and temperature bin.
+
+Inputs: reliable, depth 1000; the temperature follows its publishers (reliable, keep-all while every publisher is
+reliable: a full queue holds the publisher back instead of losing messages; best-effort, depth 1000 as soon as one
+is not, which a reliable subscription would not hear; ``temperature_qos`` on ``/diagnostics``). What is lost on the
+way is counted per topic from the publishers' sequence numbers (``lost: <topic>``, a WARN naming it).
 """
 
 from __future__ import annotations
