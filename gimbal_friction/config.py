@@ -23,6 +23,7 @@ import copy
 import ctypes
 import dataclasses
 import difflib
+import functools
 import math
 import re
 import sys
@@ -595,6 +596,13 @@ def flat_parameters(params: Mapping[str, Any], prefix: str = '') -> dict[str, An
     return out
 
 
+@functools.lru_cache(maxsize=1)
+def _packaged_flat() -> tuple[tuple[str, ...], Mapping[str, Any]]:
+    """The packaged file's axes and flat parameter values (read once; not to be modified)."""
+    packaged = load_parameters()
+    return tuple(axis_names(packaged)), flat_parameters(packaged)
+
+
 def node_parameter_specs(node: str) -> list[dict[str, Any]]:
     """Name, default, unit and description of every parameter executable ``node`` of the suite declares (the
     defaults of the packaged file where it sets them), in declaration order; the per-joint overrides of the
@@ -608,14 +616,13 @@ def node_parameter_specs(node: str) -> list[dict[str, Any]]:
     from gimbal_friction.core.params import parameter_specs
     from gimbal_friction.core.settings import EstimatorNodeSettings, FeedforwardNodeSettings, LoggerSettings
 
-    packaged = load_parameters()
-    flat = flat_parameters(packaged)
+    packaged_axes, flat = _packaged_flat()
 
     def fields(*classes: Any) -> list[dict[str, Any]]:
         return [{'name': f.name, 'default': flat.get(f.name, f.default), 'unit': f.metadata.get('unit', ''),
                  'description': f.metadata.get('description', '')} for cls in classes for f in dataclasses.fields(cls)]
 
-    axes = [{'name': 'axes', 'default': axis_names(packaged), 'unit': '', 'description': AXES_DESCRIPTION}]
+    axes = [{'name': 'axes', 'default': list(packaged_axes), 'unit': '', 'description': AXES_DESCRIPTION}]
     model = [{'name': f'model.{spec["name"]}', 'default': flat.get(f'model.{spec["name"]}', spec['default']),
               'unit': spec.get('unit', ''), 'description': spec.get('description', '')} for spec in parameter_specs()]
     model.append({'name': 'axis.<joint>.<field>', 'default': None, 'unit': '', 'description': 'override of '
