@@ -306,3 +306,34 @@ def read_topic(folder: Path, topic: str) -> list[float]:
         for conn, _, raw in reader.messages(connections=conns):
             out.append(reader.deserialize(raw, conn.msgtype).temperature)
     return out
+
+
+def test_open_own_folder_moves_beside_a_folder_taken_under_its_feet(tmp_path):
+    """The race of two loggers: the folder was free when looked at, another logger created its first file before
+    this one; this run takes the next sibling. A folder that cannot be written is an error, not a reason to
+    move."""
+    from gimbal_friction.core.errors import GimbalFrictionError
+    from gimbal_friction.nodes.residual_logger import open_own_folder
+    wanted = tmp_path / 'res'
+    tried = []
+
+    def writer(folder: Path):
+        tried.append(folder)
+        if folder == wanted:  # the other logger wins the exclusive create of the first file
+            folder.mkdir()
+            (folder / 'residuals_0.mcap').write_bytes(b'')
+            raise GimbalFrictionError('residuals_0.mcap exists')
+        folder.mkdir()
+        (folder / 'residuals_0.mcap').write_bytes(b'')
+        return 'writer'
+
+    folder, made = open_own_folder(wanted, writer, now=lambda: 0.0)
+    assert made == 'writer' and folder == tmp_path / 'res_19700101_000000' and tried == [wanted, folder]
+    folder, _ = open_own_folder(wanted, writer, now=lambda: 0.0)  # a third run in the same second
+    assert folder == tmp_path / 'res_19700101_000000_2'
+
+    def unwritable(folder: Path):
+        raise GimbalFrictionError('permission denied')
+
+    with pytest.raises(GimbalFrictionError, match='permission denied'):
+        open_own_folder(tmp_path / 'other', unwritable)
