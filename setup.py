@@ -1,14 +1,20 @@
 """ament_python package gimbal_friction (colcon build on a ROS 2 install, or pip install in a venv)."""
 
+import re
 from glob import glob
+from pathlib import Path
 
 from setuptools import find_packages, setup
 
 package_name = 'gimbal_friction'
+# the one version of the package: package.xml's (what ROS reads); `gimbal-friction --version` reports it from the
+# installed metadata
+version = re.search(r'<version>\s*([^<\s]+)\s*</version>',
+                    (Path(__file__).resolve().parent / 'package.xml').read_text(encoding='utf-8')).group(1)
 
 setup(
     name=package_name,
-    version='0.1.0',
+    version=version,
     packages=find_packages(include=['gimbal_friction', 'gimbal_friction.*']),
     package_data={package_name: ['data/*.yaml', 'data/*.json', 'py.typed']},
     data_files=[
@@ -24,6 +30,8 @@ setup(
         'ros': ['ros-rclpy[fastrtps]==9.1.2', 'ros-std-msgs==5.5.1', 'ros-sensor-msgs==5.5.1',
                 'ros-diagnostic-msgs==5.5.1'],
         'core': ['numpy', 'scipy', 'PyYAML', 'matplotlib', 'mcap', 'mcap-ros2-support', 'rosbags'],
+        # `gimbal-friction fleet` only (refused in one line without it); rosdep has no key for Dask
+        'fleet': ['dask[distributed]'],
     },
     zip_safe=True,
     maintainer='gimbal_friction developers',

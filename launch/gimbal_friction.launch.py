@@ -3,6 +3,9 @@
     ros2 launch gimbal_friction gimbal_friction.launch.py [params_file:=/path/extra.yaml] [log_dir:=/tmp/res]
         [sim:=true] [sim_params_file:=/path/gimbal_sim.yaml]
 
+Every node gets the packaged parameter file once, then ``params_file`` if given. The residual log folder
+(default ``$ROS_HOME/gimbal_friction/residuals``, ROS_HOME defaulting to ``~/.ros``) is made absolute and printed.
+
 ``sim:=true`` also starts ``gimbal_sim``, a simulated gimbal axis in closed loop that publishes the suite's input
 topics and adds its feedforward (config/gimbal_sim.yaml; no hardware needed).
 
@@ -20,7 +23,7 @@ or run ``python -m gimbal_friction.demo``, which starts them as processes, plays
 import os
 
 from ament_index_python.packages import get_package_share_directory
-from launch.actions import DeclareLaunchArgument
+from launch.actions import DeclareLaunchArgument, LogInfo, OpaqueFunction
 from launch.conditions import IfCondition
 from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
@@ -30,30 +33,59 @@ from launch import LaunchDescription
 EXECUTABLES = ('friction_feedforward', 'friction_estimator', 'residual_logger')
 
 
-def generate_launch_description():
-    share = get_package_share_directory('gimbal_friction')
+def default_log_dir():
+    """``$ROS_HOME/gimbal_friction/residuals`` (ROS_HOME defaults to ``~/.ros``): the same folder wherever
+    ``ros2 launch`` is started."""
+    ros_home = os.environ.get('ROS_HOME') or os.path.join(os.path.expanduser('~'), '.ros')
+    return os.path.join(ros_home, 'gimbal_friction', 'residuals')
+
+
+def parameter_files(default_params, extra):
+    """The parameter files every node gets: the packaged file once, then ``extra`` if it is another file."""
+    files = [default_params]
+    if extra and os.path.realpath(os.path.expanduser(extra)) != os.path.realpath(default_params):
+        files.append(os.path.expanduser(extra))
+    return files
+
+
+def absolute_log_dir(log_dir):
+    """``log_dir`` as an absolute path (a relative one is taken from the folder ``ros2 launch`` was started in)."""
+    return os.path.abspath(os.path.expanduser(log_dir or default_log_dir()))
+
+
+def launch_nodes(context, share):
+    """The nodes, with the launch arguments resolved (OpaqueFunction): parameter files and the absolute log
+    folder, which is printed."""
     default_params = os.path.join(share, 'config', 'gimbal_friction.yaml')
-    default_sim_params = os.path.join(share, 'config', 'gimbal_sim.yaml')
-    params_file = LaunchConfiguration('params_file')
-    log_dir = LaunchConfiguration('log_dir')
-    nodes = []
+    config = context.launch_configurations
+    files = parameter_files(default_params, config.get('params_file', ''))
+    log_dir = absolute_log_dir(config.get('log_dir', ''))
+    actions = [LogInfo(msg=f'gimbal_friction: parameter files: {", ".join(files)}; residual log folder: {log_dir}')]
     for exe in EXECUTABLES:
-        parameters = [default_params, params_file]
+        parameters = list(files)
         if exe == 'residual_logger':
             parameters.append({'output_dir': log_dir})
-        nodes.append(Node(package='gimbal_friction', executable=exe, name=exe, output='screen',
-                          parameters=parameters, emulate_tty=True))
-    nodes.append(Node(package='gimbal_friction', executable='gimbal_sim', name='gimbal_sim', output='screen',
-                      parameters=[default_params, params_file, LaunchConfiguration('sim_params_file')],
-                      emulate_tty=True, condition=IfCondition(LaunchConfiguration('sim'))))
+        actions.append(Node(package='gimbal_friction', executable=exe, name=exe, output='screen',
+                            parameters=parameters, emulate_tty=True))
+    actions.append(Node(package='gimbal_friction', executable='gimbal_sim', name='gimbal_sim', output='screen',
+                        parameters=[*files, os.path.expanduser(config.get('sim_params_file', ''))],
+                        emulate_tty=True, condition=IfCondition(LaunchConfiguration('sim'))))
+    return actions
+
+
+def generate_launch_description():
+    share = get_package_share_directory('gimbal_friction')
+    default_sim_params = os.path.join(share, 'config', 'gimbal_sim.yaml')
     return LaunchDescription([
-        DeclareLaunchArgument('params_file', default_value=default_params,
-                              description='extra parameter file layered over the packaged defaults'),
-        DeclareLaunchArgument('log_dir', default_value='residuals',
-                              description='folder of the residual log written by residual_logger'),
+        DeclareLaunchArgument('params_file', default_value='',
+                              description='extra parameter file layered over the packaged defaults (which every '
+                              'node gets once)'),
+        DeclareLaunchArgument('log_dir', default_value=default_log_dir(),
+                              description='folder of the residual log written by residual_logger (a relative '
+                              'path is resolved against the current folder; the absolute path is printed)'),
         DeclareLaunchArgument('sim', default_value='false',
                               description='also start gimbal_sim (a simulated gimbal axis in closed loop)'),
         DeclareLaunchArgument('sim_params_file', default_value=default_sim_params,
                               description='parameter file of gimbal_sim (its gimbal_sim section)'),
-        *nodes,
+        OpaqueFunction(function=launch_nodes, args=[share]),
     ])

@@ -42,14 +42,15 @@ def test_launch_file_parses_and_names_the_nodes():
         assert exe in text
 
 
-def test_launch_file_describes_the_suite(monkeypatch):
-    """Runs generate_launch_description() against recording stand-ins of launch / launch_ros (not on PyPI): every
-    node it starts is an executable of setup.py, gets the packaged parameter file first, and gimbal_sim only on
-    sim:=true. (On a full ROS 2 install `ros2 launch gimbal_friction gimbal_friction.launch.py` runs the same.)"""
+def _run_launch_file(monkeypatch, configurations):
+    """generate_launch_description() against recording stand-ins of launch / launch_ros (not on PyPI), then its
+    OpaqueFunction with ``configurations`` as the launch arguments. Returns (declared argument names, nodes made
+    (their keyword arguments), LogInfo texts)."""
     import importlib.util
     import types
 
     made: list[dict] = []
+    logged: list[str] = []
 
     class Recorder:
         def __init__(self, *args, **kwargs):
@@ -59,6 +60,11 @@ def test_launch_file_describes_the_suite(monkeypatch):
         def __init__(self, **kwargs):
             super().__init__(**kwargs)
             made.append(kwargs)
+
+    class LogInfo(Recorder):
+        def __init__(self, msg):
+            super().__init__(msg=msg)
+            logged.append(msg)
 
     modules = {
         'launch': types.ModuleType('launch'), 'launch.actions': types.ModuleType('launch.actions'),
@@ -70,6 +76,8 @@ def test_launch_file_describes_the_suite(monkeypatch):
     }
     modules['launch'].LaunchDescription = Recorder
     modules['launch.actions'].DeclareLaunchArgument = Recorder
+    modules['launch.actions'].OpaqueFunction = Recorder
+    modules['launch.actions'].LogInfo = LogInfo
     modules['launch.conditions'].IfCondition = Recorder
     modules['launch.substitutions'].LaunchConfiguration = lambda name: ('config', name)
     modules['launch_ros.actions'].Node = Node
@@ -80,16 +88,45 @@ def test_launch_file_describes_the_suite(monkeypatch):
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
     description = module.generate_launch_description()
-    arguments = {a.args[0] for a in description.args[0] if isinstance(a, Recorder) and a not in made and a.args}
-    assert {'params_file', 'log_dir', 'sim', 'sim_params_file'} <= arguments
+    declared = {a.args[0]: a.kwargs.get('default_value') for a in description.args[0] if a.args}
+    opaque = [a for a in description.args[0] if 'function' in a.kwargs]
+    assert len(opaque) == 1
+    context = types.SimpleNamespace(launch_configurations={**declared, **configurations})
+    opaque[0].kwargs['function'](context, *opaque[0].kwargs.get('args', []))
+    return declared, {n['executable']: n for n in made}, logged
+
+
+def test_launch_file_describes_the_suite(monkeypatch):
+    """Every node the launch file starts is an executable of setup.py, gets the packaged parameter file once and
+    first, and gimbal_sim only on sim:=true. (On a full ROS 2 install `ros2 launch gimbal_friction
+    gimbal_friction.launch.py` runs the same.)"""
+    declared, started, _ = _run_launch_file(monkeypatch, {})
+    assert {'params_file', 'log_dir', 'sim', 'sim_params_file'} <= set(declared)
     setup = (ROOT / 'setup.py').read_text()
-    started = {n['executable']: n for n in made}
     assert set(started) == {'friction_feedforward', 'friction_estimator', 'residual_logger', 'gimbal_sim'}
+    packaged = '/share/gimbal_friction/config/gimbal_friction.yaml'
     for exe, node in started.items():
         assert node['package'] == 'gimbal_friction' and re.search(rf"'{exe} = gimbal_friction\.", setup), exe
-        assert node['parameters'][0] == '/share/gimbal_friction/config/gimbal_friction.yaml', exe
+        assert node['parameters'][0] == packaged, exe
+        assert node['parameters'].count(packaged) == 1, exe  # loaded once, not as defaults and again as the file
         assert ('condition' in node) == (exe == 'gimbal_sim'), exe
-    assert {'output_dir': ('config', 'log_dir')} in started['residual_logger']['parameters']
+
+
+def test_launch_file_layers_a_user_file_once_and_resolves_the_log_folder(monkeypatch, tmp_path):
+    """A relative log_dir is made absolute against the folder ros2 launch runs in, and printed; the default folder
+    does not depend on that folder; a params_file naming the packaged file is not loaded twice."""
+    packaged = '/share/gimbal_friction/config/gimbal_friction.yaml'
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setenv('ROS_HOME', str(tmp_path / 'ros_home'))
+    _, started, logged = _run_launch_file(monkeypatch, {'log_dir': 'runs/today', 'params_file': 'extra.yaml'})
+    folder = str(tmp_path / 'runs' / 'today')
+    assert {'output_dir': folder} in started['residual_logger']['parameters']
+    assert started['friction_estimator']['parameters'] == [packaged, 'extra.yaml']
+    assert len(logged) == 1 and folder in logged[0] and 'extra.yaml' in logged[0]
+    _, started, logged = _run_launch_file(monkeypatch, {'params_file': packaged})
+    default = str(tmp_path / 'ros_home' / 'gimbal_friction' / 'residuals')
+    assert {'output_dir': default} in started['residual_logger']['parameters'] and default in logged[0]
+    assert started['friction_feedforward']['parameters'] == [packaged]
 
 
 def test_colcon_build_installs_ros2_run_layout(tmp_path):

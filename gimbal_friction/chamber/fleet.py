@@ -349,6 +349,26 @@ class FleetRun(NamedTuple):
     startup_s: float = 0.0  #: of which starting (or connecting to) the cluster [s]
 
 
+#: how to install what ``fleet`` runs on (one line, in the refusal when it is missing)
+DASK_INSTALL = "pip install 'dask[distributed]' (or gimbal_friction[fleet]; pinned versions: requirements.txt)"
+
+
+def require_dask() -> None:
+    """Refuse, in one line, to run without Dask's ``distributed`` (an optional dependency of ``fleet`` only).
+
+    Raises:
+        GimbalFrictionError: ``dask`` or ``distributed`` cannot be imported, with the command that installs them.
+    """
+    import importlib
+
+    for module in ('dask', 'distributed'):
+        try:
+            importlib.import_module(module)
+        except ImportError as err:
+            msg = f'fleet runs on Dask and {err.name or module!r} is not installed: {DASK_INSTALL}'
+            raise GimbalFrictionError(msg) from None
+
+
 def run_fleet(units: Sequence[UnitSpec], settings: FitSettings, *, scheduler: str | None = None,
               workers: int | None = None, processes: bool = True, memory_limit: str = 'auto',
               on_done: Callable[[int, int, dict[str, Any]], None] | None = None) -> FleetRun:
@@ -378,6 +398,7 @@ def run_fleet(units: Sequence[UnitSpec], settings: FitSettings, *, scheduler: st
     """
     import logging
 
+    require_dask()
     from distributed import Client, LocalCluster, as_completed
 
     t0 = time.perf_counter()

@@ -30,6 +30,7 @@ from gimbal_friction.chamber.fleet import (
     discover_units,
     plot_fleet,
     progress_line,
+    require_dask,
     run_fleet,
 )
 from gimbal_friction.cli._common import (
@@ -126,6 +127,7 @@ def table_rows(run: FleetRun) -> tuple[list[dict[str, Any]], list[str]]:
 
 
 def run(args: argparse.Namespace) -> int:
+    require_dask()  # before any work: without Dask, one line that says how to install it
     out: Path = args.out
     if out.exists() and not out.is_dir():
         msg = f'--out {out} exists and is not a directory'

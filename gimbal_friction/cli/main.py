@@ -41,9 +41,20 @@ class OneLineParser(argparse.ArgumentParser):
         self.exit(2, f'{self.prog}: error: {message} (see --help)\n')
 
 
+def package_version() -> str:
+    """The installed package's version (setup.py takes it from package.xml)."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version('gimbal_friction')
+    except PackageNotFoundError:  # run from a source tree that was never installed
+        return 'unknown (gimbal_friction is not installed: pip install -e . or colcon build)'
+
+
 def build_parser() -> OneLineParser:
     parser = OneLineParser(prog='gimbal-friction', description='Gimbal-bearing friction torque vs temperature '
                            '(Yu & Shang 2017): model, calibration, bag replay and refit.')
+    parser.add_argument('--version', action='version', version=f'gimbal-friction {package_version()}')
     sub = parser.add_subparsers(dest='command', metavar='COMMAND', parser_class=OneLineParser)
     sub.required = True
     for module in SUBCOMMANDS.values():

@@ -23,6 +23,7 @@ import copy
 import ctypes
 import dataclasses
 import difflib
+import functools
 import math
 import re
 import sys
@@ -552,9 +553,28 @@ def command_line_parameters(argv: Sequence[str], node_name: str, namespace: str 
 # ---------------------------------------------------------------------------------------------------- parameter names
 #: the executables of the suite whose parameters may share a file (packaged file: everything under ``/**``)
 SUITE_NODES = ('friction_feedforward', 'friction_estimator', 'residual_logger', 'chamber_replay', 'gimbal_sim')
-#: parameters of chamber_replay (gimbal_friction.nodes.chamber_replay; tested to match its declarations)
-CHAMBER_REPLAY_PARAMETERS = ('bag', 'rate', 'loop', 'start_offset_s', 'topic_map', 'topics', 'exclude_topics',
-                             'wait_for_subscribers', 'wait_timeout_s')
+#: parameters of chamber_replay: name, default, unit, description (the node declares them from this table)
+CHAMBER_REPLAY_SPECS: tuple[dict[str, Any], ...] = (
+    {'name': 'bag', 'default': '', 'unit': '', 'description': 'chamber-test bag: rosbag2 folder, .mcap or .db3 file '
+     '(required)'},
+    {'name': 'rate', 'default': 1.0, 'unit': '-', 'description': 'playback rate factor (2 = twice as fast), > 0'},
+    {'name': 'loop', 'default': False, 'unit': '', 'description': 'start again at the end of the bag'},
+    {'name': 'start_offset_s', 'default': 0.0, 'unit': 's', 'description': 'skip this much of the bag, from 0 to '
+     'the bag\'s duration'},
+    {'name': 'topic_map', 'default': [''], 'unit': '', 'description': "'contract_topic=bag_topic' remaps of bag "
+     'topics'},
+    {'name': 'topics', 'default': [''], 'unit': '', 'description': "topics to publish besides the three inputs; "
+     "'*' = every topic whose message type is installed"},
+    {'name': 'exclude_topics', 'default': [''], 'unit': '', 'description': 'topics not to publish'},
+    {'name': 'wait_for_subscribers', 'default': 0, 'unit': '-', 'description': 'wait for this many subscribers on '
+     '/joint_states before playing (>= 0; 0 = do not wait)'},
+    {'name': 'wait_timeout_s', 'default': 30.0, 'unit': 's', 'description': 'give up waiting for subscribers '
+     'after this long, > 0'},
+)
+#: parameters of chamber_replay (gimbal_friction.nodes.chamber_replay)
+CHAMBER_REPLAY_PARAMETERS = tuple(spec['name'] for spec in CHAMBER_REPLAY_SPECS)
+#: the read-only ``axes`` parameter of the nodes that know joints
+AXES_DESCRIPTION = 'configured gimbal axes = joint names in /joint_states (read-only)'
 #: parameters every rclpy node declares itself
 ROS_PARAMETERS = ('use_sim_time', 'start_type_description_service')
 MODEL_PARAMETERS = tuple(f.name for f in dataclasses.fields(AxisParams))
@@ -576,31 +596,61 @@ def flat_parameters(params: Mapping[str, Any], prefix: str = '') -> dict[str, An
     return out
 
 
-def node_parameter_names(node: str, axes: Sequence[str]) -> frozenset[str]:
-    """Every parameter name executable ``node`` of the suite declares, with ``axes`` configured."""
+@functools.lru_cache(maxsize=1)
+def _packaged_flat() -> tuple[tuple[str, ...], Mapping[str, Any]]:
+    """The packaged file's axes and flat parameter values (read once; not to be modified)."""
+    packaged = load_parameters()
+    return tuple(axis_names(packaged)), flat_parameters(packaged)
+
+
+def node_parameter_specs(node: str) -> list[dict[str, Any]]:
+    """Name, default, unit and description of every parameter executable ``node`` of the suite declares (the
+    defaults of the packaged file where it sets them), in declaration order; the per-joint overrides of the
+    model are one entry named ``axis.<joint>.<field>``. The one table behind ``--help`` and the name checks.
+
+    Raises:
+        ConfigError: ``node`` is not an executable of the suite.
+    """
     from gimbal_friction.config.node_settings import EstimatorNodeSettings, FeedforwardNodeSettings, LoggerSettings
     from gimbal_friction.estimation.estimator import EstimatorSettings
     from gimbal_friction.feedforward.rule import FeedforwardSettings
+    from gimbal_friction.physics.params import parameter_specs
 
-    def fields(*classes: Any) -> set[str]:
-        return {f.name for cls in classes for f in dataclasses.fields(cls)}
+    packaged_axes, flat = _packaged_flat()
 
-    model = {'axes', *(f'model.{n}' for n in MODEL_PARAMETERS),
-             *(f'axis.{a}.{n}' for a in axes for n in MODEL_PARAMETERS)}
-    names: set[str] = set(ROS_PARAMETERS)
+    def fields(*classes: Any) -> list[dict[str, Any]]:
+        return [{'name': f.name, 'default': flat.get(f.name, f.default), 'unit': f.metadata.get('unit', ''),
+                 'description': f.metadata.get('description', '')} for cls in classes for f in dataclasses.fields(cls)]
+
+    axes = [{'name': 'axes', 'default': list(packaged_axes), 'unit': '', 'description': AXES_DESCRIPTION}]
+    model = [{'name': f'model.{spec["name"]}', 'default': flat.get(f'model.{spec["name"]}', spec['default']),
+              'unit': spec.get('unit', ''), 'description': spec.get('description', '')} for spec in parameter_specs()]
+    model.append({'name': 'axis.<joint>.<field>', 'default': None, 'unit': '', 'description': 'override of '
+                  'model.<field> for one joint of axes (unset unless given)'})
     if node == 'friction_feedforward':
-        names |= model | fields(FeedforwardSettings, FeedforwardNodeSettings)
-    elif node == 'friction_estimator':
-        names |= model | fields(EstimatorSettings, EstimatorNodeSettings)
-    elif node == 'residual_logger':
-        names |= {'axes'} | fields(LoggerSettings)
-    elif node == 'chamber_replay':
-        names |= set(CHAMBER_REPLAY_PARAMETERS)
-    elif node == 'gimbal_sim':
+        return axes + model + fields(FeedforwardSettings, FeedforwardNodeSettings)
+    if node == 'friction_estimator':
+        return axes + model + fields(EstimatorSettings, EstimatorNodeSettings)
+    if node == 'residual_logger':
+        return axes + fields(LoggerSettings)
+    if node == 'chamber_replay':
+        return [dict(spec) for spec in CHAMBER_REPLAY_SPECS]
+    if node == 'gimbal_sim':
         from gimbal_friction.sim.config import parameter_specs as sim_specs
-        names |= model | {spec['name'] for spec in sim_specs(node=True)}
-    else:
-        raise ConfigError('node', f'not an executable of the suite ({", ".join(SUITE_NODES)})', node)
+        sim = [{'name': spec['name'], 'default': spec['default'], 'unit': spec.get('unit', ''),
+                'description': spec.get('description', '')} for spec in sim_specs(node=True)]
+        return axes + model + sim
+    raise ConfigError('node', f'not an executable of the suite ({", ".join(SUITE_NODES)})', node)
+
+
+def node_parameter_names(node: str, axes: Sequence[str]) -> frozenset[str]:
+    """Every parameter name executable ``node`` of the suite declares, with ``axes`` configured."""
+    names: set[str] = set(ROS_PARAMETERS)
+    for spec in node_parameter_specs(node):
+        if spec['name'] == 'axis.<joint>.<field>':
+            names |= {f'axis.{a}.{n}' for a in axes for n in MODEL_PARAMETERS}
+        else:
+            names.add(spec['name'])
     return frozenset(names)
 
 

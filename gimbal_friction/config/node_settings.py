@@ -53,8 +53,8 @@ class EstimatorNodeSettings:
 class LoggerSettings:
     """Parameters of residual_logger."""
 
-    output_dir: str = setting('residuals', '-', 'folder of the residual log (created; a timestamped sub-folder '
-                              'is used if it already holds a log)')
+    output_dir: str = setting('residuals', '-', 'folder of the residual log (created; if it already holds a log, '
+                              'this run writes beside it in <output_dir>_<UTC yyyymmdd_HHMMSS>)')
     flush_period_s: float = setting(1.0, 's', 'completed data reaches the disk at least this often')
     chunk_kib: int = setting(64, 'KiB', 'MCAP chunk size; small chunks lose little when the process is killed')
     max_file_mb: float = setting(64.0, 'MB', 'rotate to a new file at this size; 0 = never')

@@ -27,7 +27,13 @@ from rclpy.signals import SignalHandlerOptions
 
 from gimbal_friction.common.errors import ConfigError, GimbalFrictionError, ModelDomainError
 from gimbal_friction.common.settings import settings_from
-from gimbal_friction.config.loader import axis_names, check_parameter_names, command_line_parameters, load_parameters
+from gimbal_friction.config.loader import (
+    AXES_DESCRIPTION,
+    axis_names,
+    check_parameter_names,
+    command_line_parameters,
+    load_parameters,
+)
 from gimbal_friction.physics.params import AxisParams, parameter_specs
 from gimbal_friction.physics.table import FrictionTable
 
@@ -67,9 +73,8 @@ def declare_axes(node: Node, default: list[str] | None = None) -> list[str]:
     """
     if default is None:
         default = axis_names(load_parameters())
-    node.declare_parameter('axes', default, ParameterDescriptor(
-        description='configured gimbal axes = joint names in /joint_states (read-only)', read_only=True,
-        dynamic_typing=True))
+    node.declare_parameter('axes', default, ParameterDescriptor(description=AXES_DESCRIPTION, read_only=True,
+                                                                dynamic_typing=True))
     return axis_names({'axes': _value(node.get_parameter('axes'))})
 
 
@@ -195,13 +200,40 @@ def describe_request(params: Iterable[Parameter[Any]]) -> str:
     return ', '.join(f'{p.name} = {_value(p)!r}' for p in params)
 
 
+def name_undeclared_parameters(node: Node) -> None:
+    """Refuse a ``set_parameters`` request for a parameter ``node`` does not declare with a reason that names it
+    (rclpy's own refusal reads "Invalid access to undeclared parameter(s): []"), with the closest declared name.
+
+    The parameter services call :meth:`Node.set_parameters_atomically` (both ``set_parameters`` and
+    ``set_parameters_atomically``); this wraps that public method on the instance: a request naming an undeclared
+    parameter returns a refused :class:`SetParametersResult` instead of raising.
+    """
+    original = node.set_parameters_atomically
+
+    def set_parameters_atomically(parameter_list: list[Parameter[Any]]) -> SetParametersResult:
+        undeclared = [p.name for p in parameter_list if not node.has_parameter(p.name)]
+        if not undeclared:
+            return original(parameter_list)
+        import difflib
+        known = sorted(node.list_parameters([], 0).names)
+        close = difflib.get_close_matches(undeclared[0], known, n=1, cutoff=0.75)
+        hint = f' (did you mean {close[0]!r}?)' if close else ''
+        names = ', '.join(repr(n) for n in undeclared)
+        return SetParametersResult(successful=False, reason=f'parameter {names}: not a parameter of '
+                                   f'{node.get_name()}{hint}; ros2 param list {node.get_fully_qualified_name()} '
+                                   'lists them')
+
+    setattr(node, 'set_parameters_atomically', set_parameters_atomically)  # noqa: B010 - an instance's method
+
+
 def parameter_guard(node: Node, validate: Callable[[list[Parameter[Any]]], None],
                     apply: Callable[[list[Parameter[Any]]], None]) -> None:
     """Install ``ros2 param set`` semantics: ``validate`` raises GimbalFrictionError to refuse (the old value stays
     and stays in effect), ``apply`` runs after a successful set. A refusal's reason names the parameter: a
     ConfigError does itself, any other error is prefixed with the request (``model.walther_a = 1.0: the lubricant
     viscosity ...``). An unexpected exception refuses too (counted as a callback error) rather than leaving the
-    caller without an answer."""
+    caller without an answer. A request for an undeclared parameter is refused naming it
+    (:func:`name_undeclared_parameters`)."""
 
     def on_set(params: list[Parameter[Any]]) -> SetParametersResult:
         unset = [p.name for p in params if p.type_ == Parameter.Type.NOT_SET and node.has_parameter(p.name)]
@@ -233,6 +265,7 @@ def parameter_guard(node: Node, validate: Callable[[list[Parameter[Any]]], None]
 
     node.add_on_set_parameters_callback(on_set)
     node.add_post_set_parameters_callback(post_set)
+    name_undeclared_parameters(node)
 
 
 def check_model(axes: Mapping[str, AxisParams], t_min_c: float, t_max_c: float) -> None:
@@ -290,23 +323,28 @@ class InputCounter:
         self._last: dict[tuple[str, bytes], int] = {}
         self._reported: dict[str, int] = {}
 
-    def count(self, topic: str, info: Mapping[str, Any] | None) -> None:
-        """One message received on ``topic`` with its message info."""
-        self.received[topic] = self.received.get(topic, 0) + 1
+    def count(self, topic: str, info: Mapping[str, Any] | None) -> bool:
+        """One message received on ``topic`` with its message info. Returns False for a message already received
+        (the same publisher's sequence number again: two subscriptions of one topic overlap while the logger
+        changes its QoS), which is not counted and must not be handled twice."""
         seq = info.get('publication_sequence_number') if info else None
         gid = info.get('publisher_gid') if info else None
         if not isinstance(seq, int) or not isinstance(gid, Mapping) or 'data' not in gid:
+            self.received[topic] = self.received.get(topic, 0) + 1
             self.unknown.add(topic)
-            return
+            return True
         key = (topic, bytes(gid['data']))
         last = self._last.get(key)
+        if last is not None and seq <= last:
+            return False
+        self.received[topic] = self.received.get(topic, 0) + 1
         if last is None:
             if len(self._last) >= self.MAX_PUBLISHERS:  # publishers come and go: forget the oldest
                 self._last.pop(next(iter(self._last)))
         elif seq > last + 1:
             self.lost[topic] = self.lost.get(topic, 0) + seq - last - 1
-        if last is None or seq > last:
-            self._last[key] = seq
+        self._last[key] = seq
+        return True
 
     def total_lost(self) -> int:
         """Messages lost on every topic so far [-]."""
@@ -336,7 +374,7 @@ _MESSAGE_WITH_INFO = inspect.Signature([inspect.Parameter('msg', inspect.Paramet
 def subscribe(node: Node, counter: InputCounter, msg_type: Any, topic: str, callback: Callable[[Any], None],
               qos: Any, *, raw: bool = False) -> Any:
     """``node.create_subscription`` whose messages are counted by ``counter`` (received, lost) before
-    ``callback(msg)`` runs.
+    ``callback(msg)`` runs (not for a message already received: see :meth:`InputCounter.count`).
 
     The message info (publisher sequence numbers) needs rclpy's "callback with message info" form, which rclpy
     infers from the callback's signature (two parameters). rclpy 9's EventsExecutor then passes the ``(msg, info)``
@@ -348,8 +386,8 @@ def subscribe(node: Node, counter: InputCounter, msg_type: Any, topic: str, call
 
     def on_message(*args: Any) -> None:
         msg, info = args if len(args) == 2 else args[0]
-        count(topic, info)
-        callback(msg)
+        if count(topic, info):
+            callback(msg)
 
     on_message.__signature__ = _MESSAGE_WITH_INFO  # type: ignore[attr-defined]
     return node.create_subscription(msg_type, topic, on_message, qos, raw=raw)
@@ -392,6 +430,66 @@ def callback_error_values(node: Node) -> dict[str, int]:
     return {f'callback error: {k}': v for k, v in errors.items()}
 
 
+def check_other_nodes_values(node: str, values: Mapping[str, Any]) -> None:
+    """Refuse an invalid value of a parameter that ``node`` does not declare but another executable of the suite
+    does (the shared file holds every node's parameters under ``/**``), with that node's rule: one rule for every
+    node, so ``-p model.ball_count:=abc`` stops residual_logger as it stops friction_feedforward.
+
+    The model parameters are checked together over the packaged file's (``model.*``, then ``axis.<joint>.*`` over
+    them), the settings of each settings class together, chamber_replay's by type.
+
+    Raises:
+        ConfigError: naming the parameter and the rule it breaks.
+    """
+    from gimbal_friction.config.loader import CHAMBER_REPLAY_SPECS, node_parameter_names
+    from gimbal_friction.config.node_settings import EstimatorNodeSettings, FeedforwardNodeSettings, LoggerSettings
+    from gimbal_friction.estimation.estimator import EstimatorSettings
+    from gimbal_friction.feedforward.rule import FeedforwardSettings
+    from gimbal_friction.sim.config import RealtimeSettings, SimConfig
+
+    axes = axis_names(values) if 'axes' in values else axis_names(load_parameters())
+    own = node_parameter_names(node, axes)
+    foreign = {name: value for name, value in values.items() if name not in own}
+    if not foreign:
+        return
+    model_names = {spec['name'] for spec in parameter_specs()}
+    model = {n[6:]: v for n, v in foreign.items() if n.startswith('model.') and n[6:] in model_names}
+    overrides: dict[str, dict[str, Any]] = {}
+    for name, value in foreign.items():
+        parts = name.split('.')
+        if parts[0] == 'axis' and len(parts) == 3 and parts[2] in model_names:
+            overrides.setdefault(parts[1], {})[parts[2]] = value
+    if model or overrides:
+        try:
+            base = AxisParams.from_mapping({**(load_parameters().get('model') or {}), **model})
+        except ConfigError as err:
+            raise ConfigError(f'model.{err.parameter}', err.rule, err.value) from None
+        for axis, override in overrides.items():
+            try:
+                AxisParams.from_mapping(override, base=base)
+            except ConfigError as err:
+                raise ConfigError(f'axis.{axis}.{err.parameter}', err.rule, err.value) from None
+    for cls in (FeedforwardSettings, FeedforwardNodeSettings, EstimatorSettings, EstimatorNodeSettings,
+                LoggerSettings):
+        given = {n: foreign[n] for n in field_names(cls) if n in foreign}
+        if given:
+            settings_from(cls, given)
+    for sim_cls in (SimConfig, RealtimeSettings):
+        given = {n: foreign[n] for n in field_names(sim_cls) if n in foreign}
+        if given:
+            sim_cls.from_mapping(given)
+    kinds = {bool: 'true or false', int: 'an integer', float: 'a number', str: 'a string', list: 'a list'}
+    for spec in CHAMBER_REPLAY_SPECS:
+        name, default = spec['name'], spec['default']
+        if name in foreign:
+            value = foreign[name]
+            ok = isinstance(value, type(default)) and not (isinstance(value, bool) and not isinstance(default, bool))
+            if isinstance(default, float) and isinstance(value, int) and not isinstance(value, bool):
+                ok = True
+            if not ok:
+                raise ConfigError(name, f'must be {kinds[type(default)]} (a parameter of chamber_replay)', value)
+
+
 def startup_overrides(argv: Sequence[str], node_name: str) -> tuple[list[Parameter[Any]], dict[str, str]]:
     """Check the parameters the command line gives ``node_name`` and return the overrides rclpy must be given on
     top of rcl's (the values the user wrote last where rcl would keep another type's value), and where each value
@@ -399,11 +497,56 @@ def startup_overrides(argv: Sequence[str], node_name: str) -> tuple[list[Paramet
 
     Raises:
         ConfigError: a name no node of the suite declares, an axis override of a joint not in ``axes``, a name of
-            another node given specifically to this one, or a value rcl cannot take.
+            another node given specifically to this one, a value rcl cannot take, or an invalid value of another
+            node's parameter (:func:`check_other_nodes_values`).
     """
     cl = command_line_parameters(argv, node_name)
     check_parameter_names(node_name, cl.values, cl.node_specific, cl.sources)
+    try:
+        check_other_nodes_values(node_name, cl.values)
+    except ConfigError as err:
+        origin = cl.sources.get(err.parameter)
+        if origin is None or 'from ' in err.rule:
+            raise
+        raise ConfigError(err.parameter, f'{err.rule} (from {origin})', err.value) from None
     return [Parameter(name, value=cl.values[name]) for name in cl.ignored_by_rcl], cl.sources
+
+
+def wants_help(argv: Sequence[str]) -> bool:
+    """``-h`` or ``--help`` among the program's own arguments (before ``--ros-args``; ``argv[0]`` is the
+    program)."""
+    own = list(argv[1:])
+    if '--ros-args' in own:
+        own = own[:own.index('--ros-args')]
+    return any(arg in ('-h', '--help') for arg in own)
+
+
+def node_help(exe: str, doc: str | None) -> str:
+    """The ``--help`` text of executable ``exe``: usage, ``doc`` (the node module's docstring: what it subscribes
+    and publishes) and every parameter with its default and unit
+    (:func:`gimbal_friction.config.loader.node_parameter_specs`, the table the node declares from)."""
+    from gimbal_friction.config.loader import node_parameter_specs
+
+    lines = [f'usage: {exe} [-h] [--ros-args [--params-file FILE] [-p NAME:=VALUE] [-r FROM:=TO] ...]',
+             f'       ros2 run gimbal_friction {exe} [--ros-args ...]', '']
+    if doc:
+        lines += [line.replace('``', '') for line in inspect.cleandoc(doc).splitlines()] + ['']
+    lines.append('parameters (name = default [unit]: description; set with -p NAME:=VALUE or --params-file):')
+    for spec in node_parameter_specs(exe):
+        default = 'unset' if spec['default'] is None else repr(spec['default'])
+        unit = spec['unit'] if spec['unit'] not in ('', '-') else ''
+        unit_txt = f' [{unit}]' if unit else ''
+        lines.append(f'  {spec["name"]} = {default}{unit_txt}: {spec["description"]}')
+    return '\n'.join(lines) + '\n'
+
+
+def print_help_if_asked(exe: str, argv: Sequence[str], doc: str | None) -> bool:
+    """Print :func:`node_help` on stdout and return True if ``argv`` asks for it (then the node must not start:
+    ROS is not initialised)."""
+    if not wants_help(argv):
+        return False
+    sys.stdout.write(node_help(exe, doc))
+    return True
 
 
 def run_node(exe: str, factory: Callable[..., Node], args: Sequence[str] | None = None, *,
@@ -420,6 +563,8 @@ def run_node(exe: str, factory: Callable[..., Node], args: Sequence[str] | None 
     applied (and validated) instead of the file's value.
     """
     argv = list(sys.argv if args is None else args)
+    if print_help_if_asked(exe, argv, getattr(sys.modules.get(factory.__module__), '__doc__', None)):
+        return 0
     stop = threading.Event()
 
     def request_stop(signum: int, frame: Any) -> None:

@@ -35,12 +35,14 @@ from rclpy.node import Node
 from rclpy.qos import QoSProfile
 
 from gimbal_friction.common.errors import ConfigError, GimbalFrictionError
-from gimbal_friction.nodes._common import startup_overrides
+from gimbal_friction.config.loader import CHAMBER_REPLAY_SPECS
+from gimbal_friction.nodes._common import name_undeclared_parameters, print_help_if_asked, startup_overrides
 from gimbal_friction.recording import topics
 from gimbal_friction.recording.bag import open_chamber_bag
 
 #: ``topics`` entry meaning every topic of the bag whose message type is installed
 ALL_TOPICS = '*'
+_SPECS = {spec['name']: spec for spec in CHAMBER_REPLAY_SPECS}
 _KINDS = {float: 'number', int: 'integer', bool: 'boolean (true or false)', str: 'string', list: 'list of strings'}
 
 
@@ -112,24 +114,31 @@ class ChamberReplay(Node):
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__('chamber_replay', **kwargs)
-        self.bag_path = str(self._param('bag', '', 'chamber-test bag: rosbag2 folder, .mcap or .db3 file'))
-        self.rate = float(self._param('rate', 1.0, 'playback rate factor [-] (2 = twice as fast)'))
-        self.loop = bool(self._param('loop', False, 'start again at the end of the bag'))
-        self.start_offset_s = float(self._param('start_offset_s', 0.0, 'skip this much of the bag [s]'))
-        topic_map = self._param('topic_map', [''], "'contract_topic=bag_topic' remaps of bag topics")
-        include = self._param('topics', [''], "topics to publish besides the three inputs; '*' = every topic "
-                              'whose message type is installed')
-        exclude = self._param('exclude_topics', [''], 'topics not to publish')
-        self.wait_for = int(self._param('wait_for_subscribers', 0, 'wait for this many subscribers on '
-                                        '/joint_states before playing [-]'))
-        self.wait_timeout_s = float(self._param('wait_timeout_s', 30.0, 'give up waiting for subscribers after [s]'))
+        name_undeclared_parameters(self)
+        self.bag_path = str(self._param('bag'))
+        self.rate = float(self._param('rate'))
+        self.loop = bool(self._param('loop'))
+        self.start_offset_s = float(self._param('start_offset_s'))
+        topic_map = self._param('topic_map')
+        include = self._param('topics')
+        exclude = self._param('exclude_topics')
+        self.wait_for = int(self._param('wait_for_subscribers'))
+        self.wait_timeout_s = float(self._param('wait_timeout_s'))
         if not self.bag_path:
             raise ConfigError('bag', 'is required (--ros-args -p bag:=/path/to/bag)')
         if not (math.isfinite(self.rate) and self.rate > 0.0):
             raise ConfigError('rate', 'must be > 0', self.rate)
         if not (math.isfinite(self.start_offset_s) and self.start_offset_s >= 0.0):
             raise ConfigError('start_offset_s', 'must be >= 0 [s]', self.start_offset_s)
+        if self.wait_for < 0:
+            raise ConfigError('wait_for_subscribers', 'must be >= 0 subscribers (0 = do not wait)', self.wait_for)
+        if not (math.isfinite(self.wait_timeout_s) and self.wait_timeout_s > 0.0):
+            raise ConfigError('wait_timeout_s', 'must be > 0 [s]', self.wait_timeout_s)
         self.bag = open_chamber_bag(self.bag_path, parse_topic_map([x for x in topic_map if x]) or None)
+        duration_s = self.bag.duration_ns * 1e-9
+        if self.start_offset_s > duration_s:
+            raise ConfigError('start_offset_s', f'is beyond the end of the bag: must be from 0 to {duration_s:.3f} s '
+                              f'(the bag lasts {duration_s:.3f} s)', self.start_offset_s)
         available = {name: info.msgtype for name, info in self.bag.topics.items()}
         self.topics, self.skipped = select_topics(available, [x for x in include if x], [x for x in exclude if x])
         self.pubs = {}
@@ -137,10 +146,15 @@ class ChamberReplay(Node):
             self.pubs[topic] = self.create_publisher(message_class(available[topic]), topic, QoSProfile(depth=100))
         self.published = 0
 
-    def _param(self, name: str, default: Any, description: str) -> Any:
-        """Declare a parameter; a value of the wrong type is a ConfigError (one line), not an rclpy traceback."""
+    def _param(self, name: str) -> Any:
+        """Declare a parameter of :data:`~gimbal_friction.config.CHAMBER_REPLAY_SPECS`; a value of the wrong type
+        is a ConfigError (one line), not an rclpy traceback."""
+        spec = _SPECS[name]
+        default = spec['default']
+        unit = '' if spec['unit'] in ('', '-') else f' [{spec["unit"]}]'
         try:
-            return self.declare_parameter(name, default, ParameterDescriptor(description=description)).value
+            return self.declare_parameter(name, default, ParameterDescriptor(
+                description=f'{spec["description"]}{unit}')).value
         except Exception as err:  # rclpy's InvalidParameterTypeException / InvalidParameterValueException
             if type(err).__module__.startswith('rclpy') and 'Parameter' in type(err).__name__:
                 kind = _KINDS.get(type(default), type(default).__name__)
@@ -177,6 +191,8 @@ class ChamberReplay(Node):
 def main(args: Sequence[str] | None = None) -> None:
     """``chamber_replay --ros-args -p bag:=bags/chamber_sample -p rate:=10.0``."""
     argv = list(sys.argv if args is None else args)
+    if print_help_if_asked('chamber_replay', argv, __doc__):
+        sys.exit(0)
     try:
         rclpy.init(args=argv)
     except Exception as err:  # invalid --ros-args / params file

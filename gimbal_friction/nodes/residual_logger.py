@@ -19,10 +19,16 @@ A measurement whose feedforward has not arrived after ``pairing_timeout_s`` is l
 
 Files: ``output_dir/residuals_<n>.mcap`` (ROS 2 profile, CDR, standard types only), flushed every
 ``flush_period_s`` in small chunks, rotated by ``max_file_mb`` / ``max_file_duration_s``, closed with footer and
-``metadata.yaml`` on SIGINT/SIGTERM. If ``output_dir`` already holds a log, a timestamped sub-folder is used. A write
-error (full disk, unwritable folder) is reported on ``/diagnostics`` (ERROR) and retried every ``retry_period_s``;
-the node stays up. ``/diagnostics`` also carries messages logged, bytes, current file and the residual RMS per axis
-and temperature bin.
+``metadata.yaml`` on SIGINT/SIGTERM. If ``output_dir`` already holds a log (an earlier run, or another logger
+started with the same folder), this run writes beside it in ``<output_dir>_<UTC yyyymmdd_HHMMSS>``
+(:func:`open_own_folder`). A write error (full disk, unwritable folder) is reported on ``/diagnostics`` (ERROR) and
+retried every ``retry_period_s``; the node stays up. ``/diagnostics`` also carries messages logged, bytes, current
+file and the residual RMS per axis and temperature bin.
+
+Inputs: reliable, depth 1000; the temperature follows its publishers (reliable, keep-all while every publisher is
+reliable: a full queue holds the publisher back instead of losing messages; best-effort, depth 1000 as soon as one
+is not, which a reliable subscription would not hear; ``temperature_qos`` on ``/diagnostics``). What is lost on the
+way is counted per topic from the publishers' sequence numbers (``lost: <topic>``, a WARN naming it).
 """
 
 from __future__ import annotations
@@ -39,7 +45,7 @@ import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.node import Node
 from rclpy.parameter import Parameter
-from rclpy.qos import QoSProfile, qos_profile_sensor_data
+from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.serialization import deserialize_message
 from sensor_msgs.msg import JointState, Temperature
 from std_msgs.msg import Float64MultiArray
@@ -77,12 +83,48 @@ from gimbal_friction.streams.residual_row import ResidualRows, residual_rows
 
 #: subscription depth: a burst of this many messages is buffered, not dropped
 DEPTH = 1000
+#: how often the temperature subscription's reliability is matched to the publishers' [s]
+QOS_CHECK_PERIOD_S = 0.2
 #: feedforward entries kept for pairing [-] (several seconds at 1 kHz with two joints)
 FEEDFORWARD_HORIZON = 16384
 
 
 _SETTINGS = field_names(LoggerSettings)
 _LIVE = {'pairing_timeout_s', 'residual_bin_c', 'diagnostics_period_s', 'flush_period_s', 'retry_period_s'}
+
+
+def holds_log(folder: Path) -> bool:
+    """``folder`` holds (part of) a residual log: residual MCAP files or a rosbag2 ``metadata.yaml``."""
+    try:
+        return folder.is_dir() and (bool(residual_log_files(folder)) or (folder / 'metadata.yaml').exists())
+    except GimbalFrictionError:
+        return True  # something is there that is not ours to write into
+
+
+def open_own_folder(wanted: Path, open_writer: Callable[[Path], ResidualLogWriter], *,
+                    now: Callable[[], float] = time.time) -> tuple[Path, ResidualLogWriter]:
+    """A log folder of this run's own and its writer: ``wanted`` if it holds no log, else the first free sibling
+    ``<wanted>_<UTC yyyymmdd_HHMMSS>[_<n>]`` (never a folder inside another run's log). Two loggers started at once
+    with the same folder each get their own: the writer creates its first file exclusively, and the one that loses
+    that race moves on to the next sibling.
+
+    Raises:
+        GimbalFrictionError: the folder cannot be written (not because another run took it).
+    """
+    stamp = time.strftime('%Y%m%d_%H%M%S', time.gmtime(now()))
+    candidates = [wanted, wanted.with_name(f'{wanted.name}_{stamp}')]
+    candidates += [wanted.with_name(f'{wanted.name}_{stamp}_{n}') for n in range(2, 100)]
+    for folder in candidates:
+        if holds_log(folder):
+            continue
+        try:
+            return folder, open_writer(folder)
+        except GimbalFrictionError:
+            if holds_log(folder):  # another logger took it between the look and the first file
+                continue
+            raise
+    msg = f'residual log folder {wanted}: it and 99 timestamped siblings already hold logs; choose another output_dir'
+    raise GimbalFrictionError(msg)
 
 
 class ResidualLogger(Node):
@@ -114,12 +156,18 @@ class ResidualLogger(Node):
         self._open_writer()
         self.pub_diag = self.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, 10)
         qos = QoSProfile(depth=DEPTH)
-        for msg_type, topic, type_name, topic_qos in (
-                (Temperature, topics.TEMPERATURE, topics.TEMPERATURE_TYPE, qos_profile_sensor_data),
-                (JointState, topics.JOINT_STATES, topics.JOINT_STATE_TYPE, qos),
-                (JointState, topics.MOTOR_CURRENT, topics.JOINT_STATE_TYPE, qos),
-                (JointState, topics.MEASURED, topics.JOINT_STATE_TYPE, qos)):
-            subscribe(self, self.inputs, msg_type, topic, self._raw_logger(topic, type_name), topic_qos, raw=True)
+        for msg_type, topic, type_name in (
+                (JointState, topics.JOINT_STATES, topics.JOINT_STATE_TYPE),
+                (JointState, topics.MOTOR_CURRENT, topics.JOINT_STATE_TYPE),
+                (JointState, topics.MEASURED, topics.JOINT_STATE_TYPE)):
+            subscribe(self, self.inputs, msg_type, topic, self._raw_logger(topic, type_name), qos, raw=True)
+        # temperature sensors often publish best-effort, which a reliable subscription would not hear: start
+        # best-effort (matches every publisher) with a deep queue, and go reliable while every publisher is
+        # (follow_temperature_publishers)
+        self._temperature_reliable = False
+        self._temperature_sub = self._subscribe_temperature(reliable=False)
+        self._temperature_next: Any = None
+        self._qos_timer = self.create_timer(QOS_CHECK_PERIOD_S, self.follow_temperature_publishers)
         subscribe(self, self.inputs, JointState, topics.FEEDFORWARD, self.on_feedforward, qos, raw=True)
         subscribe(self, self.inputs, Float64MultiArray, topics.MEASURED_DETAIL, self.on_measured_detail, qos,
                   raw=True)
@@ -128,23 +176,47 @@ class ResidualLogger(Node):
         self._diag_timer = self.create_timer(self.settings.diagnostics_period_s, self.publish_diagnostics)
         parameter_guard(self, self._validate_params, self._apply_params)
 
+    # ------------------------------------------------------------------ temperature QoS
+    def _subscribe_temperature(self, *, reliable: bool) -> Any:
+        if reliable:  # keep all: a full queue holds the publisher back (it resends) instead of dropping the oldest
+            qos = QoSProfile(depth=DEPTH, history=HistoryPolicy.KEEP_ALL, reliability=ReliabilityPolicy.RELIABLE)
+        else:
+            qos = QoSProfile(depth=DEPTH, reliability=ReliabilityPolicy.BEST_EFFORT)
+        return subscribe(self, self.inputs, Temperature, topics.TEMPERATURE,
+                         self._raw_logger(topics.TEMPERATURE, topics.TEMPERATURE_TYPE), qos, raw=True)
+
+    def follow_temperature_publishers(self) -> None:
+        """Make the temperature subscription reliable while every publisher of the topic is reliable (the
+        publisher then resends what the queue could not take: nothing is lost), best-effort as soon as one is not
+        (a reliable subscription would not hear it). The new subscription is made first and the old one dropped
+        once the new one hears every publisher; a message both deliver is logged once (publisher sequence
+        numbers, :meth:`InputCounter.count`)."""
+        infos = self.get_publishers_info_by_topic(topics.TEMPERATURE)
+        if self._temperature_next is not None:
+            if self._temperature_next.get_publisher_count() >= len(infos):
+                self.destroy_subscription(self._temperature_sub)
+                self._temperature_sub, self._temperature_next = self._temperature_next, None
+                self._temperature_reliable = not self._temperature_reliable
+            return
+        if not infos:
+            return
+        reliable = all(i.qos_profile.reliability == ReliabilityPolicy.RELIABLE for i in infos)
+        if reliable != self._temperature_reliable:
+            self._temperature_next = self._subscribe_temperature(reliable=reliable)
+
     # ------------------------------------------------------------------ log file lifecycle
     def _open_writer(self) -> None:
         s = self.settings
-        folder = Path(s.output_dir).expanduser()
+        wanted = Path(s.output_dir).expanduser().absolute()
         try:
-            if folder.exists() and (residual_log_files(folder) or (folder / 'metadata.yaml').exists()):
-                folder = folder / time.strftime('%Y%m%d_%H%M%S', time.gmtime())
-        except GimbalFrictionError:
-            pass
-        try:
-            self.writer = ResidualLogWriter(
-                folder, chunk_size=s.chunk_kib * 1024, flush_interval_s=s.flush_period_s,
+            folder, self.writer = open_own_folder(wanted, lambda f: ResidualLogWriter(
+                f, chunk_size=s.chunk_kib * 1024, flush_interval_s=s.flush_period_s,
                 max_bytes=int(s.max_file_mb * 1e6) if s.max_file_mb > 0 else None,
-                max_duration_s=s.max_file_duration_s if s.max_file_duration_s > 0 else None)
+                max_duration_s=s.max_file_duration_s if s.max_file_duration_s > 0 else None))
             self.folder = folder
             self.error = None
-            self.get_logger().info(f'residual log: {folder}')
+            why = '' if folder == wanted else f' ({wanted} already holds a log: this run writes beside it)'
+            self.get_logger().info(f'residual log: {folder}{why}')
         except GimbalFrictionError as err:
             self.writer = None
             self._report_error(str(err))
@@ -358,6 +430,7 @@ class ResidualLogger(Node):
             'no_feedforward': self.no_feedforward,
             'waiting_for_feedforward': len(self._waiting),
             'dropped': self.dropped,
+            'temperature_qos': 'reliable' if self._temperature_reliable else 'best_effort',
         }
         for reason, count in sorted(self.refused.items()):
             values[f'refused: {reason}'] = count

@@ -248,3 +248,17 @@ def test_a_bag_unit_is_read_in_windows_with_the_same_statistics(tmp_path, capsys
     np.testing.assert_array_equal(a.samples, b.samples)
     np.testing.assert_allclose(b.mean_y, a.mean_y, rtol=1e-12)
     np.testing.assert_allclose(b.sum_t, a.sum_t, rtol=1e-12)
+
+
+@pytest.mark.parametrize('missing', ['dask', 'distributed'])
+def test_without_dask_fleet_says_how_to_install_it(tmp_path, capsys, monkeypatch, missing):
+    """Dask is optional (only fleet uses it): without it, one line naming the module and the install command,
+    exit 1, and no output written."""
+    import sys
+
+    monkeypatch.setitem(sys.modules, missing, None)  # `import <missing>` now raises ModuleNotFoundError
+    assert main(['fleet', str(tmp_path), '--out', str(tmp_path / 'o')]) == 1
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and err.startswith('gimbal-friction fleet: error: ')
+    assert repr(missing) in err and "pip install 'dask[distributed]'" in err
+    assert not (tmp_path / 'o').exists()

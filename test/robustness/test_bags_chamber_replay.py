@@ -59,6 +59,11 @@ def test_other_topics_by_name_or_star_and_excluded_ones(tmp_path: Path, spawn, p
     ('rate:=fast', "parameter 'rate': must be a number"),
     ('topics:=[/nope]', "no topic /nope in the bag"),
     ("topics:=['/camera/frame']", 'acme_msgs/msg/Frame of /camera/frame is not installed'),
+    # used to play nothing and exit 0 / be accepted without comment: refused with the valid range
+    ('start_offset_s:=1000.0', "parameter 'start_offset_s' = 1000.0: is beyond the end of the bag: must be from 0 "
+     'to '),
+    ('wait_for_subscribers:=-1', "parameter 'wait_for_subscribers' = -1: must be >= 0 subscribers (0 = do not wait)"),
+    ('wait_timeout_s:=0.0', "parameter 'wait_timeout_s' = 0.0: must be > 0 [s]"),
 ])
 def test_bad_parameters_are_one_line(tmp_path: Path, spawn, rb, param: str, expected: str) -> None:
     bag = recorded_with_all(tmp_path / 'all.mcap', rb)

@@ -333,3 +333,21 @@ def test_runtime_refusal_through_the_parameter_service_keeps_the_output(spawn, p
     assert torque() > before
     rc, _ = node.stop()
     assert rc == 0
+
+
+def test_the_logger_refuses_what_the_others_refuse_and_names_an_undeclared_parameter(spawn, probe, tmp_path):
+    """`-p model.ball_count:=abc` with the shared file: the logger (which does not use it) used to start silently
+    while the feedforward and the estimator refused; a runtime set of an undeclared name was refused with rclpy's
+    "Invalid access to undeclared parameter(s): []"."""
+    refused = spawn('residual_logger', '--ros-args', '--params-file', PACKAGED, '-p', f'output_dir:={tmp_path / "a"}',
+                    '-p', 'model.ball_count:=abc')
+    rc, out = refused.wait()
+    lines = [line for line in out.splitlines() if 'residual_logger: error:' in line]
+    assert rc == 1 and len(lines) == 1 and "'model.ball_count' = 'abc'" in lines[0], out
+    assert not (tmp_path / 'a').exists()
+    node = start(spawn, 'residual_logger', '-p', f'output_dir:={tmp_path / "b"}')
+    result = _set(probe, 'residual_logger', 'flush_period', 0.5)
+    assert not result.successful and "'flush_period'" in result.reason and "'flush_period_s'" in result.reason
+    assert _set(probe, 'residual_logger', 'flush_period_s', 0.5).successful
+    rc, out = node.stop()
+    assert rc == 0, out

@@ -281,3 +281,18 @@ def test_unsetting_a_parameter_is_refused_not_undeclared(ff):
         assert node.has_parameter(name)
     assert node.set_parameters([Parameter('model.palmgren_factor', value=1.917)])[0].successful
     assert not getattr(node, 'callback_errors', {})
+
+
+@pytest.mark.parametrize('kind', ['ff', 'estimator', 'logger'])
+def test_an_undeclared_parameter_is_refused_naming_it(request, kind):
+    """The parameter services call set_parameters_atomically: rclpy's own refusal read "Invalid access to undeclared
+    parameter(s): []"; the reason names the parameter, the closest declared one and how to list them."""
+    fixture = request.getfixturevalue(kind)
+    node = getattr(fixture, 'node', fixture)
+    name = 'diagnostics_period' if kind == 'logger' else 'model.bal_count'
+    result = node.set_parameters_atomically([Parameter(name, value=16)])
+    assert not result.successful and repr(name) in result.reason and '[]' not in result.reason
+    assert 'did you mean' in result.reason and f'ros2 param list /{node.get_name()}' in result.reason
+    assert not node.has_parameter(name)
+    # a declared one still goes through the usual checks
+    assert node.set_parameters_atomically([Parameter('diagnostics_period_s', value=1.0)]).successful

@@ -310,3 +310,103 @@ def test_model_parameters_are_the_axis_fields():
     names = node_parameter_names('friction_estimator', ['elevation'])
     assert 'axis.elevation.ball_count' in names and 'use_sim_time' in names and 'output_dir' not in names
     assert os.path.exists(PACKAGED)
+
+
+# ------------------------------------------------------------------------------------------------ one rule, all nodes
+@pytest.mark.parametrize('node', ['residual_logger', 'chamber_replay'])
+@pytest.mark.parametrize(('rule', 'name'), [('model.ball_count:=abc', 'model.ball_count'),
+                                            ('model.ball_diameter_mm:=-1.0', 'model.ball_diameter_mm'),
+                                            ('axis.elevation.width_mm:=abc', 'axis.elevation.width_mm'),
+                                            ('max_torque_nm:=abc', 'max_torque_nm'),
+                                            ('method:=guess', 'method'),
+                                            ('rate:=fast', 'rate')])
+def test_a_node_refuses_an_invalid_value_of_a_parameter_it_does_not_use(node, rule, name):
+    """The shared file gives every node every parameter: a node that does not use one refuses an invalid value of
+    it like the node that uses it does, naming it and where it came from (used to start silently)."""
+    from gimbal_friction.nodes._common import startup_overrides
+    if node == 'chamber_replay' and name == 'rate':
+        node = 'residual_logger'  # rate is chamber_replay's own: checked by the node itself
+    argv = [node, '--ros-args', '--params-file', PACKAGED, '-p', rule]
+    with pytest.raises(ConfigError) as err:
+        startup_overrides(argv, node)
+    assert err.value.parameter == name and f'(from -p {rule})' in str(err.value)
+
+
+def test_valid_values_of_other_nodes_parameters_are_accepted():
+    from gimbal_friction.nodes._common import startup_overrides
+    sim = str(ROOT / 'config' / 'gimbal_sim.yaml')
+    for node in ('friction_feedforward', 'friction_estimator', 'residual_logger', 'chamber_replay', 'gimbal_sim'):
+        startup_overrides([node, '--ros-args', '--params-file', PACKAGED, '--params-file', sim, '-p',
+                           'model.ball_count:=16', '-p', 'max_torque_nm:=0.01', '-p', 'rate:=2.0'], node)
+
+
+def test_the_issue_command_line_stops_the_logger_naming_the_parameter(isolated_env, capfd, tmp_path):
+    from gimbal_friction.nodes._common import run_node
+    from gimbal_friction.nodes.residual_logger import ResidualLogger
+    node = 'residual_logger'
+    argv = [node, '--ros-args', '--params-file', PACKAGED, '-p', f'output_dir:={tmp_path / "log"}',
+            '-p', 'model.ball_count:=abc']
+    code = run_node(node, ResidualLogger, argv, suite_node=node)
+    err = capfd.readouterr().err.strip()
+    assert code == 1 and err == ("residual_logger: error: parameter 'model.ball_count' = 'abc': must be a number, "
+                                 'not str (from -p model.ball_count:=abc)')
+    assert not (tmp_path / 'log').exists()
+
+
+# ------------------------------------------------------------------------------------------------ --help
+EXECUTABLES = {'friction_feedforward': 'feedforward', 'friction_estimator': 'estimator',
+               'residual_logger': 'residual_logger', 'chamber_replay': 'chamber_replay', 'gimbal_sim': 'gimbal_sim'}
+
+
+@pytest.mark.parametrize('exe', sorted(EXECUTABLES))
+@pytest.mark.parametrize('flag', ['--help', '-h'])
+def test_help_prints_parameters_and_topics_without_starting_ros(exe, flag, monkeypatch, capsys):
+    """Every executable answers --help / -h with its usage, topics and every parameter (default, unit) and exits 0;
+    rclpy.init is never called (it would start the node)."""
+    import importlib
+
+    from gimbal_friction.config.loader import node_parameter_names
+    module = importlib.import_module(f'gimbal_friction.nodes.{EXECUTABLES[exe]}')
+
+    def no_init(*args: Any, **kwargs: Any) -> None:
+        raise AssertionError('--help started ROS')
+
+    monkeypatch.setattr(rclpy, 'init', no_init)
+    with pytest.raises(SystemExit) as stop:
+        module.main([exe, flag])
+    assert stop.value.code == 0
+    out = capsys.readouterr().out
+    assert out.startswith(f'usage: {exe} ') and '/joint_states' in out
+    assert '/diagnostics' in out  # chamber_replay: in what it does not republish by default
+    listed = {line.split(' = ')[0].strip() for line in out.splitlines() if line.startswith('  ') and ' = ' in line}
+    declared = node_parameter_names(exe, ['<joint>']) - set(ROS_PARAMETERS)
+    assert {n for n in declared if not n.startswith('axis.')} <= listed
+    assert any(n.startswith('axis.') for n in declared) == ('axis.<joint>.<field>' in listed)
+    if exe != 'chamber_replay':
+        assert 'axes = ' in out
+    if exe in ('friction_feedforward', 'friction_estimator', 'gimbal_sim'):
+        assert 'model.ball_count = 15:' in out and 'model.width_mm = 5.0 [mm]:' in out
+
+
+def test_help_only_among_the_programs_own_arguments():
+    from gimbal_friction.nodes._common import wants_help
+    assert wants_help(['x', '--help']) and wants_help(['x', '-h', '--ros-args', '-p', 'a:=1'])
+    assert not wants_help(['x', '--ros-args', '-r', '__node:=-h']) and not wants_help(['x'])
+
+
+@pytest.mark.slow
+def test_help_of_the_installed_executable(tmp_path):
+    """What `ros2 run gimbal_friction friction_feedforward --help` runs: the console script, exit 0, no node."""
+    import shutil
+    import subprocess
+    import sys
+    exe = shutil.which('friction_feedforward', path=str(Path(sys.executable).parent))
+    assert exe is not None
+    proc = subprocess.run([exe, '--help'], capture_output=True, text=True, timeout=60,
+                          env={**os.environ, 'ROS_LOG_DIR': str(tmp_path)})
+    assert proc.returncode == 0 and proc.stdout.startswith('usage: friction_feedforward') and not proc.stderr
+    version = subprocess.run([str(Path(sys.executable).parent / 'gimbal-friction'), '--version'],
+                             capture_output=True, text=True, timeout=60)
+    from importlib.metadata import version as installed
+    assert version.returncode == 0 and version.stdout.strip() == f'gimbal-friction {installed("gimbal_friction")}'
+    assert installed('gimbal_friction') in (ROOT / 'package.xml').read_text()
