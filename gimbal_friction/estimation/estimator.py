@@ -70,7 +70,7 @@ from __future__ import annotations
 
 import math
 from collections import deque
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any, NamedTuple
 
@@ -134,6 +134,9 @@ INPUT_REASONS = (R_LENGTH, R_UNKNOWN, R_DUPLICATE, R_NON_FINITE_JS, R_STAMP, R_R
                  R_UNPAIRED, R_OPPOSES)
 
 _I64_MAX = np.iinfo(np.int64).max
+
+#: the temperature [°C] and its time [s] in force before each of the given sample positions
+_TemperatureBefore = Callable[[NDArray[np.int64]], tuple[NDArray[np.float64], NDArray[np.float64]]]
 
 
 @dataclass(frozen=True)
@@ -503,7 +506,7 @@ class EstimatorLogic:
 
     # ------------------------------------------------------------------ one joint
     def _joint(self, name: str, js: JointStateArrays, cur: JointStateArrays, posJ: NDArray[np.int64],
-               posC: NDArray[np.int64], temperature_before: Any) -> _Emitted | None:
+               posC: NDArray[np.int64], temperature_before: _TemperatureBefore) -> _Emitted | None:
         s = self.settings
         state = self.joints[name]
         counters = self.counters
@@ -565,7 +568,8 @@ class EstimatorLogic:
 
     def _segment(self, name: str, state: _JointState, S: NDArray[np.int64], A: NDArray[np.int64],
                  P: NDArray[np.float64], V: NDArray[np.float64], C_stamp: NDArray[np.int64],
-                 C_cur: NDArray[np.float64], C_pos: NDArray[np.int64], temperature_before: Any) -> _Emitted:
+                 C_cur: NDArray[np.float64], C_pos: NDArray[np.int64],
+                 temperature_before: _TemperatureBefore) -> _Emitted:
         s = self.settings
         counters = self.counters
         new = self._verdicts(state, S, A, P, V)

@@ -722,8 +722,8 @@ class ChamberBag:
                 fast = temperature_from_cdr(data)
                 if fast is None:
                     message = self._decode(data, conn, log_time)
-                    stamp = message.header.stamp  # type: ignore[attr-defined]
-                    value = float(message.temperature)  # type: ignore[attr-defined]
+                    stamp = message.header.stamp  # type: ignore[attr-defined]  # a Temperature of the type store (no stubs)
+                    value = float(message.temperature)  # type: ignore[attr-defined]  # a Temperature of the type store (no stubs)
                     fast = (join_stamp(stamp.sec, stamp.nanosec), value)
                 window.t_log.append(log_time)
                 window.t_stamp.append(fast[0])

@@ -247,7 +247,7 @@ def _copy_mcap(
                         stat['end'] = logs[k] if stat['end'] is None else max(stat['end'], logs[k])
                         kept += 1
                     block = next(blocks, None)
-                writer.finish()  # type: ignore[no-untyped-call]
+                writer.finish()  # type: ignore[no-untyped-call]  # mcap's Writer.finish is unannotated
                 stream.flush()
                 os.fsync(stream.fileno())
         except OSError as err:

@@ -370,7 +370,7 @@ class ResidualLogWriter:
             current = self._file
             assert current is not None
             try:
-                current.writer.flush()  # type: ignore[no-untyped-call]
+                current.writer.flush()  # type: ignore[no-untyped-call]  # mcap's Writer.flush is unannotated
                 if self.fsync:
                     os.fsync(current.stream.fileno())
             except OSError as err:
@@ -499,7 +499,7 @@ class ResidualLogWriter:
 
     def _finish(self, current: _OpenFile) -> None:
         """Finish (footer, summary) and close one file; OSError propagates."""
-        current.writer.finish()  # type: ignore[no-untyped-call]
+        current.writer.finish()  # type: ignore[no-untyped-call]  # mcap's Writer.finish is unannotated
         current.stream.flush()
         if self.fsync:
             os.fsync(current.stream.fileno())
