@@ -6,7 +6,7 @@ over numpy arrays.
 
 from __future__ import annotations
 
-from typing import cast, overload
+from typing import overload
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -143,7 +143,9 @@ def viscous_torque_Palmgren_1959(s0: float, nu0: ArrayLike, n: ArrayLike, d_m: A
     if xp is ARRAY:
         nu_a, n_a, d_a = (np.asarray(x, dtype=np.float64) for x in (nu0, n, d_m))
         return viscous_torque_from_coefficient(palmgren_coefficient(s0, d_a), nu_a, n_a, ARRAY)
-    nu_f, n_f, d_f = cast('float', nu0), cast('float', n), cast('float', d_m)  # SCALAR: floats, not converted
+    d_f: float = d_m  # type: ignore[assignment]  # SCALAR: floats (a cast() call would cost on the per-call path)
+    nu_f: float = nu0  # type: ignore[assignment]  # SCALAR: a float
+    n_f: float = n  # type: ignore[assignment]  # SCALAR: a float
     return viscous_torque_from_coefficient(palmgren_coefficient(s0, d_f), nu_f, n_f, SCALAR)
 
 

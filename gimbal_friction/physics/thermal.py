@@ -13,7 +13,7 @@ All functions broadcast over numpy arrays of temperature.
 from __future__ import annotations
 
 import math
-from typing import NamedTuple, cast, overload
+from typing import NamedTuple, overload
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -44,7 +44,9 @@ def thermal_expansion_Eq11(D: ArrayLike, phi: float, dT: ArrayLike,
     """
     if xp is ARRAY:
         return np.asarray(D, dtype=np.float64) * (1.0 + phi * np.asarray(dT, dtype=np.float64))
-    return cast('float', D) * (1.0 + phi * cast('float', dT))  # SCALAR: floats (no conversion per call)
+    d_f: float = D  # type: ignore[assignment]  # SCALAR: floats (a cast() call would cost on the per-call path)
+    dt_f: float = dT  # type: ignore[assignment]  # SCALAR: a float
+    return d_f * (1.0 + phi * dt_f)
 
 
 def press_fit_Lame_Eq14(D_m1: ArrayLike, d_O1: ArrayLike, D_I1: ArrayLike, D_L1: ArrayLike, E_S: float,

@@ -14,7 +14,7 @@ Worked example, Table 2 of Yu & Shang (2017), Krytox 143AA at 38 °C (experiment
 from __future__ import annotations
 
 import math
-from typing import NamedTuple, cast, overload
+from typing import NamedTuple, overload
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -53,7 +53,7 @@ def walther_abscissa(T: ArrayLike, model: str, xp: Namespace[float] | Namespace[
             msg = 'viscosity needs a finite absolute temperature above 10 K'
             raise ModelDomainError(msg)
         return _abscissa(t_array, model, ARRAY)
-    t_float = cast('float', T)  # SCALAR: a float (no conversion on the per-call path)
+    t_float: float = T  # type: ignore[assignment]  # SCALAR: a float (a cast() call would cost per call)
     if not t_float > 10.0:  # also refuses NaN
         msg = 'viscosity needs a finite absolute temperature above 10 K'
         raise ModelDomainError(msg)
@@ -108,7 +108,8 @@ def nu_Walther(T: ArrayLike, a1: float, b1: float, c1: float, model: str = 'walt
     if xp is ARRAY:
         x_array = walther_abscissa(T, model, ARRAY)
         return 10.0 ** (10.0 ** (a1 + b1 * x_array)) - c1
-    x = walther_abscissa(cast('float', T), model, SCALAR)  # SCALAR: a float
+    t_float: float = T  # type: ignore[assignment]  # SCALAR: a float (a cast() call would cost per call)
+    x = walther_abscissa(t_float, model, SCALAR)
     return 10.0 ** (10.0 ** (a1 + b1 * x)) - c1
 
 
