@@ -30,7 +30,7 @@ from launch import LaunchDescription
 EXECUTABLES = ('friction_feedforward', 'friction_estimator', 'residual_logger')
 
 
-def generate_launch_description():
+def generate_launch_description() -> LaunchDescription:
     share = get_package_share_directory('gimbal_friction')
     default_params = os.path.join(share, 'config', 'gimbal_friction.yaml')
     default_sim_params = os.path.join(share, 'config', 'gimbal_sim.yaml')

@@ -94,21 +94,21 @@ class _Scalar:
 
     @staticmethod
     def clip(x: float, lo: float, hi: float, /) -> float:
-        return lo if x < lo else (hi if x > hi else x)
+        return lo if x < lo else (min(x, hi))
 
     @staticmethod
     def minimum(a: float, b: float, /) -> float:
-        return a if a < b else b
+        return min(b, a)
 
     @staticmethod
     def maximum(a: float, b: float, /) -> float:
-        return a if a > b else b
+        return max(b, a)
 
     @staticmethod
     def floor_index(x: float, hi: int, /) -> int:
         """``min(floor(x), hi)`` as an index, for ``x ≥ 0``."""
         i = int(x)
-        return hi if i > hi else i
+        return min(i, hi)
 
     @staticmethod
     def take(values: Sequence[float] | FloatArray, index: float, /) -> float:

@@ -501,7 +501,7 @@ def open_chamber_bag(
         shown = contract if recorded == contract else f'{contract} (recorded as {recorded})'
         msgtype, n = bag_topics[contract_to_bag[contract]]
         if msgtype != want:
-            got = msgtype if msgtype else 'several types'
+            got = msgtype or 'several types'
             msg = f'bag {bag}: required topic {shown} has type {got}, expected {want}'
             raise RecordingError(msg)
         if n <= 0:

@@ -304,7 +304,7 @@ def recover_db3(src: str | os.PathLike[str], dst: str | os.PathLike[str]) -> Fil
     with contextlib.ExitStack() as stack:
         con = _open_readonly(source, stack)
         try:
-            schema = con.execute("SELECT type, name, sql FROM sqlite_master WHERE sql IS NOT NULL").fetchall()
+            schema = con.execute('SELECT type, name, sql FROM sqlite_master WHERE sql IS NOT NULL').fetchall()
         except sqlite3.Error as err:
             msg = f'recover: {source}: cannot read the database schema ({err}): nothing can be recovered'
             raise RecordingError(msg) from err

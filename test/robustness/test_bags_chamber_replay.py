@@ -57,7 +57,7 @@ def test_other_topics_by_name_or_star_and_excluded_ones(tmp_path: Path, spawn, p
 
 @pytest.mark.parametrize(('param', 'expected'), [
     ('rate:=fast', "parameter 'rate': must be a number"),
-    ('topics:=[/nope]', "no topic /nope in the bag"),
+    ('topics:=[/nope]', 'no topic /nope in the bag'),
     ("topics:=['/camera/frame']", 'acme_msgs/msg/Frame of /camera/frame is not installed'),
 ])
 def test_bad_parameters_are_one_line(tmp_path: Path, spawn, rb, param: str, expected: str) -> None:
