@@ -47,7 +47,7 @@ from gimbal_friction.feedforward.rule import FeedforwardSettings
 from gimbal_friction.physics.model import friction_torque, viscosity_cst
 from gimbal_friction.physics.table import FrictionTable
 
-DRIVER = r'''
+DRIVER = r"""
 #define _POSIX_C_SOURCE 199309L
 #include <stdio.h>
 #include <stdlib.h>
@@ -111,7 +111,7 @@ int main(int argc, char **argv)
     free(v);
     return 0;
 }
-'''
+"""
 
 
 def _python_ns_per_call(ft: FrictionTable, t: list[float], v: list[float]) -> float:

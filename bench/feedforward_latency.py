@@ -535,7 +535,7 @@ def _node_counts(received: int | None, lost: int | None, accounted: bool | None)
 
 def print_drops(results: list[RunResult], drop_runs: list[RunResult], burst_runs: list[BurstResult]) -> None:
     """Drops: outputs missing at the driver, and the node's own count of inputs lost on the way to it."""
-    print('drops (lost = sent - outputs received by the driver, measured window; node = the node\'s own '
+    print("drops (lost = sent - outputs received by the driver, measured window; node = the node's own "
           '/diagnostics count of joint states received and lost on the way to it, after priming incl. warm-up)')
     for r in [*results, *drop_runs]:
         pct = 100.0 * r.lost / r.sent if r.sent else float('nan')

@@ -31,7 +31,7 @@ from gimbal_friction.streams.residual_row import RESIDUAL_FIELDS
 
 ROOT = Path(__file__).resolve().parents[1]
 BATCH = 100_000
-CHILD = '''
+CHILD = """
 import sys, threading, time
 sys.path.insert(0, {root!r})
 from gimbal_friction.cli.refit_cmd import read_stats
@@ -62,7 +62,7 @@ watcher.join()
 peak_anon[0] = max(peak_anon[0], status('RssAnon'))
 rows = sum(a.rows for a in stats.values())
 print(rows, dt, status('VmHWM'), peak_anon[0])
-'''
+"""
 
 
 def write_log(folder: Path, rows: int) -> None:

@@ -292,7 +292,7 @@ def print_report(r: dict[str, Any]) -> None:
               f"{n['rss_growth_mb_per_min']:>7.2f} {n['cpu_pct']:>5.0f}%  {'yes' if n['alive_at_end'] else 'NO':>5}  "
               f"{n['exit_code']:>4}  "
               f"{out_key} {n[out_key]}")
-    print('drops per node (the node\'s own /diagnostics count; accounted = received + lost = sent by the publisher)')
+    print("drops per node (the node's own /diagnostics count; accounted = received + lost = sent by the publisher)")
     for name, n in r['nodes'].items():
         for topic, d in n['drops'].items():
             sent = '' if d['sent'] is None else f" of {d['sent']} sent"

@@ -20,7 +20,10 @@ or run ``python -m gimbal_friction.demo``, which starts them as processes, plays
 ``chamber_replay`` and stops them cleanly.
 """
 
+from __future__ import annotations
+
 import os
+from typing import TYPE_CHECKING
 
 from ament_index_python.packages import get_package_share_directory
 from launch.actions import DeclareLaunchArgument, LogInfo, OpaqueFunction
@@ -30,17 +33,20 @@ from launch_ros.actions import Node
 
 from launch import LaunchDescription
 
+if TYPE_CHECKING:  # only for the annotations (launch exports them; the tests run against stand-ins)
+    from launch import Action, LaunchContext
+
 EXECUTABLES = ('friction_feedforward', 'friction_estimator', 'residual_logger')
 
 
-def default_log_dir():
+def default_log_dir() -> str:
     """``$ROS_HOME/gimbal_friction/residuals`` (ROS_HOME defaults to ``~/.ros``): the same folder wherever
     ``ros2 launch`` is started."""
     ros_home = os.environ.get('ROS_HOME') or os.path.join(os.path.expanduser('~'), '.ros')
     return os.path.join(ros_home, 'gimbal_friction', 'residuals')
 
 
-def parameter_files(default_params, extra):
+def parameter_files(default_params: str, extra: str) -> list[str]:
     """The parameter files every node gets: the packaged file once, then ``extra`` if it is another file."""
     files = [default_params]
     if extra and os.path.realpath(os.path.expanduser(extra)) != os.path.realpath(default_params):
@@ -48,12 +54,12 @@ def parameter_files(default_params, extra):
     return files
 
 
-def absolute_log_dir(log_dir):
+def absolute_log_dir(log_dir: str) -> str:
     """``log_dir`` as an absolute path (a relative one is taken from the folder ``ros2 launch`` was started in)."""
     return os.path.abspath(os.path.expanduser(log_dir or default_log_dir()))
 
 
-def launch_nodes(context, share):
+def launch_nodes(context: LaunchContext, share: str) -> list[Action]:
     """The nodes, with the launch arguments resolved (OpaqueFunction): parameter files and the absolute log
     folder, which is printed."""
     default_params = os.path.join(share, 'config', 'gimbal_friction.yaml')
@@ -73,7 +79,7 @@ def launch_nodes(context, share):
     return actions
 
 
-def generate_launch_description():
+def generate_launch_description() -> LaunchDescription:
     share = get_package_share_directory('gimbal_friction')
     default_sim_params = os.path.join(share, 'config', 'gimbal_sim.yaml')
     return LaunchDescription([

@@ -51,7 +51,7 @@ def test_node_section_applies_after_wildcard(tmp_path):
 
 
 @pytest.mark.parametrize(('text', 'needle'), [
-    ('/**: {ros__parameters: {model: {ball_diameter_mm: -2.0}}}', "model.ball_diameter_mm"),
+    ('/**: {ros__parameters: {model: {ball_diameter_mm: -2.0}}}', 'model.ball_diameter_mm'),
     ('/**: {ros__parameters: {axes: [elevation], axis: {elevation: {palmgren_factor: 0.0}}}}',
      'axis.elevation.palmgren_factor'),
     ('/**: {ros__parameters: {axes: []}}', "'axes'"),

@@ -348,7 +348,7 @@ def run(args: argparse.Namespace) -> int:
         msg = f'{source}: fitted value outside the allowed range: {err}'
         raise FitError(msg) from None
     if args.plot is not None:
-        plot_fit(fit, data, args.plot, title=f"{axis}: K_T calibration (paper Eq. 23), {source.name}")
+        plot_fit(fit, data, args.plot, title=f'{axis}: K_T calibration (paper Eq. 23), {source.name}')
     text = render_parameter_file(axes_overrides={axis: values},
                                  header=provenance_header(fit, axis, source, data))
     write_text_atomic(out, text)

@@ -78,7 +78,7 @@ def add_parser(sub: Any) -> None:
     parser.add_argument('--offset', choices=OFFSET_MODES, default='auto',
                         help='calibration torque offset as a nuisance (see refit; default auto)')
     parser.add_argument('--calibration-se', type=float, metavar='N*M',
-                        help='1-sigma uncertainty of the no-load torque T_0 [N*m], to judge each unit\'s offset')
+                        help="1-sigma uncertainty of the no-load torque T_0 [N*m], to judge each unit's offset")
     parser.add_argument('--bin-width', type=float, default=5.0, metavar='DEGC',
                         help='temperature bin width [degC] (default 5)')
     parser.add_argument('--z-max', type=float, default=Z_MAX, metavar='Z',

@@ -24,12 +24,12 @@ def add_parser(sub: Any) -> None:
     parser = sub.add_parser(
         'loop-study', help='closed-loop study: the simulated axis over temperature plateaus and profiles with each '
         'compensation case; table, JSON, figures',
-        description='Simulate the seeker\'s stabilization loop of one gimbal axis (truth friction, the simulator\'s '
-        'own whatever the configuration under test says: the paper\'s bearing with a lubricant that differs from the '
+        description="Simulate the seeker's stabilization loop of one gimbal axis (truth friction, the simulator's "
+        "own whatever the configuration under test says: the paper's bearing with a lubricant that differs from the "
         'datasheet, LuGre breakaway and pre-sliding, position ripple, the measured CW/CCW asymmetry) over '
         'temperature plateaus and profiles, with each compensation case: none, constant (temperature-blind Coulomb '
-        'tuned at +20 degC), feedforward (the suite\'s, as configured), refit (the feedforward after a refit from '
-        'the residual rows the suite\'s estimator collected in the same simulation), ideal (the truth cancelled). '
+        "tuned at +20 degC), feedforward (the suite's, as configured), refit (the feedforward after a refit from "
+        "the residual rows the suite's estimator collected in the same simulation), ideal (the truth cancelled). "
         'Reports the LOS rate and position error RMS and peak, the peak error at reversals and the current margin.')
     add_common(parser)
     parser.add_argument('--axis', metavar='NAME', help='configured axis to simulate (default: the first)')
@@ -42,7 +42,7 @@ def add_parser(sub: Any) -> None:
                         help=f'cases, comma-separated, from {", ".join(CASE_CHOICES)} '
                         '(default none,constant,feedforward,refit,ideal)')
     parser.add_argument('--truth', type=Path, metavar='PATH',
-                        help='YAML file of the simulated truth\'s parameters (flat or in a gimbal_sim section; the '
+                        help="YAML file of the simulated truth's parameters (flat or in a gimbal_sim section; the "
                         'truth group of config/gimbal_sim.yaml plus temperature_bias_c, '
                         'temperature_sensor_time_constant_s, thermal_time_constant_s, inertia_truth_ratio, '
                         'disturbance_torque_nm), layered over the configuration; default the packaged truth')
@@ -50,13 +50,13 @@ def add_parser(sub: Any) -> None:
     parser.add_argument('--latency-s', type=float, metavar='S',
                         help='transport latency of the feedforward [s] (default feedforward_latency_s, 0.001)')
     parser.add_argument('--estimator-method', choices=('observer', 'steady_state', 'both'), default='observer',
-                        help='how the estimator collects case (d)\'s data (default observer: while the gimbal works)')
+                        help="how the estimator collects case (d)'s data (default observer: while the gimbal works)")
     parser.add_argument('--refit-fit', default=None, metavar='LIST',
                         help='parameters refitted for case (d) (default walther_a,direction_asymmetry_cold,'
                         'direction_asymmetry_warm)')
     parser.add_argument('--seed', type=int, metavar='N', help='sensor-noise seed (default the configured seed, 0)')
     parser.add_argument('--out', type=Path, metavar='DIR',
-                        help='write loop_study.json, loop_study.txt, figures/ and residuals/ (case d\'s log) here')
+                        help="write loop_study.json, loop_study.txt, figures/ and residuals/ (case d's log) here")
     parser.add_argument('--live', action='store_true',
                         help='also run the real nodes (gimbal_sim, friction_feedforward, friction_estimator, '
                         'residual_logger) on loopback in real time and compare with the offline run')
@@ -66,7 +66,7 @@ def add_parser(sub: Any) -> None:
     parser.add_argument('--live-cases', default='feedforward', metavar='LIST',
                         help='cases of the live runs: feedforward and/or none (default feedforward)')
     parser.add_argument('--live-duration-s', type=float, metavar='S',
-                        help='duration of a live run [s] (default the profile\'s, or the short one with --short)')
+                        help="duration of a live run [s] (default the profile's, or the short one with --short)")
     parser.add_argument('--live-realtime-factor', type=float, default=1.0, metavar='X',
                         help='simulated seconds per wall second of the live runs (default 1; below 1 on a busy '
                         'machine: the nodes see the same stamps, fewer messages per wall second)')

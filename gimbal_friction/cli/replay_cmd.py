@@ -17,7 +17,7 @@ SUMMARY_FIELDS = ('temperature_c', 'direction', 'measured_mean_nmm', 'predicted_
 
 
 def add_parser(sub: Any) -> None:
-    parser = sub.add_parser('replay', help='run the three nodes\' logic over a bag offline (same code, same numbers '
+    parser = sub.add_parser('replay', help="run the three nodes' logic over a bag offline (same code, same numbers "
                             'as the live nodes)',
                             description='Replay a chamber-test bag (rosbag2 MCAP or sqlite3, or a bare .mcap) '
                             'through the feedforward, estimator and residual-logger logic in log-time order. '
@@ -43,7 +43,7 @@ def parse_topic_options(items: list[str]) -> dict[str, str]:
     out = {}
     for item in items:
         if '=' not in item:
-            raise ConfigError('--topic', "expected CONTRACT=BAG, e.g. /joint_states=/gimbal/joint_states", item)
+            raise ConfigError('--topic', 'expected CONTRACT=BAG, e.g. /joint_states=/gimbal/joint_states', item)
         key, value = (x.strip() for x in item.split('=', 1))
         if key not in CHAMBER_TOPICS:
             raise ConfigError('--topic', f'{key} is not a chamber-test topic ({", ".join(CHAMBER_TOPICS)})', item)

@@ -67,10 +67,10 @@ def settings_from(cls: type[T], values: Mapping[str, Any], base: T | None = None
             inf) or a value its ``validate()`` refuses.
     """
     kwargs = {}
-    for f in dataclasses.fields(cls):  # type: ignore[arg-type]
+    for f in dataclasses.fields(cls):  # type: ignore[arg-type]  # T is a settings dataclass: a TypeVar cannot be bound to "any dataclass"
         if f.name in values:
             kwargs[f.name] = _coerce(f.name, values[f.name], f.default)
-    obj = dataclasses.replace(base, **kwargs) if base is not None else cls(**kwargs)  # type: ignore[type-var]
+    obj = dataclasses.replace(base, **kwargs) if base is not None else cls(**kwargs)  # type: ignore[type-var]  # T is a settings dataclass: a TypeVar cannot be bound to "any dataclass"
     validate = getattr(obj, 'validate', None)
     if validate is not None:
         validate()
@@ -79,5 +79,5 @@ def settings_from(cls: type[T], values: Mapping[str, Any], base: T | None = None
 
 def settings_from_parameters(cls: type[T], params: Mapping[str, Any]) -> T:
     """Settings of ``cls`` from a merged ``ros__parameters`` mapping (unknown keys ignored), validated."""
-    names = {f.name for f in dataclasses.fields(cls)}  # type: ignore[arg-type]
+    names = {f.name for f in dataclasses.fields(cls)}  # type: ignore[arg-type]  # T is a settings dataclass: a TypeVar cannot be bound to "any dataclass"
     return settings_from(cls, {k: v for k, v in params.items() if k in names})

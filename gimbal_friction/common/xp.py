@@ -21,9 +21,54 @@ the rules need.
 from __future__ import annotations
 
 import math
-from typing import Any
+from collections.abc import Sequence
+from typing import Protocol, TypeAlias, TypeVar, cast
 
 import numpy as np
+from numpy.typing import NDArray
+
+__all__ = ['ARRAY', 'SCALAR', 'BoolArray', 'BoolOrArray', 'FloatArray', 'FloatOrArray', 'Namespace', 'X',
+           'namespace']
+
+#: an array of float64 values (numpy's float64 is also what the rules compute in)
+FloatArray: TypeAlias = NDArray[np.float64]
+#: an array of booleans (the result of a comparison of a :data:`FloatArray`)
+BoolArray: TypeAlias = NDArray[np.bool_]
+#: what a rule takes and returns: a Python float (:data:`SCALAR`) or a float64 array (:data:`ARRAY`)
+FloatOrArray: TypeAlias = float | FloatArray
+#: the result of a comparison of a :data:`FloatOrArray`
+BoolOrArray: TypeAlias = bool | BoolArray
+
+#: one value of a rule, float or array: a rule ``f(x: X, xp: Namespace[X]) -> X`` returns a float for floats
+#: evaluated with :data:`SCALAR` and an array for arrays evaluated with :data:`ARRAY`
+X = TypeVar('X', float, FloatArray)
+_T = TypeVar('_T')
+
+
+class Namespace(Protocol[_T]):
+    """The functions a rule may call on its namespace ``xp``, for values of type ``_T`` (float or array).
+
+    Every argument may also be a plain float (a constant, a limit, one value broadcast against an array, as numpy
+    broadcasts it);
+    conditions of :meth:`where` are what a comparison of ``_T`` gives (bool or a boolean array). The index of
+    :meth:`floor_index` and :meth:`take` travels as a ``_T``: an int for SCALAR (a float to the type checker), an
+    int64 array for ARRAY (numpy promotes it in arithmetic with floats).
+    """
+
+    def tanh(self, x: _T | float, /) -> _T: ...
+    def log10(self, x: _T | float, /) -> _T: ...
+    def sqrt(self, x: _T | float, /) -> _T: ...
+    def exp(self, x: _T | float, /) -> _T: ...
+    def abs(self, x: _T | float, /) -> _T: ...
+    def cbrt(self, x: _T | float, /) -> _T: ...
+    def copysign(self, x: _T | float, y: _T | float, /) -> _T: ...
+    def isfinite(self, x: _T | float, /) -> BoolOrArray: ...
+    def where(self, condition: BoolOrArray, a: _T | float, b: _T | float, /) -> _T: ...
+    def clip(self, x: _T | float, lo: float, hi: float, /) -> _T: ...
+    def minimum(self, a: _T | float, b: _T | float, /) -> _T: ...
+    def maximum(self, a: _T | float, b: _T | float, /) -> _T: ...
+    def floor_index(self, x: _T, hi: int, /) -> _T: ...
+    def take(self, values: Sequence[float] | FloatArray, index: _T, /) -> _T: ...
 
 
 def _cbrt(x: float) -> float:
@@ -41,34 +86,33 @@ class _Scalar:
     abs = staticmethod(abs)
     copysign = staticmethod(math.copysign)
     isfinite = staticmethod(math.isfinite)
-
-    @staticmethod
-    def where(condition: bool, a: float, b: float) -> float:
-        return a if condition else b
-
-    @staticmethod
-    def clip(x: float, lo: float, hi: float) -> float:
-        return lo if x < lo else (hi if x > hi else x)
-
-    @staticmethod
-    def minimum(a: float, b: float) -> float:
-        return a if a < b else b
-
-    @staticmethod
-    def maximum(a: float, b: float) -> float:
-        return a if a > b else b
-
     cbrt = staticmethod(getattr(math, 'cbrt', _cbrt))  # math.cbrt: Python >= 3.11
 
     @staticmethod
-    def floor_index(x: float, hi: int) -> int:
-        """``min(floor(x), hi)`` as an index, for ``x ≥ 0``."""
-        i = int(x)
-        return hi if i > hi else i
+    def where(condition: object, a: float, b: float, /) -> float:
+        return a if condition else b
 
     @staticmethod
-    def take(values: Any, index: int) -> float:
-        return float(values[index])
+    def clip(x: float, lo: float, hi: float, /) -> float:
+        return lo if x < lo else (min(x, hi))
+
+    @staticmethod
+    def minimum(a: float, b: float, /) -> float:
+        return min(b, a)
+
+    @staticmethod
+    def maximum(a: float, b: float, /) -> float:
+        return max(b, a)
+
+    @staticmethod
+    def floor_index(x: float, hi: int, /) -> int:
+        """``min(floor(x), hi)`` as an index, for ``x ≥ 0``."""
+        i = int(x)
+        return min(i, hi)
+
+    @staticmethod
+    def take(values: Sequence[float] | FloatArray, index: float, /) -> float:
+        return float(values[index])  # type: ignore[call-overload]  # the index is the int of floor_index (int <: float)
 
 
 class _Array:
@@ -88,21 +132,23 @@ class _Array:
     cbrt = staticmethod(np.cbrt)
 
     @staticmethod
-    def floor_index(x: Any, hi: int) -> Any:
+    def floor_index(x: FloatArray, hi: int, /) -> NDArray[np.int64]:
         """``min(floor(x), hi)`` as an int64 index array, for ``x ≥ 0``."""
         return np.minimum(np.asarray(x).astype(np.int64), hi)
 
     @staticmethod
-    def take(values: Any, index: Any) -> Any:
+    def take(values: FloatArray, index: NDArray[np.int64], /) -> FloatArray:
         return np.take(values, index)
 
 
-#: the namespace of a rule evaluated on Python floats
-SCALAR: Any = _Scalar()
-#: the namespace of a rule evaluated on numpy arrays
-ARRAY: Any = _Array()
+#: the namespace of a rule evaluated on Python floats (checked against :class:`Namespace` by the type checker)
+SCALAR: Namespace[float] = _Scalar()
+#: the namespace of a rule evaluated on numpy arrays. A cast: numpy's stubs type its ufuncs' results as ``Any``
+#: (and :meth:`_Array.floor_index` gives an int64 array where the protocol says the value type); numpy returns
+#: float64 arrays for float64 arrays, which the tests of every rule check against SCALAR.
+ARRAY: Namespace[FloatArray] = cast('Namespace[FloatArray]', _Array())
 
 
-def namespace(*values: object) -> Any:
+def namespace(*values: object) -> Namespace[float] | Namespace[FloatArray]:
     """:data:`ARRAY` if any of ``values`` is a numpy array, else :data:`SCALAR`."""
     return ARRAY if any(isinstance(v, np.ndarray) for v in values) else SCALAR

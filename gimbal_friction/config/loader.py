@@ -560,7 +560,7 @@ CHAMBER_REPLAY_SPECS: tuple[dict[str, Any], ...] = (
     {'name': 'rate', 'default': 1.0, 'unit': '-', 'description': 'playback rate factor (2 = twice as fast), > 0'},
     {'name': 'loop', 'default': False, 'unit': '', 'description': 'start again at the end of the bag'},
     {'name': 'start_offset_s', 'default': 0.0, 'unit': 's', 'description': 'skip this much of the bag, from 0 to '
-     'the bag\'s duration'},
+     "the bag's duration"},
     {'name': 'topic_map', 'default': [''], 'unit': '', 'description': "'contract_topic=bag_topic' remaps of bag "
      'topics'},
     {'name': 'topics', 'default': [''], 'unit': '', 'description': "topics to publish besides the three inputs; "

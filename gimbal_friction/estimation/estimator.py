@@ -70,7 +70,7 @@ from __future__ import annotations
 
 import math
 from collections import deque
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any, NamedTuple
 
@@ -135,15 +135,18 @@ INPUT_REASONS = (R_LENGTH, R_UNKNOWN, R_DUPLICATE, R_NON_FINITE_JS, R_STAMP, R_R
 
 _I64_MAX = np.iinfo(np.int64).max
 
+#: the temperature [°C] and its time [s] in force before each of the given sample positions
+_TemperatureBefore = Callable[[NDArray[np.int64]], tuple[NDArray[np.float64], NDArray[np.float64]]]
+
 
 @dataclass(frozen=True)
 class EstimatorSettings:
     """Settings of the estimator (ROS parameters of ``friction_estimator``; units in the names)."""
 
-    method: str = setting('steady_state', '-', 'steady_state (the paper\'s constant-speed protocol), observer '
+    method: str = setting('steady_state', '-', "steady_state (the paper's constant-speed protocol), observer "
                           '(friction while the gimbal works: Eq. 23 minus J*alpha) or both')
     commanded_speed_rad_s: float = setting(2.0 * math.pi / 180.0, 'rad/s', 'commanded constant test speed '
-                                           "(paper: 1/3 rpm = 0.0349 rad/s); samples must move at this speed")
+                                           '(paper: 1/3 rpm = 0.0349 rad/s); samples must move at this speed')
     speed_tolerance: float = setting(0.1, '-', 'accepted relative deviation of |velocity| from the commanded '
                                      'speed')
     min_dwell_s: float = setting(0.5, 's', 'speed continuously within tolerance, same sign, for at least this '
@@ -159,14 +162,14 @@ class EstimatorSettings:
     max_current_a: float = setting(2.0, 'A', 'motor current rating; larger |current| is rejected as bad input')
     temperature_bin_c: float = setting(5.0, 'degC', 'width of the temperature plateau bins of the statistics '
                                        '(plateau = round(t/bin)*bin)')
-    temperature_timeout_s: float = setting(5.0, 's', 'a temperature whose stamp differs from the sample\'s by more '
+    temperature_timeout_s: float = setting(5.0, 's', "a temperature whose stamp differs from the sample's by more "
                                            'than this is stale: sample kept, plateau "unknown"')
     temperature_min_c: float = setting(-60.0, 'degC', 'lowest credible bearing temperature (lower ones are '
                                        'rejected)')
     temperature_max_c: float = setting(120.0, 'degC', 'highest credible bearing temperature')
     ripple_bins: int = setting(15, '-', 'position bins across the window for the ripple statistic')
     stamp_reset_s: float = setting(1.0, 's', 'a joint-state stamp earlier than the last accepted one by more than '
-                                   'this restarts the joint\'s stream (time source jumped back)')
+                                   "this restarts the joint's stream (time source jumped back)")
     acceleration_window_s: float = setting(0.01, 's', 'the acceleration of a joint state is the least-squares '
                                            'slope of the velocities of this last time span (at least the last 3)')
     observer_min_speed_rad_s: float = setting(0.01, 'rad/s', 'observer: |velocity| must be at least this (away '
@@ -503,7 +506,7 @@ class EstimatorLogic:
 
     # ------------------------------------------------------------------ one joint
     def _joint(self, name: str, js: JointStateArrays, cur: JointStateArrays, posJ: NDArray[np.int64],
-               posC: NDArray[np.int64], temperature_before: Any) -> _Emitted | None:
+               posC: NDArray[np.int64], temperature_before: _TemperatureBefore) -> _Emitted | None:
         s = self.settings
         state = self.joints[name]
         counters = self.counters
@@ -565,7 +568,8 @@ class EstimatorLogic:
 
     def _segment(self, name: str, state: _JointState, S: NDArray[np.int64], A: NDArray[np.int64],
                  P: NDArray[np.float64], V: NDArray[np.float64], C_stamp: NDArray[np.int64],
-                 C_cur: NDArray[np.float64], C_pos: NDArray[np.int64], temperature_before: Any) -> _Emitted:
+                 C_cur: NDArray[np.float64], C_pos: NDArray[np.int64],
+                 temperature_before: _TemperatureBefore) -> _Emitted:
         s = self.settings
         counters = self.counters
         new = self._verdicts(state, S, A, P, V)
@@ -675,7 +679,7 @@ class EstimatorLogic:
         acc_bad = ~(np.abs(alpha) <= s.max_accel_rad_s2)   # unknown (fewer than 3 joint states yet): not steady
         # dwell: constant-speed runs (same sign, speed within tolerance)
         prev_ok = np.concatenate([[state.speed_ok_last], speed_ok[:-1]])
-        prev_sign = np.concatenate([[state.run_sign if state.run_sign else 0], sign[:-1]])
+        prev_sign = np.concatenate([[state.run_sign or 0], sign[:-1]])
         start = speed_ok & ~(prev_ok & (sign == prev_sign))
         idx = np.where(start, np.arange(n), -1)
         last_start = np.maximum.accumulate(idx)

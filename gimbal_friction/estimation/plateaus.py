@@ -21,13 +21,17 @@ summary's ``samples`` of a plateau and direction equal the refit's count of the 
 
 from __future__ import annotations
 
-from typing import Any
+from typing import overload
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 
-def plateau_of(temperature_c: Any, bin_c: float) -> Any:
+@overload
+def plateau_of(temperature_c: float, bin_c: float) -> float: ...
+@overload
+def plateau_of(temperature_c: ArrayLike, bin_c: float) -> NDArray[np.float64]: ...
+def plateau_of(temperature_c: ArrayLike, bin_c: float) -> float | NDArray[np.float64]:
     """Plateau (temperature bin centre) of a temperature: ``round(t / bin_c) * bin_c`` [°C] (half to even; arrays
     too; NaN stays NaN)."""
     with np.errstate(invalid='ignore'):

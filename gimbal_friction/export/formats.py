@@ -156,14 +156,14 @@ def render_c_header(table: ExportTable, prov: Provenance) -> str:
         '  table range and |velocity| to the max speed (documented edges). NaN in, NaN out.',
         f'double gf_{a}_direction_factor(double temperature_c, double velocity_rad_s): k_dir [-] (a function of',
         '  temperature so that it can become a table over temperature).',
-        f'double gf_{a}_feedforward_nm(double temperature_c, double velocity_rad_s): the friction_feedforward node\'s',
+        f"double gf_{a}_feedforward_nm(double temperature_c, double velocity_rad_s): the friction_feedforward node's",
         '  torque [N*m], clamp(tanh(v/v_th) * k_dir * M, +-max_torque); 0 for a non-finite input (the node outputs 0',
         '  for a non-finite velocity; it rejects a bad temperature and applies its stale policy: do that in your',
         '  code if you need it).',
         'C99, only <math.h>; link with -lm.',
     ])
     upper_rows = ',\n'.join(f'    {{{_fmt(g.upper_nm[i, 0])}, {_fmt(g.upper_nm[i, 1])}}}' for i in range(k))
-    return f'''/*
+    return f"""/*
 {comment}
  */
 #ifndef GIMBAL_FRICTION_{A}_H
@@ -277,7 +277,7 @@ static inline double gf_{a}_feedforward_nm(double temperature_c, double velocity
 }}
 
 #endif /* GIMBAL_FRICTION_{A}_H */
-'''
+"""
 
 
 #: node section of the exported ROS parameter file

@@ -92,7 +92,7 @@ def load(path: str | os.PathLike[str], expected: ModelIdentity | None = None) ->
     name = f'correction file {path}'
     try:
         with open(path, encoding='utf-8') as f:
-            doc = yaml.load(f, Loader=getattr(yaml, 'CSafeLoader', yaml.SafeLoader))
+            doc = yaml.load(f, Loader=getattr(yaml, 'CSafeLoader', yaml.SafeLoader))  # noqa: S506  # a safe loader
     except OSError as err:
         raise CorrectionError(f'{name}: cannot read it ({err.strerror or err})') from None
     except yaml.YAMLError as err:
@@ -138,7 +138,7 @@ def _from_mapping(doc: Any) -> Correction:
             if s.position_bins:
                 counts, sums, vals = rec['position_samples'], rec['position_sums_nm'], rec['values_nm']
                 if not len(counts) == len(sums) == len(vals) == npos or sum(counts) != rec['samples']:
-                    raise CorrectionError(f'joint {j}: a cell\'s position lists do not match position_bins/samples')
+                    raise CorrectionError(f"joint {j}: a cell's position lists do not match position_bins/samples")
             else:
                 counts, sums, vals = [rec['samples']], [rec['sum_nm']], [rec['value_nm']]
             c.count[j][nodes] = [int(k) for k in counts]

@@ -78,7 +78,7 @@ class FeedforwardSettings:
     """Settings of the feedforward (ROS parameters of ``friction_feedforward``; units in the names)."""
 
     velocity_threshold_rad_s: float = setting(0.002, 'rad/s', 'v_th of the smooth sign tanh(v/v_th); keep it '
-                                              'above ~5x the velocity noise; the paper\'s test speed 1/3 rpm is '
+                                              "above ~5x the velocity noise; the paper's test speed 1/3 rpm is "
                                               '0.0349 rad/s')
     max_torque_nm: float = setting(0.02, 'N*m', "output clamp on the torque magnitude (the paper's largest friction is "
                                    '3.2e-3 N*m)')
@@ -96,7 +96,7 @@ class FeedforwardSettings:
                                    'relative to the base), reference (reference_velocity topic; 0 N*m when it is '
                                    'stale) or auto (reference while fresh, else measured)')
     reference_timeout_s: float = setting(0.5, 's', 'a reference velocity whose stamp differs from the joint '
-                                         'state\'s by more than this is stale')
+                                         "state's by more than this is stale")
 
     def validate(self) -> None:
         """Raises ConfigError naming the setting and the rule it breaks."""

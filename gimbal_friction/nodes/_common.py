@@ -187,7 +187,7 @@ def retime(node: Node, timer: Any, old_period_s: float, new_period_s: float, cal
 def declare_settings(node: Node, cls: type[T], prefix: str = '') -> T:
     """Declare every field of the settings dataclass ``cls`` as a parameter and return the validated settings."""
     values = {}
-    for f in dataclasses.fields(cls):  # type: ignore[arg-type]
+    for f in dataclasses.fields(cls):  # type: ignore[arg-type]  # T is a settings dataclass: a TypeVar cannot be bound to "any dataclass"
         meta = f.metadata
         node.declare_parameter(prefix + f.name, f.default,
                                _descriptor(prefix + f.name, meta.get('unit', ''), meta.get('description', '')))
@@ -389,7 +389,7 @@ def subscribe(node: Node, counter: InputCounter, msg_type: Any, topic: str, call
         if count(topic, info):
             callback(msg)
 
-    on_message.__signature__ = _MESSAGE_WITH_INFO  # type: ignore[attr-defined]
+    on_message.__signature__ = _MESSAGE_WITH_INFO  # type: ignore[attr-defined]  # rclpy reads the callback's __signature__ to pass MessageInfo; functions declare no such attribute
     return node.create_subscription(msg_type, topic, on_message, qos, raw=raw)
 
 

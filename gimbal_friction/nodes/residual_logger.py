@@ -386,7 +386,7 @@ class ResidualLogger(Node):
         (own,) = check_changes(params, (LoggerSettings, self.settings))
         fixed = set(own) - _LIVE
         if fixed:
-            raise ConfigError(sorted(fixed)[0], 'takes effect only at start-up (restart the node)')
+            raise ConfigError(min(fixed), 'takes effect only at start-up (restart the node)')
 
     def _apply_params(self, params: list[Parameter[Any]]) -> None:
         (own,) = split_parameters(params, _SETTINGS)[1:]

@@ -62,11 +62,9 @@ controller tick (well under a microsecond more than the constant factor), ``ARRA
 
 from __future__ import annotations
 
-from typing import Any
-
 import numpy as np
 
-from gimbal_friction.common.xp import ARRAY, SCALAR
+from gimbal_friction.common.xp import ARRAY, SCALAR, Namespace, X
 from gimbal_friction.physics.params import AxisParams
 
 __all__ = ['ARRAY', 'SCALAR', 'asymmetry_weight', 'direction_asymmetry', 'direction_factor', 'direction_factors',
@@ -75,7 +73,7 @@ __all__ = ['ARRAY', 'SCALAR', 'asymmetry_weight', 'direction_asymmetry', 'direct
 _ = np  # the doctests use numpy
 
 
-def asymmetry_weight(p: AxisParams, temperature_c: Any, xp: Any) -> Any:
+def asymmetry_weight(p: AxisParams, temperature_c: X, xp: Namespace[X]) -> X:
     """Weight ``w(T)`` of the warm anchor: 0 at or below ``direction_asymmetry_cold_c``, 1 at or above
     ``direction_asymmetry_warm_c``, linear in between, [-].
 
@@ -92,14 +90,14 @@ def asymmetry_weight(p: AxisParams, temperature_c: Any, xp: Any) -> Any:
     return xp.clip((temperature_c - t_c) / (p.direction_asymmetry_warm_c - t_c), 0.0, 1.0)
 
 
-def direction_asymmetry(p: AxisParams, temperature_c: Any, xp: Any) -> Any:
+def direction_asymmetry(p: AxisParams, temperature_c: X, xp: Namespace[X]) -> X:
     """Asymmetry ``a(T) = a_c + (a_w − a_c) w(T)``: positive when the positive (CW) direction has more friction,
     [-]. See the module notes for the form and its rationale."""
     a_c = p.direction_asymmetry_cold
     return a_c + (p.direction_asymmetry_warm - a_c) * asymmetry_weight(p, temperature_c, xp)
 
 
-def direction_factors(p: AxisParams, temperature_c: Any, xp: Any) -> tuple[Any, Any]:
+def direction_factors(p: AxisParams, temperature_c: X, xp: Namespace[X]) -> tuple[X, X]:
     """The factors ``(k_+(T), k_-(T)) = (s_+ (1 + a(T)), s_- (1 - a(T)))`` of the two directions at
     ``temperature_c`` [°C], [-] (they depend on temperature only: a per-call caller computes them once per
     temperature and picks one with :func:`select_direction`)."""
@@ -107,13 +105,13 @@ def direction_factors(p: AxisParams, temperature_c: Any, xp: Any) -> tuple[Any, 
     return p.scale_positive * (1.0 + a), p.scale_negative * (1.0 - a)
 
 
-def select_direction(velocity_sign: Any, k_positive: Any, k_negative: Any, xp: Any) -> Any:
+def select_direction(velocity_sign: X | float, k_positive: X, k_negative: X, xp: Namespace[X]) -> X:
     """The factor of the direction of ``velocity_sign``: ``>= 0`` is the positive direction (the paper's CW),
     [-]."""
     return xp.where(velocity_sign >= 0.0, k_positive, k_negative)
 
 
-def direction_factor(p: AxisParams, temperature_c: Any, velocity_sign: Any, xp: Any) -> Any:
+def direction_factor(p: AxisParams, temperature_c: X, velocity_sign: X | float, xp: Namespace[X]) -> X:
     """Factor on the model magnitude for motion in the direction of ``velocity_sign`` at ``temperature_c``:
     ``k_d(T) = s_d (1 + d a(T))``, [-].
 

@@ -6,13 +6,13 @@ over numpy arrays.
 
 from __future__ import annotations
 
-from typing import Any
+from typing import overload
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.integrate import dblquad
 
-from gimbal_friction.common.xp import ARRAY
+from gimbal_friction.common.xp import ARRAY, SCALAR, FloatArray, FloatOrArray, Namespace, X
 
 #: Palmgren's branch threshold ν·n of Eq. (9), [cSt·rpm]: above it M_L grows as (ν n)^(2/3), below it is constant
 PALMGREN_THRESHOLD_CST_RPM = 2000.0
@@ -103,7 +103,13 @@ def spin_torque_axial_Eq8(Z: int, M_SI: ArrayLike, M_SO: ArrayLike, alpha: Array
     return Z * np.maximum(np.asarray(M_SI), np.asarray(M_SO)) * np.sin(alpha)
 
 
-def viscous_torque_Palmgren_1959(s0: float, nu0: Any, n: Any, d_m: Any, xp: Any = ARRAY) -> Any:
+@overload
+def viscous_torque_Palmgren_1959(s0: float, nu0: ArrayLike, n: ArrayLike, d_m: ArrayLike,
+                                 xp: Namespace[FloatArray] = ...) -> FloatArray: ...
+@overload
+def viscous_torque_Palmgren_1959(s0: float, nu0: float, n: float, d_m: float, xp: Namespace[float]) -> float: ...
+def viscous_torque_Palmgren_1959(s0: float, nu0: ArrayLike, n: ArrayLike, d_m: ArrayLike,
+                                 xp: Namespace[float] | Namespace[FloatArray] = ARRAY) -> FloatOrArray:
     """Load-independent viscous friction torque of one bearing, Eq. (9) (Palmgren 1959), [N·mm].
 
     ``M_L = 1e-7 s0 (ν0 n)^(2/3) d_m³`` if ``ν0 n ≥ 2000``, else ``160e-7 s0 d_m³``.
@@ -135,17 +141,21 @@ def viscous_torque_Palmgren_1959(s0: float, nu0: Any, n: Any, d_m: Any, xp: Any 
     1.1536
     """
     if xp is ARRAY:
-        nu0, n, d_m = (np.asarray(x, dtype=float) for x in (nu0, n, d_m))
-    return viscous_torque_from_coefficient(palmgren_coefficient(s0, d_m), nu0, n, xp)
+        nu_a, n_a, d_a = (np.asarray(x, dtype=np.float64) for x in (nu0, n, d_m))
+        return viscous_torque_from_coefficient(palmgren_coefficient(s0, d_a), nu_a, n_a, ARRAY)
+    d_f: float = d_m  # type: ignore[assignment]  # SCALAR: floats (a cast() call would cost on the per-call path)
+    nu_f: float = nu0  # type: ignore[assignment]  # SCALAR: a float
+    n_f: float = n  # type: ignore[assignment]  # SCALAR: a float
+    return viscous_torque_from_coefficient(palmgren_coefficient(s0, d_f), nu_f, n_f, SCALAR)
 
 
-def palmgren_coefficient(s0: float, d_m: Any) -> Any:
+def palmgren_coefficient(s0: float, d_m: X) -> X:
     """The part of Eq. (9) that does not depend on viscosity or speed: ``1e-7 s0 d_m³``, [N·mm] (``s0`` [-],
     pitch diameter ``d_m`` [mm]; floats or arrays)."""
     return 1e-7 * s0 * (d_m * d_m * d_m)
 
 
-def viscous_torque_from_coefficient(coefficient_nmm: Any, nu0: Any, n: Any, xp: Any) -> Any:
+def viscous_torque_from_coefficient(coefficient_nmm: X, nu0: X, n: X, xp: Namespace[X]) -> X:
     """Eq. (9) from :func:`palmgren_coefficient` [N·mm], the viscosity ``nu0`` [mm²/s] and the speed ``n`` [rpm]
     (magnitude used): ``coefficient · (ν0 n)^(2/3)`` if ``ν0 n ≥ 2000``, else ``coefficient · 160``, [N·mm].
 

@@ -146,7 +146,7 @@ class AxisParams:
     no_load_current_a: float = _p(0.0, 'A', 'I_0', 'motor no-load current (T_0 = K_T I_0)',
                                   Bound(-100.0, 100.0, True), group='motor')
     inertia_kg_m2: float = _p(1e-4, 'kg*m^2', 'J', 'moment of inertia of the axis (mirror, frame, motor rotor) '
-                              'about its bearing axis; used by the estimator\'s observer (T_f = K_T(I - d I_0) - J '
+                              "about its bearing axis; used by the estimator's observer (T_f = K_T(I - d I_0) - J "
                               'alpha) and the simulator', Bound(0.0, 10.0, False), group='motor')
     # Direction-dependent scale factors (the paper measured CW and CCW differently)
     scale_positive: float = _p(1.0, '-', '', 'factor on the model torque while moving in the positive direction',

@@ -16,14 +16,15 @@ the in-process controller API) or for numpy arrays (``xp`` = ARRAY: the offline 
 from __future__ import annotations
 
 import math
-from typing import Any, NamedTuple
+from collections.abc import Sequence
+from typing import Generic, NamedTuple
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from gimbal_friction.common.errors import ModelDomainError
 from gimbal_friction.common.units import NM_PER_NMM, NMM_PER_NM, RAD_S_PER_RPM, RPM_PER_RAD_S
-from gimbal_friction.common.xp import ARRAY, SCALAR
+from gimbal_friction.common.xp import ARRAY, SCALAR, FloatArray, Namespace, X
 from gimbal_friction.physics.friction import palmgren_coefficient, viscous_torque_from_coefficient
 from gimbal_friction.physics.model import friction_torque
 from gimbal_friction.physics.params import MODEL_T_MAX_C, MODEL_T_MIN_C, AxisParams
@@ -33,7 +34,8 @@ from gimbal_friction.physics.viscosity import nu_Walther
 __all__ = ['FrictionTable', 'TemperatureTerms', 'interp_uniform', 'magnitude_from_terms']
 
 
-def interp_uniform(values: Any, x: Any, x0: float, step: float, n: int, xp: Any) -> Any:
+def interp_uniform(values: Sequence[float] | FloatArray, x: X, x0: float, step: float, n: int, xp: Namespace[X]
+                   ) -> X:
     """Linear interpolation in ``values`` (``n`` samples at ``x0 + k·step``), ``x`` clamped to the grid.
 
     ``values`` is a list for ``xp`` = SCALAR, an array for ARRAY.
@@ -48,16 +50,16 @@ def interp_uniform(values: Any, x: Any, x0: float, step: float, n: int, xp: Any)
     return lo + w * (xp.take(values, i + 1) - lo)
 
 
-class TemperatureTerms(NamedTuple):
+class TemperatureTerms(NamedTuple, Generic[X]):
     """The temperature-dependent terms of the tabulated model (floats or arrays)."""
 
-    m_contact_nmm: Any   #: M_R + M_S of the axis, interpolated [N·mm]
-    viscosity_cst: Any   #: kinematic viscosity ν (Eq. 20/21) [mm²/s]
-    pitch_mm: Any        #: pitch diameter d_m at temperature (Eq. 11) [mm]
-    viscous_nmm: Any     #: the viscosity- and speed-free part of M_L of the axis, bearings × 1e-7 s0 d_m³ [N·mm]
+    m_contact_nmm: X     #: M_R + M_S of the axis, interpolated [N·mm]
+    viscosity_cst: X     #: kinematic viscosity ν (Eq. 20/21) [mm²/s]
+    pitch_mm: X          #: pitch diameter d_m at temperature (Eq. 11) [mm]
+    viscous_nmm: X       #: the viscosity- and speed-free part of M_L of the axis, bearings × 1e-7 s0 d_m³ [N·mm]
 
 
-def magnitude_from_terms(terms: TemperatureTerms, omega_rad_s: Any, xp: Any = SCALAR) -> Any:
+def magnitude_from_terms(terms: TemperatureTerms[X], omega_rad_s: X, xp: Namespace[X]) -> X:
     """Friction torque magnitude [N·m] from the temperature terms of a table
     (:meth:`FrictionTable.temperature_terms`) and the angular velocity ``omega_rad_s`` [rad/s] (magnitude used):
     interpolated M_R + M_S plus the exact M_L of Eq. (9) of all bearings of the axis."""
@@ -106,7 +108,7 @@ class FrictionTable:
         self.step = float(step)
         self.n = max(n, 2)
         self.t0 = t0      #: temperature of the first grid node [°C] (≤ t_min)
-        self.grid = self.t0 + self.step * np.arange(self.n)
+        self.grid: FloatArray = self.t0 + self.step * np.arange(self.n, dtype=np.float64)
         # (the nodes beyond [t_min, t_max] are interpolation partners only; at the model's own limits they are
         # evaluated at the limit)
         # (a model that overflows is refused below by its result, not by a RuntimeWarning)
@@ -124,17 +126,17 @@ class FrictionTable:
         self._m_rs = {ARRAY: m_rs, SCALAR: m_rs.tolist()}
         # the viscous part must be finite over the whole range too (e.g. a Walther constant gone wrong)
         with np.errstate(over='ignore', invalid='ignore'):
-            check = self.magnitude_nm(self.grid, np.full(self.n, 1.0), ARRAY)
+            check = self.magnitude_nm(self.grid, np.full(self.n, 1.0, dtype=np.float64), ARRAY)
         if not np.all(np.isfinite(check)) or np.any(check < 0.0):
             raise ModelDomainError('the model gives a non-finite or negative torque in '
                                    f'[{self.t_min:g}, {self.t_max:g}] degC; check the parameters')
 
-    def magnitude_nm(self, t_c: Any, omega_rad_s: Any, xp: Any = SCALAR) -> Any:
+    def magnitude_nm(self, t_c: X, omega_rad_s: X, xp: Namespace[X]) -> X:
         """Friction torque magnitude of the axis [N·m] at temperature ``t_c`` [°C] (clamped to the table) and
         angular velocity ``omega_rad_s`` [rad/s] (magnitude used): interpolated M_R + M_S, exact M_L (Eq. 9)."""
         return self.magnitude_from_terms(self.temperature_terms(t_c, xp), omega_rad_s, xp)
 
-    def temperature_terms(self, t_c: Any, xp: Any = SCALAR) -> TemperatureTerms:
+    def temperature_terms(self, t_c: X, xp: Namespace[X]) -> TemperatureTerms[X]:
         """The parts of :meth:`magnitude_nm` that depend on temperature only (a caller whose temperature changes
         slowly, like a simulation over many runs, computes them once per temperature)."""
         p = self.params
@@ -145,7 +147,7 @@ class FrictionTable:
         d_m = thermal_expansion_Eq11(p.pitch_diameter_mm, p.steel_cte_per_c, t - p.reference_temperature_c, xp)
         return TemperatureTerms(m_rs, nu, d_m, p.bearings_per_axis * palmgren_coefficient(p.palmgren_factor, d_m))
 
-    def magnitude_from_terms(self, terms: TemperatureTerms, omega_rad_s: Any, xp: Any = SCALAR) -> Any:
+    def magnitude_from_terms(self, terms: TemperatureTerms[X], omega_rad_s: X, xp: Namespace[X]) -> X:
         """:meth:`magnitude_nm` from :meth:`temperature_terms` and the angular velocity [rad/s], [N·m]
         (:func:`magnitude_from_terms`)."""
         return magnitude_from_terms(terms, omega_rad_s, xp)

@@ -13,14 +13,14 @@ All functions broadcast over numpy arrays of temperature.
 from __future__ import annotations
 
 import math
-from typing import Any, NamedTuple
+from typing import NamedTuple, overload
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.optimize import brentq
 
 from gimbal_friction.common.errors import ModelDomainError
-from gimbal_friction.common.xp import ARRAY
+from gimbal_friction.common.xp import ARRAY, FloatArray, FloatOrArray, Namespace
 from gimbal_friction.physics.hertz import load_deflection_constant, reduced_modulus
 from gimbal_friction.physics.params import AxisParams
 
@@ -28,7 +28,12 @@ Array = NDArray[np.float64]
 ALPHA_MAX = math.radians(80.0)
 
 
-def thermal_expansion_Eq11(D: Any, phi: float, dT: Any, xp: Any = ARRAY) -> Any:
+@overload
+def thermal_expansion_Eq11(D: ArrayLike, phi: float, dT: ArrayLike, xp: Namespace[FloatArray] = ...) -> FloatArray: ...
+@overload
+def thermal_expansion_Eq11(D: float, phi: float, dT: float, xp: Namespace[float]) -> float: ...
+def thermal_expansion_Eq11(D: ArrayLike, phi: float, dT: ArrayLike,
+                           xp: Namespace[float] | Namespace[FloatArray] = ARRAY) -> FloatOrArray:
     """Free thermal expansion of a diameter, Eq. (11): ``D_1 = D (1 + φ ΔT)``, [mm].
 
     ``D`` [mm], ``phi`` [1/°C], ``dT`` [°C]; arrays (``xp`` = ARRAY, default) or floats (``xp`` = SCALAR).
@@ -38,8 +43,10 @@ def thermal_expansion_Eq11(D: Any, phi: float, dT: Any, xp: Any = ARRAY) -> Any:
     21.484907
     """
     if xp is ARRAY:
-        return np.asarray(D, dtype=float) * (1.0 + phi * np.asarray(dT, dtype=float))
-    return D * (1.0 + phi * dT)
+        return np.asarray(D, dtype=np.float64) * (1.0 + phi * np.asarray(dT, dtype=np.float64))
+    d_f: float = D  # type: ignore[assignment]  # SCALAR: floats (a cast() call would cost on the per-call path)
+    dt_f: float = dT  # type: ignore[assignment]  # SCALAR: a float
+    return d_f * (1.0 + phi * dt_f)
 
 
 def press_fit_Lame_Eq14(D_m1: ArrayLike, d_O1: ArrayLike, D_I1: ArrayLike, D_L1: ArrayLike, E_S: float,

@@ -14,14 +14,14 @@ Worked example, Table 2 of Yu & Shang (2017), Krytox 143AA at 38 °C (experiment
 from __future__ import annotations
 
 import math
-from typing import Any, NamedTuple
+from typing import NamedTuple, overload
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.optimize import least_squares
 
 from gimbal_friction.common.errors import FitError, ModelDomainError
-from gimbal_friction.common.xp import ARRAY
+from gimbal_friction.common.xp import ARRAY, SCALAR, FloatArray, FloatOrArray, Namespace, X
 
 LN10 = math.log(10.0)
 
@@ -40,16 +40,28 @@ TABLE2_FIT2_CST = (11983.82, 337.73, 85.78, 34.65, 31.78, 5.354, 5.240, 1.094)
 TABLE2_ERR2_PCT = (-0.135, -0.668, 0.918, -0.993, -0.688, 1.014, 0.768, -0.540)
 
 
-def walther_abscissa(T: Any, model: str, xp: Any = ARRAY) -> Any:
+@overload
+def walther_abscissa(T: ArrayLike, model: str, xp: Namespace[FloatArray] = ...) -> FloatArray: ...
+@overload
+def walther_abscissa(T: float, model: str, xp: Namespace[float]) -> float: ...
+def walther_abscissa(T: ArrayLike, model: str, xp: Namespace[float] | Namespace[FloatArray] = ARRAY
+                     ) -> FloatOrArray:
     """x of the linear Walther relation: log T (Eq. 20) or log log T (Eq. 21)."""
     if xp is ARRAY:
-        T = np.asarray(T, dtype=float)
-        if np.any(~np.isfinite(T)) or np.any(T <= 10.0):
+        t_array = np.asarray(T, dtype=np.float64)
+        if np.any(~np.isfinite(t_array)) or np.any(t_array <= 10.0):
             msg = 'viscosity needs a finite absolute temperature above 10 K'
             raise ModelDomainError(msg)
-    elif not T > 10.0:  # also refuses NaN
+        return _abscissa(t_array, model, ARRAY)
+    t_float: float = T  # type: ignore[assignment]  # SCALAR: a float (a cast() call would cost per call)
+    if not t_float > 10.0:  # also refuses NaN
         msg = 'viscosity needs a finite absolute temperature above 10 K'
         raise ModelDomainError(msg)
+    return _abscissa(t_float, model, SCALAR)
+
+
+def _abscissa(T: X, model: str, xp: Namespace[X]) -> X:
+    """:func:`walther_abscissa` of a checked temperature [K], [-]."""
     if model == 'walther':
         return xp.log10(T)
     if model == 'walther_improved':
@@ -58,8 +70,13 @@ def walther_abscissa(T: Any, model: str, xp: Any = ARRAY) -> Any:
     raise ModelDomainError(msg)
 
 
-def nu_Walther(T: Any, a1: float, b1: float, c1: float, model: str = 'walther_improved',
-               xp: Any = ARRAY) -> Any:
+@overload
+def nu_Walther(T: ArrayLike, a1: float, b1: float, c1: float, model: str = ...,
+               xp: Namespace[FloatArray] = ...) -> FloatArray: ...
+@overload
+def nu_Walther(T: float, a1: float, b1: float, c1: float, model: str, xp: Namespace[float]) -> float: ...
+def nu_Walther(T: ArrayLike, a1: float, b1: float, c1: float, model: str = 'walther_improved',
+               xp: Namespace[float] | Namespace[FloatArray] = ARRAY) -> FloatOrArray:
     r"""Kinematic viscosity from either Walther form, Eq. (20) or Eq. (21) of Yu & Shang (2017).
 
     .. math:: \log\log(\nu + c_1) = a_1 + b_1 x,\quad x = \log T \text{ (Eq. 20)},\ \log\log T \text{ (Eq. 21)}
@@ -88,7 +105,11 @@ def nu_Walther(T: Any, a1: float, b1: float, c1: float, model: str = 'walther_im
     The Krytox 143AA fits of Eq. (22) were made on data from −32 to 204 °C (Table 2); below −32 °C they are
     extrapolations.
     """
-    x = walther_abscissa(T, model, xp)
+    if xp is ARRAY:
+        x_array = walther_abscissa(T, model, ARRAY)
+        return 10.0 ** (10.0 ** (a1 + b1 * x_array)) - c1
+    t_float: float = T  # type: ignore[assignment]  # SCALAR: a float (a cast() call would cost per call)
+    x = walther_abscissa(t_float, model, SCALAR)
     return 10.0 ** (10.0 ** (a1 + b1 * x)) - c1
 
 

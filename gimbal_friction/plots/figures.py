@@ -26,8 +26,8 @@ FIG13_FILE = 'fig13_model_vs_measured.png'
 
 def pyplot() -> Any:
     """matplotlib.pyplot on the non-interactive Agg backend (imported on first use)."""
-    import matplotlib
-    matplotlib.use('Agg')
+    import matplotlib as mpl
+    mpl.use('Agg')
     import matplotlib.pyplot as plt
     return plt
 

@@ -501,7 +501,7 @@ def open_chamber_bag(
         shown = contract if recorded == contract else f'{contract} (recorded as {recorded})'
         msgtype, n = bag_topics[contract_to_bag[contract]]
         if msgtype != want:
-            got = msgtype if msgtype else 'several types'
+            got = msgtype or 'several types'
             msg = f'bag {bag}: required topic {shown} has type {got}, expected {want}'
             raise RecordingError(msg)
         if n <= 0:
@@ -722,8 +722,8 @@ class ChamberBag:
                 fast = temperature_from_cdr(data)
                 if fast is None:
                     message = self._decode(data, conn, log_time)
-                    stamp = message.header.stamp  # type: ignore[attr-defined]
-                    value = float(message.temperature)  # type: ignore[attr-defined]
+                    stamp = message.header.stamp  # type: ignore[attr-defined]  # a Temperature of the type store (no stubs)
+                    value = float(message.temperature)  # type: ignore[attr-defined]  # a Temperature of the type store (no stubs)
                     fast = (join_stamp(stamp.sec, stamp.nanosec), value)
                 window.t_log.append(log_time)
                 window.t_stamp.append(fast[0])

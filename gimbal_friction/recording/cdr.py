@@ -717,10 +717,10 @@ class JointStateColumns:
 
     def add_message(self, log_time: int, message: object) -> None:
         """Store one JointState decoded by the type store."""
-        stamp = message.header.stamp  # type: ignore[attr-defined]
+        stamp = message.header.stamp  # type: ignore[attr-defined]  # a JointState of the type store (no stubs)
         self.log_time.append(log_time)
         self.stamp.append(stamp.sec * _NS_PER_S + stamp.nanosec)
-        self.name_index.append(self._names_index(tuple(message.name)))  # type: ignore[attr-defined]
+        self.name_index.append(self._names_index(tuple(message.name)))  # type: ignore[attr-defined]  # a JointState of the type store (no stubs)
         for field, attr in enumerate(('position', 'velocity', 'effort')):
             arr = np.asarray(getattr(message, attr), dtype='<f8').reshape(-1)
             self.counts[field].append(int(arr.shape[0]))

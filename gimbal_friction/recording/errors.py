@@ -42,7 +42,7 @@ def _optional_errors() -> tuple[type[Exception], ...]:
     except ImportError:  # pragma: no cover - Python >= 3.14 has compression.zstd
         pass
     try:
-        from compression.zstd import ZstdError as StdZstdError  # type: ignore[import-not-found,unused-ignore]
+        from compression.zstd import ZstdError as StdZstdError  # type: ignore[import-not-found,unused-ignore]  # compression.zstd exists from Python 3.14 on
         found.append(StdZstdError)
     except ImportError:  # pragma: no cover - Python < 3.14
         pass

@@ -92,7 +92,7 @@ class _PackedMessageIndex(MessageIndex):
         stream.write2(self.channel_id)
         stream.write4(len(entries))
         stream.write(entries)
-        stream.finish_record()  # type: ignore[no-untyped-call]
+        stream.finish_record()  # type: ignore[no-untyped-call]  # mcap's record writer is unannotated
 
 
 class BulkChunk:
@@ -109,7 +109,7 @@ class BulkChunk:
 
     def pending(self) -> int:
         """Bytes in the open chunk [B]."""
-        return int(self._builder.count)  # type: ignore[attr-defined]
+        return int(self._builder.count)  # type: ignore[attr-defined]  # mcap's ChunkBuilder and Statistics internals carry no type hints
 
     def append(
         self,
@@ -142,15 +142,15 @@ class BulkChunk:
         header['publish_time'] = log_time
         builder = self._builder
         stats = self._stats
-        buffer = builder.record_writer._buffer  # type: ignore[attr-defined]
+        buffer = builder.record_writer._buffer  # type: ignore[attr-defined]  # mcap's ChunkBuilder and Statistics internals carry no type hints
         start = buffer.tell()
         parts: list[bytes] = [b''] * (2 * m)
         parts[0::2] = header.view(_RECORD_HEAD_BYTES).tolist()  # bytes objects (a void dtype keeps NULs)
         parts[1::2] = datas
         buffer.write(b''.join(parts))
         positions = record_offsets[:-1] + start
-        indices = builder.message_indices  # type: ignore[attr-defined]
-        counts = stats.channel_message_counts  # type: ignore[attr-defined]
+        indices = builder.message_indices  # type: ignore[attr-defined]  # mcap's ChunkBuilder and Statistics internals carry no type hints
+        counts = stats.channel_message_counts  # type: ignore[attr-defined]  # mcap's ChunkBuilder and Statistics internals carry no type hints
         present, first = np.unique(channel, return_index=True)
         for channel_id in present[np.argsort(first)].tolist():  # in order of first appearance, as add_message
             mask = channel == channel_id
@@ -163,22 +163,22 @@ class BulkChunk:
             index.add_packed(entries.tobytes())
             counts[channel_id] = counts.get(channel_id, 0) + int(mask.sum())
         log_min, log_max = int(log_time.min()), int(log_time.max())
-        if builder.num_messages == 0:  # type: ignore[attr-defined]
-            builder.message_start_time = log_min  # type: ignore[attr-defined]
+        if builder.num_messages == 0:  # type: ignore[attr-defined]  # mcap's ChunkBuilder and Statistics internals carry no type hints
+            builder.message_start_time = log_min  # type: ignore[attr-defined]  # mcap's ChunkBuilder and Statistics internals carry no type hints
         else:
-            builder.message_start_time = min(builder.message_start_time, log_min)  # type: ignore[attr-defined]
-        builder.message_end_time = max(builder.message_end_time, log_max)  # type: ignore[attr-defined]
-        builder.num_messages += m  # type: ignore[attr-defined]
-        if stats.message_count == 0:  # type: ignore[attr-defined]
-            stats.message_start_time = log_min  # type: ignore[attr-defined]
+            builder.message_start_time = min(builder.message_start_time, log_min)  # type: ignore[attr-defined]  # mcap's ChunkBuilder and Statistics internals carry no type hints
+        builder.message_end_time = max(builder.message_end_time, log_max)  # type: ignore[attr-defined]  # mcap's ChunkBuilder and Statistics internals carry no type hints
+        builder.num_messages += m  # type: ignore[attr-defined]  # mcap's ChunkBuilder and Statistics internals carry no type hints
+        if stats.message_count == 0:  # type: ignore[attr-defined]  # mcap's ChunkBuilder and Statistics internals carry no type hints
+            stats.message_start_time = log_min  # type: ignore[attr-defined]  # mcap's ChunkBuilder and Statistics internals carry no type hints
         else:
-            stats.message_start_time = min(stats.message_start_time, log_min)  # type: ignore[attr-defined]
-        stats.message_end_time = max(stats.message_end_time, log_max)  # type: ignore[attr-defined]
-        stats.message_count += m  # type: ignore[attr-defined]
+            stats.message_start_time = min(stats.message_start_time, log_min)  # type: ignore[attr-defined]  # mcap's ChunkBuilder and Statistics internals carry no type hints
+        stats.message_end_time = max(stats.message_end_time, log_max)  # type: ignore[attr-defined]  # mcap's ChunkBuilder and Statistics internals carry no type hints
+        stats.message_count += m  # type: ignore[attr-defined]  # mcap's ChunkBuilder and Statistics internals carry no type hints
 
     def maybe_finalize(self) -> None:
         """Write the chunk out if it is full (as ``add_message`` does after each message); OSError propagates."""
-        self._writer._Writer__maybe_finalize_chunk()  # type: ignore[attr-defined]
+        self._writer._Writer__maybe_finalize_chunk()  # type: ignore[attr-defined]  # mcap's private chunk finaliser (name-mangled, no hints)
 
 
 def bulk_chunk(writer: McapWriter) -> BulkChunk | None:

@@ -512,7 +512,7 @@ class McapScanner:
         return _block(b''.join(parts), np.asarray(starts, dtype=np.int64))
 
 
-class _IndexMismatch(Exception):
+class _IndexMismatch(Exception):  # noqa: N818  # a control-flow signal inside the scanner, not an error
     """The message indexes of a chunk do not describe its records (walk the chunk instead)."""
 
 

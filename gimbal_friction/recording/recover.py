@@ -247,7 +247,7 @@ def _copy_mcap(
                         stat['end'] = logs[k] if stat['end'] is None else max(stat['end'], logs[k])
                         kept += 1
                     block = next(blocks, None)
-                writer.finish()  # type: ignore[no-untyped-call]
+                writer.finish()  # type: ignore[no-untyped-call]  # mcap's Writer.finish is unannotated
                 stream.flush()
                 os.fsync(stream.fileno())
         except OSError as err:
@@ -304,7 +304,7 @@ def recover_db3(src: str | os.PathLike[str], dst: str | os.PathLike[str]) -> Fil
     with contextlib.ExitStack() as stack:
         con = _open_readonly(source, stack)
         try:
-            schema = con.execute("SELECT type, name, sql FROM sqlite_master WHERE sql IS NOT NULL").fetchall()
+            schema = con.execute('SELECT type, name, sql FROM sqlite_master WHERE sql IS NOT NULL').fetchall()
         except sqlite3.Error as err:
             msg = f'recover: {source}: cannot read the database schema ({err}): nothing can be recovered'
             raise RecordingError(msg) from err

@@ -350,7 +350,7 @@ class ResidualLogWriter:
                 types[topic] = msgtype
                 self._msgdef(msgtype)  # refuse unknown types before touching the file
             current = self._file
-            assert current is not None
+            assert current is not None  # noqa: S101  # narrowing for the type checker: a file is open here
             if self.flush_interval_s is not None or mcap_bulk.bulk_chunk(current.writer) is None:
                 for k, t, log_ns in zip(range(n), ids.tolist(), logs.tolist(), strict=True):
                     self._add(pairs[t][0], pairs[t][1], log_ns, blobs[k])
@@ -368,9 +368,9 @@ class ResidualLogWriter:
         with self._lock:
             self._check_usable()
             current = self._file
-            assert current is not None
+            assert current is not None  # noqa: S101  # narrowing for the type checker: a file is open here
             try:
-                current.writer.flush()  # type: ignore[no-untyped-call]
+                current.writer.flush()  # type: ignore[no-untyped-call]  # mcap's Writer.flush is unannotated
                 if self.fsync:
                     os.fsync(current.stream.fileno())
             except OSError as err:
@@ -440,7 +440,7 @@ class ResidualLogWriter:
         """True after :meth:`close`."""
         return self._closed
 
-    def __enter__(self) -> ResidualLogWriter:
+    def __enter__(self) -> ResidualLogWriter:  # noqa: PYI034  # typing.Self needs Python 3.11; not subclassed
         """Return self."""
         return self
 
@@ -499,7 +499,7 @@ class ResidualLogWriter:
 
     def _finish(self, current: _OpenFile) -> None:
         """Finish (footer, summary) and close one file; OSError propagates."""
-        current.writer.finish()  # type: ignore[no-untyped-call]
+        current.writer.finish()  # type: ignore[no-untyped-call]  # mcap's Writer.finish is unannotated
         current.stream.flush()
         if self.fsync:
             os.fsync(current.stream.fileno())
@@ -542,7 +542,7 @@ class ResidualLogWriter:
                 raise RecordingError(msg)
             self._msgdef(msgtype)  # refuse unknown types before touching the file
             current = self._file
-            assert current is not None
+            assert current is not None  # noqa: S101  # narrowing for the type checker: a file is open here
             if current.messages and (
                 (self.max_bytes is not None and current.size() >= self.max_bytes)
                 or (self.max_duration_ns is not None and log_time_ns - current.first_ns >= self.max_duration_ns)
@@ -596,7 +596,7 @@ class ResidualLogWriter:
         i = 0
         while i < n:
             current = self._file
-            assert current is not None
+            assert current is not None  # noqa: S101  # narrowing for the type checker: a file is open here
             log_i = int(logs[i])
             if current.messages and (
                 (self.max_bytes is not None and current.size() >= self.max_bytes)
@@ -610,7 +610,7 @@ class ResidualLogWriter:
             except OSError as err:
                 self._fail(current.path, 'writing', err)
             bulk = mcap_bulk.bulk_chunk(current.writer)
-            assert bulk is not None
+            assert bulk is not None  # noqa: S101  # narrowing for the type checker: set with the file
             # end of the run: the message that fills the chunk (included) ...
             room = self.chunk_size - bulk.pending()
             stop = min(n, i + max(room, 0) // _MESSAGE_OVERHEAD + 2)

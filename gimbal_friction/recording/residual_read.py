@@ -291,8 +291,8 @@ def _detail_pieces(
         m = int(where[k])
         try:
             msg = decoder.decode(block.data(m), FLOAT64_MULTI_ARRAY_TYPE)
-            values = np.asarray(msg.data, dtype=np.float64).reshape(1, -1)  # type: ignore[attr-defined]
-            dims = msg.layout.dim  # type: ignore[attr-defined]
+            values = np.asarray(msg.data, dtype=np.float64).reshape(1, -1)  # type: ignore[attr-defined]  # the type store decodes to an untyped message object
+            dims = msg.layout.dim  # type: ignore[attr-defined]  # the type store decodes to an untyped message object
             label = str(dims[0].label) if len(dims) else ''
         except _DECODE_ERRORS:
             report.skipped_rows += 1

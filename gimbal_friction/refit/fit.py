@@ -812,7 +812,7 @@ def refit_stats(base: AxisParams, stats: SufficientStats, *, fit: Sequence[str] 
     if base.walther_b >= 0.0:
         raise FitError('the base walther_b must be < 0')
     if not stats.exact and bin_width_c < stats.temperature_resolution_c * (1.0 - 1e-9):
-        msg = (f'the temperature bin width {bin_width_c:g} degC is finer than the statistics\' resolution '
+        msg = (f"the temperature bin width {bin_width_c:g} degC is finer than the statistics' resolution "
                f'{stats.temperature_resolution_c:g} degC')
         raise FitError(msg)
     n_total = stats.n_samples
@@ -897,7 +897,7 @@ def refit_stats(base: AxisParams, stats: SufficientStats, *, fit: Sequence[str] 
         if len(visc_active) > len(visc_temps):
             drop = visc_active[-1]
             reasons[drop] = (f'under the refitted viscosity only {len(visc_temps)} distinct temperature(s) remain in '
-                             f'Palmgren\'s upper branch (nu*n >= {PALMGREN_THRESHOLD:g})')
+                             f"Palmgren's upper branch (nu*n >= {PALMGREN_THRESHOLD:g})")
             active.remove(drop)
             continue
         break
@@ -938,13 +938,13 @@ def _a_priori_reasons(base: AxisParams, model: SampleModel, pts: _Points, used: 
         t_thr = palmgren_threshold_temperature(base, n_max)
         where = f'; at {n_max:.3g} rpm that needs t <= {t_thr:.0f} degC' if math.isfinite(t_thr) else ''
         for name in visc:
-            reasons[name] = (f'no samples in Palmgren\'s upper branch (nu*n >= {PALMGREN_THRESHOLD:g}{where}), '
+            reasons[name] = (f"no samples in Palmgren's upper branch (nu*n >= {PALMGREN_THRESHOLD:g}{where}), "
                              'where the viscous torque depends on viscosity')
     else:
         temps = ', '.join(f'{x:g}' for x in visc_temps0)
         for i, name in enumerate(visc):
             if i >= len(visc_temps0):
-                reasons[name] = (f'needs samples at {i + 1} distinct temperatures in Palmgren\'s upper branch '
+                reasons[name] = (f"needs samples at {i + 1} distinct temperatures in Palmgren's upper branch "
                                  f'(nu*n >= {PALMGREN_THRESHOLD:g}), the data have {len(visc_temps0)} ({temps} '
                                  f'degC), taken by {", ".join(visc[:i])}; add a colder plateau or faster runs')
     del groups
@@ -964,7 +964,7 @@ def _offset_mode(mode: str, visc_temps0: list[float], groups: _Groups, requested
     if visc_temps0 and warm:
         return True, (f'auto: plateaus in the viscous regime ({", ".join(f"{x:g}" for x in visc_temps0)} degC) and '
                       f'below it ({", ".join(f"{x:g}" for x in warm)} degC)')
-    return False, ('auto: off, needs both a plateau in Palmgren\'s upper branch (cold) and one below it (warm) '
+    return False, ("auto: off, needs both a plateau in Palmgren's upper branch (cold) and one below it (warm) "
                    f'(viscous: {", ".join(f"{x:g}" for x in visc_temps0) or "none"}; warm: '
                    f'{", ".join(f"{x:g}" for x in warm) or "none"} degC)')
 

@@ -61,7 +61,7 @@ def save_run(path: str | os.PathLike[str], run: RealtimeRun) -> Path:
     arrays.update(meta=np.frombuffer(json.dumps(meta).encode(), dtype=np.uint8), sampled=res.temperature_sampled,
                   feedforward_age=run.feedforward_age, publish_wall_s=run.publish_wall_s,
                   transport_latency_s=np.asarray(run.transport_latency_s, dtype=float))
-    np.savez(tmp, **arrays)  # type: ignore[arg-type]
+    np.savez(tmp, **arrays)  # type: ignore[arg-type]  # numpy's savez stub types **kwds as one array type; these are arrays of several dtypes
     os.replace(tmp, out)
     return out
 

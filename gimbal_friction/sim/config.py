@@ -169,12 +169,12 @@ class SimConfig:
     # bearing is the paper's, Table 1; see gimbal_friction.sim.truth)
     truth_walther_a: float = _p(8.6195, '-', 'Walther constant a1 (Eq. 22, improved Walther form) of the truth '
                                 'lubricant before lubricant_walther_a_shift (default: the datasheet Krytox 143AA, '
-                                'the packaged model\'s walther_a)', 'truth')
+                                "the packaged model's walther_a)", 'truth')
     truth_walther_b: float = _p(-21.2471, '-', 'Walther slope b1 (Eq. 22) of the truth lubricant, < 0 (default: the '
-                                'datasheet\'s)', 'truth')
+                                "datasheet's)", 'truth')
     lubricant_walther_a_shift: float = _p(0.015, '-', 'truth walther_a minus truth_walther_a (a lubricant that '
                                           'differs from the datasheet: +0.015 is +46 % viscosity at -40 degC); the '
-                                          'truth lubricant\'s a1 is truth_walther_a + this', 'truth')
+                                          "truth lubricant's a1 is truth_walther_a + this", 'truth')
     truth_palmgren_factor: float = _p(1.917, '-', 'Palmgren factor f0 of the truth bearing (Eq. 9; the low-speed '
                                       'floor of the lubricant moment)', 'truth')
     truth_torque_constant_nm_per_a: float = _p(0.05, 'N*m/A', 'true motor torque constant K_T of the plant (the '
@@ -448,7 +448,7 @@ def with_truth(base: SimConfig, values: Mapping[str, Any]) -> SimConfig:
     for name, value in values.items():
         if name not in TRUTH_PARAMETERS:
             raise ConfigError(str(name), f'is not a truth parameter (a truth holds only {", ".join(TRUTH_PARAMETERS)}; '
-                              'put the simulator\'s other parameters in --config)', value)
+                              "put the simulator's other parameters in --config)", value)
     return SimConfig.from_mapping(values, base=base)
 
 
@@ -467,7 +467,7 @@ class RealtimeSettings:
                                                'bearing starts soaked at it (see initial_bearing_offset_c)')
     profile: str = setting('tracking', '-', 'reference motion: tracking (1/3 rpm with reversals), scan (sine) or '
                            'pointing (fixed target under base motion)')
-    duration_s: float = setting(0.0, 's', 'length of one run; 0: the profile\'s configured <profile>_duration_s')
+    duration_s: float = setting(0.0, 's', "length of one run; 0: the profile's configured <profile>_duration_s")
     repeat: bool = setting(True, '-', 'start a new run (soaked again) when one ends; false: stop stepping')
     exit_when_done: bool = setting(False, '-', 'end the process after the first run (used by loop-study --live)')
     use_feedforward: bool = setting(True, '-', 'add the effort of /gimbal/friction/feedforward for the joint to the '
@@ -487,7 +487,7 @@ class RealtimeSettings:
     start_timeout_s: float = setting(60.0, 's', 'give up waiting for subscribers / the feedforward after this')
     record_path: str = setting('', '-', 'write the traces and latencies of each run to this .npz file when it '
                                'ends (empty: do not)')
-    run_seed: int = setting(0, '-', 'noise stream of the run (with the simulator\'s seed; the offline study uses 0)')
+    run_seed: int = setting(0, '-', "noise stream of the run (with the simulator's seed; the offline study uses 0)")
     diagnostics_period_s: float = setting(1.0, 's', 'period of /diagnostics')
 
     def validate(self) -> None:

@@ -27,12 +27,12 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from typing import Any, NamedTuple
+from typing import NamedTuple, TypeVar
 
 import numpy as np
 from numpy.typing import NDArray
 
-from gimbal_friction.common.xp import SCALAR
+from gimbal_friction.common.xp import SCALAR, BoolOrArray, Namespace, X
 
 T_NON_FINITE = 'non-finite temperature'
 T_RANGE = 'temperature out of range'
@@ -73,7 +73,11 @@ def index_joints(names: Sequence[str], value_lengths: Sequence[int], configured:
     return JointIndex(index, False, unknown, duplicate)
 
 
-def effective_time(stamp: Any, arrival: Any) -> Any:
+#: a time of a message: s (float) or ns (int), one value or an array
+Time = TypeVar('Time', float, int, NDArray[np.float64], NDArray[np.int64])
+
+
+def effective_time(stamp: Time, arrival: Time) -> Time:
     """The time of a message: its header stamp, or its arrival (log) time where the stamp is zero (same unit
     as the inputs: s or ns; floats, ints or arrays)."""
     if isinstance(stamp, np.ndarray):
@@ -100,7 +104,7 @@ def temperature_valid(temperature_c: NDArray[np.float64], t_min_c: float, t_max_
     return valid, {k: v for k, v in counts.items() if v}
 
 
-def is_fresh(sample_time: Any, temperature_time: Any, timeout: float, xp: Any) -> Any:
+def is_fresh(sample_time: X | float, temperature_time: X | float, timeout: float, xp: Namespace[X]) -> BoolOrArray:
     """A temperature of time ``temperature_time`` is fresh for a sample of time ``sample_time`` (same unit as
     ``timeout``). NaN times (no temperature yet) are never fresh."""
     return xp.abs(sample_time - temperature_time) <= timeout

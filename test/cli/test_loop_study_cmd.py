@@ -75,8 +75,8 @@ def test_table_is_the_default_output_and_the_configuration_is_layered(tmp_path, 
 
 
 @pytest.mark.parametrize(('args', 'needle'), [
-    (['--cases', 'magic'], "--cases"),
-    (['--profiles', 'spiral'], "--profiles"),
+    (['--cases', 'magic'], '--cases'),
+    (['--profiles', 'spiral'], '--profiles'),
     (['--temperatures', 'warm'], '--temperature'),
     (['--temperatures', '-90'], 'temperatures'),
     (['--latency-s', '-1'], '--latency-s'),

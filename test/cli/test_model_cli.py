@@ -69,7 +69,7 @@ def test_plot_written(tmp_path, capsys):
 @pytest.mark.parametrize(('argv', 'needle', 'code'), [
     (['model', '--temperature', 'cold'], 'start:stop:step', 1),
     (['model', '-t', '60:-40:10'], 'stop >= start', 1),
-    (['model', '--gasket-mm', '-0.1'], "gasket_thickness_mm", 1),
+    (['model', '--gasket-mm', '-0.1'], 'gasket_thickness_mm', 1),
     (['model', '--axis', 'azimuth'], "'azimuth' is not configured", 1),
     (['model', '--format', 'xml'], 'invalid choice', 2),
     (['model', '--config', '/nonexistent.yaml'], 'cannot read', 1),

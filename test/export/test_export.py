@@ -299,7 +299,7 @@ def _gcc() -> str:
 
 CFLAGS = ['-std=c99', '-Wall', '-Wextra', '-Werror', '-pedantic']
 
-DRIVER = r'''
+DRIVER = r"""
 #include <stdio.h>
 #include "gimbal_friction_%(a)s.h"
 int main(void)
@@ -310,7 +310,7 @@ int main(void)
     }
     return 0;
 }
-'''
+"""
 
 
 def _run_c(tmp_path: Path, tables, t, v, axis: str):

@@ -403,7 +403,7 @@ def test_describe_explains_what_matches_nothing(tmp_path: Path) -> None:
     assert not any('is not in' in n for n in mapped)
     clean = open_chamber_bag(write_chamber_bag(tmp_path / 'clean', chamber_messages())).describe()
     assert clean.findings(['elevation']) == [
-        '/joint_states: 1 of 6 messages carry no velocity for \'elevation\'']
+        "/joint_states: 1 of 6 messages carry no velocity for 'elevation'"]
     assert clean.joint_names(JOINT_STATES) == ('elevation', 'azimuth')
 
 
@@ -508,9 +508,9 @@ def test_a_read_with_no_configured_axis_is_refused_naming_the_joints_and_the_map
     assert len(open_chamber_bag(path, joint_map={'joint_2': 'elevation'}, axes=['elevation', 'azimuth'])
                .read_arrays().joint_states) == 6
     no_current = robot_joint_bag(tmp_path / 'no_current', effort=False)
-    with pytest.raises(EmptyInputError, match=r"/gimbal/motor_current carries no motor current \(effort\) .*"
-                                              r"joints with effort there: none; joint map: elevation=joint_2\).*"
-                                              r"--topic /gimbal/motor_current="):
+    with pytest.raises(EmptyInputError, match=r'/gimbal/motor_current carries no motor current \(effort\) .*'
+                                              r'joints with effort there: none; joint map: elevation=joint_2\).*'
+                                              r'--topic /gimbal/motor_current='):
         open_chamber_bag(no_current, joint_map={'joint_2': 'elevation'}, axes=['elevation']).read_arrays()
 
 
@@ -543,7 +543,7 @@ def _foreign_mcap(path: Path, encoding: str, profile: str) -> Path:
 
 def _foreign_bag(tmp_path: Path, kind: str) -> tuple[Path, str]:
     if kind in ('mcap folder', 'sqlite3 folder'):
-        storage = kind.split()[0]
+        storage = kind.split(maxsplit=1)[0]
         return _retag_rosbag2(write_chamber_bag(tmp_path / 'bag', chamber_messages(), storage=storage), 'json'), \
             'json'
     if kind == 'bare db3':

@@ -57,7 +57,7 @@ def test_other_topics_by_name_or_star_and_excluded_ones(tmp_path: Path, spawn, p
 
 @pytest.mark.parametrize(('param', 'expected'), [
     ('rate:=fast', "parameter 'rate': must be a number"),
-    ('topics:=[/nope]', "no topic /nope in the bag"),
+    ('topics:=[/nope]', 'no topic /nope in the bag'),
     ("topics:=['/camera/frame']", 'acme_msgs/msg/Frame of /camera/frame is not installed'),
     # used to play nothing and exit 0 / be accepted without comment: refused with the valid range
     ('start_offset_s:=1000.0', "parameter 'start_offset_s' = 1000.0: is beyond the end of the bag: must be from 0 "

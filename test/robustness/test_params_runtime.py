@@ -72,8 +72,7 @@ class FeedforwardProbe:
         self.node.on_joint_state(joint_state(V, self.sec))
         self.node.on_joint_state(joint_state(-V, self.sec))
         self.node.on_joint_state(joint_state(3.0, self.sec))     # beyond the clamp
-        out = [m.effort[0] for m in self.node.pub_ff.messages[-3:]]
-        return out
+        return [m.effort[0] for m in self.node.pub_ff.messages[-3:]]
 
 
 @pytest.fixture(scope='module')

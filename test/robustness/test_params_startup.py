@@ -309,7 +309,7 @@ def test_model_parameters_are_the_axis_fields():
     assert set(MODEL_PARAMETERS) == {s['name'] for s in parameter_specs()}
     names = node_parameter_names('friction_estimator', ['elevation'])
     assert 'axis.elevation.ball_count' in names and 'use_sim_time' in names and 'output_dir' not in names
-    assert os.path.exists(PACKAGED)
+    assert Path(PACKAGED).exists()
 
 
 # ------------------------------------------------------------------------------------------------ one rule, all nodes
