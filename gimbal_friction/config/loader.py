@@ -578,7 +578,12 @@ def flat_parameters(params: Mapping[str, Any], prefix: str = '') -> dict[str, An
 
 def node_parameter_names(node: str, axes: Sequence[str]) -> frozenset[str]:
     """Every parameter name executable ``node`` of the suite declares, with ``axes`` configured."""
-    from gimbal_friction.config.node_settings import EstimatorNodeSettings, FeedforwardNodeSettings, LoggerSettings
+    from gimbal_friction.config.node_settings import (
+        FEEDFORWARD_PREFIXED,
+        EstimatorNodeSettings,
+        FeedforwardNodeSettings,
+        LoggerSettings,
+    )
     from gimbal_friction.estimation.estimator import EstimatorSettings
     from gimbal_friction.feedforward.rule import FeedforwardSettings
 
@@ -590,6 +595,7 @@ def node_parameter_names(node: str, axes: Sequence[str]) -> frozenset[str]:
     names: set[str] = set(ROS_PARAMETERS)
     if node == 'friction_feedforward':
         names |= model | fields(FeedforwardSettings, FeedforwardNodeSettings)
+        names |= {prefix + name for prefix, cls in FEEDFORWARD_PREFIXED for name in fields(cls)}
     elif node == 'friction_estimator':
         names |= model | fields(EstimatorSettings, EstimatorNodeSettings)
     elif node == 'residual_logger':
