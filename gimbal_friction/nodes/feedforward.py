@@ -421,11 +421,13 @@ class FrictionFeedforward(Node):
         fresh = bool(estimator_fresh) and source == SOURCE_MEASURED
         if fresh and math.isfinite(velocity_rad_s):
             model = model_along_nm(self.ff, joint, velocity_rad_s, temperature)
-        else:
-            model = math.nan   # (refused by the learner's gate: stale temperature or non-finite)
+            residual = friction_nm - model
+        else:  # refused by the learner's gate (stale temperature; non-finite velocity): no model needed
+            model, residual = 0.0, friction_nm
+            temperature = temperature if math.isfinite(temperature) else 0.0   # (zero policy: NaN)
         k = self.keeper
-        reason = k.learner.update(joint, temperature, velocity_rad_s, position_rad, friction_nm - model, model,
-                                  self._now_s(), temperature_fresh=fresh)
+        reason = k.learner.update(joint, temperature, velocity_rad_s, position_rad, residual, model, self._now_s(),
+                                  temperature_fresh=fresh)
         if reason is None:
             k.dirty = True
         return reason
