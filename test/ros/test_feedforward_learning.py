@@ -18,16 +18,41 @@ from sensor_msgs.msg import JointState, Temperature
 from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 
 from gimbal_friction.feedforward.correction import Correction, CorrectionSettings, model_identity
+from gimbal_friction.feedforward.rule import FeedforwardSettings
+from gimbal_friction.physics.model import friction_torque
 from gimbal_friction.physics.params import AxisParams
 from gimbal_friction.streams.measurement import MEASUREMENT_FIELDS, METHOD_OBSERVER
 
-from .test_feedforward_node import FF, V_TEST, model_nm, request, send_temperature
-
+FF = '/gimbal/friction/feedforward'
+V_TH = FeedforwardSettings().velocity_threshold_rad_s
+V_TEST = 2 * math.pi / 180  # 1/3 rpm in rad/s
 DETAIL = '/gimbal/friction/measured_detail'
 CORRECTION = '/gimbal/friction/correction'
 ROOT = Path(__file__).resolve().parents[2]
 T_C = -40.0
 pytestmark = pytest.mark.ros
+
+
+def model_nm(t_c: float, v: float) -> float:
+    """The pure model's feedforward (direct, not the node's table) [N·m]."""
+    return math.tanh(v / V_TH) * float(friction_torque(AxisParams(), t_c, abs(v) * 30 / math.pi).m_total_nmm) * 1e-3
+
+
+def send_temperature(probe, t_c, sec):
+    msg = Temperature(temperature=float(t_c))
+    msg.header.stamp = Time(sec=sec)
+    probe.pubs['/gimbal/temperature'].publish(msg)
+
+
+def request(probe, names, velocities, sec):
+    """Publish a joint state stamped ``sec`` and wait for the feedforward carrying that stamp."""
+    n0 = len(probe.received[FF])
+    msg = JointState(name=list(names), velocity=[float(v) for v in velocities], position=[0.0] * len(names))
+    msg.header.stamp = Time(sec=sec)
+    probe.pubs['/joint_states'].publish(msg)
+    probe.spin_until(lambda: any(m.header.stamp.sec == sec for m in probe.received[FF][n0:]),
+                     what=f'feedforward for stamp {sec}')
+    return [m for m in probe.received[FF][n0:] if m.header.stamp.sec == sec][-1]
 
 
 def detail(sec: int, velocity: float, friction_nm: float, temperature_c: float = T_C, fresh: bool = True,
@@ -254,3 +279,61 @@ def test_corrupt_or_mismatched_file_is_refused_and_the_node_runs_on_the_pure_mod
         assert len(refusals) == 1 and 'pure model' in refusals[0], text
         probe.received['/diagnostics'].clear()
     assert other.read_bytes() == before and corrupt.read_text() == 'format: [gimbal_friction/correction\n'
+
+
+# ------------------------------------------------------------------ the node's keeper of the correction (no ROS)
+def _learned(identity, settings=None, n=20):
+    c = Correction(settings or CorrectionSettings(prior_samples=1.0), identity)
+    c.add_residuals('elevation', [T_C] * n, [V_TEST] * n, [0.0] * n, [1e-3] * n, [3e-3] * n)
+    c.settle()
+    return c
+
+
+def test_keeper_loads_saves_only_changes_and_never_overwrites_a_refused_file(tmp_path):
+    from gimbal_friction.feedforward.correction import LearningSettings
+    from gimbal_friction.nodes.feedforward import CorrectionKeeper
+
+    ident = model_identity({'elevation': AxisParams()})
+    path = tmp_path / 'c.yaml'
+    _learned(ident).save(path)
+    k = CorrectionKeeper(ident, CorrectionSettings(prior_samples=10.0), LearningSettings())
+    k.start(str(path))
+    assert k.load_error is None and k.loaded_from == str(path)
+    # the file's sums, the parameters' prior (and bound): the target follows the parameters
+    assert k.correction.settings.prior_samples == 10.0 and k.correction.summary()['samples'] == 20
+    assert k.correction.targets('elevation')[0].max() == pytest.approx(20 * 1e-3 / 30, rel=1e-12)
+    assert not k.save(str(path))                       # nothing changed: nothing written
+    k.dirty = True
+    assert k.save(str(path)) and k.saves == 1 and k.last_save_error is None
+
+    # another cell layout: refused with one line naming the parameter
+    other_layout = tmp_path / 'layout.yaml'
+    _learned(ident, CorrectionSettings(temperature_min_c=-60.0, temperature_max_c=120.0,
+                                       temperature_bin_c=10.0)).save(other_layout)
+    k2 = CorrectionKeeper(ident, CorrectionSettings(), LearningSettings())
+    k2.start(str(other_layout))
+    assert 'correction_temperature_min_c' in k2.load_error and '\n' not in k2.load_error
+    assert k2.correction.summary()['samples'] == 0     # the pure model
+    k2.dirty = True
+    assert not k2.save(str(other_layout)) and 'not overwritten' in k2.last_save_error
+    other_layout.unlink()                              # the user deleted it: saved again
+    assert k2.save(str(other_layout)) and k2.last_save_error is None
+
+    # a model change empties the correction
+    assert k.set_identity(model_identity({'elevation': dataclasses.replace(AxisParams(), scale_positive=0.9)}))
+    assert k.correction.summary()['samples'] == 0 and k.dirty
+
+
+def test_residual_model_is_the_feedforward_rule_without_sign_and_clamp():
+    from gimbal_friction.common.xp import SCALAR
+    from gimbal_friction.feedforward.rule import Feedforward, FeedforwardSettings
+    from gimbal_friction.nodes.feedforward import model_along_nm
+
+    p = dataclasses.replace(AxisParams(), direction_asymmetry_cold=0.2)
+    ff = Feedforward({'elevation': p}, FeedforwardSettings())
+    v_th = ff.settings.velocity_threshold_rad_s
+    for t_c in (-40.0, 12.3, 60.0):
+        for v in (0.0349, -0.0349, 0.2):
+            along = model_along_nm(ff, 'elevation', v, t_c)
+            assert along * v > 0.0
+            assert math.tanh(v / v_th) * abs(along) == pytest.approx(ff.rule('elevation', v, t_c, SCALAR), rel=1e-12)
