@@ -93,7 +93,8 @@ def temperature_in_use(probe, sec: int) -> int:
         send_temperature(probe, T_C, s[0])
         probe.executor.spin_once(timeout_sec=0.05)
         s[0] += 1
-        return request(probe, ['elevation'], [V_TEST], s[0]).effort[0] == pytest.approx(expected, rel=1e-3)
+        # -40 degC in use (the 20 degC fallback gives a third of it); a loaded correction may add to it
+        return request(probe, ['elevation'], [V_TEST], s[0]).effort[0] > 0.95 * expected
 
     probe.spin_until(ok, what='temperature in use')
     return s[0] + 1
@@ -192,7 +193,7 @@ def test_learns_gates_bounds_freezes_resets_saves_and_resumes(spawn, probe, monk
     assert st['samples_used'] == '45' and st['state'] == 'active' and st['message'].startswith('learning active')
 
     # periodic save: the file holds what was learned
-    probe.spin_until(lambda: path.exists(), what='periodic save')
+    probe.spin_until(path.exists, what='periodic save')
     saved = Correction.load(path)
     assert saved.summary()['samples'] == 45
 
