@@ -33,6 +33,7 @@ from __future__ import annotations
 import math
 import os
 import sys
+import threading
 import time
 from collections.abc import Sequence
 from typing import Any
@@ -64,6 +65,7 @@ from gimbal_friction.feedforward.rule import (
     SOURCE_ZERO,
     Feedforward,
     FeedforwardSettings,
+    model_friction_nm,
 )
 from gimbal_friction.nodes._common import (
     ERROR,
@@ -85,11 +87,10 @@ from gimbal_friction.nodes._common import (
     status,
     subscribe,
 )
-from gimbal_friction.physics.direction import direction_factors, select_direction
-from gimbal_friction.physics.table import magnitude_from_terms
+from gimbal_friction.physics.direction import direction_factors
 from gimbal_friction.recording import topics
 from gimbal_friction.streams.inputs import effective_time
-from gimbal_friction.streams.measurement import MEASUREMENT_FIELDS, from_detail
+from gimbal_friction.streams.measurement import MEASUREMENT_FIELDS, METHOD_NAMES
 
 REFERENCE_VELOCITY = topics.REFERENCE_VELOCITY
 #: the learned correction (diagnostic_msgs/DiagnosticArray): one status per joint and per cell with data
@@ -103,6 +104,11 @@ _NODE_FIELDS = field_names(NodeSettings)
 _CORRECTION_PREFIX, _LEARNING_PREFIX = (prefix for prefix, _ in FEEDFORWARD_PREFIXED)
 _CORRECTION_FIELDS = frozenset(_CORRECTION_PREFIX + n for n in field_names(CorrectionSettings))
 _LEARNING_FIELDS = frozenset(_LEARNING_PREFIX + n for n in field_names(LearningSettings))
+#: columns of measured_detail the learning reads (the layout of gimbal_friction.streams.measurement; read by index:
+#: from_detail's arrays cost ~100 us a message, this ~1 us)
+_STAMP_SEC, _STAMP_NANOSEC, _POSITION, _VELOCITY, _FRESH, _FRICTION, _METHOD = (
+    MEASUREMENT_FIELDS.index(f) for f in ('stamp_sec', 'stamp_nanosec', 'position_rad', 'velocity_rad_s',
+                                          'temperature_fresh', 'friction_nm', 'method'))
 
 
 def prefixed_settings(cls: type[Any], prefix: str, values: dict[str, Any], base: Any = None) -> Any:
@@ -114,13 +120,13 @@ def prefixed_settings(cls: type[Any], prefix: str, values: dict[str, Any], base:
 
 
 def model_along_nm(ff: Feedforward, joint: str, velocity_rad_s: float, temperature_c: float) -> float:
-    """The model friction of ``joint`` signed like the motion, k_dir(T) M(T, |v|) sign(v) [N·m], at
-    ``velocity_rad_s`` [rad/s] and ``temperature_c`` [°C]: the feedforward's own table and direction factors
-    (what the learned correction is added to), without the smooth sign and the clamp."""
+    """The model friction of ``joint`` signed like the motion, sign(v) k_dir(T) M(T, |v|) [N·m], at
+    ``velocity_rad_s`` [rad/s] and ``temperature_c`` [°C]: the feedforward's own table, direction factors and
+    :func:`~gimbal_friction.feedforward.rule.model_friction_nm` (what the learned correction is added to), without
+    the smooth sign and the clamp."""
     terms = ff.tables[joint].temperature_terms(temperature_c, SCALAR)
-    k_positive, k_negative = direction_factors(ff.axes[joint], temperature_c, SCALAR)
-    along: float = select_direction(velocity_rad_s, k_positive, k_negative, SCALAR) * \
-        magnitude_from_terms(terms, velocity_rad_s, SCALAR)
+    along: float = model_friction_nm(terms, *direction_factors(ff.axes[joint], temperature_c, SCALAR),
+                                     velocity_rad_s, SCALAR)
     return along if velocity_rad_s >= 0.0 else -along
 
 
@@ -144,6 +150,7 @@ class CorrectionKeeper:
         self.last_save_time: float | None = None   #: wall-clock time of the last save [s since the epoch]
         self.last_save_path = ''
         self.last_save_error: str | None = None
+        self._writer: threading.Thread | None = None
 
     @property
     def correction(self) -> Correction:
@@ -203,13 +210,15 @@ class CorrectionKeeper:
         had = bool(self.correction.summary()['samples']) or self.load_error is not None
         self.identity = identity
         self.learner.correction = Correction(self.settings, identity)
-        self.load_error = self._refused_path = None
+        self.load_error = self._refused_path = self.loaded_from = None
         self.dirty = True
         return had
 
-    def save(self, path: str) -> bool:
-        """Save atomically to ``path`` if something changed; True if written. A failure (or a file refused at
-        load, never overwritten while it exists) is kept in :attr:`last_save_error`."""
+    def save(self, path: str, background: bool = False) -> bool:
+        """Save atomically to ``path`` if something changed; True if a save was made (or, with ``background``,
+        started: a copy is written by a thread, so the disk's fsync never delays the feedforward; a save still
+        running is not started twice). A failure (or a file refused at load, never overwritten while it exists) is
+        kept in :attr:`last_save_error`."""
         if not path or not self.dirty:
             return False
         if self._refused_path is not None and os.path.abspath(path) == os.path.abspath(self._refused_path) \
@@ -217,14 +226,32 @@ class CorrectionKeeper:
             self.last_save_error = (f'not saved: {path} was refused at load and is not overwritten; delete it or '
                                     'set another file')
             return False
+        if self._writer is not None and self._writer.is_alive():
+            if background:
+                return False
+            self._writer.join()
+        self.dirty = False
+        if not background:
+            return self._write(self.correction, path)
+        self._writer = threading.Thread(target=self._write, args=(self.learner.snapshot(), path),
+                                        name='correction_save', daemon=True)
+        self._writer.start()
+        return True
+
+    def _write(self, c: Correction, path: str) -> bool:
         try:
-            self.correction.save(path)
+            c.save(path)
         except CorrectionError as err:
-            self.last_save_error = str(err)
+            self.last_save_error, self.dirty = str(err), True
             return False
-        self.dirty, self.saves, self.last_save_error = False, self.saves + 1, None
+        self.saves, self.last_save_error = self.saves + 1, None
         self.last_save_time, self.last_save_path = time.time(), path
         return True
+
+    def wait(self) -> None:
+        """Wait for a background save to finish."""
+        if self._writer is not None:
+            self._writer.join()
 
 
 class FrictionFeedforward(Node):
@@ -243,6 +270,7 @@ class FrictionFeedforward(Node):
         self.keeper.start(self.settings.correction_file)
         self.keeper.learner.freeze(self.settings.learning_frozen)
         self._refused: dict[str, int] = {}  #: measured_detail messages not usable, per reason
+        self._logged_save_error: str | None = None
         self._use_correction()
         self._candidate: tuple[Feedforward | None, NodeSettings, dict[str, Any]] | None = None
         self._last_publish = -math.inf
@@ -285,6 +313,8 @@ class FrictionFeedforward(Node):
             summary = k.correction.summary()
             self.get_logger().info(f'correction loaded from {k.loaded_from}: {summary["cells_with_data"]} cells, '
                                    f'{summary["samples"]} samples')
+        if self.settings.learning_enabled:   # (the file module and YAML imported now, not by the first save)
+            import gimbal_friction.feedforward.correction_file  # noqa: F401
         if self.settings.learning_enabled and not self._save_path():
             self.get_logger().warning('learning_enabled without correction_file or learning_output_file: what is '
                                       'learned is lost at shutdown')
@@ -372,7 +402,9 @@ class FrictionFeedforward(Node):
     # ------------------------------------------------------------------ learning
     def _use_correction(self) -> None:
         """Give the feedforward the learned correction (use_correction) or none (the pure model)."""
-        self.ff.set_correction(self.keeper.correction if self.settings.use_correction else None)
+        use = self.settings.use_correction
+        self.ff.set_correction(self.keeper.correction if use else None)
+        self._positions = use and self.keeper.settings.position_bins > 0
 
     def _save_path(self) -> str:
         return self.settings.correction_file or self.settings.learning_output_file
@@ -406,12 +438,13 @@ class FrictionFeedforward(Node):
         if label not in self.ff.axes:
             self._refuse('unknown joint')
             return
-        try:
-            m = from_detail([label], np.asarray(msg.data, dtype=np.float64)).records()[0]
-        except ValueError:
-            self._refuse('invalid stamp or method')
+        d = msg.data
+        if d[_METHOD] not in METHOD_NAMES:
+            self._refuse('unknown method')
             return
-        self.learn(m.joint, m.stamp_ns * 1e-9, m.velocity_rad_s, m.position_rad, m.friction_nm, m.temperature_fresh)
+        # (a non-finite or absurd stamp is never fresh: refused by the gate as a stale temperature)
+        self.learn(label, d[_STAMP_SEC] + 1e-9 * d[_STAMP_NANOSEC], d[_VELOCITY], d[_POSITION], d[_FRICTION],
+                   d[_FRESH] != 0.0)
 
     def learn(self, joint: str, stamp_s: float, velocity_rad_s: float, position_rad: float, friction_nm: float,
               estimator_fresh: bool) -> str | None:
@@ -436,18 +469,21 @@ class FrictionFeedforward(Node):
         if self.settings.learning_enabled and self.keeper.learner.step(self._now_s()):
             self.keeper.dirty = True
 
-    def save_correction(self) -> None:
-        """Save the correction if it changed (atomic; errors in /diagnostics and the log)."""
+    def save_correction(self, background: bool = True) -> None:
+        """Save the correction if it changed (atomic, by a thread; errors in /diagnostics and the log)."""
         k = self.keeper
-        before = k.last_save_error
-        k.save(self._save_path())
-        if k.last_save_error is not None and k.last_save_error != before:
-            self.get_logger().error(k.last_save_error)
+        if k.last_save_error is not None and k.last_save_error != self._logged_save_error:
+            self.get_logger().error(k.last_save_error)   # (the previous save's, written by its thread)
+        self._logged_save_error = k.last_save_error
+        k.save(self._save_path(), background=background)
 
     def close(self) -> None:
-        """At shutdown (SIGINT/SIGTERM): save what was learned."""
-        self.save_correction()
-        if self.keeper.saves:
+        """At shutdown (SIGINT/SIGTERM): save what was learned (waiting for it)."""
+        self.save_correction(background=False)
+        self.keeper.wait()
+        if self.keeper.last_save_error is not None:
+            self.get_logger().error(self.keeper.last_save_error)
+        elif self.keeper.saves:
             self.get_logger().info(f'correction saved to {self.keeper.last_save_path}')
 
     def _refuse(self, reason: str) -> None:
@@ -509,7 +545,8 @@ class FrictionFeedforward(Node):
         # the receive time is needed only for an unstamped message (reading the clock costs a few µs)
         time_s = effective_time(stamp_s, self._now_s() if stamp_s == 0.0 else 0.0)
         names = list(msg.name)
-        out = self.ff.message(names, list(msg.velocity), time_s)
+        # the position only for a correction with a position map (a list conversion less per message otherwise)
+        out = self.ff.message(names, list(msg.velocity), time_s, list(msg.position) if self._positions else None)
         self._last_time_s = time_s
         if out is None:
             self._warn('joint_state', 'joint_states message not used (see /diagnostics for the reason)')

@@ -128,15 +128,20 @@ def wait_status(probe, cond, what):
     return learning_status(probe)
 
 
-def set_param(probe, name, value):
+def set_param(probe, name, value, ok=True):
     client = probe.node.create_client(SetParameters, '/friction_feedforward/set_parameters')
     probe.spin_until(client.service_is_ready, what='set_parameters service')
-    pv = ParameterValue(type=ParameterType.PARAMETER_BOOL, bool_value=value) if isinstance(value, bool) else \
-        ParameterValue(type=ParameterType.PARAMETER_DOUBLE, double_value=float(value))
+    if isinstance(value, bool):
+        pv = ParameterValue(type=ParameterType.PARAMETER_BOOL, bool_value=value)
+    elif isinstance(value, str):
+        pv = ParameterValue(type=ParameterType.PARAMETER_STRING, string_value=value)
+    else:
+        pv = ParameterValue(type=ParameterType.PARAMETER_DOUBLE, double_value=float(value))
     future = client.call_async(SetParameters.Request(parameters=[ParameterMsg(name=name, value=pv)]))
     probe.spin_until(future.done, what=f'set {name}')
     result = future.result().results[0]
-    assert result.successful, result.reason
+    assert result.successful == ok, result.reason
+    return result
 
 
 def get_bool(probe, name):
@@ -274,6 +279,11 @@ def test_corrupt_or_mismatched_file_is_refused_and_the_node_runs_on_the_pure_mod
                          'the refusal on /diagnostics')
         assert words in st['load_error'] and str(path) in st['load_error'] and st['level'] == b'\x01'
         assert 'not overwritten' in st['last_save_error']
+        if path == corrupt:   # at run time a bad file, or another cell layout, is refused as a parameter value
+            refused = set_param(probe, 'correction_file', str(other), ok=False)
+            assert 'learned against model parameters' in refused.reason and '\n' not in refused.reason
+            refused = set_param(probe, 'correction_temperature_bin_c', 2.5, ok=False)
+            assert 'correction_temperature_bin_c' in refused.reason and 'cannot change' in refused.reason
         rc, text = node.stop()
         assert rc == 0 and 'Traceback' not in text, text
         refusals = [line for line in text.splitlines() if words in line]
