@@ -523,7 +523,7 @@ def summarize(results: list[RunResult], kinds: Sequence[str]) -> dict[str, Any]:
         ratios[kind] = {'ratio_p50': r50, 'ratio_p99': r99, 'per_round': per_round,
                         'pass_p50': r50 <= TARGET_P50, 'pass_p99': r99 <= TARGET_P99,
                         'sustained': nodes[kind]['kept_up']}
-    learning_vs_off = []
+    learning_vs_off: list[dict[str, Any]] = []
     if 'learning' in kinds and 'feedforward' in kinds:
         for rnd in sorted({r.round for r in results}):
             a = next(r for r in results if r.round == rnd and r.kind == 'feedforward')
