@@ -238,5 +238,7 @@ def test_with_a_correction_the_bag_arrays_equal_the_per_message_rule(steps, sour
         if e is not None:
             np.testing.assert_allclose(g, e, rtol=1e-12, atol=1e-18)
             assert all(math.isfinite(x) and abs(x) <= 0.004 for x in g)
-    assert ff.counters == one.counters
+    # (the counters, but a reference with a NaN velocity and a NaN position: the arrays cannot tell it from absent)
+    for name in ('joint_state_rejected', 'temperature_rejected', 'saturated', 'published'):
+        assert getattr(ff.counters, name) == getattr(one.counters, name), name
     assert c_bag.lookup_saturations == c_one.lookup_saturations
