@@ -24,6 +24,12 @@ backlog: median latency of the last second no more than ``--backlog-ms`` above t
 second), CPU, and the ratios feedforward/relay of p50 and p99 against the targets (p50 <= 1.2x, p99 <= 1.5x).
 Ratios, not absolute numbers, are the result: machines are shared and noisy. This is a benchmark, not a test.
 
+Learning in service: ``--nodes relay,feedforward,learning`` adds the feedforward with ``learning_enabled`` (saving to
+a temporary file every second, the correction topic every second). In every run the driver also publishes
+``/gimbal/friction/measured_detail`` (accepted estimator samples, ``--detail-rate`` Hz, stamped now so the
+temperature is fresh: the learning node learns from each) so that learning on and off see the same inputs; the
+report adds the ratios learning/feedforward of p50 and p99 per round (the joint-state path must not get slower).
+
 Drops, counted twice: ``lost`` = joint states sent by this process whose output never came back (whatever lost
 them: the driver's own publisher history, the node's input queue, its output path); ``node lost`` = what the node
 itself reports on ``/diagnostics`` (``lost: /joint_states``, from gaps in the publisher's sequence numbers), with
@@ -76,13 +82,23 @@ CLK_TCK = os.sysconf('SC_CLK_TCK')
 DIAG_PERIOD_S = 0.2           # the feedforward's /diagnostics period in the benchmark (its drop counts)
 
 
-def node_command(kind: str) -> list[str]:
-    """Command line of the node under test (run with cwd = repository root)."""
+KINDS = ('relay', 'feedforward', 'learning')
+DETAIL = '/gimbal/friction/measured_detail'
+DETAIL_FRICTION_NM = 1.5e-3   # [N*m] measured friction of the published samples (more than the model at 35 degC)
+
+
+def node_command(kind: str, log_dir: Path | None = None) -> list[str]:
+    """Command line of the node under test (run with cwd = repository root); ``learning`` saves in ``log_dir``."""
     if kind == 'relay':
         return [sys.executable, str(ROOT / 'bench' / 'relay_node.py')]
     exe = BIN / 'friction_feedforward'
     cmd = [str(exe)] if exe.exists() else [sys.executable, '-m', 'gimbal_friction.nodes.feedforward']
-    return [*cmd, '--ros-args', '--params-file', str(PARAMS_FILE), '-p', f'diagnostics_period_s:={DIAG_PERIOD_S}']
+    cmd = [*cmd, '--ros-args', '--params-file', str(PARAMS_FILE), '-p', f'diagnostics_period_s:={DIAG_PERIOD_S}']
+    if kind == 'learning':
+        out = (log_dir or Path(tempfile.gettempdir())) / 'correction.yaml'
+        cmd += ['-p', 'learning_enabled:=true', '-p', f'learning_output_file:={out}',
+                '-p', 'learning_save_period_s:=1.0', '-p', 'correction_publish_period_s:=1.0']
+    return cmd
 
 
 def proc_cpu_s(pid: int) -> float:
@@ -154,7 +170,7 @@ class NodeProcess:
     def __init__(self, kind: str, env: dict[str, str], log: Path) -> None:
         self.log = log
         self._fh = open(log, 'wb')  # noqa: SIM115
-        self.proc = subprocess.Popen(node_command(kind), cwd=ROOT, env=env, stdout=self._fh,
+        self.proc = subprocess.Popen(node_command(kind, log.parent), cwd=ROOT, env=env, stdout=self._fh,
                                      stderr=subprocess.STDOUT, start_new_session=True)
 
     @property
@@ -205,6 +221,17 @@ class Driver:
         qos = QoSProfile(depth=10)
         self.pub_js = self.node.create_publisher(JointState, JOINT_STATES, qos)
         self.pub_t = self.node.create_publisher(Temperature, TEMPERATURE, qos)
+        from std_msgs.msg import Float64MultiArray, MultiArrayDimension
+
+        from gimbal_friction.streams.measurement import MEASUREMENT_FIELDS, METHOD_OBSERVER
+        self.pub_detail = self.node.create_publisher(Float64MultiArray, DETAIL, QoSProfile(depth=100))
+        row = dict.fromkeys(MEASUREMENT_FIELDS, 0.0)
+        row.update(velocity_rad_s=VELOCITY_RAD_S, temperature_c=TEMPERATURE_C, temperature_fresh=1.0,
+                   friction_nm=DETAIL_FRICTION_NM, method=float(METHOD_OBSERVER))
+        n = len(MEASUREMENT_FIELDS)
+        self._detail = Float64MultiArray(data=[row[f] for f in MEASUREMENT_FIELDS])
+        self._detail.layout.dim = [MultiArrayDimension(label=JOINT, size=n, stride=n)]
+        self._detail_sec = (MEASUREMENT_FIELDS.index('stamp_sec'), MEASUREMENT_FIELDS.index('stamp_nanosec'))
         # Deeper than the node's queue so this side never drops what the node delivered.
         self.sub = self.node.create_subscription(JointState, FEEDFORWARD, self._on_output, QoSProfile(depth=1000))
         from diagnostic_msgs.msg import DiagnosticArray
@@ -262,6 +289,13 @@ class Driver:
     def send_temperature(self) -> None:
         self.pub_t.publish(self._temperature)
 
+    def send_detail(self) -> None:
+        """One accepted estimator sample, stamped now (the temperature, stamped 0 = received now, is fresh)."""
+        now = self.node.get_clock().now().nanoseconds
+        data = self._detail.data
+        data[self._detail_sec[0]], data[self._detail_sec[1]] = float(now // 10**9), float(now % 10**9)
+        self.pub_detail.publish(self._detail)
+
     def spin_until(self, cond: Callable[[], bool], timeout_s: float, what: str,
                    every: Callable[[], None] | None = None, every_s: float = 0.01) -> None:
         deadline = time.monotonic() + timeout_s
@@ -282,7 +316,8 @@ class Driver:
 
 
 def run_once(kind: str, round_no: int, domain: int, env: dict[str, str], log_dir: Path,
-             duration_s: float, rate_hz: float, warmup_s: float, backlog_ms: float) -> RunResult:
+             duration_s: float, rate_hz: float, warmup_s: float, backlog_ms: float,
+             detail_rate_hz: float = 0.0) -> RunResult:
     """One node, one measured window."""
     result = RunResult(kind, round_no)
     driver = Driver(domain)   # subscriber and publishers exist before the node starts
@@ -300,6 +335,7 @@ def run_once(kind: str, round_no: int, domain: int, env: dict[str, str], log_dir
         n_warm = int(round(warmup_s * rate_hz))
         send_ns = [0] * n_total
         temp_every = max(1, int(round(TEMPERATURE_PERIOD_S * rate_hz)))
+        detail_every = max(1, int(round(rate_hz / detail_rate_hz))) if detail_rate_hz > 0 else 0
         spin_margin_ns = 80_000   # spin_once overshoots its timeout by ~80 us here
         # After a stall of this process (shared machine), overdue messages are caught up at 4x the rate rather than
         # in one back-to-back burst, which would overflow the node's depth-10 queue: a driver artefact, not load.
@@ -319,6 +355,8 @@ def run_once(kind: str, round_no: int, domain: int, env: dict[str, str], log_dir
                     ru0 = resource.getrusage(resource.RUSAGE_SELF)
                 if seq % temp_every == 0:
                     driver.send_temperature()
+                if detail_every and seq % detail_every == detail_every // 2:
+                    driver.send_detail()
                 send_ns[seq] = last_send = driver.send(seq, period_ns * 1e-9)
                 if now - next_ns > period_ns:
                     result.late_sends += 1
@@ -485,7 +523,17 @@ def summarize(results: list[RunResult], kinds: Sequence[str]) -> dict[str, Any]:
         ratios[kind] = {'ratio_p50': r50, 'ratio_p99': r99, 'per_round': per_round,
                         'pass_p50': r50 <= TARGET_P50, 'pass_p99': r99 <= TARGET_P99,
                         'sustained': nodes[kind]['kept_up']}
+    learning_vs_off: list[dict[str, Any]] = []
+    if 'learning' in kinds and 'feedforward' in kinds:
+        for rnd in sorted({r.round for r in results}):
+            a = next(r for r in results if r.round == rnd and r.kind == 'feedforward')
+            b = next(r for r in results if r.round == rnd and r.kind == 'learning')
+            learning_vs_off.append({'round': rnd, 'ratio_p50': b.p50_us / a.p50_us, 'ratio_p99': b.p99_us / a.p99_us})
+        lf, ff = nodes['learning'], nodes['feedforward']
+        learning_vs_off.append({'round': 'all', 'ratio_p50': lf['p50_us'] / ff['p50_us'],
+                                'ratio_p99': lf['p99_us'] / ff['p99_us']})
     return {'nodes': nodes, 'ratios': ratios, 'target_p50': TARGET_P50, 'target_p99': TARGET_P99,
+            'learning_vs_feedforward': learning_vs_off,
             'disturbed_runs': sum(1 for r in results if r.disturbed)}
 
 
@@ -521,6 +569,8 @@ def print_report(config: dict[str, Any], results: list[RunResult], summary: dict
               f"{verdict(q['pass_p99'])}")
         print(f"{kind}: sustained {config['rate_hz']:g} Hz without falling behind (>= {MIN_RECEIVED:.0%} received, "
               f"last-second median <= first + {config['backlog_ms']:g} ms): {verdict(q['sustained'])}")
+    for pr in summary['learning_vs_feedforward']:
+        print(f"round {pr['round']}: learning on/off p50 {pr['ratio_p50']:.3f}x, p99 {pr['ratio_p99']:.3f}x")
     if summary['disturbed_runs']:
         print(f"note: {summary['disturbed_runs']} run(s) disturbed (> {DISTURBED_LATE:.0%} of sends late: this process "
               'was descheduled by other loads); their p99/max say more about the machine than the node: rerun, or '
@@ -571,6 +621,9 @@ def main(argv: Sequence[str] | None = None) -> int:
                              "node's 1000-deep queue, to show the loss is counted)")
     parser.add_argument('--burst-repeats', type=int, default=3, help='bursts of each size (3)')
     parser.add_argument('--no-drops', action='store_true', help='only the latency rounds')
+    parser.add_argument('--detail-rate', type=float, default=200.0,
+                        help='measured_detail samples per second published in the latency rounds [Hz] (default 200; '
+                        'the learning node learns from them)')
     parser.add_argument('--json', action='store_true', help='print one JSON document instead of the table')
     args = parser.parse_args(argv)
     try:
@@ -587,8 +640,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         parser.error('need --duration >= --warmup + 2 s, --rounds >= 1, --rate > 0')
     kinds = [k.strip() for k in args.nodes.split(',') if k.strip()]
     if 'relay' not in kinds or len(kinds) < 2 or len(set(kinds)) != len(kinds) \
-            or not set(kinds) <= {'relay', 'feedforward'}:
-        parser.error("--nodes: 'relay' and 'feedforward', each once")
+            or not set(kinds) <= set(KINDS):
+        parser.error(f"--nodes: 'relay' and at least one of {', '.join(KINDS[1:])}, each once")
+    if args.detail_rate < 0:
+        parser.error('--detail-rate must be >= 0')
 
     from domain_coordinator import domain_id
 
@@ -610,7 +665,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                     if not args.json:
                         print(f'round {rnd}: {kind} ...', file=sys.stderr, flush=True)
                     results.append(run_once(kind, rnd, did, env, log_dir, args.duration, args.rate, args.warmup,
-                                            args.backlog_ms))
+                                            args.backlog_ms, args.detail_rate))
             drop_runs: list[RunResult] = []
             for rate in drop_rates:
                 for kind in ('relay', 'feedforward'):

@@ -201,6 +201,9 @@ def test_ros_page_documents_every_parameter() -> None:
     for cls in (FeedforwardSettings, FeedforwardNodeSettings, EstimatorSettings, EstimatorNodeSettings,
                 LoggerSettings):
         expected.update({f.name: f.default for f in dataclasses.fields(cls)})
+    from gimbal_friction.config.node_settings import FEEDFORWARD_PREFIXED
+    for prefix, cls in FEEDFORWARD_PREFIXED:
+        expected.update({prefix + f.name: f.default for f in dataclasses.fields(cls)})
 
     def same(documented: str, default: object) -> bool:
         if isinstance(default, bool) or not isinstance(default, (int, float)):

@@ -611,7 +611,12 @@ def node_parameter_specs(node: str) -> list[dict[str, Any]]:
     Raises:
         ConfigError: ``node`` is not an executable of the suite.
     """
-    from gimbal_friction.config.node_settings import EstimatorNodeSettings, FeedforwardNodeSettings, LoggerSettings
+    from gimbal_friction.config.node_settings import (
+        FEEDFORWARD_PREFIXED,
+        EstimatorNodeSettings,
+        FeedforwardNodeSettings,
+        LoggerSettings,
+    )
     from gimbal_friction.estimation.estimator import EstimatorSettings
     from gimbal_friction.feedforward.rule import FeedforwardSettings
     from gimbal_friction.physics.params import parameter_specs
@@ -628,7 +633,10 @@ def node_parameter_specs(node: str) -> list[dict[str, Any]]:
     model.append({'name': 'axis.<joint>.<field>', 'default': None, 'unit': '', 'description': 'override of '
                   'model.<field> for one joint of axes (unset unless given)'})
     if node == 'friction_feedforward':
-        return axes + model + fields(FeedforwardSettings, FeedforwardNodeSettings)
+        prefixed = [{'name': prefix + f.name, 'default': flat.get(prefix + f.name, f.default),
+                     'unit': f.metadata.get('unit', ''), 'description': f.metadata.get('description', '')}
+                    for prefix, cls in FEEDFORWARD_PREFIXED for f in dataclasses.fields(cls)]
+        return axes + model + fields(FeedforwardSettings, FeedforwardNodeSettings) + prefixed
     if node == 'friction_estimator':
         return axes + model + fields(EstimatorSettings, EstimatorNodeSettings)
     if node == 'residual_logger':

@@ -11,6 +11,16 @@ from dataclasses import dataclass
 
 from gimbal_friction.common.errors import ConfigError, check_rules
 from gimbal_friction.common.settings import setting
+from gimbal_friction.feedforward.correction import CorrectionSettings, LearningSettings
+
+#: prefixes of the learned correction's settings and of the in-service learner's among friction_feedforward's
+#: parameters (``correction_max_relative``, ``learning_max_rate_nm_per_min``, ...): (prefix, settings class)
+FEEDFORWARD_PREFIXED: tuple[tuple[str, type], ...] = (('correction_', CorrectionSettings),
+                                                      ('learning_', LearningSettings))
+#: fields of CorrectionSettings that lay out the cells: a learned correction keeps them (a file with other values is
+#: refused; they cannot change while the node runs)
+CORRECTION_LAYOUT = ('temperature_min_c', 'temperature_max_c', 'temperature_bin_c', 'position_bins',
+                     'position_period_rad', 'harmonics')
 
 
 # ---------------------------------------------------------------------------------------------------- node settings
@@ -21,12 +31,39 @@ class FeedforwardNodeSettings:
 
     max_rate_hz: float = setting(0.0, 'Hz', 'publish at most this often; 0 = for every joint-state message')
     diagnostics_period_s: float = setting(1.0, 's', 'period of /diagnostics')
+    correction_file: str = setting('', '-', "learned correction file (YAML) loaded at start and saved to while "
+                                   "learning; '' = none. A corrupt file or one learned against other model "
+                                   'parameters is refused (reason in the log and /diagnostics): the node runs on the '
+                                   'pure model')
+    use_correction: bool = setting(True, '-', 'add the learned correction to the model; false = pure model output at '
+                                   'once (the learned state is kept)')
+    learning_enabled: bool = setting(False, '-', 'learn the correction in service from the accepted samples of '
+                                     '/gimbal/friction/measured_detail')
+    learning_frozen: bool = setting(False, '-', 'freeze learning: the correction stays as it is, samples are not '
+                                    'used')
+    learning_reset: bool = setting(False, '-', 'set true to empty the correction (back to the pure model); the node '
+                                   'sets it back to false')
+    learning_save_period_s: float = setting(60.0, 's', 'while learning, the correction is saved (atomically) this '
+                                            'often and at shutdown')
+    learning_output_file: str = setting('', '-', "where learning saves when correction_file is ''; '' with both "
+                                        'empty = not saved')
+    correction_publish_period_s: float = setting(5.0, 's', 'period of /gimbal/friction/correction')
 
     def validate(self) -> None:
         """Raises ConfigError naming the setting and the rule it breaks."""
         check_rules(self, [
             ('max_rate_hz', 0.0 <= self.max_rate_hz <= 1e6, 'must lie in [0, 1e6] [Hz]'),
             ('diagnostics_period_s', 0.05 <= self.diagnostics_period_s <= 60.0, 'must lie in [0.05, 60] [s]'),
+            ('learning_save_period_s', 0.1 <= self.learning_save_period_s <= 86400.0,
+             'must lie in [0.1, 86400] [s]'),
+            ('correction_publish_period_s', 0.05 <= self.correction_publish_period_s <= 3600.0,
+             'must lie in [0.05, 3600] [s]'),
+            ('correction_file', '\n' not in self.correction_file
+             and self.correction_file == self.correction_file.strip(),
+             "must be a file path without surrounding spaces ('' = none)"),
+            ('learning_output_file', '\n' not in self.learning_output_file
+             and self.learning_output_file == self.learning_output_file.strip(),
+             "must be a file path without surrounding spaces ('' = none)"),
         ])
 
 

@@ -10,7 +10,18 @@ Publishes, for each joint-state message (optionally rate-limited by ``max_rate_h
 - ``/gimbal/friction/feedforward_commands`` (Float64MultiArray): the torques of every configured joint in
   configured order (0 for a joint absent from the message);
 - ``/diagnostics`` (every ``diagnostics_period_s``): per joint, temperature source and age, saturation, rejected
-  inputs.
+  inputs; and ``gimbal_friction/feedforward/learning``: learning off / active / frozen / saturated, samples used and
+  refused by reason, the correction file and its last save (time or error);
+- ``/gimbal/friction/correction`` (diagnostic_msgs/DiagnosticArray, every ``correction_publish_period_s``): the
+  learned correction, one status per joint and one per (joint, direction, temperature bin) with data.
+
+Learning in service (:class:`CorrectionKeeper`): the learned correction
+(:class:`gimbal_friction.feedforward.correction.Correction`, loaded from ``correction_file``) is added to the model.
+With ``learning_enabled`` it is learned from ``/gimbal/friction/measured_detail`` (the samples the estimator
+accepted), in that callback, never in the joint-state path: residual = measured friction − the model along the
+motion (the feedforward's own table and direction factors at the sample's speed and the node's temperature, which
+must be fresh at the sample's stamp). The :class:`~gimbal_friction.feedforward.correction.Learner` gates, bounds and
+rate-limits it; the file is saved atomically every ``learning_save_period_s`` and at shutdown.
 
 The logic is :class:`gimbal_friction.feedforward.rule.Feedforward`, the very object a controller can use in its own
 process and the offline replay runs over a whole bag; the node only converts messages. Times are message stamps
@@ -21,7 +32,10 @@ from __future__ import annotations
 
 import math
 import sys
+import threading
+import time
 from collections.abc import Sequence
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -32,15 +46,26 @@ from rclpy.qos import QoSProfile, qos_profile_sensor_data
 from sensor_msgs.msg import JointState, Temperature
 from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 
-from gimbal_friction.common.errors import ModelDomainError
+from gimbal_friction.common.errors import ConfigError, ModelDomainError
 from gimbal_friction.common.settings import settings_from
-from gimbal_friction.config.node_settings import FeedforwardNodeSettings
+from gimbal_friction.common.xp import SCALAR
+from gimbal_friction.config.node_settings import CORRECTION_LAYOUT, FEEDFORWARD_PREFIXED, FeedforwardNodeSettings
+from gimbal_friction.feedforward.correction import (
+    Correction,
+    CorrectionError,
+    CorrectionSettings,
+    Learner,
+    LearningSettings,
+    ModelIdentity,
+    model_identity,
+)
 from gimbal_friction.feedforward.rule import (
     SOURCE_MEASURED,
     SOURCE_NAMES,
     SOURCE_ZERO,
     Feedforward,
     FeedforwardSettings,
+    model_friction_nm,
 )
 from gimbal_friction.nodes._common import (
     ERROR,
@@ -62,16 +87,171 @@ from gimbal_friction.nodes._common import (
     status,
     subscribe,
 )
+from gimbal_friction.physics.direction import direction_factors
 from gimbal_friction.recording import topics
 from gimbal_friction.streams.inputs import effective_time
+from gimbal_friction.streams.measurement import MEASUREMENT_FIELDS, METHOD_NAMES
 
 REFERENCE_VELOCITY = topics.REFERENCE_VELOCITY
+#: the learned correction (diagnostic_msgs/DiagnosticArray): one status per joint and per cell with data
+CORRECTION = '/gimbal/friction/correction'
 #: subscription depth of the joint states: a burst of this many messages is buffered, not dropped
 JOINT_STATE_DEPTH = 1000
 NodeSettings = FeedforwardNodeSettings  # the node-level parameters (gimbal_friction.common.settings)
 
 _FF_FIELDS = field_names(FeedforwardSettings)
 _NODE_FIELDS = field_names(NodeSettings)
+_CORRECTION_PREFIX, _LEARNING_PREFIX = (prefix for prefix, _ in FEEDFORWARD_PREFIXED)
+_CORRECTION_FIELDS = frozenset(_CORRECTION_PREFIX + n for n in field_names(CorrectionSettings))
+_LEARNING_FIELDS = frozenset(_LEARNING_PREFIX + n for n in field_names(LearningSettings))
+#: columns of measured_detail the learning reads (the layout of gimbal_friction.streams.measurement; read by index:
+#: from_detail's arrays cost ~100 us a message, this ~1 us)
+_STAMP_SEC, _STAMP_NANOSEC, _POSITION, _VELOCITY, _FRESH, _FRICTION, _METHOD = (
+    MEASUREMENT_FIELDS.index(f) for f in ('stamp_sec', 'stamp_nanosec', 'position_rad', 'velocity_rad_s',
+                                          'temperature_fresh', 'friction_nm', 'method'))
+
+
+def prefixed_settings(cls: type[Any], prefix: str, values: dict[str, Any], base: Any = None) -> Any:
+    """Settings of ``cls`` from parameters named ``prefix + field``; a ConfigError names the parameter."""
+    try:
+        return settings_from(cls, {k[len(prefix):]: v for k, v in values.items()}, base)
+    except ConfigError as err:
+        raise ConfigError(prefix + err.parameter, err.rule, err.value) from None
+
+
+def model_along_nm(ff: Feedforward, joint: str, velocity_rad_s: float, temperature_c: float) -> float:
+    """The model friction of ``joint`` signed like the motion, sign(v) k_dir(T) M(T, |v|) [N·m], at
+    ``velocity_rad_s`` [rad/s] and ``temperature_c`` [°C]: the feedforward's own table, direction factors and
+    :func:`~gimbal_friction.feedforward.rule.model_friction_nm` (what the learned correction is added to), without
+    the smooth sign and the clamp."""
+    terms = ff.tables[joint].temperature_terms(temperature_c, SCALAR)
+    along: float = model_friction_nm(terms, *direction_factors(ff.axes[joint], temperature_c, SCALAR),
+                                     velocity_rad_s, SCALAR)
+    return along if velocity_rad_s >= 0.0 else -along
+
+
+class CorrectionKeeper:
+    """The node's learned correction: loaded, learned, saved (no rclpy: the node calls it).
+
+    ``identity`` is the model the correction belongs to, ``settings`` the correction's parameters (a file keeps its
+    cells but takes the parameters' bound, prior and gate; a file with another cell layout is refused).
+    :attr:`load_error` holds the one-line reason a file was refused (the node then runs on an empty correction =
+    the pure model, and never overwrites that file while it exists).
+    """
+
+    def __init__(self, identity: ModelIdentity, settings: CorrectionSettings, learning: LearningSettings) -> None:
+        self.identity, self.settings = identity, settings
+        self.learner = Learner(Correction(settings, identity), learning)
+        self.load_error: str | None = None
+        self.loaded_from: str | None = None
+        self._refused_path: str | None = None
+        self.dirty = False                         #: changed since the last save
+        self.saves = 0                             #: files written [-]
+        self.last_save_time: float | None = None   #: wall-clock time of the last save [s since the epoch]
+        self.last_save_path = ''
+        self.last_save_error: str | None = None
+        self._writer: threading.Thread | None = None
+
+    @property
+    def correction(self) -> Correction:
+        return self.learner.correction
+
+    def read(self, path: str) -> Correction:
+        """The correction in ``path`` for this model and cell layout, with this keeper's settings.
+
+        Raises:
+            CorrectionError: one line naming the file, the cause and the fix.
+        """
+        c = Correction.load(path, expected=self.identity)
+        for name in CORRECTION_LAYOUT:
+            have, want = getattr(c.settings, name), getattr(self.settings, name)
+            if have != want:
+                raise CorrectionError(f'correction file {path}: {name} is {have!r}, the parameter '
+                                      f'{_CORRECTION_PREFIX}{name} is {want!r}: set the parameter to match or '
+                                      'delete the file')
+        return self.adopt(c)
+
+    def adopt(self, c: Correction) -> Correction:
+        """``c`` with this keeper's settings (its sums and applied values kept)."""
+        if c.settings == self.settings:
+            return c
+        out = Correction(self.settings, c.identity)
+        for name in ('count', 'sum_nm', 'sum_sq_nm2', 'sum_model_nm', 'values_nm'):
+            setattr(out, name, getattr(c, name))
+        out._rebuild()
+        return out
+
+    def start(self, path: str) -> None:
+        """At start-up: load ``path`` if it exists ('' or absent: an empty correction). A refused file leaves the
+        correction empty with :attr:`load_error` set; nothing raises."""
+        if not path or not Path(path).exists():
+            return
+        try:
+            self.replace(self.read(path))
+            self.loaded_from = path
+        except CorrectionError as err:
+            self.load_error, self._refused_path = str(err), path
+
+    def replace(self, c: Correction) -> None:
+        """Learn on from ``c`` (learner state and counters kept)."""
+        self.learner.correction = c
+        self.load_error = self._refused_path = None
+
+    def set_settings(self, settings: CorrectionSettings) -> None:
+        """New bound, prior or gate (same layout): the learned sums are kept, the targets follow."""
+        self.settings = settings
+        self.learner.correction = self.adopt(self.correction)
+
+    def set_identity(self, identity: ModelIdentity) -> bool:
+        """The model changed: a correction learned against the old one does not apply; start empty. True if it
+        held something."""
+        if identity == self.identity:
+            return False
+        had = bool(self.correction.summary()['samples']) or self.load_error is not None
+        self.identity = identity
+        self.learner.correction = Correction(self.settings, identity)
+        self.load_error = self._refused_path = self.loaded_from = None
+        self.dirty = True
+        return had
+
+    def save(self, path: str, background: bool = False) -> bool:
+        """Save atomically to ``path`` if something changed; True if a save was made (or, with ``background``,
+        started: a copy is written by a thread, so the disk's fsync never delays the feedforward; a save still
+        running is not started twice). A failure (or a file refused at load, never overwritten while it exists) is
+        kept in :attr:`last_save_error`."""
+        if not path or not self.dirty:
+            return False
+        if self._refused_path is not None and Path(path).resolve() == Path(self._refused_path).resolve() \
+                and Path(path).exists():
+            self.last_save_error = (f'not saved: {path} was refused at load and is not overwritten; delete it or '
+                                    'set another file')
+            return False
+        if self._writer is not None and self._writer.is_alive():
+            if background:
+                return False
+            self._writer.join()
+        self.dirty = False
+        if not background:
+            return self._write(self.correction, path)
+        self._writer = threading.Thread(target=self._write, args=(self.learner.snapshot(), path),
+                                        name='correction_save', daemon=True)
+        self._writer.start()
+        return True
+
+    def _write(self, c: Correction, path: str) -> bool:
+        try:
+            c.save(path)
+        except CorrectionError as err:
+            self.last_save_error, self.dirty = str(err), True
+            return False
+        self.saves, self.last_save_error = self.saves + 1, None
+        self.last_save_time, self.last_save_path = time.time(), path
+        return True
+
+    def wait(self) -> None:
+        """Wait for a background save to finish."""
+        if self._writer is not None:
+            self._writer.join()
 
 
 class FrictionFeedforward(Node):
@@ -82,8 +262,17 @@ class FrictionFeedforward(Node):
         self.model = ModelParameters(self)
         ff_settings = declare_settings(self, FeedforwardSettings)
         self.settings = declare_settings(self, NodeSettings)
-        self.ff = self._build(self.model.current(), ff_settings, startup=True)
-        self._candidate: tuple[Feedforward | None, NodeSettings] | None = None
+        correction_settings = declare_settings(self, CorrectionSettings, _CORRECTION_PREFIX)
+        learning_settings = declare_settings(self, LearningSettings, _LEARNING_PREFIX)
+        axes = self.model.current()
+        self.ff = self._build(axes, ff_settings, startup=True)
+        self.keeper = CorrectionKeeper(model_identity(axes), correction_settings, learning_settings)
+        self.keeper.start(self.settings.correction_file)
+        self.keeper.learner.freeze(self.settings.learning_frozen)
+        self._refused: dict[str, int] = {}  #: measured_detail messages not usable, per reason
+        self._logged_save_error: str | None = None
+        self._use_correction()
+        self._candidate: tuple[Feedforward | None, NodeSettings, dict[str, Any]] | None = None
         self._last_publish = -math.inf
         self._last_time_s = math.nan
         self._last_source = SOURCE_MEASURED
@@ -103,10 +292,32 @@ class FrictionFeedforward(Node):
         subscribe(self, self.inputs, JointState, topics.JOINT_STATES, self.on_joint_state,
                   QoSProfile(depth=JOINT_STATE_DEPTH))
         subscribe(self, self.inputs, JointState, REFERENCE_VELOCITY, self.on_reference, qos)
+        self.pub_correction = self.create_publisher(DiagnosticArray, CORRECTION, 10)
+        subscribe(self, self.inputs, Float64MultiArray, topics.MEASURED_DETAIL, self.on_measured_detail,
+                  QoSProfile(depth=JOINT_STATE_DEPTH))
         self._diag_timer = self.create_timer(self.settings.diagnostics_period_s, self.publish_diagnostics)
+        self._save_timer = self.create_timer(self.settings.learning_save_period_s, self.save_correction)
+        self._correction_timer = self.create_timer(self.settings.correction_publish_period_s,
+                                                   self.publish_correction)
+        self._step_timer = self.create_timer(learning_settings.step_period_s, self.step_learning)
+        self._reset_timer: Any = None
         parameter_guard(self, self._validate_params, self._apply_params)
+        if self.settings.learning_reset:
+            self.reset_learning()
         self.get_logger().info(f'friction_feedforward: joints {", ".join(self.model.axes)}, model table '
                                f'{ff_settings.temperature_min_c:g}..{ff_settings.temperature_max_c:g} degC')
+        k = self.keeper
+        if k.load_error is not None:
+            self.get_logger().error(f'{k.load_error} (running on the pure model)')
+        elif k.loaded_from is not None:
+            summary = k.correction.summary()
+            self.get_logger().info(f'correction loaded from {k.loaded_from}: {summary["cells_with_data"]} cells, '
+                                   f'{summary["samples"]} samples')
+        if self.settings.learning_enabled:   # (the file module and YAML imported now, not by the first save)
+            import gimbal_friction.feedforward.correction_file  # noqa: F401
+        if self.settings.learning_enabled and not self._save_path():
+            self.get_logger().warning('learning_enabled without correction_file or learning_output_file: what is '
+                                      'learned is lost at shutdown')
 
     # ------------------------------------------------------------------ parameters
     def _build(self, axes: dict[str, Any], settings: FeedforwardSettings, startup: bool = False) -> Feedforward:
@@ -122,27 +333,184 @@ class FrictionFeedforward(Node):
             raise startup_model_error(self, err, defaults) from None
 
     def _validate_params(self, params: list[Parameter[Any]]) -> None:
-        """Build the whole new feedforward (model tables included) from the proposed values; kept for apply."""
-        model, ff, node = split_parameters(params, _FF_FIELDS, _NODE_FIELDS)
+        """Build the whole new feedforward (model tables included) from the proposed values, and the correction
+        settings or file; kept for apply."""
+        model, ff, node, corr, learn = split_parameters(params, _FF_FIELDS, _NODE_FIELDS, _CORRECTION_FIELDS,
+                                                        _LEARNING_FIELDS)
         axes = self.model.current(model)
         ff_settings = settings_from(FeedforwardSettings, ff, self.ff.settings)
         node_settings = settings_from(NodeSettings, node, self.settings)
+        k = self.keeper
+        extra: dict[str, Any] = {}
+        if corr:
+            cs = prefixed_settings(CorrectionSettings, _CORRECTION_PREFIX, corr, k.settings)
+            for name in CORRECTION_LAYOUT:
+                if getattr(cs, name) != getattr(k.settings, name):
+                    raise ConfigError(_CORRECTION_PREFIX + name, 'lays out the learned cells and cannot change while '
+                                      'the node runs: restart with it (and an empty or matching correction file)',
+                                      getattr(cs, name))
+            extra['correction'] = cs
+        if learn:
+            extra['learning'] = prefixed_settings(LearningSettings, _LEARNING_PREFIX, learn, k.learner.settings)
+        path = node_settings.correction_file
+        if path != self.settings.correction_file and path and Path(path).exists():
+            probe = CorrectionKeeper(model_identity(axes), extra.get('correction', k.settings), k.learner.settings)
+            extra['file'] = probe.read(path)   # CorrectionError refuses the change with its one line
         candidate = self._build(axes, ff_settings) if (model or ff) else None
-        self._candidate = (candidate, node_settings)
+        if model:
+            extra['identity'] = model_identity(axes)
+        self._candidate = (candidate, node_settings, extra)
 
     def _apply_params(self, params: list[Parameter[Any]]) -> None:
         if self._candidate is None:
             return
-        candidate, node_settings = self._candidate
+        candidate, node_settings, extra = self._candidate
         self._candidate = None
+        log = self.get_logger()
         if candidate is not None:
             candidate.take_state(self.ff)
             self.ff = candidate
-            self.get_logger().info('feedforward rebuilt with the new parameters')
+            log.info('feedforward rebuilt with the new parameters')
+        k = self.keeper
+        if 'identity' in extra and k.set_identity(extra['identity']):
+            log.warning('model parameters changed: the learned correction belonged to the old model; it starts '
+                        'empty (the file is rewritten at the next save)')
+        if 'correction' in extra:
+            k.set_settings(extra['correction'])
+        if 'learning' in extra:
+            old_step = k.learner.settings.step_period_s
+            k.learner.settings = extra['learning']
+            self._step_timer = retime(self, self._step_timer, old_step, extra['learning'].step_period_s,
+                                      self.step_learning)
+        if 'file' in extra:
+            k.replace(extra['file'])
+            k.loaded_from = node_settings.correction_file
+            log.info(f'correction loaded from {node_settings.correction_file}')
         old = self.settings
         self.settings = node_settings
+        k.learner.freeze(node_settings.learning_frozen)
+        if node_settings.learning_reset and not old.learning_reset:
+            self.reset_learning()
+        self._use_correction()
         self._diag_timer = retime(self, self._diag_timer, old.diagnostics_period_s,
                                   node_settings.diagnostics_period_s, self.publish_diagnostics)
+        self._save_timer = retime(self, self._save_timer, old.learning_save_period_s,
+                                  node_settings.learning_save_period_s, self.save_correction)
+        self._correction_timer = retime(self, self._correction_timer, old.correction_publish_period_s,
+                                        node_settings.correction_publish_period_s, self.publish_correction)
+
+    # ------------------------------------------------------------------ learning
+    def _use_correction(self) -> None:
+        """Give the feedforward the learned correction (use_correction) or none (the pure model)."""
+        use = self.settings.use_correction
+        self.ff.set_correction(self.keeper.correction if use else None)
+        self._positions = use and self.keeper.settings.position_bins > 0
+
+    def _save_path(self) -> str:
+        return self.settings.correction_file or self.settings.learning_output_file
+
+    def reset_learning(self) -> None:
+        """``learning_reset``: an empty correction at once (saved at the next save), then the parameter is set
+        back to false."""
+        self.keeper.learner.reset()
+        self.keeper.dirty = True
+        self.get_logger().info('learned correction reset: the feedforward is the pure model')
+
+        def set_back() -> None:
+            if self._reset_timer is not None:
+                self._reset_timer.cancel()
+                self.destroy_timer(self._reset_timer)
+                self._reset_timer = None
+            self.set_parameters([Parameter('learning_reset', value=False)])
+
+        if self._reset_timer is None:
+            self._reset_timer = self.create_timer(0.01, set_back)
+
+    def on_measured_detail(self, msg: Float64MultiArray) -> None:
+        """One sample the estimator accepted: learned (if learning is on) against the model at the node's
+        temperature for the sample's stamp."""
+        if not self.settings.learning_enabled:
+            return
+        label = msg.layout.dim[0].label if msg.layout.dim else ''
+        if len(msg.data) != len(MEASUREMENT_FIELDS) or not label:
+            self._refuse(f'measured_detail not of {len(MEASUREMENT_FIELDS)} values with a joint label')
+            return
+        if label not in self.ff.axes:
+            self._refuse('unknown joint')
+            return
+        d = msg.data
+        if d[_METHOD] not in METHOD_NAMES:
+            self._refuse('unknown method')
+            return
+        # (a non-finite or absurd stamp is never fresh: refused by the gate as a stale temperature)
+        self.learn(label, d[_STAMP_SEC] + 1e-9 * d[_STAMP_NANOSEC], d[_VELOCITY], d[_POSITION], d[_FRICTION],
+                   d[_FRESH] != 0.0)
+
+    def learn(self, joint: str, stamp_s: float, velocity_rad_s: float, position_rad: float, friction_nm: float,
+              estimator_fresh: bool) -> str | None:
+        """Learn one measured friction [N·m] (signed like the motion) of ``joint`` at ``stamp_s`` [s]; the reason
+        if the learner refused it."""
+        temperature, source = self.ff.temperature(effective_time(stamp_s, self._now_s()))
+        fresh = bool(estimator_fresh) and source == SOURCE_MEASURED
+        if fresh and math.isfinite(velocity_rad_s):
+            model = model_along_nm(self.ff, joint, velocity_rad_s, temperature)
+            residual = friction_nm - model
+        else:  # refused by the learner's gate (stale temperature; non-finite velocity): no model needed
+            model, residual = 0.0, friction_nm
+            temperature = temperature if math.isfinite(temperature) else 0.0   # (zero policy: NaN)
+        k = self.keeper
+        reason = k.learner.update(joint, temperature, velocity_rad_s, position_rad, residual, model, self._now_s(),
+                                  temperature_fresh=fresh)
+        if reason is None:
+            k.dirty = True
+        return reason
+
+    def step_learning(self) -> None:
+        if self.settings.learning_enabled and self.keeper.learner.step(self._now_s()):
+            self.keeper.dirty = True
+
+    def save_correction(self, background: bool = True) -> None:
+        """Save the correction if it changed (atomic, by a thread; errors in /diagnostics and the log)."""
+        k = self.keeper
+        if k.last_save_error is not None and k.last_save_error != self._logged_save_error:
+            self.get_logger().error(k.last_save_error)   # (the previous save's, written by its thread)
+        self._logged_save_error = k.last_save_error
+        k.save(self._save_path(), background=background)
+
+    def close(self) -> None:
+        """At shutdown (SIGINT/SIGTERM): save what was learned (waiting for it)."""
+        self.save_correction(background=False)
+        self.keeper.wait()
+        if self.keeper.last_save_error is not None:
+            self.get_logger().error(self.keeper.last_save_error)
+        elif self.keeper.saves:
+            self.get_logger().info(f'correction saved to {self.keeper.last_save_path}')
+
+    def _refuse(self, reason: str) -> None:
+        self._refused[reason] = self._refused.get(reason, 0) + 1
+
+    def learning_state(self) -> str:
+        """``off``, or the learner's state (``active``, ``frozen``, ``saturated``)."""
+        return self.keeper.learner.state if self.settings.learning_enabled else 'off'
+
+    def publish_correction(self) -> None:
+        """``/gimbal/friction/correction``: per joint its summary, then one status per cell with data."""
+        k = self.keeper
+        learner, state = k.learner, self.learning_state()
+        summary = learner.correction.summary()
+        statuses = []
+        for joint in k.identity.joints:
+            js = summary['joints'][joint]
+            level = WARN if js['saturated_cells'] else OK
+            statuses.append(status(f'gimbal_friction/correction/{joint}', level, state, joint, {
+                'state': state, 'in_use': self.settings.use_correction, **js,
+                'file': k.loaded_from or self._save_path() or 'none'}))
+            for rec in learner.cells(joint):
+                name = f'gimbal_friction/correction/{joint}/{rec["direction"]}/{rec["centre_c"]:g}'
+                values = {key: rec[key] for key in ('value_nm', 'samples', 'mean_nm', 'centre_c', 'state')}
+                values['std_error_nm'] = rec['std_error_nm'] if rec['std_error_nm'] is not None else 'none'
+                statuses.append(status(name, WARN if rec['saturated'] else OK, rec['state'], joint, values))
+        self.pub_correction.publish(diagnostic_array(self, statuses))
 
     # ------------------------------------------------------------------ callbacks
     def _now_s(self) -> float:
@@ -177,7 +545,8 @@ class FrictionFeedforward(Node):
         # the receive time is needed only for an unstamped message (reading the clock costs a few µs)
         time_s = effective_time(stamp_s, self._now_s() if stamp_s == 0.0 else 0.0)
         names = list(msg.name)
-        out = self.ff.message(names, list(msg.velocity), time_s)
+        # the position only for a correction with a position map (a list conversion less per message otherwise)
+        out = self.ff.message(names, list(msg.velocity), time_s, list(msg.position) if self._positions else None)
         self._last_time_s = time_s
         if out is None:
             self._warn('joint_state', 'joint_states message not used (see /diagnostics for the reason)')
@@ -262,7 +631,43 @@ class FrictionFeedforward(Node):
             values.update(errors)
             statuses.append(status(f'gimbal_friction/feedforward/{axis}', level, '; '.join(problems) or 'ok',
                                    axis, values))
+        statuses.append(self._learning_status())
         self.pub_diag.publish(diagnostic_array(self, statuses))
+
+    def _learning_status(self) -> Any:
+        """``gimbal_friction/feedforward/learning``: state, samples used and refused, file, last save."""
+        k = self.keeper
+        learner, state = k.learner, self.learning_state()
+        summary = learner.correction.summary()
+        level, problems = OK, [f'learning {state}']
+        if not self.settings.use_correction:
+            problems.append('correction not used (pure model)')
+        if k.load_error is not None:
+            level = WARN
+            problems.append(k.load_error)
+        if k.last_save_error is not None:
+            level = WARN
+            problems.append(k.last_save_error)
+        if state == 'saturated':
+            level = WARN
+        refused = dict(learner.rejected)
+        for reason, n in self._refused.items():
+            refused[reason] = refused.get(reason, 0) + n
+        values: dict[str, Any] = {
+            'state': state, 'use_correction': self.settings.use_correction,
+            'samples_used': learner.accepted, 'samples_refused': sum(refused.values()),
+            **{f'refused: {r}': n for r, n in sorted(refused.items())},
+            'cells_with_data': summary['cells_with_data'], 'samples_in_correction': summary['samples'],
+            'saturated_cells': summary['saturated_cells'], 'max_abs_correction_nm': summary['max_abs_correction_nm'],
+            'lookup_saturations': summary['lookup_saturations'],
+            'correction_file': self.settings.correction_file or 'none',
+            'loaded_from': k.loaded_from or 'none', 'load_error': k.load_error or 'none',
+            'save_file': self._save_path() or 'none (not saved)', 'saves': k.saves,
+            'last_save_time': (time.strftime('%Y-%m-%dT%H:%M:%SZ', time.gmtime(k.last_save_time))
+                               if k.last_save_time is not None else 'never'),
+            'last_save_error': k.last_save_error or 'none',
+        }
+        return status('gimbal_friction/feedforward/learning', level, '; '.join(problems), 'learning', values)
 
 
 def main(args: Sequence[str] | None = None) -> None:
