@@ -70,7 +70,7 @@ from gimbal_friction.refit.fit import (
     refit_stats,
 )
 from gimbal_friction.refit.logs import AxisData, read_stats
-from gimbal_friction.refit.records import confounding_record, offset_record
+from gimbal_friction.refit.records import refit_record
 
 DEFAULT_FIT = 'walther_a'
 #: ``--fit`` shorthand for both anchors of the direction asymmetry
@@ -276,42 +276,9 @@ def plot_refit(fits: list[AxisRefit], path: Path) -> Path:
 
 
 def _axis_record(f: AxisRefit) -> dict[str, Any]:
-    r = f.result
-    return {
-        'rows': f.data.rows,
-        'skipped_nonfinite': f.data.skipped_nonfinite,
-        'skipped_standstill': f.data.skipped_standstill,
-        'samples': r.n_samples,
-        'samples_dropped': r.n_dropped,
-        'fitted': r.fitted,
-        'base': r.base,
-        'standard_errors': r.standard_errors,
-        'confidence_intervals_95': {k: list(v) for k, v in r.confidence_intervals.items()},
-        'identifiability': {k: {'identifiable': v.identifiable, 'reason': v.reason}
-                            for k, v in r.identifiability.items()},
-        'written': r.refitted,
-        'rms_before_nmm': 1e3 * r.rms_before_nm,
-        'rms_after_nmm': 1e3 * r.rms_after_nm,
-        'viscous_temperatures_c': list(r.viscous_temperatures_c),
-        'viscosity': [{'temperature_c': vi.temperature_c, 'before_cst': vi.before_cst, 'after_cst': vi.after_cst,
-                       'ci95_cst': [vi.low_cst, vi.high_cst]} for vi in r.viscosity],
-        'bins': [{
-            'temperature_c': b.temperature_c, 'temperature_bin_c': b.temperature_bin_c,
-            'direction': 'cw' if b.direction > 0 else 'ccw', 'sign': b.direction, 'speed_rpm': b.speed_rpm,
-            'samples': b.n, 'used': b.used, 'viscous': b.viscous,
-            'measured_mean_nmm': 1e3 * b.measured_mean_nm, 'measured_se_nmm': 1e3 * b.measured_se_nm,
-            'model_before_nmm': 1e3 * b.model_before_nm, 'model_after_nmm': 1e3 * b.model_after_nm,
-            'rms_before_nmm': 1e3 * b.rms_before_nm, 'rms_after_nmm': 1e3 * b.rms_after_nm,
-            'viscosity_before_cst': b.viscosity_before_cst, 'viscosity_after_cst': b.viscosity_after_cst,
-            'friction_after_nmm': 1e3 * b.friction_after_nm,
-        } for b in r.bins],
-        'cost': r.cost,
-        'message': r.message,
-        'fine_bins': r.n_bins,
-        'offset': offset_record(r),
-        'offset_confounding': confounding_record(r),
-        'warnings': list(r.warnings),
-    }
+    """The JSON record of one axis: the rows read and :func:`~gimbal_friction.refit.records.refit_record`."""
+    return {'rows': f.data.rows, 'skipped_nonfinite': f.data.skipped_nonfinite,
+            'skipped_standstill': f.data.skipped_standstill, **refit_record(f.result)}
 
 
 def offset_text(r: RefitResult) -> str:

@@ -95,7 +95,7 @@ from gimbal_friction.common.units import NM_PER_NMM
 from gimbal_friction.estimation.plateaus import plateau_of
 from gimbal_friction.physics.direction import ARRAY, asymmetry_weight, direction_asymmetry, direction_factor
 from gimbal_friction.physics.friction import PALMGREN_THRESHOLD_CST_RPM, viscous_torque_Palmgren_1959
-from gimbal_friction.physics.model import friction_torque
+from gimbal_friction.physics.model import friction_torque, palmgren_threshold_temperature
 from gimbal_friction.physics.params import MODEL_T_MAX_C, MODEL_T_MIN_C, AxisParams
 from gimbal_friction.physics.thermal import radial_coupling
 from gimbal_friction.physics.viscosity import nu_Walther, nu_Walther_fitting_jacobian, walther_abscissa
@@ -659,21 +659,6 @@ def _distinct_viscous_temperatures(pts: _Points, groups: _Groups, upper: NDArray
                           minlength=g.size.shape[0])
     ok = (n_upper >= min_bin_samples) & (n_upper >= 0.5 * g.size)
     return sorted({float(x) for x in g.t_bin[ok]})
-
-
-def palmgren_threshold_temperature(base: AxisParams, speed_rpm: float) -> float:
-    """Temperature [°C] below which ν·n ≥ 2000 at ``speed_rpm`` [rpm] (inverse Walther, Eq. 20/21); NaN if none.
-
-    >>> round(palmgren_threshold_temperature(AxisParams(), 1 / 3), 1)
-    -27.1
-    """
-    nu = PALMGREN_THRESHOLD / speed_rpm
-    try:
-        x = (math.log10(math.log10(nu + base.viscosity_offset_cst)) - base.walther_a) / base.walther_b
-        T = 10.0**x if base.viscosity_model == 'walther' else 10.0 ** (10.0**x)
-    except (ValueError, OverflowError, ZeroDivisionError):
-        return math.nan
-    return float(T) - base.kelvin_offset_k
 
 
 def _check_options(fit: Sequence[str], weights: str, loss: str, bin_width_c: float, offset: str,
