@@ -15,10 +15,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import math
-import os
-import shutil
 import sys
-import tempfile
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -36,6 +33,7 @@ from gimbal_friction.chamber.synth import (
 )
 from gimbal_friction.cli._common import add_common, format_table, print_json, progress, write_text_atomic
 from gimbal_friction.common.errors import ConfigError
+from gimbal_friction.common.files import os_error_text, staged
 from gimbal_friction.config.loader import all_axis_params, load_parameters, render_parameter_file
 from gimbal_friction.physics.params import AxisParams
 from gimbal_friction.recording.errors import RecordingError
@@ -198,30 +196,16 @@ def write_bag(data: SynthData, out: Path, *, storage: str = 'mcap', compression:
         raise ConfigError('--compression', f'must be one of {", ".join(COMPRESSIONS)}', compression)
     if compression == 'zstd' and storage != 'mcap':
         raise ConfigError('--compression', 'zstd is only offered with mcap storage', compression)
-    parent = out.absolute().parent
+    total = sum(data.message_counts().values())
     try:
-        parent.mkdir(parents=True, exist_ok=True)
-        tmp = Path(tempfile.mkdtemp(prefix=f'.{out.name}.', suffix='.partial', dir=parent))
-    except OSError as err:
-        raise RecordingError(f'{out}: cannot create the bag: {err.strerror}') from None
-    try:
-        staged = tmp / out.name
-        total = sum(data.message_counts().values())
-        items = _with_progress(messages(data), total)
-        if compression == 'zstd':
-            _write_zstd_mcap(staged, items)
-        else:
-            write_chamber_bag(staged, items, storage=storage)
-        if replace:
-            if (out / 'metadata.yaml').is_file():
-                shutil.rmtree(out)
+        with staged(out, replace=replace, what='bag', error=RecordingError) as folder:
+            items = _with_progress(messages(data), total)
+            if compression == 'zstd':
+                _write_zstd_mcap(folder, items)
             else:
-                out.rmdir()
-        os.rename(staged, out)
+                write_chamber_bag(folder, items, storage=storage)
     except OSError as err:
-        raise RecordingError(f'{out}: cannot write the bag: {err.strerror or err}') from None
-    finally:
-        shutil.rmtree(tmp, ignore_errors=True)
+        raise RecordingError(f'{out}: cannot write the bag: {os_error_text(err)}') from None
     return _dir_size(out)
 
 
