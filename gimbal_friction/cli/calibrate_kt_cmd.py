@@ -27,6 +27,7 @@ from gimbal_friction.common.errors import ConfigError, FitError, GimbalFrictionE
 from gimbal_friction.config.loader import axis_names, axis_params, load_parameters, render_parameter_file
 from gimbal_friction.estimation.kt import OUTLIER_THRESHOLD, KtFit, fit_kt
 from gimbal_friction.physics.params import AxisParams
+from gimbal_friction.streams.inputs import index_joints
 
 CURRENT_COLUMN = 'current_a'
 TORQUE_COLUMN = 'torque_nm'
@@ -207,13 +208,11 @@ def _append_sample(store: tuple[list[float], list[float], list[float], list[floa
         values.append(float(msg.data))
         vels.append(float('nan'))
         return
-    names = list(msg.name)
-    if axis in names:
-        i = names.index(axis)
-    elif len(msg.effort) == 1:
-        i = 0
-    else:
-        return
+    i = index_joints(list(msg.name), (), (axis,)).position.get(axis)
+    if i is None:
+        if len(msg.effort) != 1:
+            return
+        i = 0   # a one-joint current message under another name
     if i >= len(msg.effort):
         return
     stamps.append(msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9)

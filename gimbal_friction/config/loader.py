@@ -35,6 +35,7 @@ import yaml
 
 from gimbal_friction.common.errors import ConfigError, ConfigFileError
 from gimbal_friction.physics.params import AxisParams
+from gimbal_friction.streams.inputs import unconfigured_joints
 
 WILDCARD = '/**'
 DEFAULTS_RESOURCE = 'gimbal_friction.yaml'
@@ -176,8 +177,9 @@ def axis_params(params: Mapping[str, Any], axis: str) -> AxisParams:
             section (``model.ball_diameter_mm``, ``axis.azimuth.interference_mm``).
     """
     names = axis_names(params)
-    if axis not in names:
-        raise ConfigError('axes', f'axis {axis!r} is not configured (configured: {", ".join(names)})')
+    refused = unconfigured_joints([axis], names)
+    if refused:
+        raise ConfigError('axes', refused)
     model = _flat('model', params.get('model'))
     overrides_all = params.get('axis') or {}
     if not isinstance(overrides_all, Mapping):
@@ -671,7 +673,7 @@ def check_parameter_names(node: str, values: Mapping[str, Any], node_specific: I
             raise ConfigError(name, f'is a parameter of {", ".join(owners)}, not of {node}{origin}', values[name])
         parts = name.split('.')
         if parts[0] == 'axis' and len(parts) == 3 and parts[2] in MODEL_PARAMETERS:
-            rule = f'joint {parts[1]!r} is not configured (axes: {", ".join(axes)}): add it to axes{origin}'
+            rule = f'{unconfigured_joints([parts[1]], axes)}: add it to axes{origin}'
             raise ConfigError(name, rule, values[name])
         close = difflib.get_close_matches(name, sorted(everything), n=1, cutoff=0.75)
         hint = f' (did you mean {close[0]!r}?)' if close else ''

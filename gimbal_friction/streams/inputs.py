@@ -1,5 +1,7 @@
 """Rules about inputs shared by every node and the offline replay, each written once.
 
+- **A joint named by the user must be configured** (:func:`unconfigured_joints`): one error text for every
+  command, node, file and API that takes joint (axis) names.
 - **Which entry of a message is a joint's** (:func:`index_joints`): the first entry naming a configured joint;
   a repeated name, an unknown name and a value array shorter or longer than the name array are counted.
 - **The time of a message** (:func:`effective_time`): its ``header.stamp``; a zero stamp (a driver that does not
@@ -13,6 +15,8 @@
 Live and offline apply the same functions to the same values (times from the message stamps), so a bag replayed
 offline gives what the live nodes gave.
 
+>>> unconfigured_joints(['roll'], ['elevation'])
+"axis 'roll' is not configured (configured: elevation)"
 >>> index_joints(['azimuth', 'elevation', 'elevation'], (3,), ('elevation',))
 JointIndex(position={'elevation': 1}, mismatch=False, unknown=1, duplicate=1)
 >>> effective_time(0.0, 12.5), effective_time(3.0, 12.5)
@@ -42,7 +46,8 @@ J_DUPLICATE = 'duplicate joint name'
 J_NONE = 'no configured joint'
 
 __all__ = ['J_DUPLICATE', 'J_MISMATCH', 'J_NONE', 'J_UNKNOWN', 'SCALAR', 'T_NON_FINITE', 'T_RANGE', 'JointIndex',
-           'effective_time', 'index_joints', 'is_fresh', 'temperature_rejection', 'temperature_valid']
+           'effective_time', 'index_joints', 'is_fresh', 'temperature_rejection', 'temperature_valid',
+           'unconfigured_joints']
 
 
 class JointIndex(NamedTuple):
@@ -52,6 +57,17 @@ class JointIndex(NamedTuple):
     mismatch: bool          #: a value array is not as long as the name array (the message is unusable)
     unknown: int            #: entries naming no configured joint [-]
     duplicate: int          #: later entries repeating a configured joint (ignored) [-]
+
+
+def unconfigured_joints(wanted: Sequence[str], configured: Sequence[str]) -> str | None:
+    """Why joint (axis) names asked for are refused: the rule text naming those not in ``configured`` and the
+    configured ones (None: all configured)."""
+    missing = [name for name in wanted if name not in configured]
+    if not missing:
+        return None
+    names = ', '.join(repr(name) for name in missing)
+    verb = 'axis {} is' if len(missing) == 1 else 'axes {} are'
+    return f'{verb.format(names)} not configured (configured: {", ".join(configured)})'
 
 
 def index_joints(names: Sequence[str], value_lengths: Sequence[int], configured: Sequence[str]) -> JointIndex:

@@ -44,7 +44,7 @@ def test_write_bytes_atomic_names_the_file_and_raises_the_given_error(tmp_path):
     class Mine(GimbalFrictionError):
         pass
 
-    with pytest.raises(Mine, match='^cannot write correction file .*: it is a directory$'):
+    with pytest.raises(Mine, match=r'^cannot write correction file .*: it is a directory$'):
         write_bytes_atomic(tmp_path, b'x', what='correction file', error=Mine)
     write_bytes_atomic(tmp_path / 'f', b'x', fsync=True)
     assert (tmp_path / 'f').read_bytes() == b'x'
