@@ -92,7 +92,7 @@ from gimbal_friction.streams.arrays import (
     chamber_arrays,
     single_message_arrays,
 )
-from gimbal_friction.streams.inputs import effective_time, is_fresh, temperature_valid
+from gimbal_friction.streams.inputs import effective_time, is_fresh, latest_before, temperature_valid
 from gimbal_friction.streams.measurement import METHOD_OBSERVER, METHOD_STEADY_STATE, Measurement, MeasurementArrays
 
 #: accepted joint states kept per joint for currents that arrive late [-]
@@ -456,11 +456,7 @@ class EstimatorLogic:
             self.last_temperature_c, self.last_temperature_time_s = float(t_val[-1]), float(t_time[-1])
 
         def temperature_before(pos: NDArray[np.int64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-            k = np.searchsorted(t_pos, pos, side='left') - 1
-            have = k >= 0
-            kk = np.maximum(k, 0)
-            value = np.where(have, t_val[kk] if t_val.size else 0.0, carried[0])
-            time = np.where(have, t_time[kk] if t_val.size else 0.0, carried[1])
+            value, time = latest_before(t_pos, pos, (t_val, t_time), inclusive=False, carried=carried)
             return value, time
 
         for name in js.names:

@@ -11,6 +11,9 @@
 - **A fresh temperature** (:func:`is_fresh`): the time of the sample that uses it and the time of the temperature
   differ by at most ``temperature_timeout_s`` (either way: a temperature stamped in the future by more than the
   timeout is not fresh either). The temperature used is always the latest valid one received.
+- **The latest valid sample before each event, on arrays** (:func:`latest_before`): the one search of the batch
+  paths (offline estimator, bag feedforward) for "the last valid temperature (reference) received before this
+  joint state", with the value carried from an earlier batch where none precedes.
 
 Live and offline apply the same functions to the same values (times from the message stamps), so a bag replayed
 offline gives what the live nodes gave.
@@ -45,9 +48,23 @@ J_UNKNOWN = 'unknown joint name'
 J_DUPLICATE = 'duplicate joint name'
 J_NONE = 'no configured joint'
 
-__all__ = ['J_DUPLICATE', 'J_MISMATCH', 'J_NONE', 'J_UNKNOWN', 'SCALAR', 'T_NON_FINITE', 'T_RANGE', 'JointIndex',
-           'effective_time', 'index_joints', 'is_fresh', 'temperature_rejection', 'temperature_valid',
-           'unconfigured_joints']
+__all__ = [
+    'J_DUPLICATE',
+    'J_MISMATCH',
+    'J_NONE',
+    'J_UNKNOWN',
+    'SCALAR',
+    'T_NON_FINITE',
+    'T_RANGE',
+    'JointIndex',
+    'effective_time',
+    'index_joints',
+    'is_fresh',
+    'latest_before',
+    'temperature_rejection',
+    'temperature_valid',
+    'unconfigured_joints',
+]
 
 
 class JointIndex(NamedTuple):
@@ -87,6 +104,22 @@ def index_joints(names: Sequence[str], value_lengths: Sequence[int], configured:
         else:
             index[name] = i
     return JointIndex(index, False, unknown, duplicate)
+
+
+def latest_before(keys: NDArray[Any], query: NDArray[Any], values: Sequence[NDArray[np.float64]], *,
+                  inclusive: bool, carried: Sequence[float] | None = None) -> tuple[NDArray[np.float64], ...]:
+    """For each ``query`` key, each of ``values`` at the latest valid sample whose (sorted) key is before it
+    (``inclusive``: at or before it: a sample logged at the same time arrived first); where none is, the
+    ``carried`` value (from an earlier batch; default NaN). Keys: log times [ns] or arrival positions [-].
+
+    >>> latest_before(np.array([10, 20]), np.array([5, 10, 25]), [np.array([1.0, 2.0])], inclusive=True)[0]
+    array([nan,  1.,  2.])
+    """
+    k = np.searchsorted(keys, query, side='right' if inclusive else 'left') - 1
+    have = k >= 0
+    kk = np.maximum(k, 0)
+    fill = [math.nan] * len(values) if carried is None else list(carried)
+    return tuple(np.where(have, v[kk] if v.size else f, f) for v, f in zip(values, fill, strict=True))
 
 
 def effective_time(stamp: Any, arrival: Any) -> Any:
