@@ -14,10 +14,9 @@ from gimbal_friction.common.errors import ConfigFileError
 from gimbal_friction.config.loader import (
     axis_params,
     check_config_files,
-    command_line_parameters,
     load_parameters,
-    ros_parameter_sections,
 )
+from gimbal_friction.config.rcl import command_line_parameters, ros_parameter_sections
 from gimbal_friction.recording.calibration import (
     CALIBRATION_FORMAT_VERSION,
     CALIBRATION_SECTION,

@@ -32,11 +32,10 @@ from gimbal_friction.config.loader import (
     MODEL_PARAMETERS,
     ROS_PARAMETERS,
     check_parameter_names,
-    command_line_parameters,
     node_parameter_names,
-    rcl_scalar,
 )
 from gimbal_friction.config.node_settings import EstimatorNodeSettings, FeedforwardNodeSettings, LoggerSettings
+from gimbal_friction.config.rcl import command_line_parameters, rcl_scalar
 from gimbal_friction.estimation.estimator import EstimatorSettings
 from gimbal_friction.feedforward.rule import FeedforwardSettings
 from gimbal_friction.physics.params import parameter_specs
