@@ -1,4 +1,5 @@
 """Recovery of bags and residual logs that are cut short or damaged: every readable record, in a readable file.
+One job in one module: recovery (MCAP, sqlite3 and folders share the outcome records and the staging rule).
 
 ``gimbal-friction recover IN --out OUT`` (docs/cli.md): IN is a bag folder, a bag file (``.mcap`` or ``.db3``) or a
 residual-log folder or file; OUT is created, of the same kind, readable by the standard readers (rosbags
