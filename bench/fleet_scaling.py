@@ -28,7 +28,7 @@ import numpy as np
 from gimbal_friction.chamber.fleet import FitSettings, discover_units, process_unit, run_fleet
 from gimbal_friction.chamber.replay import replay_bag
 from gimbal_friction.chamber.synth import SynthConfig, generate
-from gimbal_friction.cli.synth_bag_cmd import write_bag
+from gimbal_friction.chamber.synth_bag import write_bag
 from gimbal_friction.config.loader import all_axis_params, load_parameters
 
 OVER_TIGHT, OTHER_GREASE = 7, 13

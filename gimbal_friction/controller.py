@@ -40,6 +40,7 @@ from gimbal_friction.common.settings import settings_from_parameters
 from gimbal_friction.config.loader import all_axis_params, check_config_files, load_parameters
 from gimbal_friction.feedforward.correction import Correction, CorrectionError, model_identity
 from gimbal_friction.feedforward.rule import Feedforward, FeedforwardSettings
+from gimbal_friction.streams.inputs import unconfigured_joints
 
 __all__ = ['Correction', 'CorrectionError', 'Feedforward', 'FeedforwardSettings', 'load_feedforward']
 
@@ -76,10 +77,10 @@ def load_feedforward(*param_files: str | Path, node_name: str = 'friction_feedfo
     whole = model_identity(configured)   # a correction is learned against every configured axis
     if axes is not None:
         wanted = list(axes)
-        missing = [a for a in wanted if a not in configured]
-        if missing:
+        refused = unconfigured_joints(wanted, list(configured))
+        if refused:
             from gimbal_friction.common.errors import ConfigError
-            raise ConfigError('axes', f'not configured: {", ".join(missing)} (configured: {", ".join(configured)})')
+            raise ConfigError('axes', refused)
         configured = {a: configured[a] for a in wanted}
     settings = settings_from_parameters(FeedforwardSettings, load_parameters(paths, node_name=node_name))
     ff = Feedforward(configured, settings)

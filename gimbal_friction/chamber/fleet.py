@@ -205,31 +205,13 @@ def unit_stats_from_bag(path: str, config_paths: Sequence[str], direction: str,
 
 
 def _axis_record(result: RefitResult, base: AxisParams) -> dict[str, Any]:
-    from gimbal_friction.refit.records import confounding_record
+    from gimbal_friction.refit.records import fleet_record
 
     p = result.params
     temps = np.asarray(REPORT_TEMPERATURES_C)
     torque = friction_torque(p, temps, base.speed_rpm).m_total_nmm
-    o = result.offset
-    return {
-        'samples': result.n_samples,
-        'fitted': result.fitted,
-        'standard_errors': result.standard_errors,
-        'ci95': {k: list(v) for k, v in result.confidence_intervals.items()},
-        'identifiable': {k: v.identifiable for k, v in result.identifiability.items()},
-        'reasons': {k: v.reason for k, v in result.identifiability.items() if not v.identifiable},
-        'viscosity_m40_cst': float(viscosity_cst(p, -40.0)),
-        'viscosity': [{'temperature_c': vi.temperature_c, 'after_cst': vi.after_cst,
-                       'ci95_cst': [vi.low_cst, vi.high_cst]} for vi in result.viscosity],
-        'friction_nmm': {f'{t:g}': float(m) for t, m in zip(temps.tolist(), torque.tolist(), strict=True)},
-        'offset': {'estimated': o.estimated, 'value_nmm': 1e3 * o.value_nm, 'se_nmm': 1e3 * o.standard_error_nm,
-                   'ci95_nmm': [1e3 * x for x in o.confidence_interval_nm], 'reason': o.reason,
-                   'exceeds_calibration': o.exceeds_calibration},
-        'rms_before_nmm': 1e3 * result.rms_before_nm,
-        'rms_after_nmm': 1e3 * result.rms_after_nm,
-        'offset_confounding': confounding_record(result),
-        'warnings': list(result.warnings),
-    }
+    return fleet_record(result, float(viscosity_cst(p, -40.0)),
+                        {f'{t:g}': float(m) for t, m in zip(temps.tolist(), torque.tolist(), strict=True)})
 
 
 def process_unit(unit: UnitSpec, settings: FitSettings) -> dict[str, Any]:

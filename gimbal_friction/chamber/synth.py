@@ -1,4 +1,6 @@
 """Synthetic chamber test following the paper's protocol (Yu & Shang 2017, Sec. 6): pure numpy, no file I/O.
+One job in one module: the generator (schedule, temperatures, motion and currents follow one seeded state); writing
+the bag is :mod:`gimbal_friction.chamber.synth_bag`.
 
 The test the paper ran, and what is generated here:
 

@@ -6,50 +6,36 @@ with the topics ``/gimbal/calibration/current`` and ``/gimbal/calibration/torque
 effort of the axis joint, or ``std_msgs/msg/Float64``), paired by nearest stamp. The fit is
 :func:`gimbal_friction.estimation.kt.fit_kt`. The output is a layerable parameter file holding
 ``axis.<NAME>.torque_constant_nm_per_a`` and ``axis.<NAME>.no_load_current_a``, written only when the fit is
-accepted (atomically, so a refused or failed run leaves an existing file untouched).
+accepted (atomically, so a refused or failed run leaves an existing file untouched), and the result as data in its
+``gimbal_friction_calibration`` section (format version 1, read by ``refit --calibration``; ignored by the nodes).
+The reading, the fit and the format live in :mod:`gimbal_friction.recording.calibration`; this module parses the
+options, prints and draws.
 """
 
 from __future__ import annotations
 
 import argparse
-import csv
 import datetime as dt
 import hashlib
 import sys
 from pathlib import Path
-from typing import Any, NamedTuple
+from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
 
 from gimbal_friction.cli._common import add_common, format_table, print_json, refuse_existing, write_text_atomic
-from gimbal_friction.common.errors import ConfigError, FitError, GimbalFrictionError
+from gimbal_friction.common.errors import GimbalFrictionError
 from gimbal_friction.config.loader import axis_names, axis_params, load_parameters, render_parameter_file
-from gimbal_friction.estimation.kt import OUTLIER_THRESHOLD, KtFit, fit_kt
-from gimbal_friction.physics.params import AxisParams
-
-CURRENT_COLUMN = 'current_a'
-TORQUE_COLUMN = 'torque_nm'
-SPEED_COLUMN = 'speed_rad_s'
-REQUIRED_COLUMNS = (CURRENT_COLUMN, TORQUE_COLUMN)
-
-#: bag topics of a calibration run
-CURRENT_TOPIC = '/gimbal/calibration/current'
-TORQUE_TOPIC = '/gimbal/calibration/torque'
-JOINT_STATE_TYPE = 'sensor_msgs/msg/JointState'
-FLOAT64_TYPE = 'std_msgs/msg/Float64'
-#: largest stamp difference of a (torque, current) pair read from a bag [s]
-DEFAULT_MAX_DT_S = 0.05
-
-
-class CalibrationData(NamedTuple):
-    """Calibration points read from a file: current [A], torque [N*m], optional speed [rad/s], provenance."""
-
-    current_a: NDArray[np.float64]
-    torque_nm: NDArray[np.float64]
-    speed_rad_s: NDArray[np.float64] | None
-    rows: list[int]          # CSV line number (or 1-based pair index for a bag) of every point
-    kind: str                # 'csv' or 'bag'
+from gimbal_friction.estimation.kt import OUTLIER_THRESHOLD, KtFit
+from gimbal_friction.recording.calibration import (
+    CURRENT_TOPIC,
+    DEFAULT_MAX_DT_S,
+    TORQUE_TOPIC,
+    CalibrationData,
+    calibrate,
+    calibration_record,
+    calibration_section_text,
+)
 
 
 def add_parser(sub: Any) -> None:
@@ -73,153 +59,6 @@ def add_parser(sub: Any) -> None:
                         help=f'bag input: largest stamp difference of a current/torque pair [s] '
                         f'(default {DEFAULT_MAX_DT_S:g})')
     parser.set_defaults(func=run)
-
-
-# ---------------------------------------------------------------------------------------------- reading input
-def _is_bag(path: Path) -> bool:
-    return path.is_dir() or path.suffix in ('.mcap', '.db3')
-
-
-def read_csv(path: Path) -> CalibrationData:
-    """Read a calibration CSV (header row; ``#`` comment lines and blank lines skipped).
-
-    Raises:
-        FitError: unreadable file, missing column (named), or a non-numeric cell (row and column named).
-    """
-    try:
-        with path.open(newline='', encoding='utf-8-sig') as f:
-            return _parse_csv(path, csv.reader(f))
-    except OSError as err:
-        msg = f'{path}: cannot read: {err.strerror}'
-        raise FitError(msg) from None
-    except (csv.Error, UnicodeDecodeError) as err:
-        msg = f'{path}: not a readable CSV file: {err}'
-        raise FitError(msg) from None
-
-
-def _parse_csv(path: Path, reader: Any) -> CalibrationData:
-    header: list[str] | None = None
-    for row in reader:
-        if row and not row[0].lstrip().startswith('#') and any(c.strip() for c in row):
-            header = [c.strip() for c in row]
-            break
-    if header is None:
-        msg = f'{path}: empty file: expected a header row {",".join(REQUIRED_COLUMNS)}'
-        raise FitError(msg)
-    for col in REQUIRED_COLUMNS:
-        if col not in header:
-            msg = f'{path}: missing column {col!r} (header: {", ".join(header)})'
-            raise FitError(msg)
-    wanted = [c for c in (*REQUIRED_COLUMNS, SPEED_COLUMN) if c in header]
-    for col in wanted:
-        if header.count(col) > 1:
-            msg = f'{path}: column {col!r} appears more than once in the header'
-            raise FitError(msg)
-    index = {c: header.index(c) for c in wanted}
-    values: dict[str, list[float]] = {c: [] for c in wanted}
-    lines: list[int] = []
-    data_row = 0
-    for row in reader:
-        if not row or not any(c.strip() for c in row) or row[0].lstrip().startswith('#'):
-            continue
-        data_row += 1
-        where = f'{path}: row {data_row} (line {reader.line_num})'
-        for col, i in index.items():
-            if i >= len(row) or not row[i].strip():
-                msg = f'{where}, column {col!r}: empty cell'
-                raise FitError(msg)
-            cell = row[i].strip()
-            try:
-                values[col].append(float(cell))
-            except ValueError:
-                msg = f'{where}, column {col!r}: {cell!r} is not a number'
-                raise FitError(msg) from None
-        lines.append(reader.line_num)
-    speed = np.asarray(values[SPEED_COLUMN]) if SPEED_COLUMN in values else None
-    return CalibrationData(np.asarray(values[CURRENT_COLUMN]), np.asarray(values[TORQUE_COLUMN]), speed, lines,
-                           'csv')
-
-
-def read_bag(path: Path, axis: str, max_dt_s: float = DEFAULT_MAX_DT_S) -> CalibrationData:
-    """Read calibration pairs from a bag: each torque sample with the nearest current sample within ``max_dt_s``.
-
-    Stamps are the header stamps when both topics are ``JointState``, else the log times. Speed is the
-    ``velocity`` of the current ``JointState`` when every paired sample has one.
-
-    Raises:
-        FitError: unreadable bag, missing topic, unsupported message type, or no pairs.
-    """
-    from rosbags.highlevel import AnyReader
-    from rosbags.typesys import Stores, get_typestore
-
-    series: dict[str, tuple[list[float], list[float], list[float], list[float]]] = {}
-    try:
-        with AnyReader([path], default_typestore=get_typestore(Stores.LATEST)) as reader:
-            conns = {c.topic: c for c in reader.connections}
-            missing = [t for t in (CURRENT_TOPIC, TORQUE_TOPIC) if t not in conns]
-            if missing:
-                msg = (f'{path}: bag has no topic {", ".join(missing)} (topics: '
-                       f'{", ".join(sorted(conns)) or "none"})')
-                raise FitError(msg)
-            for topic in (CURRENT_TOPIC, TORQUE_TOPIC):
-                if conns[topic].msgtype not in (JOINT_STATE_TYPE, FLOAT64_TYPE):
-                    msg = (f'{path}: topic {topic} has type {conns[topic].msgtype}, expected {JOINT_STATE_TYPE} '
-                           f'or {FLOAT64_TYPE}')
-                    raise FitError(msg)
-                series[topic] = ([], [], [], [])
-            for conn, log_ns, raw in reader.messages(connections=[conns[CURRENT_TOPIC], conns[TORQUE_TOPIC]]):
-                msg_obj = reader.deserialize(raw, conn.msgtype)
-                _append_sample(series[conn.topic], msg_obj, conn.msgtype, axis, log_ns)
-            header_stamps = all(conns[t].msgtype == JOINT_STATE_TYPE for t in (CURRENT_TOPIC, TORQUE_TOPIC))
-    except FitError:
-        raise
-    except Exception as err:  # rosbags raises several unrelated types (AnyReaderError, ReaderError, OSError)
-        msg = f'{path}: cannot read bag: {err}'
-        raise FitError(msg) from None
-    c_stamp, c_log, c_val, c_vel = (np.asarray(v) for v in series[CURRENT_TOPIC])
-    t_stamp, t_log, t_val, _ = (np.asarray(v) for v in series[TORQUE_TOPIC])
-    if c_val.size == 0 or t_val.size == 0:
-        msg = f'{path}: no samples for joint {axis!r} on {CURRENT_TOPIC} and {TORQUE_TOPIC}'
-        raise FitError(msg)
-    ct, tt = (c_stamp, t_stamp) if header_stamps else (c_log, t_log)
-    order = np.argsort(ct, kind='stable')
-    ct, c_val, c_vel = ct[order], c_val[order], c_vel[order]
-    j = np.clip(np.searchsorted(ct, tt), 1, max(ct.size - 1, 1))
-    left = np.clip(j - 1, 0, ct.size - 1)
-    right = np.clip(j, 0, ct.size - 1)
-    nearest = np.where(np.abs(ct[left] - tt) <= np.abs(ct[right] - tt), left, right)
-    ok = np.abs(ct[nearest] - tt) <= max_dt_s
-    if not ok.any():
-        msg = f'{path}: no torque sample has a current sample within {max_dt_s:g} s'
-        raise FitError(msg)
-    idx = nearest[ok]
-    vel = c_vel[idx]
-    speed = vel if np.all(np.isfinite(vel)) else None
-    return CalibrationData(c_val[idx], t_val[ok], speed, list(range(1, int(ok.sum()) + 1)), 'bag')
-
-
-def _append_sample(store: tuple[list[float], list[float], list[float], list[float]], msg: Any, msgtype: str,
-                   axis: str, log_ns: int) -> None:
-    stamps, logs, values, vels = store
-    if msgtype == FLOAT64_TYPE:
-        stamps.append(log_ns * 1e-9)
-        logs.append(log_ns * 1e-9)
-        values.append(float(msg.data))
-        vels.append(float('nan'))
-        return
-    names = list(msg.name)
-    if axis in names:
-        i = names.index(axis)
-    elif len(msg.effort) == 1:
-        i = 0
-    else:
-        return
-    if i >= len(msg.effort):
-        return
-    stamps.append(msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9)
-    logs.append(log_ns * 1e-9)
-    values.append(float(msg.effort[i]))
-    vels.append(float(msg.velocity[i]) if i < len(msg.velocity) else float('nan'))
 
 
 # ---------------------------------------------------------------------------------------------- output
@@ -324,33 +163,19 @@ def run(args: argparse.Namespace) -> int:
     base = axis_params(cfg, axis)  # refuses an axis that is not configured
     source: Path = args.input
     out: Path = args.out
-    if not source.exists():
-        msg = f'{source}: no such file or bag'
-        raise FitError(msg)
     if out.exists() and out.resolve() == source.resolve():
         msg = f'--out {out} is the input file; choose another name'
         raise GimbalFrictionError(msg)
     refuse_existing(out, '--out', force=args.force)  # the one rule of every command's outputs
     if args.plot is not None:
         refuse_existing(args.plot, '--plot', force=args.force)
-    if args.max_dt <= 0.0:
-        raise ConfigError('--max-dt', 'must be > 0 [s]', args.max_dt)
-    data = read_bag(source, axis, args.max_dt) if _is_bag(source) else read_csv(source)
-    try:
-        fit = fit_kt(data.current_a, data.torque_nm, data.speed_rad_s)
-    except FitError as err:
-        msg = f'{source}: {err}'
-        raise FitError(msg) from None
-    values = {'torque_constant_nm_per_a': fit.K_T, 'no_load_current_a': fit.I_0}
-    try:
-        AxisParams.from_mapping(values, base=base)
-    except ConfigError as err:
-        msg = f'{source}: fitted value outside the allowed range: {err}'
-        raise FitError(msg) from None
+    cal = calibrate(source, axis, base, args.max_dt)
+    fit, data, values = cal.fit, cal.data, cal.values
     if args.plot is not None:
         plot_fit(fit, data, args.plot, title=f'{axis}: K_T calibration (paper Eq. 23), {source.name}')
     text = render_parameter_file(axes_overrides={axis: values},
                                  header=provenance_header(fit, axis, source, data))
+    text += '\n' + calibration_section_text(calibration_record(cal))
     write_text_atomic(out, text)
 
     if args.format == 'json':

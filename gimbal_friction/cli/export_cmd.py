@@ -22,11 +22,8 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import hashlib
-import os
 import re
-import shutil
 import sys
-import tempfile
 import time
 from datetime import datetime, timezone
 from pathlib import Path
@@ -35,6 +32,7 @@ from typing import Any
 from gimbal_friction import __version__
 from gimbal_friction.cli._common import add_common, format_table, print_json
 from gimbal_friction.common.errors import ConfigError, ConfigFileError, GimbalFrictionError
+from gimbal_friction.common.files import os_error_text, staged
 from gimbal_friction.common.settings import settings_from_parameters
 from gimbal_friction.config.loader import all_axis_params, load_parameters, packaged_defaults_text
 from gimbal_friction.export.formats import render_c_header, render_csv, render_ros_yaml
@@ -156,31 +154,14 @@ def _check_out(out: Path, force: bool) -> bool:
 
 
 def write_export(out: Path, files: dict[str, str], replace: bool) -> None:
-    """Write ``files`` (name -> text) as the directory ``out``, atomically (temporary sibling, then rename)."""
-    parent = out.absolute().parent
+    """Write ``files`` (name -> text) as the directory ``out``, atomically (:func:`~gimbal_friction.common.files.
+    staged`: a temporary sibling, then a rename)."""
     try:
-        parent.mkdir(parents=True, exist_ok=True)
-        tmp = Path(tempfile.mkdtemp(prefix=f'.{out.name}.', suffix='.partial', dir=parent))
+        with staged(out, folder=True, replace=replace, what='export') as folder:
+            for name, text in files.items():
+                (folder / name).write_text(text, encoding='utf-8')
     except OSError as err:
-        raise GimbalFrictionError(f'{out}: cannot create the export: {err.strerror or err}') from None
-    try:
-        staged = tmp / out.name
-        staged.mkdir()
-        for name, text in files.items():
-            (staged / name).write_text(text, encoding='utf-8')
-        previous = tmp / '.previous'
-        if replace:
-            os.rename(out, previous)
-        try:
-            os.rename(staged, out)
-        except OSError:
-            if replace:
-                os.rename(previous, out)
-            raise
-    except OSError as err:
-        raise GimbalFrictionError(f'{out}: cannot write the export: {err.strerror or err}') from None
-    finally:
-        shutil.rmtree(tmp, ignore_errors=True)
+        raise GimbalFrictionError(f'{out}: cannot write the export: {os_error_text(err)}') from None
 
 
 def file_names(axis: str) -> dict[str, str]:

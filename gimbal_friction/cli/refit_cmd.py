@@ -12,8 +12,9 @@ determine and holds the others at their configured values.
 Calibration offset: with ``--offset auto`` (default) a constant torque offset (an error of the no-load current
 I_0) is fitted as a nuisance when the logs hold both a cold (viscous-regime) and a warm plateau; it is reported
 with its interval and the I_0 that would remove it, and a warning is printed (stderr) when it exceeds the
-calibration's uncertainty, read from the ``calibrate-kt`` output file (``--calibration FILE.yaml``: its header line
-``T_0 = ... +/- SE N*m``) or given as ``--calibration-se`` [N*m]. The offset is never written to the file.
+calibration's uncertainty, read from the ``calibrate-kt`` output file (``--calibration FILE.yaml``: its
+``gimbal_friction_calibration`` section, format version 1; a file from before it by its comment line
+``T_0 = ... +/- SE N*m``, with a note) or given as ``--calibration-se`` [N*m]. The offset is never written to the file.
 
 Output file: a layerable parameter file holding **only the refitted parameters**, always under
 ``axis.<name>.<parameter>`` (also for a single axis): an ``axis.*`` entry overrides ``model.*`` whatever the file
@@ -31,6 +32,9 @@ A fit set that cannot separate its parameters from the calibration offset (``pal
 is checked: the JSON ``offset_confounding`` record and a warning say which parameters a 1-sigma offset (the
 calibration's, else K_T × 1 mA) moves by more than their standard error, by how much, and the viscosity at the
 coldest plateau.
+
+The run itself (read, choose axes, refit) is :func:`gimbal_friction.refit.run.refit_logs`; this module parses the
+options, writes the file, prints and draws.
 """
 
 from __future__ import annotations
@@ -38,10 +42,9 @@ from __future__ import annotations
 import argparse
 import datetime as dt
 import math
-import re
 import sys
 from pathlib import Path
-from typing import Any, NamedTuple
+from typing import Any
 
 import numpy as np
 
@@ -53,13 +56,10 @@ from gimbal_friction.cli._common import (
     refuse_existing,
     write_text_atomic,
 )
-from gimbal_friction.common.errors import ConfigError, FitError, GimbalFrictionError
+from gimbal_friction.common.errors import ConfigError, GimbalFrictionError
 from gimbal_friction.config.loader import axis_names, axis_params, load_parameters, render_parameter_file
 from gimbal_friction.physics.direction import ARRAY, direction_factor
 from gimbal_friction.physics.model import friction_torque
-from gimbal_friction.physics.params import AxisParams
-from gimbal_friction.recording.residual_read import ReadReport
-from gimbal_friction.recording.topics import RESIDUAL_DETAIL
 from gimbal_friction.refit.fit import (
     ASYMMETRY_PARAMETERS,
     FIT_PARAMETERS,
@@ -67,49 +67,13 @@ from gimbal_friction.refit.fit import (
     PALMGREN_THRESHOLD,
     RefitResult,
     palmgren_threshold_temperature,
-    refit_stats,
 )
-from gimbal_friction.refit.logs import AxisData, read_stats
-from gimbal_friction.refit.records import confounding_record, offset_record
+from gimbal_friction.refit.records import refit_record
+from gimbal_friction.refit.run import AxisRefit, refit_logs
 
 DEFAULT_FIT = 'walther_a'
 #: ``--fit`` shorthand for both anchors of the direction asymmetry
 FIT_ALIASES = {'direction_asymmetry': ASYMMETRY_PARAMETERS}
-
-
-_T0_LINE = re.compile(r'T_0 = (\S+) \+/- (\S+) N\*m')
-_AXIS_LINE = re.compile(r"no-load current of axis '([^']+)'")
-
-
-def read_calibration_se(path: Path) -> tuple[str | None, float]:
-    """(axis, 1-sigma of T_0 [N*m]) from the header of a ``calibrate-kt`` output file.
-
-    Raises:
-        ConfigError: not readable, or no ``T_0 = ... +/- ... N*m`` line (not a calibrate-kt file).
-    """
-    try:
-        text = path.read_text(encoding='utf-8')
-    except OSError as err:
-        raise ConfigError('--calibration', f'cannot read: {err.strerror}', str(path)) from None
-    m = _T0_LINE.search(text)
-    if m is None:
-        raise ConfigError('--calibration', "no 'T_0 = ... +/- ... N*m' header line: not a calibrate-kt output file",
-                          str(path))
-    try:
-        se = float(m.group(2))
-    except ValueError:
-        raise ConfigError('--calibration', f'unreadable T_0 uncertainty {m.group(2)!r}', str(path)) from None
-    if not (math.isfinite(se) and se >= 0.0):
-        raise ConfigError('--calibration', 'the T_0 uncertainty must be a finite value >= 0', str(path))
-    a = _AXIS_LINE.search(text)
-    return (a.group(1) if a else None), se
-
-
-class AxisRefit(NamedTuple):
-    axis: str
-    base: AxisParams
-    data: AxisData
-    result: RefitResult
 
 
 def add_parser(sub: Any) -> None:
@@ -172,24 +136,6 @@ def parse_fit(text: str) -> tuple[str, ...]:
     if len(set(names)) != len(names):
         raise ConfigError('--fit', 'a parameter is listed twice', text)
     return names
-
-
-def _select_axes(args: argparse.Namespace, cfg: dict[str, Any], present: list[str]) -> tuple[list[str], list[str]]:
-    configured = axis_names(cfg)
-    if args.axis:
-        for name in args.axis:
-            axis_params(cfg, name)  # refuses an axis that is not configured
-            if name not in present:
-                msg = (f'no {RESIDUAL_DETAIL} samples for axis {name!r} in the logs (joints present: '
-                       f'{", ".join(present) or "none"})')
-                raise FitError(msg)
-        return list(dict.fromkeys(args.axis)), []
-    axes = [name for name in present if name in configured]
-    if not axes:
-        msg = (f'the logs hold joints {", ".join(repr(p) for p in present)}, none of them configured '
-               f'(axes: {", ".join(configured)}); pass --config with those axes')
-        raise FitError(msg)
-    return axes, [name for name in present if name not in configured]
 
 
 def _fmt(value: float, digits: int = 6) -> str:
@@ -276,42 +222,9 @@ def plot_refit(fits: list[AxisRefit], path: Path) -> Path:
 
 
 def _axis_record(f: AxisRefit) -> dict[str, Any]:
-    r = f.result
-    return {
-        'rows': f.data.rows,
-        'skipped_nonfinite': f.data.skipped_nonfinite,
-        'skipped_standstill': f.data.skipped_standstill,
-        'samples': r.n_samples,
-        'samples_dropped': r.n_dropped,
-        'fitted': r.fitted,
-        'base': r.base,
-        'standard_errors': r.standard_errors,
-        'confidence_intervals_95': {k: list(v) for k, v in r.confidence_intervals.items()},
-        'identifiability': {k: {'identifiable': v.identifiable, 'reason': v.reason}
-                            for k, v in r.identifiability.items()},
-        'written': r.refitted,
-        'rms_before_nmm': 1e3 * r.rms_before_nm,
-        'rms_after_nmm': 1e3 * r.rms_after_nm,
-        'viscous_temperatures_c': list(r.viscous_temperatures_c),
-        'viscosity': [{'temperature_c': vi.temperature_c, 'before_cst': vi.before_cst, 'after_cst': vi.after_cst,
-                       'ci95_cst': [vi.low_cst, vi.high_cst]} for vi in r.viscosity],
-        'bins': [{
-            'temperature_c': b.temperature_c, 'temperature_bin_c': b.temperature_bin_c,
-            'direction': 'cw' if b.direction > 0 else 'ccw', 'sign': b.direction, 'speed_rpm': b.speed_rpm,
-            'samples': b.n, 'used': b.used, 'viscous': b.viscous,
-            'measured_mean_nmm': 1e3 * b.measured_mean_nm, 'measured_se_nmm': 1e3 * b.measured_se_nm,
-            'model_before_nmm': 1e3 * b.model_before_nm, 'model_after_nmm': 1e3 * b.model_after_nm,
-            'rms_before_nmm': 1e3 * b.rms_before_nm, 'rms_after_nmm': 1e3 * b.rms_after_nm,
-            'viscosity_before_cst': b.viscosity_before_cst, 'viscosity_after_cst': b.viscosity_after_cst,
-            'friction_after_nmm': 1e3 * b.friction_after_nm,
-        } for b in r.bins],
-        'cost': r.cost,
-        'message': r.message,
-        'fine_bins': r.n_bins,
-        'offset': offset_record(r),
-        'offset_confounding': confounding_record(r),
-        'warnings': list(r.warnings),
-    }
+    """The JSON record of one axis: the rows read and :func:`~gimbal_friction.refit.records.refit_record`."""
+    return {'rows': f.data.rows, 'skipped_nonfinite': f.data.skipped_nonfinite,
+            'skipped_standstill': f.data.skipped_standstill, **refit_record(f.result)}
 
 
 def offset_text(r: RefitResult) -> str:
@@ -369,34 +282,6 @@ def _print_axis(f: AxisRefit) -> None:
               'the viscous torque does not depend on viscosity at these speeds')
 
 
-def _empty_reason(data: AxisData, direction: str) -> str:
-    """Why an axis of the logs has no usable sample ('' if it has some): its rows, what was skipped, the filter."""
-    if data.stats.n_samples > 0:
-        return ''
-    if data.rows == 0:
-        return f'the logs hold no rows of it moving {direction.upper()} (--direction {direction})'
-    return (f'all {data.rows} rows skipped ({data.skipped_nonfinite} with a non-finite temperature, velocity or '
-            f'measurement, {data.skipped_standstill} at standstill)')
-
-
-def calibration_se_by_axis(args: argparse.Namespace, axes: list[str]) -> dict[str, float | None]:
-    """The T_0 uncertainty [N*m] to compare each axis' offset with, from --calibration-se or --calibration."""
-    out: dict[str, float | None] = dict.fromkeys(axes)
-    if args.calibration_se is not None:
-        if not (math.isfinite(args.calibration_se) and args.calibration_se >= 0.0):
-            raise ConfigError('--calibration-se', 'must be a finite torque >= 0 [N*m]', args.calibration_se)
-        out = {axis: float(args.calibration_se) for axis in axes}
-    if args.calibration is not None:
-        if args.calibration_se is not None:
-            raise ConfigError('--calibration', 'give --calibration or --calibration-se, not both',
-                              str(args.calibration))
-        cal_axis, se = read_calibration_se(args.calibration)
-        for axis in axes:
-            if cal_axis is None or cal_axis == axis:
-                out[axis] = se
-    return out
-
-
 def run(args: argparse.Namespace) -> int:
     out: Path = args.out
     if out.is_dir():
@@ -405,39 +290,16 @@ def run(args: argparse.Namespace) -> int:
     refuse_existing(out, '--out', force=args.force)
     if args.plot is not None:
         refuse_existing(args.plot, '--plot', force=args.force)
-    if not (math.isfinite(args.bin_width) and args.bin_width > 0.0):
-        raise ConfigError('--bin-width', 'must be > 0 [degC]', args.bin_width)
     fit = parse_fit(args.fit)
     cfg = load_parameters(args.config)
-    if args.calibration is not None:
-        read_calibration_se(args.calibration)  # refuse a bad file before reading the logs
-    report = ReadReport()
-    data_by_joint = read_stats(list(args.logs), direction=args.direction, report=report)
-    print_read_note(report)
+    done = refit_logs(list(args.logs), configured=axis_names(cfg), base_of=lambda axis: axis_params(cfg, axis),
+                      fit=fit, axes=args.axis, direction=args.direction, loss=args.loss, bin_width_c=args.bin_width,
+                      offset=args.offset, calibration_se_nm=args.calibration_se, calibration=args.calibration,
+                      on_read=print_read_note)
+    fits, report, ignored = done.fits, done.report, done.ignored
+    for note in done.notes:
+        print(f'gimbal-friction refit: note: {note}', file=sys.stderr)
     where = ', '.join(str(p) for p in args.logs)
-    if not data_by_joint:
-        msg = f'{where}: the residual log holds no {RESIDUAL_DETAIL} samples ({report.summary()})'
-        raise FitError(msg)
-    present = sorted(data_by_joint)
-    axes, ignored = _select_axes(args, cfg, present)
-    for axis in axes:
-        empty = _empty_reason(data_by_joint[axis], args.direction)
-        if empty:
-            msg = f'{where}: no usable samples of axis {axis!r}: {empty}'
-            raise FitError(msg)
-    cal_se = calibration_se_by_axis(args, axes)
-    fits: list[AxisRefit] = []
-    for axis in axes:
-        base = axis_params(cfg, axis)
-        data = data_by_joint[axis]
-        try:
-            result = refit_stats(base, data.stats, fit=fit, loss=args.loss, bin_width_c=args.bin_width,
-                                 offset=args.offset, calibration_se_nm=cal_se[axis])
-        except FitError as err:
-            hint = ' (pass --axis to refit only the others)' if len(axes) > 1 else ''
-            msg = f'axis {axis}: {err}{hint}'
-            raise FitError(msg) from None
-        fits.append(AxisRefit(axis, base, data, result))
     if args.plot is not None:
         plot_refit(fits, args.plot)
     text = render_parameter_file(axes_overrides={f.axis: f.result.refitted for f in fits},

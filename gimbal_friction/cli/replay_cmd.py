@@ -11,7 +11,7 @@ from typing import Any
 
 from gimbal_friction.cli._common import add_common, print_json, progress, refuse_existing, write_text_atomic
 from gimbal_friction.common.errors import ConfigError
-from gimbal_friction.recording.topics import CHAMBER_TOPICS
+from gimbal_friction.recording.topics import parse_topic_map
 
 SUMMARY_FIELDS = ('temperature_c', 'direction', 'measured_mean_nmm', 'predicted_nmm', 'residual_nmm', 'samples')
 
@@ -44,15 +44,8 @@ def add_parser(sub: Any) -> None:
 
 
 def parse_topic_options(items: list[str]) -> dict[str, str]:
-    out = {}
-    for item in items:
-        if '=' not in item:
-            raise ConfigError('--topic', 'expected CONTRACT=BAG, e.g. /joint_states=/gimbal/joint_states', item)
-        key, value = (x.strip() for x in item.split('=', 1))
-        if key not in CHAMBER_TOPICS:
-            raise ConfigError('--topic', f'{key} is not a chamber-test topic ({", ".join(CHAMBER_TOPICS)})', item)
-        out[key] = value
-    return out
+    """``--topic`` entries as a topic map (:func:`~gimbal_friction.recording.topics.parse_topic_map`)."""
+    return parse_topic_map(items, '--topic')
 
 
 def parse_joint_options(items: list[str]) -> dict[str, str]:

@@ -24,7 +24,7 @@ from gimbal_friction.common.errors import ConfigError
 
 T = TypeVar('T')
 
-__all__ = ['setting', 'settings_from', 'settings_from_parameters']
+__all__ = ['coerce', 'setting', 'settings_from', 'settings_from_parameters']
 
 
 def setting(default: Any, unit: str, description: str) -> Any:
@@ -32,8 +32,21 @@ def setting(default: Any, unit: str, description: str) -> Any:
     return field(default=default, metadata={'unit': unit, 'description': description})
 
 
-def _coerce(name: str, value: Any, default: Any) -> Any:
-    """``value`` as the type of the field's ``default``; ConfigError naming ``name`` if it is not one."""
+def coerce(name: str, value: Any, default: Any, *, names: bool = False) -> Any:
+    """``value`` as the type of the field's ``default`` (the one coercion rule of every parameter: nodes,
+    simulator, model parameters, offline tools); ConfigError naming ``name`` if it is not one.
+
+    Numbers must be finite (NaN and inf refused); a whole number is needed where the default is an int. A list
+    default takes a list (not a string): of names (``names=True``, or a default whose items are strings) or of
+    finite numbers (a default whose items are numbers; returned as floats).
+
+    >>> coerce('gain', 2, 1.0), coerce('count', 3.0, 1), coerce('speeds', [1, 2], (0.5,))
+    (2.0, 3, (1.0, 2.0))
+    >>> coerce('gain', float('nan'), 1.0)
+    Traceback (most recent call last):
+    ...
+    gimbal_friction.common.errors.ConfigError: parameter 'gain' = nan: must be a finite number
+    """
     if isinstance(default, bool):
         if not isinstance(value, bool):
             raise ConfigError(name, 'must be true or false', value)
@@ -53,8 +66,18 @@ def _coerce(name: str, value: Any, default: Any) -> Any:
             raise ConfigError(name, f'must be a string, not {type(value).__name__}', value)
         return value
     if isinstance(default, (list, tuple)):
-        if not isinstance(value, (list, tuple)):
+        if isinstance(value, (str, bytes)) or not isinstance(value, (list, tuple)):
             raise ConfigError(name, f'must be a list, not {type(value).__name__}', value)
+        if names or any(isinstance(v, str) for v in default):
+            if not all(isinstance(v, str) for v in value):
+                raise ConfigError(name, 'must be a list of names', value)
+            return type(default)(value)
+        if default and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in default):
+            if any(isinstance(v, bool) or not isinstance(v, (int, float)) for v in value):
+                raise ConfigError(name, 'must be a list of numbers', value)
+            if not all(math.isfinite(v) for v in value):
+                raise ConfigError(name, 'must be a list of finite numbers', value)
+            return type(default)(float(v) for v in value)
         return type(default)(value)
     return value
 
@@ -69,8 +92,8 @@ def settings_from(cls: type[T], values: Mapping[str, Any], base: T | None = None
     kwargs = {}
     for f in dataclasses.fields(cls):  # type: ignore[arg-type]  # T is a settings dataclass: a TypeVar cannot be bound to "any dataclass"
         if f.name in values:
-            kwargs[f.name] = _coerce(f.name, values[f.name], f.default)
-    obj = dataclasses.replace(base, **kwargs) if base is not None else cls(**kwargs)  # type: ignore[type-var]  # T is a settings dataclass: a TypeVar cannot be bound to "any dataclass"
+            kwargs[f.name] = coerce(f.name, values[f.name], f.default)
+    obj = dataclasses.replace(base, **kwargs) if base is not None else cls(**kwargs)  # type: ignore[type-var]
     validate = getattr(obj, 'validate', None)
     if validate is not None:
         validate()

@@ -21,7 +21,6 @@ written with Python's ``repr``, so a round trip is exact.
 from __future__ import annotations
 
 import os
-import tempfile
 from dataclasses import asdict, fields
 from pathlib import Path
 from typing import Any
@@ -29,6 +28,7 @@ from typing import Any
 import numpy as np
 
 from gimbal_friction.common.errors import ConfigError
+from gimbal_friction.common.files import write_bytes_atomic
 from gimbal_friction.common.settings import settings_from
 from gimbal_friction.feedforward.correction import (
     DIRECTIONS,
@@ -66,19 +66,7 @@ def save(c: Correction, path: str | os.PathLike[str]) -> None:
         'tag:yaml.org,2002:seq', x, flow_style=not any(isinstance(v, dict) for v in x)))
     text = yaml.dump(to_mapping(c), Dumper=dumper, sort_keys=False, width=1 << 16)
     out = Path(path)
-    try:
-        fd, tmp = tempfile.mkstemp(prefix=f'.{out.name}.', suffix='.tmp', dir=out.parent)
-        try:
-            with os.fdopen(fd, 'w', encoding='utf-8') as f:
-                f.write(text)
-                f.flush()
-                os.fsync(f.fileno())
-            os.replace(tmp, out)
-        except BaseException:
-            Path(tmp).unlink(missing_ok=True)
-            raise
-    except OSError as err:
-        raise CorrectionError(f'cannot write correction file {out}: {err.strerror or err}') from None
+    write_bytes_atomic(out, text.encode('utf-8'), fsync=True, what='correction file', error=CorrectionError)
 
 
 def load(path: str | os.PathLike[str], expected: ModelIdentity | None = None) -> Correction:

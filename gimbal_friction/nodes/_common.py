@@ -27,13 +27,8 @@ from rclpy.signals import SignalHandlerOptions
 
 from gimbal_friction.common.errors import ConfigError, GimbalFrictionError, ModelDomainError
 from gimbal_friction.common.settings import settings_from
-from gimbal_friction.config.loader import (
-    AXES_DESCRIPTION,
-    axis_names,
-    check_parameter_names,
-    command_line_parameters,
-    load_parameters,
-)
+from gimbal_friction.config.loader import AXES_DESCRIPTION, axis_names, check_parameter_names, load_parameters
+from gimbal_friction.config.rcl import command_line_parameters
 from gimbal_friction.physics.params import AxisParams, parameter_specs
 from gimbal_friction.physics.table import FrictionTable
 

@@ -57,20 +57,6 @@ def message_class(msgtype: str) -> Any:
         return None
 
 
-def parse_topic_map(items: Sequence[str]) -> dict[str, str]:
-    """``['/joint_states=/gimbal/joint_states']`` -> ``{'/joint_states': '/gimbal/joint_states'}``."""
-    out = {}
-    for item in items:
-        if '=' not in item:
-            raise ConfigError('topic_map', "entries must read 'contract_topic=bag_topic'", item)
-        key, value = (x.strip() for x in item.split('=', 1))
-        if key not in topics.CHAMBER_TOPICS:
-            raise ConfigError('topic_map', f'{key} is not a chamber-test topic '
-                              f'({", ".join(topics.CHAMBER_TOPICS)})', item)
-        out[key] = value
-    return out
-
-
 def select_topics(available: dict[str, str], include: Sequence[str], exclude: Sequence[str]) -> tuple[
         list[str], list[str]]:
     """The topics to publish: the chamber inputs, plus ``include`` (``'*'``: all), minus ``exclude``.
@@ -130,15 +116,8 @@ class ChamberReplay(Node):
             raise ConfigError('rate', 'must be > 0', self.rate)
         if not (math.isfinite(self.start_offset_s) and self.start_offset_s >= 0.0):
             raise ConfigError('start_offset_s', 'must be >= 0 [s]', self.start_offset_s)
-        if self.wait_for < 0:
-            raise ConfigError('wait_for_subscribers', 'must be >= 0 subscribers (0 = do not wait)', self.wait_for)
-        if not (math.isfinite(self.wait_timeout_s) and self.wait_timeout_s > 0.0):
-            raise ConfigError('wait_timeout_s', 'must be > 0 [s]', self.wait_timeout_s)
-        self.bag = open_chamber_bag(self.bag_path, parse_topic_map([x for x in topic_map if x]) or None)
-        duration_s = self.bag.duration_ns * 1e-9
-        if self.start_offset_s > duration_s:
-            raise ConfigError('start_offset_s', f'is beyond the end of the bag: must be from 0 to {duration_s:.3f} s '
-                              f'(the bag lasts {duration_s:.3f} s)', self.start_offset_s)
+        remap = topics.parse_topic_map([x for x in topic_map if x], 'topic_map')
+        self.bag = open_chamber_bag(self.bag_path, remap or None)
         available = {name: info.msgtype for name, info in self.bag.topics.items()}
         self.topics, self.skipped = select_topics(available, [x for x in include if x], [x for x in exclude if x])
         self.pubs = {}

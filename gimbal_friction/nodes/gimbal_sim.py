@@ -73,6 +73,7 @@ from gimbal_friction.nodes._common import (
 from gimbal_friction.recording import topics
 from gimbal_friction.sim.config import RealtimeSettings, SimConfig, parameter_specs
 from gimbal_friction.sim.realtime import RealtimeRun, TickOutput
+from gimbal_friction.streams.inputs import index_joints, unconfigured_joints
 
 REFERENCE_VELOCITY = topics.REFERENCE_VELOCITY
 LOS_ERROR = '/gimbal_sim/los_error'
@@ -134,8 +135,9 @@ class GimbalSim(Node):
         config = SimConfig.from_mapping({name: get(name) for name in _SIM_FIELDS})
         settings = RealtimeSettings.from_mapping({name: get(name) for name in _NODE_FIELDS})
         joint = settings.joint or self.model.axes[0]
-        if joint not in self.model.axes:
-            raise ConfigError('joint', f'must be a configured axis ({", ".join(self.model.axes)})', joint)
+        refused = unconfigured_joints([joint], self.model.axes)
+        if refused:
+            raise ConfigError('joint', refused, joint)
         return config, settings, joint
 
     def _validate_params(self, params: list[Parameter[Any]]) -> None:
@@ -158,10 +160,8 @@ class GimbalSim(Node):
     # ------------------------------------------------------------------ the feedforward
     def on_feedforward(self, msg: JointState) -> None:
         wall = time.monotonic()
-        if self.joint not in msg.name:
-            return
-        i = list(msg.name).index(self.joint)
-        if i >= len(msg.effort):
+        i = index_joints(msg.name, (), (self.joint,)).position.get(self.joint)
+        if i is None or i >= len(msg.effort):
             return
         stamp_ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
         with self._lock:

@@ -7,6 +7,7 @@
 
 from __future__ import annotations
 
+import math
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -14,10 +15,12 @@ from numpy.typing import ArrayLike, NDArray
 
 from gimbal_friction.common.errors import ModelDomainError
 from gimbal_friction.physics.friction import (
+    PALMGREN_THRESHOLD_CST_RPM,
     contact_radius_Harris,
     hysteresis_torque_Eq3,
     spin_torque_axial_Eq8,
     spin_torque_contact_Eq6,
+    total_torque_Eq10,
     viscous_torque_Palmgren_1959,
 )
 from gimbal_friction.physics.hertz import hertz_contact, reduced_modulus
@@ -93,6 +96,22 @@ def viscosity_cst(p: AxisParams, t_c: ArrayLike) -> Array:
                       p.viscosity_offset_cst, p.viscosity_model)
 
 
+def palmgren_threshold_temperature(p: AxisParams, speed_rpm: float) -> float:
+    """Temperature [°C] below which ν·n ≥ 2000 at ``speed_rpm`` [rpm] (Palmgren's upper branch of Eq. 9; inverse
+    Walther, Eq. 20/21); NaN if none. The one home of the ν·n ≥ 2000 temperature rule.
+
+    >>> round(palmgren_threshold_temperature(AxisParams(), 1 / 3), 1)
+    -27.1
+    """
+    nu = PALMGREN_THRESHOLD_CST_RPM / speed_rpm
+    try:
+        x = (math.log10(math.log10(nu + p.viscosity_offset_cst)) - p.walther_a) / p.walther_b
+        T = 10.0**x if p.viscosity_model == 'walther' else 10.0 ** (10.0**x)
+    except (ValueError, OverflowError, ZeroDivisionError):
+        return math.nan
+    return float(T) - p.kelvin_offset_k
+
+
 def _check_temperatures(t: Array) -> None:
     if not np.all(np.isfinite(t)):
         raise ModelDomainError('temperatures must be finite')
@@ -149,7 +168,7 @@ def friction_torque(p: AxisParams, t_c: ArrayLike, speed_rpm: ArrayLike | None =
     k = float(p.bearings_per_axis)
     M_R, M_S, M_L = k * M_R, k * M_S, k * M_L
     result = FrictionResult(t.copy(), n.copy(), nu, np.degrees(r.alpha0), np.degrees(ax.alpha), r.P_d,
-                            r.fit_pressure, r.loose, ax.F_a, ax.Q, M_R, M_S, M_L, M_R + M_S + M_L)
+                            r.fit_pressure, r.loose, ax.F_a, ax.Q, M_R, M_S, M_L, total_torque_Eq10(M_R, M_S, M_L))
     bad = [name for name in ('m_total_nmm', 'viscosity_cst', 'contact_angle_deg')
            if not np.all(np.isfinite(getattr(result, name)))]
     if bad:

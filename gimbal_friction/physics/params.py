@@ -27,6 +27,7 @@ from dataclasses import dataclass, field
 from typing import Any, NamedTuple
 
 from gimbal_friction.common.errors import ConfigError
+from gimbal_friction.common.settings import coerce
 
 VISCOSITY_MODELS = ('walther_improved', 'walther')
 HYSTERESIS_RADII = ('harris', 'half_ball')
@@ -207,7 +208,7 @@ class AxisParams:
                 hint = f' (did you mean {close[0]!r}?)' if close else ''
                 msg = f'unknown model parameter{hint}'
                 raise ConfigError(name, msg, value)
-            kwargs[name] = _coerce(name, value, getattr(start, name))
+            kwargs[name] = coerce(name, value, getattr(start, name))
         params = dataclasses.replace(start, **kwargs)
         params.validate()
         return params
@@ -285,27 +286,6 @@ def _check_geometry(p: AxisParams) -> None:
     if p.housing_outside_diameter_mm <= p.outside_diameter_mm + abs(p.interference_mm):
         raise ConfigError('housing_outside_diameter_mm', 'must exceed the bearing outside_diameter_mm',
                           p.housing_outside_diameter_mm)
-
-
-def _coerce(name: str, value: Any, current: Any) -> Any:
-    kind = type(current)
-    if kind is bool:
-        if isinstance(value, bool):
-            return value
-        raise ConfigError(name, 'must be true or false', value)
-    if kind is str:
-        if isinstance(value, str):
-            return value
-        raise ConfigError(name, 'must be a string', value)
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise ConfigError(name, f'must be a number, not {type(value).__name__}', value)
-    if not math.isfinite(value):
-        raise ConfigError(name, 'must be a finite number', value)
-    if kind is int:
-        if float(value) != int(value):
-            raise ConfigError(name, 'must be a whole number', value)
-        return int(value)
-    return float(value)
 
 
 def parameter_specs() -> list[dict[str, Any]]:

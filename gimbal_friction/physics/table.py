@@ -62,7 +62,9 @@ class TemperatureTerms(NamedTuple, Generic[X]):
 def magnitude_from_terms(terms: TemperatureTerms[X], omega_rad_s: X, xp: Namespace[X]) -> X:
     """Friction torque magnitude [N·m] from the temperature terms of a table
     (:meth:`FrictionTable.temperature_terms`) and the angular velocity ``omega_rad_s`` [rad/s] (magnitude used):
-    interpolated M_R + M_S plus the exact M_L of Eq. (9) of all bearings of the axis."""
+    interpolated M_R + M_S plus the exact M_L of Eq. (9) of all bearings of the axis. (Eq. 10 with M_R + M_S
+    tabulated as one term: the one sum left, written inline on this ~1 µs path; the model's sum is
+    :func:`~gimbal_friction.physics.friction.total_torque_Eq10`.)"""
     m_l = viscous_torque_from_coefficient(terms.viscous_nmm, terms.viscosity_cst, omega_rad_s * RPM_PER_RAD_S, xp)
     return (terms.m_contact_nmm + m_l) * NM_PER_NMM
 

@@ -1,4 +1,5 @@
 """Chamber-test bags: open and check, read the three input streams into arrays, describe them; write small bags.
+One job in one module: the chamber-test bag (its checks, reading and the refusals of what it lacks share one view).
 
 A chamber-test bag (docs/ros.md "Files") is a rosbag2 bag directory (MCAP or sqlite3 storage, whatever
 wrote it) or a bare ``.mcap`` / ``.db3`` file that holds at least the topics of :data:`~.topics.CHAMBER_TOPICS`.

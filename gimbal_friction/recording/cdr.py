@@ -1,4 +1,5 @@
 """CDR (XCDR1) of the suite's standard messages: encode *and* decode, message builders, the type store.
+One job in one module: one codec (encoder and decoder share the layout rules and must stay side by side).
 
 Encoding (one message or a batch): ``sensor_msgs/JointState`` and ``std_msgs/Float64MultiArray``. The bytes are
 those of ``rosbags`` ``typestore.serialize_cdr`` (little endian, encapsulation header ``00 01 00 00`` included):

@@ -1,4 +1,5 @@
 """Every readable record of an MCAP file, whether it is complete, cut short or damaged.
+One job in one module: one tolerant MCAP reader (the record parser and its damage bookkeeping).
 
 The MCAP format (https://mcap.dev/spec) is read here directly, record by record, so that damage stays local:
 

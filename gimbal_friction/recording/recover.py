@@ -1,4 +1,5 @@
 """Recovery of bags and residual logs that are cut short or damaged: every readable record, in a readable file.
+One job in one module: recovery (MCAP, sqlite3 and folders share the outcome records and the staging rule).
 
 ``gimbal-friction recover IN --out OUT`` (docs/cli.md): IN is a bag folder, a bag file (``.mcap`` or ``.db3``) or a
 residual-log folder or file; OUT is created, of the same kind, readable by the standard readers (rosbags
@@ -32,6 +33,7 @@ import yaml
 from mcap.writer import CompressionType
 from mcap.writer import Writer as McapWriter
 
+from gimbal_friction.common.files import staged
 from gimbal_friction.recording.bag import foreign_serialization, unsupported_serialization
 from gimbal_friction.recording.errors import RecordingError
 from gimbal_friction.recording.mcap_scan import McapScanner, MessageBlock
@@ -592,28 +594,10 @@ def _check_target(target: Path) -> None:
         raise RecordingError(msg)
 
 
-@contextlib.contextmanager
-def _temporary(target: Path, *, folder: bool = False) -> Iterator[Path]:
-    """A temporary path next to ``target``, renamed to it on success and removed on failure."""
-    tmp = target.with_name(f'.{target.name}.recovering-{os.getpid()}')
-    try:
-        if folder:
-            tmp.mkdir()
-    except OSError as err:
-        msg = f'recover: cannot create {target}: {err.strerror or err}'
-        raise RecordingError(msg) from err
-    try:
-        yield tmp
-        if target.exists():
-            msg = f'recover: {target} appeared while recovering; not overwriting it'
-            raise RecordingError(msg)
-        tmp.rename(target)
-    except BaseException:
-        if tmp.is_dir():
-            shutil.rmtree(tmp, ignore_errors=True)
-        else:
-            tmp.unlink(missing_ok=True)
-        raise
+def _temporary(target: Path, *, folder: bool = False) -> contextlib.AbstractContextManager[Path]:
+    """A temporary path next to ``target``, renamed to it on success and removed on failure (the one rule,
+    :func:`~gimbal_friction.common.files.staged`; an existing ``target`` is never overwritten)."""
+    return staged(target, folder=folder, what='recovered bag', error=RecordingError)
 
 
 def _source_metadata(folder: Path) -> dict[str, Any] | None:

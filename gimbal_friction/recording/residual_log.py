@@ -1,4 +1,5 @@
 """The residual log writer: a folder of MCAP files written with mcap's public writer API, readable after a crash.
+One job in one module: the writer (rotation, chunking, crash safety and the closing metadata share its state).
 
 docs/ros.md "Files": ROS 2 profile, ``ros2msg`` schemas, CDR messages, standard message types only,
 rotated by size or duration; closed cleanly, the folder also has a rosbag2 ``metadata.yaml`` (version 9) so

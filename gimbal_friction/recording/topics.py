@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
+from gimbal_friction.common.errors import ConfigError
 from gimbal_friction.streams.measurement import MEASUREMENT_FIELDS as _MEASUREMENT_FIELDS
 from gimbal_friction.streams.residual_row import RESIDUAL_FIELDS as _RESIDUAL_FIELDS
 
@@ -43,3 +46,23 @@ MEASUREMENT_FIELDS = _MEASUREMENT_FIELDS
 MCAP_PROFILE = 'ros2'
 SCHEMA_ENCODING = 'ros2msg'
 MESSAGE_ENCODING = 'cdr'
+
+
+def parse_topic_map(items: Sequence[str], option: str = '--topic') -> dict[str, str]:
+    """The one parser of a topic map (``replay --topic`` and the ``chamber_replay`` node's ``topic_map``):
+    ``['/joint_states=/gimbal/joint_states']`` -> ``{'/joint_states': '/gimbal/joint_states'}`` (contract topic ->
+    name recorded in the bag). ConfigError naming ``option`` for an entry without ``=`` or a key that is not a
+    chamber-test topic.
+
+    >>> parse_topic_map([' /joint_states = /gimbal/joint_states'])
+    {'/joint_states': '/gimbal/joint_states'}
+    """
+    out = {}
+    for item in items:
+        if '=' not in item:
+            raise ConfigError(option, 'expected CONTRACT=BAG, e.g. /joint_states=/gimbal/joint_states', item)
+        key, value = (x.strip() for x in item.split('=', 1))
+        if key not in CHAMBER_TOPICS:
+            raise ConfigError(option, f'{key} is not a chamber-test topic ({", ".join(CHAMBER_TOPICS)})', item)
+        out[key] = value
+    return out

@@ -18,6 +18,7 @@ joint state that produced it, so latency = arrival wall time − publish wall ti
 from __future__ import annotations
 
 import contextlib
+import io
 import json
 import math
 import os
@@ -30,6 +31,7 @@ from typing import Any
 import numpy as np
 
 from gimbal_friction.common.errors import GimbalFrictionError
+from gimbal_friction.common.files import write_bytes_atomic
 from gimbal_friction.sim.compensation import Compensator, ControllerInputs
 from gimbal_friction.sim.config import SimConfig
 from gimbal_friction.sim.engine import BatchResult, Run, Traces, simulate
@@ -57,12 +59,12 @@ def save_run(path: str | os.PathLike[str], run: RealtimeRun) -> Path:
             'ticks': int(res.traces.los_rate_rad_s.shape[0]), 'latency': run.latency_summary(),
             'stale': run.stale, 'foreign': run.foreign}
     arrays = {f'trace_{name}': np.asarray(getattr(res.traces, name))[:, 0] for name in Traces._fields}
-    tmp = out.with_name(f'.{out.name}.tmp.npz')
     arrays.update(meta=np.frombuffer(json.dumps(meta).encode(), dtype=np.uint8), sampled=res.temperature_sampled,
                   feedforward_age=run.feedforward_age, publish_wall_s=run.publish_wall_s,
                   transport_latency_s=np.asarray(run.transport_latency_s, dtype=float))
-    np.savez(tmp, **arrays)  # type: ignore[arg-type]  # numpy's savez stub types **kwds as one array type; these are arrays of several dtypes
-    os.replace(tmp, out)
+    buffer = io.BytesIO()
+    np.savez(buffer, **arrays)  # type: ignore[arg-type]
+    write_bytes_atomic(out, buffer.getvalue(), what='run')
     return out
 
 

@@ -87,7 +87,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from gimbal_friction.common.errors import ConfigError, check_rules
-from gimbal_friction.common.settings import setting, settings_from
+from gimbal_friction.common.settings import coerce, setting, settings_from
 
 #: Profiles the simulator knows (see :mod:`gimbal_friction.sim.profiles`).
 PROFILES = ('tracking', 'scan', 'pointing')
@@ -537,30 +537,9 @@ def _section(values: Mapping[str, Any]) -> Mapping[str, Any]:
 
 
 def _coerce(name: str, value: Any, current: Any) -> Any:
-    """``value`` converted to the type of the parameter's current value."""
-    if isinstance(current, bool):
-        if isinstance(value, bool):
-            return value
-        raise ConfigError(name, 'must be true or false', value)
-    if isinstance(current, int):
-        if isinstance(value, bool) or not isinstance(value, (int, float)) or float(value) != int(value):
-            raise ConfigError(name, 'must be a whole number', value)
-        return int(value)
-    if isinstance(current, float):
-        if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise ConfigError(name, f'must be a number, not {type(value).__name__}', value)
-        return float(value)
-    if isinstance(current, tuple):
-        if isinstance(value, (str, bytes)) or not isinstance(value, (list, tuple)):
-            raise ConfigError(name, 'must be a list', value)
-        if name in _NAME_LISTS:
-            if not all(isinstance(v, str) for v in value):
-                raise ConfigError(name, 'must be a list of names', value)
-            return tuple(value)
-        if any(isinstance(v, bool) or not isinstance(v, (int, float)) for v in value):
-            raise ConfigError(name, 'must be a list of numbers', value)
-        return tuple(float(v) for v in value)
-    raise ConfigError(name, 'has an unsupported type', value)  # pragma: no cover - every field is one of the above
+    """``value`` converted to the type of the parameter's current value (the one rule of
+    :func:`gimbal_friction.common.settings.coerce`: NaN and inf refused as by the nodes)."""
+    return coerce(name, value, current, names=name in _NAME_LISTS)
 
 
 def parameter_specs(*, node: bool = False) -> list[dict[str, Any]]:

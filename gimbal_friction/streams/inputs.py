@@ -1,5 +1,7 @@
 """Rules about inputs shared by every node and the offline replay, each written once.
 
+- **A joint named by the user must be configured** (:func:`unconfigured_joints`): one error text for every
+  command, node, file and API that takes joint (axis) names.
 - **Which entry of a message is a joint's** (:func:`index_joints`): the first entry naming a configured joint;
   a repeated name, an unknown name and a value array shorter or longer than the name array are counted.
 - **The time of a message** (:func:`effective_time`): its ``header.stamp``; a zero stamp (a driver that does not
@@ -9,10 +11,15 @@
 - **A fresh temperature** (:func:`is_fresh`): the time of the sample that uses it and the time of the temperature
   differ by at most ``temperature_timeout_s`` (either way: a temperature stamped in the future by more than the
   timeout is not fresh either). The temperature used is always the latest valid one received.
+- **The latest valid sample before each event, on arrays** (:func:`latest_before`): the one search of the batch
+  paths (offline estimator, bag feedforward) for "the last valid temperature (reference) received before this
+  joint state", with the value carried from an earlier batch where none precedes.
 
 Live and offline apply the same functions to the same values (times from the message stamps), so a bag replayed
 offline gives what the live nodes gave.
 
+>>> unconfigured_joints(['roll'], ['elevation'])
+"axis 'roll' is not configured (configured: elevation)"
 >>> index_joints(['azimuth', 'elevation', 'elevation'], (3,), ('elevation',))
 JointIndex(position={'elevation': 1}, mismatch=False, unknown=1, duplicate=1)
 >>> effective_time(0.0, 12.5), effective_time(3.0, 12.5)
@@ -41,8 +48,23 @@ J_UNKNOWN = 'unknown joint name'
 J_DUPLICATE = 'duplicate joint name'
 J_NONE = 'no configured joint'
 
-__all__ = ['J_DUPLICATE', 'J_MISMATCH', 'J_NONE', 'J_UNKNOWN', 'SCALAR', 'T_NON_FINITE', 'T_RANGE', 'JointIndex',
-           'effective_time', 'index_joints', 'is_fresh', 'temperature_rejection', 'temperature_valid']
+__all__ = [
+    'J_DUPLICATE',
+    'J_MISMATCH',
+    'J_NONE',
+    'J_UNKNOWN',
+    'SCALAR',
+    'T_NON_FINITE',
+    'T_RANGE',
+    'JointIndex',
+    'effective_time',
+    'index_joints',
+    'is_fresh',
+    'latest_before',
+    'temperature_rejection',
+    'temperature_valid',
+    'unconfigured_joints',
+]
 
 
 class JointIndex(NamedTuple):
@@ -52,6 +74,17 @@ class JointIndex(NamedTuple):
     mismatch: bool          #: a value array is not as long as the name array (the message is unusable)
     unknown: int            #: entries naming no configured joint [-]
     duplicate: int          #: later entries repeating a configured joint (ignored) [-]
+
+
+def unconfigured_joints(wanted: Sequence[str], configured: Sequence[str]) -> str | None:
+    """Why joint (axis) names asked for are refused: the rule text naming those not in ``configured`` and the
+    configured ones (None: all configured)."""
+    missing = [name for name in wanted if name not in configured]
+    if not missing:
+        return None
+    names = ', '.join(repr(name) for name in missing)
+    verb = 'axis {} is' if len(missing) == 1 else 'axes {} are'
+    return f'{verb.format(names)} not configured (configured: {", ".join(configured)})'
 
 
 def index_joints(names: Sequence[str], value_lengths: Sequence[int], configured: Sequence[str]) -> JointIndex:
@@ -71,6 +104,23 @@ def index_joints(names: Sequence[str], value_lengths: Sequence[int], configured:
         else:
             index[name] = i
     return JointIndex(index, False, unknown, duplicate)
+
+
+def latest_before(keys: NDArray[np.int64] | NDArray[np.float64], query: NDArray[np.int64] | NDArray[np.float64],
+                  values: Sequence[NDArray[np.float64]], *,
+                  inclusive: bool, carried: Sequence[float] | None = None) -> tuple[NDArray[np.float64], ...]:
+    """For each ``query`` key, each of ``values`` at the latest valid sample whose (sorted) key is before it
+    (``inclusive``: at or before it: a sample logged at the same time arrived first); where none is, the
+    ``carried`` value (from an earlier batch; default NaN). Keys: log times [ns] or arrival positions [-].
+
+    >>> latest_before(np.array([10, 20]), np.array([5, 10, 25]), [np.array([1.0, 2.0])], inclusive=True)[0]
+    array([nan,  1.,  2.])
+    """
+    k = np.searchsorted(keys, query, side='right' if inclusive else 'left') - 1
+    have = k >= 0
+    kk = np.maximum(k, 0)
+    fill = [math.nan] * len(values) if carried is None else list(carried)
+    return tuple(np.where(have, v[kk] if v.size else f, f) for v, f in zip(values, fill, strict=True))
 
 
 #: a time of a message: s (float) or ns (int), one value or an array

@@ -407,10 +407,10 @@ def calibration(tmp_path_factory):
 @pytest.fixture(scope='module')
 def wrong_i0_logs(tmp_path_factory, calibration) -> tuple[Path, float]:
     """The default synthetic chamber test replayed with I_0 configured 2 calibration sigmas too high."""
-    from gimbal_friction.cli.refit_cmd import read_calibration_se
+    from gimbal_friction.recording.calibration import read_calibration
 
     root = tmp_path_factory.mktemp('i0')
-    _, se_t0 = read_calibration_se(calibration)
+    se_t0 = read_calibration(calibration).no_load_torque_se_nm
     se_i0 = se_t0 / 0.05
     cfg = root / 'wrong_i0.yaml'
     cfg.write_text(render_parameter_file({'no_load_current_a': 2.0 * se_i0, 'torque_constant_nm_per_a': 0.05}))

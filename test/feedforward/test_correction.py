@@ -12,10 +12,10 @@ import numpy as np
 import pytest
 import yaml
 
+from gimbal_friction.common import files
 from gimbal_friction.common.errors import ConfigError
 from gimbal_friction.common.xp import ARRAY
 from gimbal_friction.feedforward import correction as corr
-from gimbal_friction.feedforward import correction_file
 from gimbal_friction.feedforward.correction import (
     Correction,
     CorrectionError,
@@ -352,7 +352,7 @@ def test_a_failed_save_leaves_the_old_file_whole(tmp_path, monkeypatch):
     def broken(src, dst):
         raise OSError(28, 'No space left on device')
 
-    monkeypatch.setattr(correction_file.os, 'replace', broken)
+    monkeypatch.setattr(files.os, 'replace', broken)
     with pytest.raises(CorrectionError, match='cannot write correction file') as err:
         learn(lambda t, v, p: np.full(np.shape(t), 1e-4), n=1000).save(path)
     assert '\n' not in str(err.value)

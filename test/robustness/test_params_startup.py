@@ -32,11 +32,10 @@ from gimbal_friction.config.loader import (
     MODEL_PARAMETERS,
     ROS_PARAMETERS,
     check_parameter_names,
-    command_line_parameters,
     node_parameter_names,
-    rcl_scalar,
 )
 from gimbal_friction.config.node_settings import EstimatorNodeSettings, FeedforwardNodeSettings, LoggerSettings
+from gimbal_friction.config.rcl import command_line_parameters, rcl_scalar
 from gimbal_friction.estimation.estimator import EstimatorSettings
 from gimbal_friction.feedforward.rule import FeedforwardSettings
 from gimbal_friction.physics.params import parameter_specs
@@ -164,7 +163,7 @@ def test_misspelled_and_foreign_names(tmp_path):
         check_parameter_names(FF, {'stale_polcy': 'zero'}, sources={'stale_polcy': 'f.yaml'})
     with pytest.raises(ConfigError, match='unknown parameter'):
         check_parameter_names('residual_logger', {'qos_overrides./x.depth': 5})
-    with pytest.raises(ConfigError, match="joint 'azimuth' is not configured"):
+    with pytest.raises(ConfigError, match="axis 'azimuth' is not configured"):
         check_parameter_names(FF, {'axis.azimuth.interference_mm': 0.004})
     check_parameter_names(FF, {'axes': ['elevation', 'azimuth'], 'axis.azimuth.interference_mm': 0.004})
     with pytest.raises(ConfigError, match='not of friction_feedforward'):

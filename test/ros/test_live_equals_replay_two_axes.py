@@ -16,7 +16,7 @@ from rosbags.highlevel import AnyReader
 
 from gimbal_friction.chamber.replay import replay_bag
 from gimbal_friction.chamber.synth import SynthConfig, generate
-from gimbal_friction.cli.synth_bag_cmd import write_bag
+from gimbal_friction.chamber.synth_bag import write_bag
 from gimbal_friction.config.loader import render_parameter_file
 from gimbal_friction.recording import topics
 from gimbal_friction.recording.bag import default_typestore

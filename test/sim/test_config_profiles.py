@@ -56,7 +56,7 @@ def test_from_mapping_accepts_the_flat_parameters_the_section_or_a_whole_file():
      'must be >= 0 with sum x (1 + ripple_cold_gain) < 1 (friction keeps its sign)'),
     ({'rate_bandwidth_hz': 400.0}, 'rate_bandwidth_hz', 'must lie in (0, rate_loop_hz / 4] [Hz]'),
     ({'rate_integral_hz': 50.0}, 'rate_integral_hz', 'must lie in [0, rate_bandwidth_hz) [Hz]'),
-    ({'gyro_noise_rad_s': math.nan}, 'gyro_noise_rad_s', 'must be finite'),
+    ({'gyro_noise_rad_s': math.nan}, 'gyro_noise_rad_s', 'must be a finite number'),
     ({'breakaway_ratio': 0.5}, 'breakaway_ratio', 'must lie in [1, 10] [-]'),
     ({'base_motion_profiles': ['spin']}, 'base_motion_profiles', 'must name profiles among tracking, scan, pointing'),
     ({'tracking_travel_deg': [3.0, 1.0]}, 'tracking_travel_deg', 'must be [low, high] with low < high [deg]'),
