@@ -93,7 +93,7 @@ def settings_from(cls: type[T], values: Mapping[str, Any], base: T | None = None
     for f in dataclasses.fields(cls):  # type: ignore[arg-type]  # T is a settings dataclass: a TypeVar cannot be bound to "any dataclass"
         if f.name in values:
             kwargs[f.name] = coerce(f.name, values[f.name], f.default)
-    obj = dataclasses.replace(base, **kwargs) if base is not None else cls(**kwargs)  # type: ignore[type-var]
+    obj = dataclasses.replace(base, **kwargs) if base is not None else cls(**kwargs)  # type: ignore[type-var]  # T is a settings dataclass: a TypeVar cannot be bound to "any dataclass"
     validate = getattr(obj, 'validate', None)
     if validate is not None:
         validate()

@@ -116,8 +116,16 @@ class ChamberReplay(Node):
             raise ConfigError('rate', 'must be > 0', self.rate)
         if not (math.isfinite(self.start_offset_s) and self.start_offset_s >= 0.0):
             raise ConfigError('start_offset_s', 'must be >= 0 [s]', self.start_offset_s)
+        if self.wait_for < 0:
+            raise ConfigError('wait_for_subscribers', 'must be >= 0 subscribers (0 = do not wait)', self.wait_for)
+        if not (math.isfinite(self.wait_timeout_s) and self.wait_timeout_s > 0.0):
+            raise ConfigError('wait_timeout_s', 'must be > 0 [s]', self.wait_timeout_s)
         remap = topics.parse_topic_map([x for x in topic_map if x], 'topic_map')
         self.bag = open_chamber_bag(self.bag_path, remap or None)
+        duration_s = self.bag.duration_ns * 1e-9
+        if self.start_offset_s > duration_s:
+            raise ConfigError('start_offset_s', f'is beyond the end of the bag: must be from 0 to {duration_s:.3f} s '
+                              f'(the bag lasts {duration_s:.3f} s)', self.start_offset_s)
         available = {name: info.msgtype for name, info in self.bag.topics.items()}
         self.topics, self.skipped = select_topics(available, [x for x in include if x], [x for x in exclude if x])
         self.pubs = {}

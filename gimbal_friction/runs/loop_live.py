@@ -63,7 +63,7 @@ def save_run(path: str | os.PathLike[str], run: RealtimeRun) -> Path:
                   feedforward_age=run.feedforward_age, publish_wall_s=run.publish_wall_s,
                   transport_latency_s=np.asarray(run.transport_latency_s, dtype=float))
     buffer = io.BytesIO()
-    np.savez(buffer, **arrays)  # type: ignore[arg-type]
+    np.savez(buffer, **arrays)  # type: ignore[arg-type]  # numpy's savez stub types **kwds as one array type
     write_bytes_atomic(out, buffer.getvalue(), what='run')
     return out
 

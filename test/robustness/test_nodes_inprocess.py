@@ -110,7 +110,7 @@ def test_feedforward_diagnostics_name_the_cause_and_return_to_ok(ff):
     ff.on_joint_state(bad)
     ff.on_temperature(clean_temperature(3000, math.nan))
     ff.on_joint_state(clean_joint_state(3000, v=5.0))      # saturates
-    (st1,) = statuses(ff)
+    (st1,) = [s for s in statuses(ff) if s.name == 'gimbal_friction/feedforward/elevation']
     assert st1.level == WARN
     for cause in ('value/name length mismatch', 'non-finite temperature', 'output saturated'):
         assert cause in st1.message, st1.message
@@ -118,7 +118,7 @@ def test_feedforward_diagnostics_name_the_cause_and_return_to_ok(ff):
     assert int(vals['rejected_joint_state: value/name length mismatch']) >= 1
     ff.on_temperature(clean_temperature(3001))
     ff.on_joint_state(clean_joint_state(3001))
-    (st2,) = statuses(ff)
+    (st2,) = [s for s in statuses(ff) if s.name == 'gimbal_friction/feedforward/elevation']
     assert st2.level == OK and st2.message == 'ok', st2.message
     assert values(st2)['rejected_temperature: non-finite temperature'] == vals['rejected_temperature: '
                                                                                'non-finite temperature']
