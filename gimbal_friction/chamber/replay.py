@@ -40,7 +40,7 @@ from gimbal_friction.feedforward.rule import (
 )
 from gimbal_friction.physics.params import AxisParams
 from gimbal_friction.recording import topics
-from gimbal_friction.recording.bag import ChamberBag, default_typestore, open_chamber_bag
+from gimbal_friction.recording.bag import ChamberBag, RawBatch, default_typestore, open_chamber_bag
 from gimbal_friction.recording.cdr import float64_multi_array_cdr_rows, joint_state_cdr_rows, split_rows
 from gimbal_friction.recording.residual_log import ResidualLogWriter
 from gimbal_friction.streams.arrays import ChamberArrays
@@ -199,21 +199,20 @@ def _read_inputs(bag: ChamberBag, log_inputs: bool) -> tuple[ChamberArrays, _Raw
     live logger subscribes to nothing else) in the same pass."""
     if not log_inputs:
         return bag.read_arrays(), None
-    ids: list[int] = []
-    logs: list[int] = []
+    ids: list[NDArray[np.int64]] = []
+    logs: list[NDArray[np.int64]] = []
     datas: list[bytes] = []
     pairs: dict[tuple[str, str], int] = {}
 
-    def sink(contract_topics: Sequence[str], msgtype: str, log_time_ns: int, data: bytes) -> None:
-        for topic in contract_topics:
-            if topic in topics.CHAMBER_TOPICS:
-                ids.append(pairs.setdefault((topic, msgtype), len(pairs)))
-                logs.append(log_time_ns)
-                datas.append(data)
+    def sink(batch: RawBatch) -> None:
+        lut = np.array([pairs.setdefault(pair, len(pairs)) for pair in batch.topics] or [0], dtype=np.int64)
+        ids.append(lut[batch.topic])
+        logs.append(batch.log_time)
+        datas.extend(batch.datas())
 
     arrays = bag.read_arrays(raw_sink=sink)
-    return arrays, _RawInputs(list(pairs), np.asarray(ids, dtype=np.int64), np.asarray(logs, dtype=np.int64),
-                              datas)
+    return arrays, _RawInputs(list(pairs), np.concatenate([np.zeros(0, dtype=np.int64), *ids]),
+                              np.concatenate([np.zeros(0, dtype=np.int64), *logs]), datas)
 
 
 def _by_layout(keys: NDArray[np.int64], serialize: Callable[[NDArray[np.int64], int], list[bytes]]) -> list[bytes]:

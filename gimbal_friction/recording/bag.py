@@ -18,10 +18,11 @@ and both are kept as recorded (a zero stamp stays zero: the rule that falls back
 from __future__ import annotations
 
 import struct
-from pathlib import Path
+from pathlib import Path, PurePath
 from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
+import yaml
 from rosbags.rosbag2 import Reader, StoragePlugin, Writer, WriterError
 from rosbags.serde import SerdeError
 from rosbags.typesys import TypesysError, get_types_from_idl, get_types_from_msg, get_typestore
@@ -35,9 +36,10 @@ from gimbal_friction.recording.cdr import (
     make_header,
     make_joint_state,
     make_temperature,
-    temperature_from_cdr,
+    temperature_rows,
 )
 from gimbal_friction.recording.errors import LIBRARY_READ_ERRORS, RecordingError, recover_hint
+from gimbal_friction.recording.mcap_scan import McapScanner, chunk_time_ranges
 from gimbal_friction.recording.topics import (
     CHAMBER_TOPICS,
     JOINT_STATE_TYPE,
@@ -57,8 +59,8 @@ if TYPE_CHECKING:
     from rosbags.interfaces import Connection
     from rosbags.typesys.store import Typestore
 
-    #: ``read_arrays`` raw-message callback: (contract topics, msgtype, log time [ns], CDR bytes)
-    RawSink: TypeAlias = Callable[[Sequence[str], str, int, bytes], None]
+    #: ``read_arrays`` raw-message callback: the input messages of a batch, as recorded
+    RawSink: TypeAlias = Callable[[RawBatch], None]
 
 __all__ = [
     'BAG_SUFFIXES',
@@ -69,6 +71,7 @@ __all__ = [
     'DecodedMessage',
     'JointStateArrays',
     'JointSummary',
+    'RawBatch',
     'RawMessage',
     'StreamSummary',
     'TemperatureArrays',
@@ -524,13 +527,13 @@ class ChamberBag:
         pass over the bag).
 
         JointState and Temperature messages are parsed directly from their CDR bytes (plain little-endian, the
-        usual case) and fall back to the type store for anything else. Joint names are renamed by ``joint_map``.
+        usual case), a batch at a time (the messages of an MCAP chunk), and fall back to the type store for
+        anything else. Joint names are renamed by ``joint_map``.
 
         Args:
-            raw_sink: called as ``raw_sink(contract_topics, msgtype, log_time_ns, cdr_bytes)`` for every message of
-                the three input topics (not the reference velocity, which the nodes do not log), in log-time
-                order, during the same pass (what :meth:`iter_raw` yields, without reading the bag twice);
-                ``contract_topics`` lists the contract names the bag topic feeds.
+            raw_sink: called with a :class:`RawBatch` for every batch of messages of the three input topics (not
+                the reference velocity, which the nodes do not log), in the order :meth:`iter_raw` yields them,
+                during the same pass (without reading the bag twice).
 
         Raises:
             RecordingError: the bag cannot be read, a message cannot be decoded, or the joint map would give two
@@ -555,37 +558,111 @@ class ChamberBag:
 
     def _windows(self, max_messages: int | None, raw_sink: RawSink | None) -> Iterator[ChamberArrays]:
         """The one decoding loop of :meth:`read_arrays` (``max_messages`` None: one window) and
-        :meth:`iter_arrays`."""
-        bag_temperature = self.topic_map[TEMPERATURE]
+        :meth:`iter_arrays`: batches of messages (:meth:`_batches`) decoded in bulk."""
         inputs = self._select(None)
         bag_reference = self.topic_map[REFERENCE_VELOCITY] if self.has_reference else None
         selected = inputs if bag_reference is None else self._select([*CHAMBER_TOPICS, REFERENCE_VELOCITY])
         window = _Window(self, bag_reference)
-        last_log = None
-        for conn, log_time, data in self._messages(selected):
-            if max_messages is not None and window.count >= max_messages and log_time != last_log:
-                yield window.finish()
-                window = _Window(self, bag_reference)
-            last_log = log_time
-            if raw_sink is not None and conn.topic in inputs:
-                raw_sink(inputs[conn.topic], conn.msgtype, log_time, data)
-            collector = window.joint_collectors.get(conn.topic)
-            if collector is not None:
-                window.count += 1
-                if not collector.add_cdr(log_time, data):
-                    collector.add_message(log_time, self._decode(data, conn, log_time))
-            elif conn.topic == bag_temperature:
-                window.count += 1
-                fast = temperature_from_cdr(data)
-                if fast is None:
-                    message = self._decode(data, conn, log_time)
-                    stamp = message.header.stamp  # type: ignore[attr-defined]
-                    value = float(message.temperature)  # type: ignore[attr-defined]
-                    fast = (join_stamp(stamp.sec, stamp.nanosec), value)
-                window.t_log.append(log_time)
-                window.t_stamp.append(fast[0])
-                window.t_value.append(fast[1])
+        last_log: int | None = None
+        for batch in self._batches(selected):
+            n = batch.log_time.shape[0]
+            pos = 0
+            while pos < n:
+                end = n if max_messages is None else _window_end(batch.log_time, pos, max_messages - window.count,
+                                                                 last_log)
+                if end > pos:
+                    if raw_sink is not None:
+                        raw_sink(_raw_batch(batch, pos, end, inputs))
+                    window.add(batch, pos, end)
+                    last_log = int(batch.log_time[end - 1])
+                    pos = end
+                if end < n:
+                    yield window.finish()
+                    window = _Window(self, bag_reference)
         yield window.finish()
+
+    def _batches(self, selected: Mapping[str, Sequence[str]]) -> Iterator[_Batch]:
+        """The messages of the selected bag topics in batches, in the order of ``rosbags``' reader (log-time order
+        per storage file, ties in file order).
+
+        The MCAP files of a bag whose chunks follow each other in log time (what recorders write) are read a chunk
+        at a time (:class:`~.mcap_scan.McapScanner`): one batch per chunk, no per-message work. Other bags (sqlite3,
+        compressed files, overlapping chunks) are read through ``rosbags``, in batches of :data:`_BATCH_MESSAGES`.
+        """
+        try:
+            with Reader(self.path) as reader:
+                conns = [c for c in reader.connections if c.topic in selected]
+                if not conns:  # an empty list would mean "every connection" to rosbags
+                    return
+                files = self._chunked_mcap_files(reader)
+                if files is None:
+                    yield from _batched(conns, reader.messages(connections=conns))
+                    return
+        except LIBRARY_READ_ERRORS as err:
+            raise _read_error(self.path, 'reading', err) from err
+        for path in files:
+            yield from self._mcap_batches(path, conns)
+
+    def _chunked_mcap_files(self, reader: Reader) -> list[Path] | None:
+        """The bag's MCAP files if each one's chunks follow each other in log time (else None: read with rosbags)."""
+        if self.path.is_file():
+            paths = [self.path] if self.path.suffix == '.mcap' else []
+        elif reader.compression_mode:
+            return None
+        else:
+            try:
+                info = yaml.safe_load((self.path / 'metadata.yaml').read_text())['rosbag2_bagfile_information']
+                if info.get('storage_identifier') != 'mcap':
+                    return None
+                paths = [self.path / PurePath(x).name for x in info['relative_file_paths']]
+            except (OSError, yaml.YAMLError, KeyError, TypeError, AttributeError):
+                return None
+        for path in paths:
+            ranges = chunk_time_ranges(path)
+            if not ranges:
+                return None
+            latest = ranges[0][0]
+            for first, last in ranges:
+                if first < latest:
+                    return None
+                latest = max(latest, last)
+        return paths or None
+
+    def _mcap_batches(self, path: Path, conns: list[Connection]) -> Iterator[_Batch]:
+        """One batch per chunk of an MCAP file whose chunks follow each other in log time."""
+        topic_count: dict[str, int] = {}
+        for conn in conns:
+            topic_count[conn.topic] = topic_count.get(conn.topic, 0) + 1
+        by_key = {(c.topic, c.msgtype if topic_count[c.topic] > 1 else ''): k for k, c in enumerate(conns)}
+        scanner = McapScanner(path)
+        channel_conn: dict[int, int] = {}
+        for block in scanner.blocks():
+            if scanner.report.problems:
+                break
+            present = np.unique(block.channel_id).tolist()
+            for cid in present:
+                if cid not in channel_conn:
+                    channel = scanner.channels.get(cid)
+                    schema = scanner.schemas.get(channel.schema_id) if channel is not None else None
+                    if channel is None:
+                        channel_conn[cid] = -1
+                    else:
+                        msgtype = schema.name if schema is not None and topic_count.get(channel.topic, 0) > 1 else ''
+                        channel_conn[cid] = by_key.get((channel.topic, msgtype), -1)
+            lut = np.full(max(present) + 1, -1, dtype=np.int64)
+            lut[present] = [channel_conn[c] for c in present]
+            conn = lut[block.channel_id]
+            keep = np.flatnonzero(conn >= 0)
+            if keep.shape[0] == 0:
+                continue
+            order = keep[np.argsort(block.log_time[keep], kind='stable')]  # as rosbags: a chunk sorted by log time
+            yield _Batch(conns, conn[order], block.log_time[order], block.buffer, block.data_start[order],
+                         block.data_length[order])
+        if scanner.report.problems or scanner.report.truncated:
+            problem = scanner.report.problems[0] if scanner.report.problems else 'cut short'
+            msg = (f'bag {self.path}: reading failed ({problem}): the bag is damaged or cut short; '
+                   f'{recover_hint(self.path)}')
+            raise RecordingError(msg)
 
     def describe(self, arrays: ChamberArrays | None = None) -> BagDescription:
         """What the three input streams hold (counts, joints and their fields, zero stamps) and what is not read.
@@ -663,12 +740,114 @@ def _joint_summary(data: JointStateArrays, name: str, recorded: str) -> JointSum
                         int(np.count_nonzero(vel)), int(np.count_nonzero(eff)))
 
 
+class _Batch(NamedTuple):
+    """Messages of the selected bag topics, in reading order, as arrays over one buffer."""
+
+    conns: list[Connection]
+    """The selected connections."""
+    conn: NDArray[np.int64]
+    """Index into ``conns`` of each message."""
+    log_time: NDArray[np.int64]
+    """Log time of each message [ns]."""
+    buffer: bytes
+    start: NDArray[np.int64]
+    """Offset of each message's CDR bytes in ``buffer`` [B]."""
+    length: NDArray[np.int64]
+    """Length of each message's CDR bytes [B]."""
+
+
+class RawBatch(NamedTuple):
+    """Input messages of the bag as recorded, for :meth:`ChamberBag.read_arrays`' ``raw_sink``: one entry per
+    message and contract topic (a bag topic feeding two contract topics gives each message twice, in turn)."""
+
+    topics: list[tuple[str, str]]
+    """``(contract topic, msgtype)`` pairs."""
+    topic: NDArray[np.int64]
+    """Index into ``topics`` of each entry."""
+    log_time: NDArray[np.int64]
+    """Log time of each entry [ns]."""
+    buffer: bytes
+    start: NDArray[np.int64]
+    """Offset of each entry's CDR bytes (encapsulation header included) in ``buffer`` [B]."""
+    length: NDArray[np.int64]
+    """Length of each entry's CDR bytes [B]."""
+
+    def datas(self) -> list[bytes]:
+        """The CDR bytes of each entry."""
+        buffer = self.buffer
+        return [buffer[a : a + n] for a, n in zip(self.start.tolist(), self.length.tolist(), strict=True)]
+
+
+#: messages per batch read through rosbags (sqlite3 bags, MCAP files whose chunks overlap in time)
+_BATCH_MESSAGES = 8192
+
+
+def _batched(conns: list[Connection], messages: Iterable[tuple[Connection, int, bytes]]) -> Iterator[_Batch]:
+    """``rosbags`` messages gathered into batches of :data:`_BATCH_MESSAGES`."""
+    index = {id(c): k for k, c in enumerate(conns)}
+    by_topic = {(c.topic, c.msgtype): k for k, c in enumerate(conns)}
+    ids: list[int] = []
+    logs: list[int] = []
+    datas: list[bytes] = []
+
+    def batch() -> _Batch:
+        length = np.fromiter(map(len, datas), dtype=np.int64, count=len(datas))
+        start = np.zeros_like(length)
+        np.cumsum(length[:-1], out=start[1:])
+        return _Batch(conns, np.asarray(ids, dtype=np.int64), np.asarray(logs, dtype=np.int64), b''.join(datas),
+                      start, length)
+
+    for conn, log_time, data in messages:
+        k = index.get(id(conn))
+        ids.append(by_topic[(conn.topic, conn.msgtype)] if k is None else k)
+        logs.append(log_time)
+        datas.append(data)
+        if len(datas) >= _BATCH_MESSAGES:
+            yield batch()
+            ids, logs, datas = [], [], []
+    if datas:
+        yield batch()
+
+
+def _window_end(log_time: NDArray[np.int64], pos: int, room: int, last_log: int | None) -> int:
+    """Where a window that has ``room`` messages left ends in ``log_time[pos:]``: at the first message past the room
+    whose log time differs from the one before it (``last_log`` before ``pos``); ``len(log_time)`` if none does."""
+    first = pos + max(room, 0)
+    n = log_time.shape[0]
+    if first >= n:
+        return n
+    before = (last_log if first == pos else int(log_time[first - 1]))
+    if before is None:
+        return first
+    changed = np.flatnonzero(log_time[first:] != np.concatenate(([before], log_time[first : n - 1])))
+    return first + int(changed[0]) if changed.shape[0] else n
+
+
+def _raw_batch(batch: _Batch, pos: int, end: int, inputs: Mapping[str, Sequence[str]]) -> RawBatch:
+    """The input messages of ``batch[pos:end]`` as :class:`RawBatch` entries (one per contract topic fed)."""
+    pairs: list[tuple[str, str]] = []
+    table = np.full((len(batch.conns), max((len(v) for v in inputs.values()), default=0) + 1), -1, dtype=np.int64)
+    fed = np.zeros(len(batch.conns), dtype=np.int64)
+    for k, conn in enumerate(batch.conns):
+        for j, topic in enumerate(inputs.get(conn.topic, ())):
+            table[k, j] = len(pairs)
+            pairs.append((topic, conn.msgtype))
+        fed[k] = len(inputs.get(conn.topic, ()))
+    conn = batch.conn[pos:end]
+    counts = fed[conn]
+    message = np.repeat(np.arange(pos, end, dtype=np.int64), counts)
+    nth = np.arange(message.shape[0], dtype=np.int64) - np.repeat(np.cumsum(counts) - counts, counts)
+    return RawBatch(pairs, table[batch.conn[message], nth], batch.log_time[message], batch.buffer,
+                    batch.start[message], batch.length[message])
+
+
 class _Window:
     """The messages of one window of :meth:`ChamberBag._windows`, being collected."""
 
     def __init__(self, bag: ChamberBag, bag_reference: str | None) -> None:
         self.bag = bag
         self.bag_reference = bag_reference
+        self.bag_temperature = bag.topic_map[TEMPERATURE]
         # one collector per bag topic: a bag topic may feed both joint-state inputs
         self.joint_collectors = {
             bag.topic_map[JOINT_STATES]: JointStateColumns(),
@@ -676,17 +855,52 @@ class _Window:
         }
         if bag_reference is not None and bag_reference not in self.joint_collectors:
             self.joint_collectors[bag_reference] = JointStateColumns()
-        self.t_log: list[int] = []
-        self.t_stamp: list[int] = []
-        self.t_value: list[float] = []
+        self.t_log: list[NDArray[np.int64]] = []
+        self.t_stamp: list[NDArray[np.int64]] = []
+        self.t_value: list[NDArray[np.float64]] = []
         self.count = 0
+
+    def add(self, batch: _Batch, pos: int, end: int) -> None:
+        """Decode the messages ``pos:end`` of ``batch`` (in bulk; the type store for what is not plain CDR)."""
+        conn_of = batch.conn[pos:end]
+        buffer = batch.buffer
+        for k in np.unique(conn_of).tolist():
+            sel = pos + np.flatnonzero(conn_of == k)
+            conn = batch.conns[k]
+            logs, starts, lengths = batch.log_time[sel], batch.start[sel], batch.length[sel]
+
+            def decode(i: int, conn: Connection = conn, logs: NDArray[np.int64] = logs,
+                       starts: NDArray[np.int64] = starts, lengths: NDArray[np.int64] = lengths) -> object:
+                a = int(starts[i])
+                return self.bag._decode(buffer[a : a + int(lengths[i])], conn, int(logs[i]))
+
+            collector = self.joint_collectors.get(conn.topic)
+            if collector is not None:
+                collector.add_batch(logs, buffer, starts, lengths, decode)
+            elif conn.topic == self.bag_temperature:
+                rows = temperature_rows(buffer, starts, lengths)
+                stamps = np.zeros(sel.shape[0], dtype=np.int64)
+                values = np.zeros(sel.shape[0], dtype=np.float64)
+                stamps[rows.index] = rows.stamp_ns
+                values[rows.index] = rows.temperature_c
+                for i in rows.others.tolist():
+                    message = decode(i)
+                    stamp = message.header.stamp  # type: ignore[attr-defined]
+                    stamps[i] = join_stamp(stamp.sec, stamp.nanosec)
+                    values[i] = float(message.temperature)  # type: ignore[attr-defined]
+                self.t_log.append(logs)
+                self.t_stamp.append(stamps)
+                self.t_value.append(values)
+            else:
+                continue
+            self.count += sel.shape[0]
 
     def finish(self) -> ChamberArrays:
         bag = self.bag
         temperature = TemperatureArrays(
-            np.array(self.t_log, dtype=np.int64),
-            np.array(self.t_stamp, dtype=np.int64),
-            np.array(self.t_value, dtype=np.float64),
+            np.concatenate([np.zeros(0, dtype=np.int64), *self.t_log]),
+            np.concatenate([np.zeros(0, dtype=np.int64), *self.t_stamp]),
+            np.concatenate([np.zeros(0, dtype=np.float64), *self.t_value]),
         )
         try:
             finished = {name: c.finish(bag.joint_map) for name, c in self.joint_collectors.items()}

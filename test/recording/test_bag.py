@@ -346,8 +346,8 @@ def test_other_topics_of_any_type_are_ignored_and_listed(tmp_path: Path) -> None
     assert bag.message_count == 13  # the three inputs
     assert {x.topic for x in bag.iter_raw()} == {TEMPERATURE, JOINT_STATES, MOTOR_CURRENT}
     seen = []
-    arrays = bag.read_arrays(raw_sink=lambda topics, *_: seen.append(tuple(topics)))
-    assert len(seen) == 13 and {t for (t,) in seen} == {TEMPERATURE, JOINT_STATES, MOTOR_CURRENT}
+    arrays = bag.read_arrays(raw_sink=lambda batch: seen.extend(batch.topics[k][0] for k in batch.topic.tolist()))
+    assert len(seen) == 13 and set(seen) == {TEMPERATURE, JOINT_STATES, MOTOR_CURRENT}
     assert len(arrays.joint_states) == 6
     assert [x.log_time_ns for x in bag.iter_raw(['/blob'])] == [T0 + 2]  # still readable by name
     notes = bag.describe(arrays).findings(['elevation'])
