@@ -55,7 +55,7 @@ _GENERATED_TOPICS = [(topics.FEEDFORWARD, topics.JOINT_STATE_TYPE), (topics.MEAS
                      (topics.MEASURED_DETAIL, topics.FLOAT64_MULTI_ARRAY_TYPE),
                      (topics.RESIDUAL, topics.JOINT_STATE_TYPE),
                      (topics.RESIDUAL_DETAIL, topics.FLOAT64_MULTI_ARRAY_TYPE)]
-_LOG_BATCH = 20000  # messages per write_raw_many call (one progress report each)
+_LOG_BATCH = 200_000  # messages per write_raw_many call (one progress report each; the chunk compressed last waits)
 
 
 class ReplayResult(NamedTuple):
@@ -275,7 +275,9 @@ def _log_stream(ff: BagTorques, measured: MeasurementArrays, measured_log: NDArr
     all_ids = np.concatenate(ids)
     all_logs = np.concatenate(logs)
     order = np.argsort(all_logs, kind='stable')
-    return log_topics, all_ids[order], all_logs[order], [datas[i] for i in order.tolist()]
+    pool = np.empty(len(datas), dtype=object)  # a take on an object array: no Python loop per message
+    pool[:] = datas
+    return log_topics, all_ids[order], all_logs[order], pool[order].tolist()
 
 
 #: the measured_detail / residual_detail layouts, for readers of this module
