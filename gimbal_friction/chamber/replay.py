@@ -151,8 +151,9 @@ def replay_bag(bag_path: str | Path, out_dir: str | Path | None, *, config_paths
         residual_dir = Path(out_dir) / 'residuals'
         with ResidualLogWriter(residual_dir, flush_interval_s=None, chunk_size=1 << 20,
                                typestore=default_typestore()) as writer:
-            report('writing residual log', 0.0)
+            report('serializing log', 0.0)
             log_topics, ids, logs, datas = _log_stream(ff, measured, measured_log, rows, raw)
+            report('writing residual log', 0.0)
             total = len(datas)
             for a in range(0, total, _LOG_BATCH):
                 b = min(a + _LOG_BATCH, total)
