@@ -90,6 +90,8 @@ BAG_SUFFIXES = ('.mcap', '.db3')
 _STORAGE_PLUGINS = {'mcap': StoragePlugin.MCAP, 'sqlite3': StoragePlugin.SQLITE3}
 #: what writing a bag raises on bad input or I/O (wrong message objects surface as AttributeError etc.)
 _WRITE_ERRORS = (WriterError, SerdeError, TypesysError, OSError, KeyError, AttributeError, TypeError, struct.error)
+#: the fastest safe YAML loader (libyaml's when PyYAML has it)
+_YAML_LOADER = getattr(yaml, 'CSafeLoader', yaml.SafeLoader)
 #: what decoding a message with the type store raises on bytes that are not that message
 _DECODE_ERRORS = (SerdeError, TypesysError, KeyError, ValueError, IndexError, struct.error, AssertionError)
 
@@ -611,7 +613,7 @@ class ChamberBag:
             return None
         else:
             try:
-                info = yaml.safe_load((self.path / 'metadata.yaml').read_text())['rosbag2_bagfile_information']
+                info = yaml.load((self.path / 'metadata.yaml').read_text(), Loader=_YAML_LOADER)['rosbag2_bagfile_information']
                 if info.get('storage_identifier') != 'mcap':
                     return None
                 paths = [self.path / PurePath(x).name for x in info['relative_file_paths']]

@@ -21,6 +21,7 @@ from __future__ import annotations
 import io
 import itertools
 import struct
+import threading
 import zlib
 from concurrent.futures import Future, ThreadPoolExecutor
 from importlib import metadata
@@ -264,13 +265,24 @@ def _executor() -> ThreadPoolExecutor:
     return _EXECUTOR
 
 
+_LOCAL = threading.local()
+
+
+def _zstd() -> zstandard.ZstdCompressor:
+    """This thread's zstd compressor (``zstandard.compress``'s level and options; made once, not per chunk)."""
+    compressor = getattr(_LOCAL, 'zstd', None)
+    if compressor is None:
+        compressor = _LOCAL.zstd = zstandard.ZstdCompressor()
+    return compressor
+
+
 def _compress(data: bytes, compression: CompressionType, crcs: bool) -> tuple[str, bytes, int, int]:
     """(compression name, compressed records, uncompressed size [B], CRC) of a chunk, as ``Writer.__finalize_chunk``
     computes them."""
     if compression == CompressionType.LZ4:
         name, compressed = 'lz4', lz4.frame.compress(data)
-    elif compression == CompressionType.ZSTD:
-        name, compressed = 'zstd', zstandard.compress(data)
+    elif compression == CompressionType.ZSTD:  # what zstandard.compress(data) gives, with a compressor kept
+        name, compressed = 'zstd', _zstd().compress(data)
     else:
         name, compressed = '', data
     return name, compressed, len(data), zlib.crc32(data) if crcs else 0
