@@ -32,6 +32,7 @@ from gimbal_friction.recording.cdr import (
     DEFAULT_STORE,
     JointStateColumns,
     default_typestore,
+    distinct,
     make_float64_multi_array,
     make_header,
     make_joint_state,
@@ -641,7 +642,7 @@ class ChamberBag:
         for block in scanner.blocks():
             if scanner.report.problems:
                 break
-            present = np.unique(block.channel_id).tolist()
+            present = distinct(block.channel_id)
             for cid in present:
                 if cid not in channel_conn:
                     channel = scanner.channels.get(cid)
@@ -866,7 +867,7 @@ class _Window:
         """Decode the messages ``pos:end`` of ``batch`` (in bulk; the type store for what is not plain CDR)."""
         conn_of = batch.conn[pos:end]
         buffer = batch.buffer
-        for k in np.unique(conn_of).tolist():
+        for k in distinct(conn_of):
             sel = pos + np.flatnonzero(conn_of == k)
             conn = batch.conns[k]
             logs, starts, lengths = batch.log_time[sel], batch.start[sel], batch.length[sel]
