@@ -61,7 +61,7 @@ if TYPE_CHECKING:
     from rosbags.typesys.store import Typestore
 
     #: ``read_arrays`` raw-message callback: the input messages of a batch, as recorded
-    RawSink: TypeAlias = Callable[[RawBatch], None]
+    RawSink: TypeAlias = Callable[['RawBatch'], None]
 
 __all__ = [
     'BAG_SUFFIXES',
@@ -614,7 +614,8 @@ class ChamberBag:
             return None
         else:
             try:
-                info = yaml.load((self.path / 'metadata.yaml').read_text(), Loader=_YAML_LOADER)['rosbag2_bagfile_information']
+                text = (self.path / 'metadata.yaml').read_text()
+                info = yaml.load(text, Loader=_YAML_LOADER)['rosbag2_bagfile_information']
                 if info.get('storage_identifier') != 'mcap':
                     return None
                 paths = [self.path / PurePath(x).name for x in info['relative_file_paths']]
@@ -654,12 +655,12 @@ class ChamberBag:
                         channel_conn[cid] = by_key.get((channel.topic, msgtype), -1)
             lut = np.full(max(present) + 1, -1, dtype=np.int64)
             lut[present] = [channel_conn[c] for c in present]
-            conn = lut[block.channel_id]
-            keep = np.flatnonzero(conn >= 0)
+            conn_index = lut[block.channel_id]
+            keep = np.flatnonzero(conn_index >= 0)
             if keep.shape[0] == 0:
                 continue
             order = keep[np.argsort(block.log_time[keep], kind='stable')]  # as rosbags: a chunk sorted by log time
-            yield _Batch(conns, conn[order], block.log_time[order], block.buffer, block.data_start[order],
+            yield _Batch(conns, conn_index[order], block.log_time[order], block.buffer, block.data_start[order],
                          block.data_length[order])
         if scanner.report.problems or scanner.report.truncated:
             problem = scanner.report.problems[0] if scanner.report.problems else 'cut short'
@@ -836,8 +837,7 @@ def _raw_batch(batch: _Batch, pos: int, end: int, inputs: Mapping[str, Sequence[
             table[k, j] = len(pairs)
             pairs.append((topic, conn.msgtype))
         fed[k] = len(inputs.get(conn.topic, ()))
-    conn = batch.conn[pos:end]
-    counts = fed[conn]
+    counts = fed[batch.conn[pos:end]]
     message = np.repeat(np.arange(pos, end, dtype=np.int64), counts)
     nth = np.arange(message.shape[0], dtype=np.int64) - np.repeat(np.cumsum(counts) - counts, counts)
     return RawBatch(pairs, table[batch.conn[message], nth], batch.log_time[message], batch.buffer,
@@ -884,8 +884,8 @@ class _Window:
                 rows = temperature_rows(buffer, starts, lengths)
                 stamps = np.zeros(sel.shape[0], dtype=np.int64)
                 values = np.zeros(sel.shape[0], dtype=np.float64)
-                stamps[rows.index] = rows.stamp_ns
-                values[rows.index] = rows.temperature_c
+                stamps[rows.decoded] = rows.stamp_ns
+                values[rows.decoded] = rows.temperature_c
                 for i in rows.others.tolist():
                     message = decode(i)
                     stamp = message.header.stamp  # type: ignore[attr-defined]

@@ -420,7 +420,7 @@ def _plain_le(raw: bytes) -> bool:
 class TemperatureRows(NamedTuple):
     """A batch of Temperature messages decoded in bulk (see :func:`temperature_rows`)."""
 
-    index: NDArray[np.intp]
+    decoded: NDArray[np.intp]
     """Indexes of the messages decoded, in order."""
     stamp_ns: NDArray[np.int64]
     """Their ``header.stamp`` [ns]."""
@@ -474,7 +474,7 @@ def temperature_from_cdr(raw: bytes) -> tuple[int, float] | None:
     """``(header.stamp [ns], temperature [degC])`` of one plain little-endian ``sensor_msgs/Temperature``
     (:func:`temperature_rows` of one message); None if the type store must decode it."""
     rows = temperature_rows(raw, [0], [len(raw)])
-    if not rows.index.shape[0]:
+    if not rows.decoded.shape[0]:
         return None
     return int(rows.stamp_ns[0]), float(rows.temperature_c[0])
 
@@ -848,11 +848,11 @@ class JointStateColumns:
         columns = []  # per name set: the joint column of each value slot, -1 for a repeated name
         for names in self.name_sets:
             seen: set[str] = set()
-            cols = []
+            slots = []
             for name in names:
-                cols.append(-1 if name in seen else order[name])
+                slots.append(-1 if name in seen else order[name])
                 seen.add(name)
-            columns.append(np.asarray(cols, dtype=np.int64))
+            columns.append(np.asarray(slots, dtype=np.int64))
         reported = _renamed(tuple(order), rename or {})
         fields = []
         for field in range(3):

@@ -285,6 +285,6 @@ def test_temperature_rows_decode_a_batch_like_the_type_store():
     starts = np.cumsum([0] + [len(d) for d in datas[:-1]])
     rows = temperature_rows(b''.join(datas), starts, [len(d) for d in datas])
     assert rows.others.tolist() == [k for k, e in enumerate(expected) if not e[2]]
-    assert rows.index.tolist() == [k for k, e in enumerate(expected) if e[2]]
-    assert rows.stamp_ns.tolist() == [expected[k][0] for k in rows.index.tolist()]
-    assert rows.temperature_c.tolist() == [expected[k][1] for k in rows.index.tolist()]
+    assert rows.decoded.tolist() == [k for k, e in enumerate(expected) if e[2]]
+    assert rows.stamp_ns.tolist() == [expected[k][0] for k in rows.decoded.tolist()]
+    assert rows.temperature_c.tolist() == [expected[k][1] for k in rows.decoded.tolist()]
