@@ -2,9 +2,12 @@
 
 A chamber-test bag (CONTRACT.md "Bags and logs") is a rosbag2 bag directory (MCAP or sqlite3 storage, whatever
 wrote it) or a bare ``.mcap`` / ``.db3`` file that holds at least the topics of :data:`~.topics.CHAMBER_TOPICS`.
-Reading goes through ``rosbags.rosbag2.Reader``; only the chamber topics are read and decoded (with
-:mod:`~gimbal_friction.recording.cdr`), so other topics -- service events, ``/rosout``, images, types no type store
-knows -- are listed (:meth:`ChamberBag.describe`) and otherwise ignored. No rclpy is imported.
+Opening goes through ``rosbags.rosbag2.Reader``. Reading the arrays takes the MCAP files of a bag a chunk at a time
+(:class:`~.mcap_scan.McapScanner`) when their chunks follow each other in log time (what recorders write), and
+``rosbags``' messages otherwise; either way in the order ``rosbags`` yields them. Only the chamber topics are read
+and decoded, in bulk (with :mod:`~gimbal_friction.recording.cdr`), so other topics -- service events, ``/rosout``,
+images, types no type store knows -- are listed (:meth:`ChamberBag.describe`) and otherwise ignored. No rclpy is
+imported.
 
 Names: every public function speaks *contract* topic names (``/joint_states``, ...). ``topic_map`` maps a contract
 name to the name recorded in the bag (``{'/joint_states': '/gimbal/joint_states'}``), as ``--topic`` options do.

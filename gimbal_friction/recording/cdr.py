@@ -10,10 +10,13 @@ value counts; only stamps and values differ) with numpy: a template row is fille
 message is a few array assignments rather than a message object and a serializer call. :func:`split_rows` turns
 the rows into one ``bytes`` per message.
 
-Decoding (the reverse, for the readers): :class:`JointStateColumns` collects JointState messages into per-joint
-arrays, :func:`temperature_from_cdr` reads a Temperature, :func:`float64_multi_array_rows` decodes a batch of
-Float64MultiArray messages in bulk (messages of one layout -- label, value count -- are read as one numpy block).
-Anything that is not plain little-endian CDR falls back to the type store.
+Decoding (the reverse, for the readers), a batch of messages at a time (e.g. the messages of one topic in one MCAP
+chunk, as offsets into its buffer): :class:`JointStateColumns` collects JointState messages into per-joint arrays
+(messages of one layout -- frame_id, names, value counts -- are checked against the first of them and read as one
+numpy block), :func:`temperature_rows` reads Temperature messages with array operations,
+:func:`float64_multi_array_rows` decodes Float64MultiArray messages (one numpy block per label and value count).
+:func:`temperature_from_cdr` is :func:`temperature_rows` of one message. Anything that is not plain little-endian
+CDR falls back to the type store.
 
 Builders (``make_header``, ``make_temperature``, ``make_joint_state``, ``make_float64_multi_array``) return rosbags
 message objects of :func:`default_typestore`, the store matching the ROS 2 wheels of this project.

@@ -8,7 +8,8 @@ rewritten into complete files by ``gimbal-friction recover`` (:mod:`.recover`); 
 writer leaves nothing readable in that case.
 
 Messages go through ``mcap.writer.Writer.add_message``; :meth:`ResidualLogWriter.write_raw_many` appends whole runs
-of messages through :mod:`.mcap_bulk` when the installed mcap allows it (same bytes, faster).
+of messages through :mod:`.mcap_bulk` when the installed mcap allows it (same bytes, faster; without rotation by
+size, a full chunk is compressed in a worker thread while the next run is appended).
 
 Reading is :mod:`.residual_read` (``read_residual_rows``, ``iter_residual_rows``, ``iter_residual_log``),
 recovery :mod:`.recover`.
