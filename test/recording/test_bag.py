@@ -520,3 +520,10 @@ def test_bulk_read_equals_reading_message_by_message(tmp_path: Path, monkeypatch
                     slot = list(m.name).index(name) if name in m.name else len(values)
                     want.append(values[slot] if slot < len(values) else NAN)
                 np.testing.assert_array_equal(column, want, err_msg=f'{topic} {field} {name}')
+    parts = list(bag.iter_arrays(37))   # windows cut inside the batches: together, the whole bag
+    assert len(parts) > 5
+    for field in ('temperature', 'joint_states', 'motor_current'):
+        np.testing.assert_array_equal(np.concatenate([getattr(p, field).log_time_ns for p in parts]),
+                                      getattr(arrays, field).log_time_ns)
+    np.testing.assert_array_equal(np.concatenate([p.motor_current.effort['azimuth'] for p in parts]),
+                                  arrays.motor_current.effort['azimuth'])
