@@ -42,7 +42,7 @@ from gimbal_friction.feedforward.rule import (
 )
 from gimbal_friction.physics.params import AxisParams
 from gimbal_friction.recording import topics
-from gimbal_friction.recording.bag import ChamberBag, default_typestore, open_chamber_bag
+from gimbal_friction.recording.bag import ChamberBag, RawBatch, default_typestore, open_chamber_bag
 from gimbal_friction.recording.cdr import float64_multi_array_cdr_rows, joint_state_cdr_rows, split_rows
 from gimbal_friction.recording.errors import EmptyInputError
 from gimbal_friction.recording.residual_log import ResidualLogWriter
@@ -58,7 +58,7 @@ _GENERATED_TOPICS = [(topics.FEEDFORWARD, topics.JOINT_STATE_TYPE), (topics.MEAS
                      (topics.MEASURED_DETAIL, topics.FLOAT64_MULTI_ARRAY_TYPE),
                      (topics.RESIDUAL, topics.JOINT_STATE_TYPE),
                      (topics.RESIDUAL_DETAIL, topics.FLOAT64_MULTI_ARRAY_TYPE)]
-_LOG_BATCH = 20000  # messages per write_raw_many call (one progress report each)
+_LOG_BATCH = 200_000  # messages per write_raw_many call (one progress report each; the chunk compressed last waits)
 
 
 class ReplayResult(NamedTuple):
@@ -184,8 +184,9 @@ def replay_bag(bag_path: str | Path, out_dir: str | Path | None, *, config_paths
         residual_dir = Path(out_dir) / 'residuals'
         with ResidualLogWriter(residual_dir, flush_interval_s=None, chunk_size=1 << 20,
                                typestore=default_typestore()) as writer:
-            report('writing residual log', 0.0)
+            report('serializing log', 0.0)
             log_topics, ids, logs, datas = _log_stream(ff, measured, measured_log, rows, raw)
+            report('writing residual log', 0.0)
             total = len(datas)
             for a in range(0, total, _LOG_BATCH):
                 b = min(a + _LOG_BATCH, total)
@@ -232,21 +233,20 @@ def _read_inputs(bag: ChamberBag, log_inputs: bool) -> tuple[ChamberArrays, _Raw
     live logger subscribes to nothing else) in the same pass."""
     if not log_inputs:
         return bag.read_arrays(), None
-    ids: list[int] = []
-    logs: list[int] = []
+    ids: list[NDArray[np.int64]] = []
+    logs: list[NDArray[np.int64]] = []
     datas: list[bytes] = []
     pairs: dict[tuple[str, str], int] = {}
 
-    def sink(contract_topics: Sequence[str], msgtype: str, log_time_ns: int, data: bytes) -> None:
-        for topic in contract_topics:
-            if topic in topics.CHAMBER_TOPICS:
-                ids.append(pairs.setdefault((topic, msgtype), len(pairs)))
-                logs.append(log_time_ns)
-                datas.append(data)
+    def sink(batch: RawBatch) -> None:
+        lut = np.array([pairs.setdefault(pair, len(pairs)) for pair in batch.topics] or [0], dtype=np.int64)
+        ids.append(lut[batch.topic])
+        logs.append(batch.log_time)
+        datas.extend(batch.datas())
 
     arrays = bag.read_arrays(raw_sink=sink)
-    return arrays, _RawInputs(list(pairs), np.asarray(ids, dtype=np.int64), np.asarray(logs, dtype=np.int64),
-                              datas)
+    return arrays, _RawInputs(list(pairs), np.concatenate([np.zeros(0, dtype=np.int64), *ids]),
+                              np.concatenate([np.zeros(0, dtype=np.int64), *logs]), datas)
 
 
 def _by_layout(keys: NDArray[np.int64], serialize: Callable[[NDArray[np.int64], int], list[bytes]]) -> list[bytes]:
@@ -309,7 +309,9 @@ def _log_stream(ff: BagTorques, measured: MeasurementArrays, measured_log: NDArr
     all_ids = np.concatenate(ids)
     all_logs = np.concatenate(logs)
     order = np.argsort(all_logs, kind='stable')
-    return log_topics, all_ids[order], all_logs[order], [datas[i] for i in order.tolist()]
+    pool = np.empty(len(datas), dtype=object)  # a take on an object array: no Python loop per message
+    pool[:] = datas
+    return log_topics, all_ids[order], all_logs[order], pool[order].tolist()
 
 
 #: the measured_detail / residual_detail layouts, for readers of this module

@@ -47,11 +47,18 @@ def packaged_defaults_text() -> str:
 
 
 
+#: PyYAML's safe loader on libyaml when PyYAML has it (the same documents, parsed about 15x faster)
+_FAST_LOADER = getattr(yaml, 'CSafeLoader', yaml.SafeLoader)
+
+
 def read_yaml(source: str | Path, text: str | None = None) -> dict[str, Any]:
     try:
         if text is None:
             text = Path(source).read_text(encoding='utf-8')
-        data = yaml.safe_load(text)
+        try:
+            data = yaml.load(text, Loader=_FAST_LOADER)  # noqa: S506  # a safe loader (libyaml's: 15x faster)
+        except yaml.YAMLError:
+            data = yaml.safe_load(text)  # the error as PyYAML's own loader words it (the message users see)
     except OSError as err:
         msg = f'cannot read: {err.strerror}'
         raise ConfigFileError(str(source), msg) from None

@@ -3,9 +3,12 @@ One job in one module: the chamber-test bag (its checks, reading and the refusal
 
 A chamber-test bag (docs/ros.md "Files") is a rosbag2 bag directory (MCAP or sqlite3 storage, whatever
 wrote it) or a bare ``.mcap`` / ``.db3`` file that holds at least the topics of :data:`~.topics.CHAMBER_TOPICS`.
-Reading goes through ``rosbags.rosbag2.Reader``; only the chamber topics are read and decoded (with
-:mod:`~gimbal_friction.recording.cdr`), so other topics -- service events, ``/rosout``, images, types no type store
-knows -- are listed (:meth:`ChamberBag.describe`) and otherwise ignored. No rclpy is imported.
+Opening goes through ``rosbags.rosbag2.Reader``. Reading the arrays takes the MCAP files of a bag a chunk at a time
+(:class:`~.mcap_scan.McapScanner`) when their chunks follow each other in log time (what recorders write), and
+``rosbags``' messages otherwise; either way in the order ``rosbags`` yields them. Only the chamber topics are read
+and decoded, in bulk (with :mod:`~gimbal_friction.recording.cdr`), so other topics -- service events, ``/rosout``,
+images, types no type store knows -- are listed (:meth:`ChamberBag.describe`) and otherwise ignored. No rclpy is
+imported.
 
 Names: every public function speaks *contract* topic names (``/joint_states``, ...). ``topic_map`` maps a contract
 name to the name recorded in the bag (``{'/joint_states': '/gimbal/joint_states'}``), as ``--topic`` options do.
@@ -19,10 +22,11 @@ and both are kept as recorded (a zero stamp stays zero: the rule that falls back
 from __future__ import annotations
 
 import struct
-from pathlib import Path
+from pathlib import Path, PurePath
 from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
+import yaml
 from rosbags.rosbag2 import Reader, StoragePlugin, Writer, WriterError
 from rosbags.serde import SerdeError
 from rosbags.typesys import TypesysError, get_types_from_idl, get_types_from_msg, get_typestore
@@ -32,13 +36,15 @@ from gimbal_friction.recording.cdr import (
     DEFAULT_STORE,
     JointStateColumns,
     default_typestore,
+    distinct,
     make_float64_multi_array,
     make_header,
     make_joint_state,
     make_temperature,
-    temperature_from_cdr,
+    temperature_rows,
 )
 from gimbal_friction.recording.errors import LIBRARY_READ_ERRORS, EmptyInputError, RecordingError, recover_hint
+from gimbal_friction.recording.mcap_scan import McapScanner, chunk_time_ranges
 from gimbal_friction.recording.topics import (
     CHAMBER_TOPICS,
     JOINT_STATE_TYPE,
@@ -58,8 +64,8 @@ if TYPE_CHECKING:
     from rosbags.interfaces import Connection
     from rosbags.typesys.store import Typestore
 
-    #: ``read_arrays`` raw-message callback: (contract topics, msgtype, log time [ns], CDR bytes)
-    RawSink: TypeAlias = Callable[[Sequence[str], str, int, bytes], None]
+    #: ``read_arrays`` raw-message callback: the input messages of a batch, as recorded
+    RawSink: TypeAlias = Callable[['RawBatch'], None]
 
 __all__ = [
     'BAG_SUFFIXES',
@@ -71,6 +77,7 @@ __all__ = [
     'DecodedMessage',
     'JointStateArrays',
     'JointSummary',
+    'RawBatch',
     'RawMessage',
     'StreamSummary',
     'TemperatureArrays',
@@ -91,6 +98,8 @@ BAG_SUFFIXES = ('.mcap', '.db3')
 _STORAGE_PLUGINS = {'mcap': StoragePlugin.MCAP, 'sqlite3': StoragePlugin.SQLITE3}
 #: what writing a bag raises on bad input or I/O (wrong message objects surface as AttributeError etc.)
 _WRITE_ERRORS = (WriterError, SerdeError, TypesysError, OSError, KeyError, AttributeError, TypeError, struct.error)
+#: the fastest safe YAML loader (libyaml's when PyYAML has it)
+_YAML_LOADER = getattr(yaml, 'CSafeLoader', yaml.SafeLoader)
 #: what decoding a message with the type store raises on bytes that are not that message
 _DECODE_ERRORS = (SerdeError, TypesysError, KeyError, ValueError, IndexError, struct.error, AssertionError)
 
@@ -664,13 +673,13 @@ class ChamberBag:
         pass over the bag).
 
         JointState and Temperature messages are parsed directly from their CDR bytes (plain little-endian, the
-        usual case) and fall back to the type store for anything else. Joint names are renamed by ``joint_map``.
+        usual case), a batch at a time (the messages of an MCAP chunk), and fall back to the type store for
+        anything else. Joint names are renamed by ``joint_map``.
 
         Args:
-            raw_sink: called as ``raw_sink(contract_topics, msgtype, log_time_ns, cdr_bytes)`` for every message of
-                the three input topics (not the reference velocity, which the nodes do not log), in log-time
-                order, during the same pass (what :meth:`iter_raw` yields, without reading the bag twice);
-                ``contract_topics`` lists the contract names the bag topic feeds.
+            raw_sink: called with a :class:`RawBatch` for every batch of messages of the three input topics (not
+                the reference velocity, which the nodes do not log), in the order :meth:`iter_raw` yields them,
+                during the same pass (without reading the bag twice).
 
         Raises:
             RecordingError: the bag cannot be read, a message cannot be decoded, or the joint map would give two
@@ -698,37 +707,28 @@ class ChamberBag:
 
     def _windows(self, max_messages: int | None, raw_sink: RawSink | None) -> Iterator[ChamberArrays]:
         """The one decoding loop of :meth:`read_arrays` (``max_messages`` None: one window) and
-        :meth:`iter_arrays`."""
-        bag_temperature = self.topic_map[TEMPERATURE]
+        :meth:`iter_arrays`: batches of messages (:meth:`_batches`) decoded in bulk."""
         inputs = self._select(None)
         bag_reference = self.topic_map[REFERENCE_VELOCITY] if self.has_reference else None
         selected = inputs if bag_reference is None else self._select([*CHAMBER_TOPICS, REFERENCE_VELOCITY])
         window = _Window(self, bag_reference)
         seen = _JointsSeen()
-        last_log = None
-        for conn, log_time, data in self._messages(selected):
-            if max_messages is not None and window.count >= max_messages and log_time != last_log:
-                yield seen.add(window)
-                window = _Window(self, bag_reference)
-            last_log = log_time
-            if raw_sink is not None and conn.topic in inputs:
-                raw_sink(inputs[conn.topic], conn.msgtype, log_time, data)
-            collector = window.joint_collectors.get(conn.topic)
-            if collector is not None:
-                window.count += 1
-                if not collector.add_cdr(log_time, data):
-                    collector.add_message(log_time, self._decode(data, conn, log_time))
-            elif conn.topic == bag_temperature:
-                window.count += 1
-                fast = temperature_from_cdr(data)
-                if fast is None:
-                    message = self._decode(data, conn, log_time)
-                    stamp = message.header.stamp  # type: ignore[attr-defined]  # a Temperature of the type store (no stubs)
-                    value = float(message.temperature)  # type: ignore[attr-defined]  # a Temperature of the type store (no stubs)
-                    fast = (join_stamp(stamp.sec, stamp.nanosec), value)
-                window.t_log.append(log_time)
-                window.t_stamp.append(fast[0])
-                window.t_value.append(fast[1])
+        last_log: int | None = None
+        for batch in self._batches(selected):
+            n = batch.log_time.shape[0]
+            pos = 0
+            while pos < n:
+                end = n if max_messages is None else _window_end(batch.log_time, pos, max_messages - window.count,
+                                                                 last_log)
+                if end > pos:
+                    if raw_sink is not None:
+                        raw_sink(_raw_batch(batch, pos, end, inputs))
+                    window.add(batch, pos, end)
+                    last_log = int(batch.log_time[end - 1])
+                    pos = end
+                if end < n:
+                    yield seen.add(window)
+                    window = _Window(self, bag_reference)
         last = seen.add(window)
         self._require_axes(seen)
         yield last
@@ -762,6 +762,90 @@ class ChamberBag:
                    f'(axes: {axes}; joints with effort there: {currents}; joint map: {mapping}): map the topic '
                    f'that carries it with --topic {MOTOR_CURRENT}=BAG_TOPIC')
         raise EmptyInputError(msg)
+
+    def _batches(self, selected: Mapping[str, Sequence[str]]) -> Iterator[_Batch]:
+        """The messages of the selected bag topics in batches, in the order of ``rosbags``' reader (log-time order
+        per storage file, ties in file order).
+
+        The MCAP files of a bag whose chunks follow each other in log time (what recorders write) are read a chunk
+        at a time (:class:`~.mcap_scan.McapScanner`): one batch per chunk, no per-message work. Other bags (sqlite3,
+        compressed files, overlapping chunks) are read through ``rosbags``, in batches of :data:`_BATCH_MESSAGES`.
+        """
+        try:
+            with Reader(self.path) as reader:
+                conns = [c for c in reader.connections if c.topic in selected]
+                if not conns:  # an empty list would mean "every connection" to rosbags
+                    return
+                files = self._chunked_mcap_files(reader)
+                if files is None:
+                    yield from _batched(conns, reader.messages(connections=conns))
+                    return
+        except LIBRARY_READ_ERRORS as err:
+            raise _read_error(self.path, 'reading', err) from err
+        for path in files:
+            yield from self._mcap_batches(path, conns)
+
+    def _chunked_mcap_files(self, reader: Reader) -> list[Path] | None:
+        """The bag's MCAP files if each one's chunks follow each other in log time (else None: read with rosbags)."""
+        if self.path.is_file():
+            paths = [self.path] if self.path.suffix == '.mcap' else []
+        elif reader.compression_mode:
+            return None
+        else:
+            try:
+                text = (self.path / 'metadata.yaml').read_text()
+                info = yaml.load(text, Loader=_YAML_LOADER)['rosbag2_bagfile_information']  # noqa: S506  # a safe loader
+                if info.get('storage_identifier') != 'mcap':
+                    return None
+                paths = [self.path / PurePath(x).name for x in info['relative_file_paths']]
+            except (OSError, yaml.YAMLError, KeyError, TypeError, AttributeError):
+                return None
+        for path in paths:
+            ranges = chunk_time_ranges(path)
+            if not ranges:
+                return None
+            latest = ranges[0][0]
+            for first, last in ranges:
+                if first < latest:
+                    return None
+                latest = max(latest, last)
+        return paths or None
+
+    def _mcap_batches(self, path: Path, conns: list[Connection]) -> Iterator[_Batch]:
+        """One batch per chunk of an MCAP file whose chunks follow each other in log time."""
+        topic_count: dict[str, int] = {}
+        for conn in conns:
+            topic_count[conn.topic] = topic_count.get(conn.topic, 0) + 1
+        by_key = {(c.topic, c.msgtype if topic_count[c.topic] > 1 else ''): k for k, c in enumerate(conns)}
+        scanner = McapScanner(path)
+        channel_conn: dict[int, int] = {}
+        for block in scanner.blocks():
+            if scanner.report.problems:
+                break
+            present = distinct(block.channel_id)
+            for cid in present:
+                if cid not in channel_conn:
+                    channel = scanner.channels.get(cid)
+                    schema = scanner.schemas.get(channel.schema_id) if channel is not None else None
+                    if channel is None:
+                        channel_conn[cid] = -1
+                    else:
+                        msgtype = schema.name if schema is not None and topic_count.get(channel.topic, 0) > 1 else ''
+                        channel_conn[cid] = by_key.get((channel.topic, msgtype), -1)
+            lut = np.full(max(present) + 1, -1, dtype=np.int64)
+            lut[present] = [channel_conn[c] for c in present]
+            conn_index = lut[block.channel_id]
+            keep = np.flatnonzero(conn_index >= 0)
+            if keep.shape[0] == 0:
+                continue
+            order = keep[np.argsort(block.log_time[keep], kind='stable')]  # as rosbags: a chunk sorted by log time
+            yield _Batch(conns, conn_index[order], block.log_time[order], block.buffer, block.data_start[order],
+                         block.data_length[order])
+        if scanner.report.problems or scanner.report.truncated:
+            problem = scanner.report.problems[0] if scanner.report.problems else 'cut short'
+            msg = (f'bag {self.path}: reading failed ({problem}): the bag is damaged or cut short; '
+                   f'{recover_hint(self.path)}')
+            raise RecordingError(msg)
 
     def describe(self, arrays: ChamberArrays | None = None) -> BagDescription:
         """What the three input streams hold (counts, joints and their fields, zero stamps) and what is not read.
@@ -864,12 +948,113 @@ class _JointsSeen:
         return arrays
 
 
+class _Batch(NamedTuple):
+    """Messages of the selected bag topics, in reading order, as arrays over one buffer."""
+
+    conns: list[Connection]
+    """The selected connections."""
+    conn: NDArray[np.int64]
+    """Index into ``conns`` of each message."""
+    log_time: NDArray[np.int64]
+    """Log time of each message [ns]."""
+    buffer: bytes
+    start: NDArray[np.int64]
+    """Offset of each message's CDR bytes in ``buffer`` [B]."""
+    length: NDArray[np.int64]
+    """Length of each message's CDR bytes [B]."""
+
+
+class RawBatch(NamedTuple):
+    """Input messages of the bag as recorded, for :meth:`ChamberBag.read_arrays`' ``raw_sink``: one entry per
+    message and contract topic (a bag topic feeding two contract topics gives each message twice, in turn)."""
+
+    topics: list[tuple[str, str]]
+    """``(contract topic, msgtype)`` pairs."""
+    topic: NDArray[np.int64]
+    """Index into ``topics`` of each entry."""
+    log_time: NDArray[np.int64]
+    """Log time of each entry [ns]."""
+    buffer: bytes
+    start: NDArray[np.int64]
+    """Offset of each entry's CDR bytes (encapsulation header included) in ``buffer`` [B]."""
+    length: NDArray[np.int64]
+    """Length of each entry's CDR bytes [B]."""
+
+    def datas(self) -> list[bytes]:
+        """The CDR bytes of each entry."""
+        buffer = self.buffer
+        return [buffer[a : a + n] for a, n in zip(self.start.tolist(), self.length.tolist(), strict=True)]
+
+
+#: messages per batch read through rosbags (sqlite3 bags, MCAP files whose chunks overlap in time)
+_BATCH_MESSAGES = 8192
+
+
+def _batched(conns: list[Connection], messages: Iterable[tuple[Connection, int, bytes]]) -> Iterator[_Batch]:
+    """``rosbags`` messages gathered into batches of :data:`_BATCH_MESSAGES`."""
+    index = {id(c): k for k, c in enumerate(conns)}
+    by_topic = {(c.topic, c.msgtype): k for k, c in enumerate(conns)}
+    ids: list[int] = []
+    logs: list[int] = []
+    datas: list[bytes] = []
+
+    def batch() -> _Batch:
+        length = np.fromiter(map(len, datas), dtype=np.int64, count=len(datas))
+        start = np.zeros_like(length)
+        np.cumsum(length[:-1], out=start[1:])
+        return _Batch(conns, np.asarray(ids, dtype=np.int64), np.asarray(logs, dtype=np.int64), b''.join(datas),
+                      start, length)
+
+    for conn, log_time, data in messages:
+        k = index.get(id(conn))
+        ids.append(by_topic[(conn.topic, conn.msgtype)] if k is None else k)
+        logs.append(log_time)
+        datas.append(data)
+        if len(datas) >= _BATCH_MESSAGES:
+            yield batch()
+            ids, logs, datas = [], [], []
+    if datas:
+        yield batch()
+
+
+def _window_end(log_time: NDArray[np.int64], pos: int, room: int, last_log: int | None) -> int:
+    """Where a window that has ``room`` messages left ends in ``log_time[pos:]``: at the first message past the room
+    whose log time differs from the one before it (``last_log`` before ``pos``); ``len(log_time)`` if none does."""
+    first = pos + max(room, 0)
+    n = log_time.shape[0]
+    if first >= n:
+        return n
+    before = (last_log if first == pos else int(log_time[first - 1]))
+    if before is None:
+        return first
+    changed = np.flatnonzero(log_time[first:] != np.concatenate(([before], log_time[first : n - 1])))
+    return first + int(changed[0]) if changed.shape[0] else n
+
+
+def _raw_batch(batch: _Batch, pos: int, end: int, inputs: Mapping[str, Sequence[str]]) -> RawBatch:
+    """The input messages of ``batch[pos:end]`` as :class:`RawBatch` entries (one per contract topic fed)."""
+    pairs: list[tuple[str, str]] = []
+    table = np.full((len(batch.conns), max((len(v) for v in inputs.values()), default=0) + 1), -1, dtype=np.int64)
+    fed = np.zeros(len(batch.conns), dtype=np.int64)
+    for k, conn in enumerate(batch.conns):
+        for j, topic in enumerate(inputs.get(conn.topic, ())):
+            table[k, j] = len(pairs)
+            pairs.append((topic, conn.msgtype))
+        fed[k] = len(inputs.get(conn.topic, ()))
+    counts = fed[batch.conn[pos:end]]
+    message = np.repeat(np.arange(pos, end, dtype=np.int64), counts)
+    nth = np.arange(message.shape[0], dtype=np.int64) - np.repeat(np.cumsum(counts) - counts, counts)
+    return RawBatch(pairs, table[batch.conn[message], nth], batch.log_time[message], batch.buffer,
+                    batch.start[message], batch.length[message])
+
+
 class _Window:
     """The messages of one window of :meth:`ChamberBag._windows`, being collected."""
 
     def __init__(self, bag: ChamberBag, bag_reference: str | None) -> None:
         self.bag = bag
         self.bag_reference = bag_reference
+        self.bag_temperature = bag.topic_map[TEMPERATURE]
         # one collector per bag topic: a bag topic may feed both joint-state inputs
         self.joint_collectors = {
             bag.topic_map[JOINT_STATES]: JointStateColumns(),
@@ -877,17 +1062,52 @@ class _Window:
         }
         if bag_reference is not None and bag_reference not in self.joint_collectors:
             self.joint_collectors[bag_reference] = JointStateColumns()
-        self.t_log: list[int] = []
-        self.t_stamp: list[int] = []
-        self.t_value: list[float] = []
+        self.t_log: list[NDArray[np.int64]] = []
+        self.t_stamp: list[NDArray[np.int64]] = []
+        self.t_value: list[NDArray[np.float64]] = []
         self.count = 0
+
+    def add(self, batch: _Batch, pos: int, end: int) -> None:
+        """Decode the messages ``pos:end`` of ``batch`` (in bulk; the type store for what is not plain CDR)."""
+        conn_of = batch.conn[pos:end]
+        buffer = batch.buffer
+        for k in distinct(conn_of):
+            sel = pos + np.flatnonzero(conn_of == k)
+            conn = batch.conns[k]
+            logs, starts, lengths = batch.log_time[sel], batch.start[sel], batch.length[sel]
+
+            def decode(i: int, conn: Connection = conn, logs: NDArray[np.int64] = logs,
+                       starts: NDArray[np.int64] = starts, lengths: NDArray[np.int64] = lengths) -> object:
+                a = int(starts[i])
+                return self.bag._decode(buffer[a : a + int(lengths[i])], conn, int(logs[i]))  # noqa: SLF001  # its bag's decoder
+
+            collector = self.joint_collectors.get(conn.topic)
+            if collector is not None:
+                collector.add_batch(logs, buffer, starts, lengths, decode)
+            elif conn.topic == self.bag_temperature:
+                rows = temperature_rows(buffer, starts, lengths)
+                stamps = np.zeros(sel.shape[0], dtype=np.int64)
+                values = np.zeros(sel.shape[0], dtype=np.float64)
+                stamps[rows.decoded] = rows.stamp_ns
+                values[rows.decoded] = rows.temperature_c
+                for i in rows.others.tolist():
+                    message = decode(i)
+                    stamp = message.header.stamp  # type: ignore[attr-defined]  # a Temperature of the type store (no stubs)
+                    stamps[i] = join_stamp(stamp.sec, stamp.nanosec)
+                    values[i] = float(message.temperature)  # type: ignore[attr-defined]  # a Temperature of the type store (no stubs)
+                self.t_log.append(logs)
+                self.t_stamp.append(stamps)
+                self.t_value.append(values)
+            else:
+                continue
+            self.count += sel.shape[0]
 
     def finish(self) -> ChamberArrays:
         bag = self.bag
         temperature = TemperatureArrays(
-            np.array(self.t_log, dtype=np.int64),
-            np.array(self.t_stamp, dtype=np.int64),
-            np.array(self.t_value, dtype=np.float64),
+            np.concatenate([np.zeros(0, dtype=np.int64), *self.t_log]),
+            np.concatenate([np.zeros(0, dtype=np.int64), *self.t_stamp]),
+            np.concatenate([np.zeros(0, dtype=np.float64), *self.t_value]),
         )
         try:
             finished = {name: c.finish(bag.joint_map) for name, c in self.joint_collectors.items()}

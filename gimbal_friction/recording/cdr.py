@@ -11,10 +11,13 @@ value counts; only stamps and values differ) with numpy: a template row is fille
 message is a few array assignments rather than a message object and a serializer call. :func:`split_rows` turns
 the rows into one ``bytes`` per message.
 
-Decoding (the reverse, for the readers): :class:`JointStateColumns` collects JointState messages into per-joint
-arrays, :func:`temperature_from_cdr` reads a Temperature, :func:`float64_multi_array_rows` decodes a batch of
-Float64MultiArray messages in bulk (messages of one layout -- label, value count -- are read as one numpy block).
-Anything that is not plain little-endian CDR falls back to the type store.
+Decoding (the reverse, for the readers), a batch of messages at a time (e.g. the messages of one topic in one MCAP
+chunk, as offsets into its buffer): :class:`JointStateColumns` collects JointState messages into per-joint arrays
+(messages of one layout -- frame_id, names, value counts -- are checked against the first of them and read as one
+numpy block), :func:`temperature_rows` reads Temperature messages with array operations,
+:func:`float64_multi_array_rows` decodes Float64MultiArray messages (one numpy block per label and value count).
+:func:`temperature_from_cdr` is :func:`temperature_rows` of one message. Anything that is not plain little-endian
+CDR falls back to the type store.
 
 Builders (``make_header``, ``make_temperature``, ``make_joint_state``, ``make_float64_multi_array``) return rosbags
 message objects of :func:`default_typestore`, the store matching the ROS 2 wheels of this project.
@@ -37,7 +40,7 @@ from gimbal_friction.recording.topics import FLOAT64_MULTI_ARRAY_TYPE, JOINT_STA
 from gimbal_friction.streams.arrays import JointStateArrays
 
 if TYPE_CHECKING:
-    from collections.abc import Mapping, Sequence
+    from collections.abc import Callable, Mapping, Sequence
 
     from numpy.typing import ArrayLike, NDArray
     from rosbags.typesys.store import Msg, Typestore
@@ -49,6 +52,7 @@ __all__ = [
     'MultiArrayLayout',
     'MultiArrayRows',
     'default_typestore',
+    'distinct',
     'float64_multi_array_cdr',
     'float64_multi_array_cdr_rows',
     'float64_multi_array_layout',
@@ -404,10 +408,7 @@ def make_float64_multi_array(values: ArrayLike, label: str) -> Msg:
 # decoding
 
 
-_UNPACK_STAMP = struct.Struct('<iI').unpack_from  # stamp.sec, stamp.nanosec
 _UNPACK_U32 = _U32.unpack_from
-_UNPACK_F64 = struct.Struct('<d').unpack_from
-_EMPTY = b''
 
 
 def _align(pos: int, size: int) -> int:
@@ -420,24 +421,66 @@ def _plain_le(raw: bytes) -> bool:
     return len(raw) >= 4 and raw[0] == 0 and raw[1] == 1
 
 
-def temperature_from_cdr(raw: bytes) -> tuple[int, float] | None:
-    """``(header.stamp [ns], temperature [degC])`` of a plain little-endian ``sensor_msgs/Temperature``.
+class TemperatureRows(NamedTuple):
+    """A batch of Temperature messages decoded in bulk (see :func:`temperature_rows`)."""
 
-    Layout: int32 sec, uint32 nanosec, string frame_id, float64 temperature, float64 variance. None if the bytes
-    are not plain little-endian CDR or do not hold the whole message (decode those with the type store).
+    decoded: NDArray[np.intp]
+    """Indexes of the messages decoded, in order."""
+    stamp_ns: NDArray[np.int64]
+    """Their ``header.stamp`` [ns]."""
+    temperature_c: NDArray[np.float64]
+    """Their temperature [degC]."""
+    others: NDArray[np.intp]
+    """Indexes of the messages that are not plain little-endian CDR of this type (decode them with the type store)."""
+
+
+def temperature_rows(buffer: bytes, starts: ArrayLike, lengths: ArrayLike) -> TemperatureRows:
+    """Decode the ``sensor_msgs/Temperature`` messages ``buffer[starts[i] : starts[i] + lengths[i]]`` in bulk.
+
+    Layout: int32 sec, uint32 nanosec, string frame_id, float64 temperature (aligned to 8), float64 variance. Every
+    field is read with array operations over all messages at once (the frame_id length of each message gives where
+    its temperature is). A message that is not plain little-endian CDR, or is too short to hold the whole message,
+    is listed in ``others``.
+
+    Args:
+        buffer: bytes holding the messages (e.g. a decompressed MCAP chunk).
+        starts: (n,) offset of each message in ``buffer`` [B].
+        lengths: (n,) length of each message [B].
     """
-    if not _plain_le(raw):
+    u8 = np.frombuffer(buffer, dtype=np.uint8)
+    start = np.asarray(starts, dtype=np.int64).reshape(-1)
+    length = np.asarray(lengths, dtype=np.int64).reshape(-1)
+    n = start.shape[0]
+    if n and (int((start + length).max()) > u8.shape[0] or int(start.min()) < 0):
+        msg = 'message bounds outside the buffer'
+        raise ValueError(msg)
+    ok = length >= 16
+    if not ok.any():
+        empty = np.zeros(0, dtype=np.intp)
+        return TemperatureRows(empty, np.zeros(0, dtype=np.int64), np.zeros(0), np.arange(n, dtype=np.intp))
+    head = u8[np.where(ok, start, start[ok][0])[:, None] + np.arange(16)].view(_TEMPERATURE_HEAD).reshape(-1)
+    ok &= (head['encapsulation'] == 0x100)
+    pos = 4 + ((16 + head['frame_len'].astype(np.int64) - 4 + 7) & ~7)  # the temperature, aligned to 8
+    ok &= pos + 16 <= length
+    index = np.flatnonzero(ok)
+    values = u8[(start[index] + pos[index])[:, None] + np.arange(8)].view('<f8').reshape(-1)
+    stamp = head['sec'][index].astype(np.int64) * _NS_PER_S + head['nanosec'][index]
+    return TemperatureRows(index, stamp, values.astype(np.float64, copy=False), np.flatnonzero(~ok))
+
+
+#: the first 16 bytes of a Temperature: encapsulation (plain little-endian CDR, bytes 00 01: 0x100 as '<u2'), options,
+#: stamp, frame_id length
+_TEMPERATURE_HEAD = np.dtype([('encapsulation', '<u2'), ('options', '<u2'), ('sec', '<i4'), ('nanosec', '<u4'),
+                              ('frame_len', '<u4')])
+
+
+def temperature_from_cdr(raw: bytes) -> tuple[int, float] | None:
+    """``(header.stamp [ns], temperature [degC])`` of one plain little-endian ``sensor_msgs/Temperature``
+    (:func:`temperature_rows` of one message); None if the type store must decode it."""
+    rows = temperature_rows(raw, [0], [len(raw)])
+    if not rows.decoded.shape[0]:
         return None
-    try:
-        sec, nanosec = _UNPACK_STAMP(raw, 4)
-        (flen,) = _UNPACK_U32(raw, 12)
-        pos = _align(16 + flen, 8)
-        if pos + 16 > len(raw):
-            return None
-        (value,) = _UNPACK_F64(raw, pos)
-    except struct.error:
-        return None
-    return sec * _NS_PER_S + nanosec, float(value)
+    return int(rows.stamp_ns[0]), float(rows.temperature_c[0])
 
 
 class MultiArrayLayout(NamedTuple):
@@ -547,6 +590,23 @@ def float64_multi_array_rows(buffer: bytes, starts: ArrayLike, lengths: ArrayLik
     return MultiArrayRows(blocks, np.sort(rest))
 
 
+def distinct(values: NDArray[np.int64]) -> list[int]:
+    """The distinct values of an array of small non-negative integers (lengths, ids), ascending.
+
+    ``np.unique`` sorts or hashes; a count per value is about 20x faster on the few distinct lengths or ids of a
+    batch of messages (values past 2**16 fall back to ``np.unique``).
+
+    >>> distinct(np.array([104, 44, 104, 60]))
+    [44, 60, 104]
+    """
+    if values.shape[0] == 0:
+        return []
+    if int(values.min()) >= 0 and int(values.max()) < 1 << 16:
+        out: list[int] = np.flatnonzero(np.bincount(values)).tolist()
+        return out
+    return [int(x) for x in np.unique(values).tolist()]
+
+
 def _values(u8: NDArray[np.uint8], data_start: NDArray[np.int64], count: int) -> NDArray[np.float64]:
     """(m, count) float64 values starting at ``data_start`` in ``u8``."""
     if count == 0:
@@ -573,30 +633,121 @@ def _one_by_one(
     return out
 
 
-class JointStateColumns:
-    """Collects ``sensor_msgs/JointState`` messages as raw float64 bytes; :meth:`finish` makes per-joint arrays.
+class _JointLayout(NamedTuple):
+    """Where the fields of one plain little-endian JointState lie (everything but its stamp and values)."""
 
-    Per message it keeps the log time, the stamp, the index of its name list and, per field, the value count and
-    the values' bytes. :meth:`finish` scatters them into per-joint arrays with NaN where a value is missing.
+    names_key: bytes
+    """The bytes of the name sequence (count and strings): the key of its name set."""
+    names_at: int
+    """Offset of the name count [B]."""
+    counts: tuple[int, int, int]
+    """Values of position, velocity, effort [-]."""
+    offsets: tuple[int, int, int]
+    """Offset of the first value of each field [B]."""
+    fixed: NDArray[np.intp]
+    """Offsets of the bytes another message of this layout has the same (all but the stamp and the values) [B]."""
+    template: NDArray[np.uint8]
+    """Those bytes."""
+
+
+def _joint_state_layout(raw: bytes) -> _JointLayout | None:
+    """Parse where the fields of a plain little-endian JointState lie; None if the type store must decode it.
+
+    Layout (XCDR1, alignment counted from the byte after the 4-byte encapsulation header; float64 sequences are
+    aligned to 8 only when not empty, as rosbags and Fast CDR write them): int32 sec, uint32 nanosec, string
+    frame_id, string[] name, float64[] position, velocity, effort (bytes after the effort are allowed).
+    """
+    if not _plain_le(raw):
+        return None
+    try:
+        (flen,) = _UNPACK_U32(raw, 12)
+        pos = _align(16 + flen, 4)
+        names_at = pos
+        (n_names,) = _UNPACK_U32(raw, pos)
+        pos += 4
+        for _ in range(n_names):
+            pos = _align(pos, 4)
+            (slen,) = _UNPACK_U32(raw, pos)
+            pos += 4 + slen
+        names_end = pos
+        counts: list[int] = []
+        offsets: list[int] = []
+        values = np.zeros(len(raw), dtype=bool)
+        for _ in range(3):
+            pos = _align(pos, 4)
+            (count,) = _UNPACK_U32(raw, pos)
+            pos += 4
+            if count:
+                pos = _align(pos, 8)
+            counts.append(count)
+            offsets.append(pos)
+            values[pos : pos + 8 * count] = True
+            pos += 8 * count
+    except struct.error:
+        return None
+    if pos > len(raw) or names_end > len(raw):
+        return None
+    values[4:12] = True  # the stamp
+    fixed = np.flatnonzero(~values)
+    template = np.frombuffer(raw, dtype=np.uint8)[fixed]
+    return _JointLayout(bytes(raw[names_at:names_end]), names_at, (counts[0], counts[1], counts[2]),
+                        (offsets[0], offsets[1], offsets[2]), fixed, template)
+
+
+def _joint_names(raw: bytes, names_at: int) -> tuple[str, ...] | None:
+    """The joint names of a JointState whose name count is at ``names_at``; None if a name is not valid UTF-8 or
+    lacks its terminating NUL."""
+    (n_names,) = _UNPACK_U32(raw, names_at)
+    pos = names_at + 4
+    names = []
+    for _ in range(n_names):
+        pos = _align(pos, 4)
+        (slen,) = _UNPACK_U32(raw, pos)
+        if slen < 1:
+            return None
+        try:
+            names.append(bytes(raw[pos + 4 : pos + 4 + slen - 1]).decode('utf-8'))
+        except UnicodeDecodeError:
+            return None
+        pos += 4 + slen
+    return tuple(names)
+
+
+class _JointGroup(NamedTuple):
+    """Messages of one layout collected by :class:`JointStateColumns`."""
+
+    position: NDArray[np.int64]
+    """Index of each message among all messages collected."""
+    stamp_ns: NDArray[np.int64]
+    names: int
+    """Index of their name set."""
+    values: tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]
+    """(m, count) position, velocity, effort values."""
+
+
+_STAMP = np.dtype([('sec', '<i4'), ('nanosec', '<u4')])
+
+
+class JointStateColumns:
+    """Collects ``sensor_msgs/JointState`` messages a batch at a time; :meth:`finish` makes per-joint arrays.
+
+    :meth:`add_batch` decodes a batch of serialized messages (e.g. the messages of one topic in one MCAP chunk) in
+    bulk: messages of one layout (same frame_id, names and value counts, the usual case: only the stamp and the
+    values change from message to message) are checked against the first message of that layout and read as numpy
+    blocks. :meth:`finish` scatters the blocks into per-joint arrays with NaN where a value is missing.
     """
 
     def __init__(self) -> None:
-        self.log_time: list[int] = []
-        self.stamp: list[int] = []
-        self.name_index: list[int] = []
-        self.counts: tuple[list[int], list[int], list[int]] = ([], [], [])
-        self.values: tuple[list[bytes], list[bytes], list[bytes]] = ([], [], [])
+        self._log_times: list[NDArray[np.int64]] = []
+        self._groups: list[_JointGroup] = []
+        self._count = 0
         self.name_sets: list[tuple[str, ...]] = []
         self._by_names: dict[tuple[str, ...], int] = {}
         self._by_raw_names: dict[bytes, int] = {}
-        # cached layout of the last parsed message: bytes from frame_id length to the end of the names
-        self._layout_prefix = b''
-        self._layout_pos = 0
-        self._layout_index = 0
 
     def __len__(self) -> int:
         """Messages collected [-]."""
-        return len(self.log_time)
+        return self._count
 
     def _names_index(self, names: tuple[str, ...]) -> int:
         index = self._by_names.get(names)
@@ -606,174 +757,121 @@ class JointStateColumns:
             self._by_names[names] = index
         return index
 
-    def add_cdr(self, log_time: int, raw: bytes) -> bool:
-        """Parse one CDR-encoded JointState; False (and nothing stored) if it needs the type store.
+    def add_batch(
+        self, log_time_ns: ArrayLike, buffer: bytes, starts: ArrayLike, lengths: ArrayLike,
+        decode: Callable[[int], object],
+    ) -> None:
+        """Add the messages ``buffer[starts[i] : starts[i] + lengths[i]]``, logged at ``log_time_ns[i]`` [ns].
 
-        Layout (XCDR1, offsets relative to the byte after the 4-byte encapsulation header; sequences of float64
-        are aligned to 8 only when non-empty, as rosbags and Fast CDR do): int32 sec, uint32 nanosec,
-        string frame_id, string[] name, float64[] position, velocity, effort. The bytes from frame_id to the end
-        of the names are usually the same from message to message, so their parse is cached.
+        ``decode(i)`` returns message ``i`` decoded by the type store (a rosbags JointState); it is called for the
+        messages that are not plain little-endian CDR.
         """
-        if not isinstance(raw, bytes):
-            raw = bytes(raw)
-        try:
-            if raw[1] != 1 or raw[0] != 0:  # plain CDR, little endian only
-                return False
-            if self._layout_prefix and raw.startswith(self._layout_prefix, 12):
-                pos = self._layout_pos
-                index = self._layout_index
-            else:
-                pos, index = self._parse_layout(raw)
-            sec, nanosec = _UNPACK_STAMP(raw, 4)
-            # the three float64 sequences are unrolled on purpose: this is the innermost loop of replay (one call
-            # per JointState of the bag), where a helper call per sequence adds about 0.25 us to the 0.9 us a
-            # message takes here
-            # position
-            pos = (pos + 3) & ~3
-            (n_pos,) = _UNPACK_U32(raw, pos + 4)
-            pos += 4
-            if n_pos:
-                pos = (pos + 7) & ~7
-                end = pos + 8 * n_pos
-                b_pos = raw[pos + 4 : end + 4]
-                pos = end
-            else:
-                b_pos = _EMPTY
-            # velocity
-            pos = (pos + 3) & ~3
-            (n_vel,) = _UNPACK_U32(raw, pos + 4)
-            pos += 4
-            if n_vel:
-                pos = (pos + 7) & ~7
-                end = pos + 8 * n_vel
-                b_vel = raw[pos + 4 : end + 4]
-                pos = end
-            else:
-                b_vel = _EMPTY
-            # effort
-            pos = (pos + 3) & ~3
-            (n_eff,) = _UNPACK_U32(raw, pos + 4)
-            pos += 4
-            if n_eff:
-                pos = (pos + 7) & ~7
-                end = pos + 8 * n_eff
-                b_eff = raw[pos + 4 : end + 4]
-                pos = end
-            else:
-                b_eff = _EMPTY
-            if pos + 4 > len(raw):  # a value slice ran past the end
-                return False
-        except (struct.error, ValueError, IndexError):
-            return False
-        self.log_time.append(log_time)
-        self.stamp.append(sec * _NS_PER_S + nanosec)
-        self.name_index.append(index)
-        counts = self.counts
-        values = self.values
-        counts[0].append(n_pos)
-        counts[1].append(n_vel)
-        counts[2].append(n_eff)
-        values[0].append(b_pos)
-        values[1].append(b_vel)
-        values[2].append(b_eff)
-        return True
-
-    def _parse_layout(self, raw: bytes) -> tuple[int, int]:
-        """Parse frame_id and the names; cache them; return (payload offset after the names, name-set index)."""
-        (flen,) = _UNPACK_U32(raw, 12)
-        pos = (12 + flen + 3) & ~3
-        names_start = pos
-        (n_names,) = _UNPACK_U32(raw, pos + 4)
-        pos += 4
-        for _ in range(n_names):
-            pos = (pos + 3) & ~3
-            (slen,) = _UNPACK_U32(raw, pos + 4)
-            pos += 4 + slen
-        if pos + 4 > len(raw):
-            msg = 'names run past the end of the message'
+        u8 = np.frombuffer(buffer, dtype=np.uint8)
+        start = np.asarray(starts, dtype=np.int64).reshape(-1)
+        length = np.asarray(lengths, dtype=np.int64).reshape(-1)
+        logs = np.asarray(log_time_ns, dtype=np.int64).reshape(-1)
+        n = start.shape[0]
+        if n and (int((start + length).max()) > u8.shape[0] or int(start.min()) < 0):
+            msg = 'message bounds outside the buffer'
             raise ValueError(msg)
-        names_key = raw[names_start + 4 : pos + 4]
-        index = self._by_raw_names.get(names_key)
-        if index is None:
-            index = self._names_index(self._parse_names(raw, names_start, n_names))
-            self._by_raw_names[names_key] = index
-        self._layout_prefix = raw[12 : pos + 4]
-        self._layout_pos = pos
-        self._layout_index = index
-        return pos, index
+        base = self._count
+        others: list[int] = []
+        layouts = 0
+        for size in distinct(length):
+            pending = np.flatnonzero(length == size)
+            while pending.shape[0]:
+                first = int(start[pending[0]])
+                raw = buffer[first : first + size]
+                layout = _joint_state_layout(raw)
+                names = None if layout is None else self._by_raw_names.get(layout.names_key)
+                if layout is not None and names is None:
+                    parsed = _joint_names(raw, layout.names_at)
+                    if parsed is not None:
+                        names = self._by_raw_names[layout.names_key] = self._names_index(parsed)
+                if layout is None or names is None:
+                    others.append(int(pending[0]))
+                    pending = pending[1:]
+                    continue
+                if layouts < _MAX_LAYOUTS:  # past this (unusual), each remaining message is a layout of its own
+                    same = (u8[start[pending, None] + layout.fixed] == layout.template).all(axis=1)
+                else:
+                    same = np.zeros(pending.shape[0], dtype=bool)
+                    same[0] = True
+                layouts += 1
+                members = pending[same]
+                at = start[members]
+                stamp = u8[at[:, None] + np.arange(4, 12)].view(_STAMP).reshape(-1)
+                values = tuple(_values(u8, at + offset, count)
+                               for offset, count in zip(layout.offsets, layout.counts, strict=True))
+                self._groups.append(_JointGroup(
+                    base + members, stamp['sec'].astype(np.int64) * _NS_PER_S + stamp['nanosec'], names,
+                    (values[0], values[1], values[2])))
+                pending = pending[~same]
+        self._log_times.append(logs)
+        self._count += n
+        for k in others:
+            self._add_message(base + k, decode(k))
 
-    @staticmethod
-    def _parse_names(raw: bytes, names_start: int, n_names: int) -> tuple[str, ...]:
-        pos = names_start + 4
-        names = []
-        for _ in range(n_names):
-            pos = (pos + 3) & ~3
-            (slen,) = _UNPACK_U32(raw, pos + 4)
-            if slen < 1:
-                msg = 'string without terminator'
-                raise ValueError(msg)
-            names.append(bytes(raw[pos + 8 : pos + 8 + slen - 1]).decode('utf-8'))
-            pos += 4 + slen
-        return tuple(names)
-
-    def add_message(self, log_time: int, message: object) -> None:
-        """Store one JointState decoded by the type store."""
+    def _add_message(self, position: int, message: object) -> None:
+        """Store message ``position``, decoded by the type store."""
         stamp = message.header.stamp  # type: ignore[attr-defined]  # a JointState of the type store (no stubs)
-        self.log_time.append(log_time)
-        self.stamp.append(stamp.sec * _NS_PER_S + stamp.nanosec)
-        self.name_index.append(self._names_index(tuple(message.name)))  # type: ignore[attr-defined]  # a JointState of the type store (no stubs)
-        for field, attr in enumerate(('position', 'velocity', 'effort')):
-            arr = np.asarray(getattr(message, attr), dtype='<f8').reshape(-1)
-            self.counts[field].append(int(arr.shape[0]))
-            self.values[field].append(arr.tobytes())
+        names = self._names_index(tuple(message.name))  # type: ignore[attr-defined]  # a JointState of the type store (no stubs)
+        values = tuple(np.asarray(getattr(message, attr), dtype=np.float64).reshape(1, -1)
+                       for attr in ('position', 'velocity', 'effort'))
+        self._groups.append(_JointGroup(np.array([position], dtype=np.int64),
+                                        np.array([stamp.sec * _NS_PER_S + stamp.nanosec], dtype=np.int64), names,
+                                        (values[0], values[1], values[2])))
 
     def mismatched(self, field: int) -> NDArray[np.bool_]:
         """Per message: field ``field`` (0 position, 1 velocity, 2 effort) holds another number of values than
         the message has names."""
-        lengths = np.asarray([len(names) for names in self.name_sets], dtype=np.int64)
-        if not self.log_time:
-            return np.zeros(0, dtype=bool)
-        return np.asarray(self.counts[field], dtype=np.int64) != lengths[np.asarray(self.name_index, dtype=np.int64)]
+        out = np.zeros(self._count, dtype=bool)
+        for group in self._groups:
+            out[group.position] = group.values[field].shape[1] != len(self.name_sets[group.names])
+        return out
 
     def finish(self, rename: Mapping[str, str] | None = None) -> JointStateArrays:
         """Assemble the per-joint arrays; ``rename`` maps a recorded joint name to the name to report it under.
+        Joints are in the order first seen; a joint named twice in one message takes its first value (as
+        ``streams.inputs.joint_index``); values past the names are dropped.
 
         Raises:
             ValueError: after renaming, two joints would have the same name.
         """
-        n_msgs = len(self.log_time)
+        n_msgs = self._count
+        first_seen = np.full(len(self.name_sets), n_msgs, dtype=np.int64)
+        stamp = np.zeros(n_msgs, dtype=np.int64)
+        for group in self._groups:
+            stamp[group.position] = group.stamp_ns
+            first_seen[group.names] = min(int(first_seen[group.names]), int(group.position[0]))
         order: dict[str, int] = {}
-        for names in self.name_sets:
-            for name in names:
+        for index in np.argsort(first_seen, kind='stable').tolist():
+            for name in self.name_sets[index]:
                 order.setdefault(name, len(order))
         n_joints = len(order)
-        # lookup: (name set, value position) -> joint column, -1 past the names of that set
-        width = max((len(x) for x in self.name_sets), default=0)
-        lookup = np.full((max(len(self.name_sets), 1), width + 1), -1, dtype=np.int64)
-        for row, names in enumerate(self.name_sets):
-            lookup[row, : len(names)] = [order[x] for x in names]
-        name_index = np.asarray(self.name_index, dtype=np.int64)
+        columns = []  # per name set: the joint column of each value slot, -1 for a repeated name
+        for names in self.name_sets:
+            seen: set[str] = set()
+            slots = []
+            for name in names:
+                slots.append(-1 if name in seen else order[name])
+                seen.add(name)
+            columns.append(np.asarray(slots, dtype=np.int64))
         reported = _renamed(tuple(order), rename or {})
         fields = []
         for field in range(3):
-            counts = np.asarray(self.counts[field], dtype=np.int64)
-            flat = np.frombuffer(b''.join(self.values[field]), dtype='<f8')
             out = np.full((n_msgs, n_joints), math.nan, dtype=np.float64)
-            if flat.size and n_joints:
-                msg_of_value = np.repeat(np.arange(n_msgs), counts)
-                starts = np.cumsum(counts) - counts
-                slot = np.arange(flat.size) - starts[msg_of_value]
-                slot = np.minimum(slot, width)  # values beyond the names: column -1, dropped
-                column = lookup[name_index[msg_of_value], slot]
-                keep = np.flatnonzero(column >= 0)
-                # a joint named twice in one message: its first value counts (as core.inputs.joint_index)
-                _, first = np.unique(msg_of_value[keep] * n_joints + column[keep], return_index=True)
-                keep = keep[first]
-                out[msg_of_value[keep], column[keep]] = flat[keep]
+            for group in self._groups:
+                values = group.values[field]
+                cols = columns[group.names][: values.shape[1]]
+                keep = np.flatnonzero(cols >= 0)
+                if keep.shape[0]:
+                    out[group.position[:, None], cols[keep]] = values[:, keep]
             fields.append({reported[col]: np.ascontiguousarray(out[:, col]) for col in range(n_joints)})
+        log_time = np.concatenate(self._log_times) if self._log_times else np.zeros(0, dtype=np.int64)
         return JointStateArrays(
-            log_time_ns=np.asarray(self.log_time, dtype=np.int64),
-            stamp_ns=np.asarray(self.stamp, dtype=np.int64),
+            log_time_ns=log_time,
+            stamp_ns=stamp,
             names=reported,
             position=fields[0],
             velocity=fields[1],

@@ -6,7 +6,9 @@ chunk with numpy and updates the same state -- the result is the file ``add_mess
 byte (``test/recording/test_mcap_bulk.py``).
 
 This is the only module that goes below mcap's public API: it uses the writer's private chunk builder and
-statistics (``Writer.__chunk_builder``, ``Writer.__statistics``, ``Writer.__maybe_finalize_chunk``), whose layout is
+statistics (``Writer.__chunk_builder``, ``Writer.__statistics``, ``Writer.__maybe_finalize_chunk``; for
+:meth:`BulkChunk.maybe_finalize_pipelined`, which compresses a full chunk in a worker thread while the next one is
+built, also the fields ``Writer.__finalize_chunk`` uses), whose layout is
 that of the pinned mcap version (:data:`SUPPORTED_MCAP_VERSIONS`, requirements.txt). :func:`bulk_chunk` checks the
 installed version and that structure and returns None otherwise (another mcap version, a writer without chunks, or
 :data:`ENABLED` set to False); the writer then uses ``add_message``, message by message: same files, slower.
@@ -19,12 +21,18 @@ from __future__ import annotations
 import io
 import itertools
 import struct
+import threading
+import zlib
+from concurrent.futures import Future, ThreadPoolExecutor
 from importlib import metadata
 from typing import TYPE_CHECKING
 
+import lz4.frame
 import numpy as np
+import zstandard
 from mcap.opcode import Opcode
-from mcap.records import MessageIndex
+from mcap.records import Chunk, ChunkIndex, MessageIndex
+from mcap.writer import CompressionType, IndexType
 
 from gimbal_friction.recording.mcap_scan import MESSAGE_RECORD_HEAD
 
@@ -106,6 +114,10 @@ class BulkChunk:
         self._writer = writer
         self._builder = builder
         self._stats = stats
+        self._pending: tuple[Future[tuple[str, bytes, int, int]], tuple[int, int], dict[int, MessageIndex]] | None
+        self._pending = None
+        #: the writer has what :meth:`maybe_finalize_pipelined` uses (set by :func:`bulk_chunk`)
+        self.pipelined = False
 
     def pending(self) -> int:
         """Bytes in the open chunk [B]."""
@@ -180,6 +192,101 @@ class BulkChunk:
         """Write the chunk out if it is full (as ``add_message`` does after each message); OSError propagates."""
         self._writer._Writer__maybe_finalize_chunk()  # type: ignore[attr-defined]  # mcap's private chunk finaliser (name-mangled, no hints)
 
+    def maybe_finalize_pipelined(self) -> bool:
+        """:meth:`maybe_finalize`, compressing the full chunk in a worker thread while the caller goes on.
+
+        The chunk is closed (statistics counted, the builder emptied) now and written out by the next call that
+        closes a chunk, or by :meth:`finish_pending`, which the caller must call before anything else writes to the
+        file (``add_message``, ``flush``, ``finish``): the records then follow each other as
+        ``Writer.__finalize_chunk`` writes them, byte for byte. At most one chunk is in flight. True if a chunk
+        was closed.
+        """
+        writer = self._writer
+        builder = self._builder
+        if not self.pipelined:
+            before = builder.num_messages  # type: ignore[attr-defined]  # mcap's ChunkBuilder and Statistics internals carry no type hints
+            self.maybe_finalize()
+            return bool(before) and builder.num_messages == 0  # type: ignore[attr-defined]  # mcap's ChunkBuilder and Statistics internals carry no type hints
+        if builder.count <= writer._Writer__chunk_size:  # type: ignore[attr-defined]  # mcap's private writer state (name-mangled, no hints)
+            return False
+        self.finish_pending()
+        if builder.num_messages == 0:  # type: ignore[attr-defined]  # mcap's ChunkBuilder and Statistics internals carry no type hints
+            return False
+        self._stats.chunk_count += 1  # type: ignore[attr-defined]  # mcap's ChunkBuilder and Statistics internals carry no type hints
+        data = builder.end()  # type: ignore[attr-defined]  # mcap's ChunkBuilder and Statistics internals carry no type hints
+        span = (builder.message_start_time, builder.message_end_time)  # type: ignore[attr-defined]  # mcap's ChunkBuilder and Statistics internals carry no type hints
+        indices = dict(builder.message_indices)  # type: ignore[attr-defined]  # mcap's ChunkBuilder and Statistics internals carry no type hints
+        compression = writer._Writer__compression  # type: ignore[attr-defined]  # mcap's private writer state (name-mangled, no hints)
+        crcs = bool(writer._Writer__enable_crcs)  # type: ignore[attr-defined]  # mcap's private writer state (name-mangled, no hints)
+        self._pending = (_executor().submit(_compress, data, compression, crcs), span, indices)
+        builder.reset()  # type: ignore[attr-defined]  # mcap's ChunkBuilder and Statistics internals carry no type hints
+        return True
+
+    def finish_pending(self) -> None:
+        """Write out the chunk handed to the worker thread, if any (as ``Writer.__finalize_chunk`` would have);
+        OSError propagates."""
+        if self._pending is None:
+            return
+        future, (start, end), indices = self._pending
+        self._pending = None
+        name, compressed, size, crc = future.result()
+        writer = self._writer
+        flush = writer._Writer__flush  # type: ignore[attr-defined]  # mcap's private writer state (name-mangled, no hints)
+        stream = writer._Writer__stream  # type: ignore[attr-defined]  # mcap's private writer state (name-mangled, no hints)
+        record = writer._Writer__record_builder  # type: ignore[attr-defined]  # mcap's private writer state (name-mangled, no hints)
+        chunk = Chunk(compression=name, data=compressed, message_start_time=start, message_end_time=end,
+                      uncompressed_crc=crc, uncompressed_size=size)
+        flush()
+        chunk_start_offset = stream.tell()
+        chunk.write(record)
+        chunk_size = record.count
+        chunk_index = ChunkIndex(message_start_time=start, message_end_time=end, chunk_start_offset=chunk_start_offset,
+                                 chunk_length=chunk_size, message_index_offsets={}, message_index_length=0,
+                                 compression=name, compressed_size=len(compressed), uncompressed_size=size)
+        flush()
+        message_index_start_offset = stream.tell()
+        if writer._Writer__index_types & IndexType.MESSAGE:  # type: ignore[attr-defined]  # mcap's private writer state (name-mangled, no hints)
+            for channel_id, index in indices.items():
+                chunk_index.message_index_offsets[channel_id] = message_index_start_offset + record.count
+                index.write(record)
+        chunk_index.message_index_length = record.count
+        flush()
+        writer._Writer__chunk_indices.append(chunk_index)  # type: ignore[attr-defined]  # mcap's private writer state (name-mangled, no hints)
+
+
+_EXECUTOR: ThreadPoolExecutor | None = None
+
+
+def _executor() -> ThreadPoolExecutor:
+    """The one worker thread that compresses chunks (zstd, lz4 and crc32 release the GIL)."""
+    global _EXECUTOR  # noqa: PLW0603 - created on first use, shared by every writer
+    if _EXECUTOR is None:
+        _EXECUTOR = ThreadPoolExecutor(max_workers=1, thread_name_prefix='mcap-chunk')
+    return _EXECUTOR
+
+
+_LOCAL = threading.local()
+
+
+def _zstd() -> zstandard.ZstdCompressor:
+    """This thread's zstd compressor (``zstandard.compress``'s level and options; made once, not per chunk)."""
+    compressor = getattr(_LOCAL, 'zstd', None)
+    if compressor is None:
+        compressor = _LOCAL.zstd = zstandard.ZstdCompressor()
+    return compressor
+
+
+def _compress(data: bytes, compression: CompressionType, crcs: bool) -> tuple[str, bytes, int, int]:
+    """(compression name, compressed records, uncompressed size [B], CRC) of a chunk, as ``Writer.__finalize_chunk``
+    computes them."""
+    if compression == CompressionType.LZ4:
+        name, compressed = 'lz4', lz4.frame.compress(data)
+    elif compression == CompressionType.ZSTD:  # what zstandard.compress(data) gives, with a compressor kept
+        name, compressed = 'zstd', _zstd().compress(data)
+    else:
+        name, compressed = '', data
+    return name, compressed, len(data), zlib.crc32(data) if crcs else 0
+
 
 def bulk_chunk(writer: McapWriter) -> BulkChunk | None:
     """The fast path for ``writer``, or None (use ``add_message``): see the module docstring."""
@@ -203,4 +310,13 @@ def bulk_chunk(writer: McapWriter) -> BulkChunk | None:
         for name in ('message_count', 'message_start_time', 'message_end_time')
     ):
         return None
-    return BulkChunk(writer, builder, stats)
+    bulk = BulkChunk(writer, builder, stats)
+    bulk.pipelined = (
+        all(callable(getattr(writer, f'_Writer__{name}', None)) for name in ('flush', 'finalize_chunk'))
+        and isinstance(getattr(writer, '_Writer__chunk_indices', None), list)
+        and isinstance(getattr(writer, '_Writer__chunk_size', None), int)
+        and isinstance(getattr(writer, '_Writer__compression', None), CompressionType)
+        and isinstance(getattr(writer, '_Writer__index_types', None), IndexType)
+        and all(hasattr(writer, f'_Writer__{name}') for name in ('enable_crcs', 'stream', 'record_builder'))
+    )
+    return bulk

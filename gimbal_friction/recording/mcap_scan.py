@@ -664,3 +664,40 @@ def _message_indexes(mm: mmap.mmap, pos: int, size: int) -> tuple[int, dict[int,
         out[channel_id] = entries[:, 1].astype(np.int64)
         pos = end
     return pos, out
+
+
+def chunk_time_ranges(path: str | os.PathLike[str]) -> list[tuple[int, int]] | None:
+    """``(message start time, message end time)`` [ns] of every chunk of an MCAP file, in file order.
+
+    Reads only the records' headers (no decompression). None when the file is not a plain sequence of records up to
+    its data end or footer -- messages outside chunks, an unknown or cut record -- (read such a file record by
+    record, with :class:`McapScanner` or a library reader).
+    """
+    try:
+        with Path(path).open('rb') as stream:
+            size = stream.seek(0, 2)
+            if size < len(MAGIC) + 9:
+                return None
+            with mmap.mmap(stream.fileno(), 0, access=mmap.ACCESS_READ) as mm:
+                if mm[: len(MAGIC)] != MAGIC:
+                    return None
+                out: list[tuple[int, int]] = []
+                pos = len(MAGIC)
+                while pos + 9 <= size:
+                    op, length = _OP_LEN(mm, pos)
+                    end = pos + 9 + length
+                    if end > size or op == OP_MESSAGE or op not in _KNOWN_OPCODES:
+                        return None
+                    if op == OP_CHUNK:
+                        if length < 16:
+                            return None
+                        out.append(_TIMES(mm, pos + 9))
+                    elif op in (OP_DATA_END, OP_FOOTER):
+                        return out
+                    pos = end
+    except (OSError, ValueError):
+        return None
+    return None
+
+
+_TIMES = struct.Struct('<QQ').unpack_from

@@ -9,7 +9,8 @@ rewritten into complete files by ``gimbal-friction recover`` (:mod:`.recover`); 
 writer leaves nothing readable in that case.
 
 Messages go through ``mcap.writer.Writer.add_message``; :meth:`ResidualLogWriter.write_raw_many` appends whole runs
-of messages through :mod:`.mcap_bulk` when the installed mcap allows it (same bytes, faster).
+of messages through :mod:`.mcap_bulk` when the installed mcap allows it (same bytes, faster; without rotation by
+size, a full chunk is compressed in a worker thread while the next run is appended).
 
 Reading is :mod:`.residual_read` (``read_residual_rows``, ``iter_residual_rows``, ``iter_residual_log``),
 recovery :mod:`.recover`.
@@ -594,6 +595,10 @@ class ResidualLogWriter:
         np.cumsum(record, out=csum[1:])
         where = {t: np.flatnonzero(ids == t) for t in used}
         id_list = ids.tolist()
+        # without rotation by size, a full chunk is compressed in a worker thread while the next run is appended
+        # (the size of the file is then known only once the chunk is written out)
+        pipelined = self.max_bytes is None
+        bulk: mcap_bulk.BulkChunk | None = None
         i = 0
         while i < n:
             current = self._file
@@ -603,14 +608,20 @@ class ResidualLogWriter:
                 (self.max_bytes is not None and current.size() >= self.max_bytes)
                 or (self.max_duration_ns is not None and log_i - current.first_ns >= self.max_duration_ns)
             ):
+                if bulk is not None:
+                    self._finish_pending(current, bulk)
+                    bulk = None
                 current = self._rotate(current)
             topic, msgtype = pairs[id_list[i]]
+            if bulk is not None and topic not in current.channel_ids:  # registering may write a chunk out
+                self._finish_pending(current, bulk)
             try:
                 self._channel(current, topic, msgtype)
                 tell = current.stream.tell()
             except OSError as err:
                 self._fail(current.path, 'writing', err)
-            bulk = mcap_bulk.bulk_chunk(current.writer)
+            if bulk is None:
+                bulk = mcap_bulk.bulk_chunk(current.writer)
             assert bulk is not None  # noqa: S101  # narrowing for the type checker: set with the file
             # end of the run: the message that fills the chunk (included) ...
             room = self.chunk_size - bulk.pending()
@@ -638,6 +649,14 @@ class ResidualLogWriter:
                 if big.shape[0]:
                     j = i + 1 + int(big[0])
             self._append_run(current, bulk, pairs, ids[i:j], logs[i:j], datas[i:j], csum[i : j + 1] - csum[i])
+            if pipelined:
+                try:
+                    closed = bulk.maybe_finalize_pipelined()
+                except OSError as err:
+                    self._fail(current.path, 'writing', err)
+                current.pending = 0 if closed else current.pending + int(csum[j] - csum[i])
+                i = j
+                continue
             try:
                 bulk.maybe_finalize()
                 tell_after = current.stream.tell()
@@ -652,6 +671,17 @@ class ResidualLogWriter:
             else:
                 current.pending += int(csum[j] - csum[i])
             i = j
+        if bulk is not None:
+            assert self._file is not None  # noqa: S101  # narrowing for the type checker: bulk is set with the file
+            self._finish_pending(self._file, bulk)
+
+    def _finish_pending(self, current: _OpenFile, bulk: mcap_bulk.BulkChunk) -> None:
+        """Write out the chunk being compressed in the worker thread, if any."""
+        try:
+            bulk.finish_pending()
+            current.last_tell = current.stream.tell()
+        except OSError as err:
+            self._fail(current.path, 'writing', err)
 
     def _append_run(
         self,

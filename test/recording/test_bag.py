@@ -22,8 +22,10 @@ from gimbal_friction.recording.cdr import (
     make_temperature,
 )
 from gimbal_friction.recording.errors import EmptyInputError, RecordingError
+from gimbal_friction.recording.mcap_scan import McapScanner
 from gimbal_friction.recording.recover import recover
 from gimbal_friction.recording.topics import (
+    CHAMBER_TOPICS,
     FLOAT64_MULTI_ARRAY_TYPE,
     JOINT_STATE_TYPE,
     JOINT_STATES,
@@ -350,8 +352,8 @@ def test_other_topics_of_any_type_are_ignored_and_listed(tmp_path: Path) -> None
     assert bag.message_count == 13  # the three inputs
     assert {x.topic for x in bag.iter_raw()} == {TEMPERATURE, JOINT_STATES, MOTOR_CURRENT}
     seen = []
-    arrays = bag.read_arrays(raw_sink=lambda topics, *_: seen.append(tuple(topics)))
-    assert len(seen) == 13 and {t for (t,) in seen} == {TEMPERATURE, JOINT_STATES, MOTOR_CURRENT}
+    arrays = bag.read_arrays(raw_sink=lambda batch: seen.extend(batch.topics[k][0] for k in batch.topic.tolist()))
+    assert len(seen) == 13 and set(seen) == {TEMPERATURE, JOINT_STATES, MOTOR_CURRENT}
     assert len(arrays.joint_states) == 6
     assert [x.log_time_ns for x in bag.iter_raw(['/blob'])] == [T0 + 2]  # still readable by name
     notes = bag.describe(arrays).findings(['elevation'])
@@ -610,3 +612,77 @@ def test_one_foreign_side_topic_refuses_an_mcap_bag_but_not_a_sqlite3_one(tmp_pa
         con.commit()
     assert foreign_serialization(db3) is None
     assert len(open_chamber_bag(db3).read_arrays().joint_states) == 6
+
+
+def chunked_mcap(path: Path, messages: list[tuple[str, str, int, object]], chunk_size: int) -> Path:
+    """A bare MCAP file of ``messages`` in the given order, in small zstd chunks (mcap's writer)."""
+    store = default_typestore()
+    with path.open('wb') as stream:
+        writer = McapWriter(stream, chunk_size=chunk_size)
+        writer.start(profile='ros2', library='test')
+        channels: dict[str, int] = {}
+        for topic, msgtype, t, msg in messages:
+            if topic not in channels:
+                text, _ = store.generate_msgdef(msgtype, ros_version=2)
+                schema = writer.register_schema(msgtype, 'ros2msg', text.encode())
+                channels[topic] = writer.register_channel(topic, 'cdr', schema)
+            writer.add_message(channels[topic], t, bytes(store.serialize_cdr(msg, msgtype)), t)
+        writer.finish()
+    return path
+
+
+@pytest.mark.parametrize('layout', ['chunks in log-time order', 'chunks overlapping in time', 'sqlite3'])
+def test_bulk_read_equals_reading_message_by_message(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+                                                     layout: str) -> None:
+    """read_arrays decodes a chunk at a time (MCAP chunks that follow each other in log time) or rosbags' messages
+    in batches (anything else); either way the arrays and the raw messages handed to raw_sink are those of the
+    type store, message by message, in rosbags' order (ties in log time included)."""
+    import gimbal_friction.recording.bag as bag_module
+
+    rng = np.random.default_rng(21)
+    js = [(topic, msgtype, T0 + 1000 * (i // 2), msg) for i, (topic, msgtype, _, msg) in
+          enumerate(random_joint_states(rng, 300))]
+    cur = [(MOTOR_CURRENT, JOINT_STATE_TYPE, T0 + 1000 * i + 1000 * (i % 3 == 0),
+            make_joint_state(T0 + 1000 * i, ['elevation', 'azimuth'], effort=[0.1 * i, -0.1 * i])) for i in range(150)]
+    temp = [(TEMPERATURE, TEMPERATURE_TYPE, T0 + 7000 * i, make_temperature(T0 + 7000 * i - 3, -40.0 + i))
+            for i in range(22)]
+    messages = sorted(js + cur + temp, key=lambda x: x[2])
+    if layout == 'sqlite3':
+        path = write_chamber_bag(tmp_path / 'bag', messages, storage='sqlite3')
+    else:
+        if layout == 'chunks overlapping in time':  # a late batch of messages written after later ones
+            messages = messages[:100] + messages[150:300] + messages[100:150] + messages[300:]
+        path = chunked_mcap(tmp_path / 'bag.mcap', messages, chunk_size=700)
+    scanned = []
+    monkeypatch.setattr(bag_module, 'McapScanner', lambda p: scanned.append(p) or McapScanner(p))
+    bag = open_chamber_bag(path)
+    raw: list[tuple[str, int, bytes]] = []
+    arrays = bag.read_arrays(raw_sink=lambda b: raw.extend(
+        (b.topics[k][0], t, d) for k, t, d in zip(b.topic.tolist(), b.log_time.tolist(), b.datas(), strict=True)))
+    assert bool(scanned) == (layout == 'chunks in log-time order')   # the chunk-at-a-time path, where it applies
+    expected = [(m.topic, m.log_time_ns, m.data) for m in bag.iter_raw()]
+    assert raw == expected
+    decoded = {topic: [(m.log_time_ns, m.msg) for m in bag.iter_decoded([topic])] for topic in CHAMBER_TOPICS}
+    temps = decoded[TEMPERATURE]
+    np.testing.assert_array_equal(arrays.temperature.log_time_ns, [t for t, _ in temps])
+    np.testing.assert_array_equal(arrays.temperature.temperature_c, [m.temperature for _, m in temps])
+    for topic, data in ((JOINT_STATES, arrays.joint_states), (MOTOR_CURRENT, arrays.motor_current)):
+        msgs = decoded[topic]
+        np.testing.assert_array_equal(data.log_time_ns, [t for t, _ in msgs])
+        np.testing.assert_array_equal(data.stamp_ns, [m.header.stamp.sec * 10**9 + m.header.stamp.nanosec
+                                                      for _, m in msgs])
+        for field in ('position', 'velocity', 'effort'):
+            for name, column in getattr(data, field).items():
+                want = []
+                for _, m in msgs:
+                    values = getattr(m, field)
+                    slot = list(m.name).index(name) if name in m.name else len(values)
+                    want.append(values[slot] if slot < len(values) else NAN)
+                np.testing.assert_array_equal(column, want, err_msg=f'{topic} {field} {name}')
+    parts = list(bag.iter_arrays(37))   # windows cut inside the batches: together, the whole bag
+    assert len(parts) > 5
+    for field in ('temperature', 'joint_states', 'motor_current'):
+        np.testing.assert_array_equal(np.concatenate([getattr(p, field).log_time_ns for p in parts]),
+                                      getattr(arrays, field).log_time_ns)
+    np.testing.assert_array_equal(np.concatenate([p.motor_current.effort['azimuth'] for p in parts]),
+                                  arrays.motor_current.effort['azimuth'])

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from gimbal_friction.recording.cdr import (
+    JointStateColumns,
     default_typestore,
     float64_multi_array_cdr,
     float64_multi_array_cdr_rows,
@@ -18,6 +19,7 @@ from gimbal_friction.recording.cdr import (
     make_temperature,
     split_rows,
     temperature_from_cdr,
+    temperature_rows,
 )
 from gimbal_friction.recording.topics import FLOAT64_MULTI_ARRAY_TYPE, JOINT_STATE_TYPE, TEMPERATURE_TYPE
 
@@ -215,3 +217,74 @@ def test_multi_array_layout_refuses_what_is_not_one():
     assert float64_multi_array_layout(raw + b'\x00' * 8) is None  # trailing bytes
     assert float64_multi_array_layout(raw[:-1]) is None
     assert float64_multi_array_layout(b'\x00\x00' + raw[2:]) is None  # big endian: the type store's job
+
+
+def test_joint_state_columns_decode_a_mixed_batch_like_the_type_store():
+    """add_batch reads messages of many layouts (names, frames, value counts, repeated names, values past the
+    names), big-endian ones through the type store, and keeps message order."""
+    store = default_typestore()
+    rng = np.random.default_rng(8)
+    names_pool = [['elevation'], ['elevation', 'azimuth'], ['azimuth', 'elevation'], ['elevation', 'elevation'],
+                  ['roll'], []]
+    datas, expected, logs = [], [], []
+    for i in range(600):
+        names = names_pool[int(rng.integers(0, len(names_pool)))] if i % 50 else ['ü-ß', 'elevation']
+        fields = [None if rng.random() < 0.3 else random_values(rng, int(rng.integers(0, 4))) for _ in range(3)]
+        msg = make_joint_state(random_stamp(rng), names, *fields, frame_id=str(rng.choice(FRAMES)))
+        datas.append(bytes(store.serialize_cdr(msg, JOINT_STATE_TYPE, little_endian=bool(i % 17))))
+        expected.append(msg)
+        logs.append(1000 + i)
+    pad = b'xyz'
+    buffer = pad + b''.join(datas)
+    starts = len(pad) + np.cumsum([0] + [len(d) for d in datas[:-1]])
+    columns = JointStateColumns()
+    decoded = []
+
+    def decode(k):
+        decoded.append(k)
+        return store.deserialize_cdr(datas[k], JOINT_STATE_TYPE)
+
+    half = 300
+    columns.add_batch(logs[:half], buffer, starts[:half], [len(d) for d in datas[:half]], decode)
+    columns.add_batch(logs[half:], buffer, starts[half:], [len(d) for d in datas[half:]],
+                      lambda k: decode(k + half))
+    assert sorted(decoded) == [k for k in range(600) if k % 17 == 0]   # only the big-endian ones
+    arrays = columns.finish({'roll': 'tilt'})
+    first_seen = []
+    for msg in expected:
+        for name in msg.name:
+            if name not in first_seen:
+                first_seen.append(name)
+    assert arrays.names == tuple('tilt' if n == 'roll' else n for n in first_seen)
+    np.testing.assert_array_equal(arrays.log_time_ns, logs)
+    assert arrays.stamp_ns.tolist() == [m.header.stamp.sec * 10**9 + m.header.stamp.nanosec for m in expected]
+    for field, attr in ((arrays.position, 'position'), (arrays.velocity, 'velocity'), (arrays.effort, 'effort')):
+        for name, column in field.items():
+            recorded = 'roll' if name == 'tilt' else name
+            want = []
+            for msg in expected:
+                values = getattr(msg, attr)
+                slot = list(msg.name).index(recorded) if recorded in msg.name else len(values)
+                want.append(values[slot] if slot < len(values) else np.nan)   # the first of a repeated name
+            np.testing.assert_array_equal(column, want, err_msg=f'{attr} {name}')   # bit for bit, NaN included
+    mismatched = columns.mismatched(1)
+    assert mismatched.tolist() == [len(m.velocity) != len(m.name) for m in expected]
+
+
+def test_temperature_rows_decode_a_batch_like_the_type_store():
+    store = default_typestore()
+    rng = np.random.default_rng(9)
+    datas, expected = [], []
+    for i in range(200):
+        stamp, value = random_stamp(rng), float(rng.normal() * 50)
+        msg = make_temperature(stamp, value, frame_id=str(rng.choice(FRAMES)))
+        datas.append(bytes(store.serialize_cdr(msg, TEMPERATURE_TYPE, little_endian=bool(i % 13))))
+        expected.append((stamp, value, bool(i % 13)))
+    datas.append(b'\x00\x01\x00\x00\x01')  # not a message
+    expected.append((0, 0.0, False))
+    starts = np.cumsum([0] + [len(d) for d in datas[:-1]])
+    rows = temperature_rows(b''.join(datas), starts, [len(d) for d in datas])
+    assert rows.others.tolist() == [k for k, e in enumerate(expected) if not e[2]]
+    assert rows.decoded.tolist() == [k for k, e in enumerate(expected) if e[2]]
+    assert rows.stamp_ns.tolist() == [expected[k][0] for k in rows.decoded.tolist()]
+    assert rows.temperature_c.tolist() == [expected[k][1] for k in rows.decoded.tolist()]

@@ -229,3 +229,24 @@ def test_a_bad_batch_writes_nothing(tmp_path):
         assert writer.stats.messages == 1
         writer.write_raw_many(TOPICS, ids[:0], logs[:0], [])
         assert writer.stats.messages == 1
+
+
+@pytest.mark.parametrize('compression', ['zstd', 'lz4', 'none'])
+def test_chunks_compressed_in_the_worker_thread_give_the_same_files(tmp_path, monkeypatch, compression):
+    """Without rotation by size, a full chunk is compressed in a worker thread while the next run is appended,
+    then written out in turn: the files are those of write_raw, byte for byte (chunk records, indexes, summary)."""
+    closed = []
+    original = mcap_bulk.BulkChunk.maybe_finalize_pipelined
+
+    def spy(self):
+        done = original(self)
+        closed.append(done and self.pipelined)
+        return done
+
+    monkeypatch.setattr(mcap_bulk.BulkChunk, 'maybe_finalize_pipelined', spy)
+    rng = np.random.default_rng(31)
+    batches = [make_batch(rng, n, start_ns=T0 + k * 10**9) for k, n in enumerate((900, 1, 1500))]
+    one, many = write_both(tmp_path, batches, chunk_size=4000, compression=compression, flush_interval_s=None,
+                           max_duration_s=1.5)
+    assert sum(closed) > 10   # chunks went through the worker thread
+    assert len(one) >= 3 and one == many   # files rotated by duration, and metadata.yaml
