@@ -316,6 +316,7 @@ def test_cli_table_output(tmp_path, capsys):
     assert '/gimbal/motor_current' in text and 'walther_a' in text and 'plateau' in text
 
 
+@pytest.mark.slow
 def test_cli_compression_choices(tmp_path, capsys):
     plain = tmp_path / 'plain'
     packed = tmp_path / 'packed'
@@ -343,6 +344,7 @@ def _regenerate_args() -> list[str]:
     return words[words.index('synth-bag'):]
 
 
+@pytest.mark.slow
 def test_shipped_sample_is_small_complete_and_reproducible(tmp_path, capsys):
     from gimbal_friction.recording.bag import open_chamber_bag
 

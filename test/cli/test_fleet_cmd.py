@@ -65,6 +65,7 @@ def fleet_dir(tmp_path_factory) -> Path:
     return root
 
 
+@pytest.mark.slow
 def test_fleet_finds_the_outlier_and_writes_json_csv_figure(fleet_dir, tmp_path, capsys):
     out = tmp_path / 'report'
     assert main(['fleet', str(fleet_dir), '--out', str(out), '--threads', '--workers', '2']) == 0
@@ -91,6 +92,7 @@ def test_fleet_finds_the_outlier_and_writes_json_csv_figure(fleet_dir, tmp_path,
     assert doc['workers'] == 2 and doc['units_per_minute'] > 0
 
 
+@pytest.mark.slow
 def test_fleet_json_on_stdout_with_processes_and_a_bag(fleet_dir, tmp_path, capsys):
     # two log units and a chamber bag (replayed on the worker), on one worker process
     assert main(['synth-bag', '--out', str(tmp_path / 'bag_unit'), '--plateaus=-40,20', '--hold-s', '12',

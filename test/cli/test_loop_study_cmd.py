@@ -28,6 +28,7 @@ def study_out(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, dict, str
     return out, json.loads(buf.getvalue()), err.getvalue()
 
 
+@pytest.mark.slow
 def test_json_has_one_record_per_case_temperature_and_profile_with_the_contract_fields(study_out):
     _, doc, _ = study_out
     records = doc['records']
@@ -60,6 +61,7 @@ def test_out_holds_the_document_the_table_the_figures_and_the_residual_log(study
         assert got[name] == pytest.approx(value, rel=1e-9), name
 
 
+@pytest.mark.slow
 def test_table_is_the_default_output_and_the_configuration_is_layered(tmp_path, capsys):
     cfg = tmp_path / 'wiring.yaml'
     cfg.write_text('/**:\n  ros__parameters:\n    velocity_source: "reference"\n    velocity_threshold_rad_s: 0.002\n'
@@ -108,6 +110,7 @@ def _records(capsys, *args: str) -> tuple[dict, dict]:
     return {r['case']: r['rate_error_rms_rad_s'] for r in doc['records']}, doc['settings']
 
 
+@pytest.mark.slow
 def test_the_feedforwards_configuration_does_not_move_the_truth_and_a_wrong_lubricant_costs(tmp_path, capsys):
     """--config with another lubricant (walther_a 0.03 below the truth's) changes the feedforward, not the truth:
     the uncompensated run is the same, the feedforward's error grows (the truth's lubricant is 8.6345)."""
@@ -121,6 +124,7 @@ def test_the_feedforwards_configuration_does_not_move_the_truth_and_a_wrong_lubr
     assert settings['truth_differs_from_default'] == {}
 
 
+@pytest.mark.slow
 def test_truth_file_sets_the_simulated_truth_and_refuses_other_parameters(tmp_path, capsys):
     base, _ = _records(capsys)
     truth = tmp_path / 'truth.yaml'

@@ -14,6 +14,7 @@ pytest.importorskip('rclpy', reason='the live study needs the ros-* wheels (requ
 pytestmark = pytest.mark.ros
 
 
+@pytest.mark.slow
 def test_a_short_live_study_agrees_with_offline_and_reports_the_latency(tmp_path, capsys):
     out = tmp_path / 'study'
     code = main(['loop-study', '--short', '--temperatures', '-40', '--profiles', 'tracking',

@@ -132,6 +132,7 @@ def test_report_refuses_logs_without_the_axis_naming_the_joints_and_draws_nothin
     assert not out.exists()  # refused before drawing anything
 
 
+@pytest.mark.slow
 def test_report_refuses_to_overwrite_figures_unless_force(tmp_path, capsys):
     assert main(['report', '--out', str(tmp_path)]) == 0
     before = (tmp_path / 'fig11_components.png').stat().st_mtime_ns

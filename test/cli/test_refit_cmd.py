@@ -357,6 +357,7 @@ def paper_logs(tmp_path_factory) -> Path:
     return root / 'replay' / 'residuals'
 
 
+@pytest.mark.slow
 def test_goal_asymmetry_model_vs_paper_within_5_percent(paper_logs, tmp_path, capsys):
     from gimbal_friction.chamber.synth import PAPER_MEANS_NMM
     from gimbal_friction.physics.direction import ARRAY, direction_factor
@@ -420,6 +421,7 @@ def wrong_i0_logs(tmp_path_factory, calibration) -> tuple[Path, float]:
     return root / 'replay' / 'residuals', se_i0
 
 
+@pytest.mark.slow
 def test_goal_offset_keeps_the_cold_viscosity_within_5_percent(wrong_i0_logs, calibration, tmp_path, capsys):
     from gimbal_friction.chamber.synth import DEFAULT_TRUTH_OVERRIDES
 
@@ -501,6 +503,7 @@ def _cold_viscosity(argv: list[str], capsys) -> tuple[float, float, float, dict]
     return vi['after_cst'] / nu - 1.0, vi['ci95_cst'][0] / nu - 1.0, vi['ci95_cst'][1] / nu - 1.0, rec
 
 
+@pytest.mark.slow
 def test_the_demo_refit_recovers_the_sample_lubricant_despite_a_calibration_error(sample_wrong_i0, tmp_path,
                                                                                  capsys):
     from gimbal_friction.cli.demo import REFIT_ARGS

@@ -71,6 +71,7 @@ def test_residual_log_is_a_readable_rosbag2_folder(sample_replay):
         assert {c.topic for c in reader.connections} >= {topics.RESIDUAL, topics.RESIDUAL_DETAIL}
 
 
+@pytest.mark.slow
 def test_replay_numbers_equal_the_nodes_message_by_message():
     """The replay runs the nodes' objects on the whole bag; fed message by message, as the nodes are, they give
     the same feedforward, measurements and residual rows."""

@@ -374,6 +374,7 @@ def _working_motion(logic: EstimatorLogic, inertia: float, friction, n: int = 20
     return out
 
 
+@pytest.mark.slow
 def test_observer_removes_the_inertia_term_while_the_gimbal_works():
     J = 2e-4
     logic = EstimatorLogic({EL: AxisParams(torque_constant_nm_per_a=KT, no_load_current_a=I0, inertia_kg_m2=J)},
@@ -543,6 +544,7 @@ def test_batching_invariance_with_bad_and_shuffled_inputs(seed):
     assert np.all(np.sign(whole[0].friction_nm) == whole[0].direction)
 
 
+@pytest.mark.slow
 def test_message_by_message_equals_one_batch_on_the_sample_bag():
     arrays = open_chamber_bag(SAMPLE).read_arrays()
     lo, hi = _span(arrays)

@@ -56,6 +56,7 @@ def bits(x: float) -> bytes:
 
 
 # ---------------------------------------------------------------------------------------------------- exactness
+@pytest.mark.slow
 @pytest.mark.parametrize('policy', ['hold_last', 'fallback_temperature', 'zero'])
 def test_an_empty_or_absent_correction_is_bit_identical_to_the_model(policy):
     s = FeedforwardSettings(stale_policy=policy, temperature_timeout_s=1.0, max_torque_nm=0.003)
@@ -192,6 +193,7 @@ LEARNED = {bins: learned(bins) for bins in (0, 16)}
        source=st.sampled_from(['measured', 'reference', 'auto']),
        policy=st.sampled_from(['hold_last', 'fallback_temperature', 'zero']),
        bins=st.sampled_from([0, 16]))
+@pytest.mark.slow
 def test_with_a_correction_the_bag_arrays_equal_the_per_message_rule(steps, source, policy, bins):
     """The replay's array path with a learned correction (position map or not) gives what the node's per-message
     path gives, message for message, with measured and reference positions."""

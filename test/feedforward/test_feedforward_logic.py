@@ -129,6 +129,7 @@ def assert_same_commands(expected: list[list[float] | None], bag, n_messages: in
        vels=st.lists(st.tuples(st.one_of(st.floats(-50, 50), st.sampled_from(ODD)), st.floats(-50, 50),
                                st.sampled_from([0, 1, 2])), min_size=1, max_size=30),
        policy=st.sampled_from(['hold_last', 'fallback_temperature', 'zero']))
+@pytest.mark.slow
 def test_bag_arrays_equal_the_per_message_rule(temps, vels, policy):
     """The replay's array path gives what the node's per-message path gives, message for message; the output
     is never NaN, Inf or beyond the clamp."""
@@ -167,6 +168,7 @@ def test_bag_arrays_equal_the_per_message_rule(temps, vels, policy):
                                 st.sampled_from([0, 1, 2, 3])),                      # which joints
                       min_size=1, max_size=30),
        source=st.sampled_from(['measured', 'reference', 'auto']))
+@pytest.mark.slow
 def test_bag_reference_velocity_equals_the_per_message_rule(steps, source):
     """velocity_source on arrays (replay of a bag holding /gimbal/reference_velocity) equals the node's path:
     Feedforward.update_reference per reference message, Feedforward.message per joint state."""

@@ -30,6 +30,7 @@ def playing(out: str) -> set[str]:
     return {part.strip().split(' ')[0] for part in line.split('x: ', 1)[1].split(', ')}
 
 
+@pytest.mark.slow
 def test_only_the_inputs_are_published_by_default(tmp_path: Path, spawn, probe, rb) -> None:
     bag = recorded_with_all(tmp_path / 'all.mcap', rb)
     node = spawn('chamber_replay', '--ros-args', '-p', f'bag:={bag}', '-p', 'loop:=true', '-p', 'rate:=0.2')
@@ -65,6 +66,7 @@ def test_other_topics_by_name_or_star_and_excluded_ones(tmp_path: Path, spawn, p
     ('wait_for_subscribers:=-1', "parameter 'wait_for_subscribers' = -1: must be >= 0 subscribers (0 = do not wait)"),
     ('wait_timeout_s:=0.0', "parameter 'wait_timeout_s' = 0.0: must be > 0 [s]"),
 ])
+@pytest.mark.slow
 def test_bad_parameters_are_one_line(tmp_path: Path, spawn, rb, param: str, expected: str) -> None:
     bag = recorded_with_all(tmp_path / 'all.mcap', rb)
     code, out = spawn('chamber_replay', '--ros-args', '-p', f'bag:={bag}', '-p', param).wait()
@@ -73,6 +75,7 @@ def test_bad_parameters_are_one_line(tmp_path: Path, spawn, rb, param: str, expe
     assert expected in lines[0]
 
 
+@pytest.mark.slow
 def test_a_cut_bag_is_one_line_pointing_to_recover(tmp_path: Path, spawn, rb) -> None:
     bag = recorded_with_all(tmp_path / 'all.mcap', rb)
     data = bag.read_bytes()

@@ -145,6 +145,7 @@ def test_a_damaged_chunk_in_a_residual_log_costs_only_that_chunk(tmp_path: Path,
     assert run.code == 1 and len(rest) == 1 and 'no temperature plateau' in rest[0], run.err
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize('damage', ['cut', 'corrupt', 'empty'])
 def test_replay_of_a_damaged_bag_is_one_line_pointing_to_recover(tmp_path: Path, damage: str, rb) -> None:
     bag = tmp_path / 'bag'

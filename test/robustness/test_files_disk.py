@@ -54,6 +54,7 @@ def test_report_onto_a_full_disk_leaves_no_partial_figure(full_disk, rb) -> None
         assert png.read_bytes().endswith(b'IEND\xaeB`\x82'), png
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize('command', ['replay', 'recover', 'report', 'refit'])
 def test_read_only_outputs_are_one_line(tmp_path: Path, read_only_dir: Path, command: str, rb) -> None:
     out = read_only_dir / 'out'

@@ -55,6 +55,7 @@ def sample_index(stamp_ns: int) -> int:
     return int(round((stamp_ns - 1000 * 1_000_000_000) / 1_000_000))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize('seed', [1, 2])
 def test_sigkill_loses_at_most_one_flush_interval(tmp_path: Path, spawn, probe, rb, seed: int) -> None:
     from sensor_msgs.msg import JointState

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import math
 
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -68,6 +69,7 @@ def check(samples: list, logic: EstimatorLogic) -> None:
 @settings(max_examples=60, deadline=None)
 @given(plan=st.lists(st.tuples(st.integers(0, 60), HOSTILE), max_size=12),
        method=st.sampled_from(['steady_state', 'observer', 'both']))
+@pytest.mark.slow
 def test_hostile_streams_never_break_the_estimator(plan, method):
     logic = EstimatorLogic(AXES, EstimatorSettings(method=method, min_dwell_s=0.05, observer_min_speed_rad_s=0.01))
     logic.on_temperature(-20.0, T0, arrival_ns=T0)

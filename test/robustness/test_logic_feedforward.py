@@ -11,6 +11,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -45,6 +46,7 @@ def joint_message(draw: st.DrawFn) -> tuple[list[str], list[float]]:
 EVENT = st.one_of(st.tuples(st.just('t'), TEMPERATURE, TIME), st.tuples(st.just('j'), joint_message(), TIME))
 
 
+@pytest.mark.slow
 @settings(max_examples=150, deadline=None)
 @given(events=st.lists(EVENT, max_size=40), policy=st.sampled_from(['hold_last', 'fallback_temperature', 'zero']))
 def test_message_never_raises_and_stays_finite_within_the_clamp(events, policy):
@@ -94,6 +96,7 @@ def test_message_never_raises_and_stays_finite_within_the_clamp(events, policy):
     assert set(c.temperature_rejected) <= {T_NON_FINITE, T_RANGE}
 
 
+@pytest.mark.slow
 @settings(max_examples=120, deadline=None)
 @given(v=SPEED, t_c=TEMPERATURE, time_s=TIME, temperature_time=TIME)
 def test_controller_call_is_total(v, t_c, time_s, temperature_time):

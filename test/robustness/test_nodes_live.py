@@ -119,6 +119,7 @@ def start(spawn: Any, exe: str, *extra: str) -> Any:
 
 
 # ------------------------------------------------------------------------------------------------ feedforward
+@pytest.mark.slow
 def test_feedforward_process_under_a_hostile_stream(spawn, probe):
     node = start(spawn, 'friction_feedforward', '-p', 'temperature_timeout_s:=30.0', '-p', 'max_torque_nm:=0.004')
     link = Link(probe, {JS: JointState, TEMP: Temperature},
@@ -174,6 +175,7 @@ def test_feedforward_process_under_a_hostile_stream(spawn, probe):
 
 
 # ------------------------------------------------------------------------------------------------ estimator
+@pytest.mark.slow
 def test_estimator_process_under_a_hostile_stream(spawn, probe):
     node = start(spawn, 'friction_estimator', '-p', 'min_dwell_s:=0.05', '-p', 'method:=both')
     link = Link(probe, {JS: JointState, CUR: JointState, TEMP: Temperature},
@@ -232,6 +234,7 @@ def detail(sec: int, friction: float, stamp_sec: float | None = None) -> Float64
     return msg
 
 
+@pytest.mark.slow
 def test_residual_logger_process_under_a_hostile_stream(spawn, probe, tmp_path):
     from gimbal_friction.recording.residual_read import read_residual_rows
     folder = tmp_path / 'log'
@@ -271,6 +274,7 @@ def test_residual_logger_process_under_a_hostile_stream(spawn, probe, tmp_path):
 
 
 # ------------------------------------------------------------------------------------------------ parameters
+@pytest.mark.slow
 def test_start_up_refusals_of_the_issue(spawn, tmp_path):
     """`--params-file config/gimbal_friction.yaml -p model.ball_count:=15.5` ran with the file's 15; a misspelled
     name in a parameter file was ignored. Both now stop the executable with one line naming the parameter."""
@@ -304,6 +308,7 @@ def _set(probe: Any, node: str, name: str, value: Any) -> Any:
     return future.result().results[0]
 
 
+@pytest.mark.slow
 def test_runtime_refusal_through_the_parameter_service_keeps_the_output(spawn, probe):
     node = start(spawn, 'friction_feedforward', '-p', 'temperature_timeout_s:=30.0')
     link = Link(probe, {JS: JointState, TEMP: Temperature}, {FF: JointState, '/diagnostics': DiagnosticArray})
@@ -335,6 +340,7 @@ def test_runtime_refusal_through_the_parameter_service_keeps_the_output(spawn, p
     assert rc == 0
 
 
+@pytest.mark.slow
 def test_the_logger_refuses_what_the_others_refuse_and_names_an_undeclared_parameter(spawn, probe, tmp_path):
     """`-p model.ball_count:=abc` with the shared file: the logger (which does not use it) used to start silently
     while the feedforward and the estimator refused; a runtime set of an undeclared name was refused with rclpy's

@@ -263,6 +263,7 @@ def _main(node: str) -> Any:
     return ResidualLogger
 
 
+@pytest.mark.slow
 def test_every_parameter_with_a_wrong_value_stops_the_node_naming_it(isolated_env, capfd, tmp_path):
     """Each of ~270 cases through run_node (the executables' main) on the documented start command: exit 1, one
     line on stderr naming the parameter and where the value came from, no traceback, no node left running."""

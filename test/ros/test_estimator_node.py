@@ -172,6 +172,7 @@ def sweep_plan():
     return messages, accepted, counts, unknown
 
 
+@pytest.mark.slow
 def test_constant_speed_sweep_gives_eq23_friction_and_rejects_the_rest(spawn, probe, monkeypatch):
     # the packaged config sets K_T and I_0 per axis (axis.elevation.*), which override model.*
     node = start_node(spawn, monkeypatch, '-p', f'axis.elevation.no_load_current_a:={I0}',

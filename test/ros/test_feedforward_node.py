@@ -135,6 +135,7 @@ def _diag_values(probe, key_contains):
     return None
 
 
+@pytest.mark.slow
 def test_bad_inputs_never_reach_the_output(node_and_probe):
     node, probe = node_and_probe
     sec = wait_temperature_used(probe, 0.0, 200)
@@ -205,6 +206,7 @@ def test_runtime_parameter_change_and_refusal(node_and_probe):
     assert node.stop()[0] == 0
 
 
+@pytest.mark.slow
 def test_stale_temperature_policy(spawn, probe, monkeypatch):
     monkeypatch.chdir(__import__('pathlib').Path(__file__).resolve().parents[2])
     setup_probe(probe)

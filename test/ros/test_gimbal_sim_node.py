@@ -37,6 +37,7 @@ def _echo_feedforward(probe, torque_nm: float) -> list[JointState]:
     return seen
 
 
+@pytest.mark.slow
 def test_one_run_publishes_the_suites_inputs_takes_the_feedforward_and_exits(spawn, probe, tmp_path):
     for msg_type, topic in ((JointState, topics.MOTOR_CURRENT), (JointState, '/gimbal/reference_velocity'),
                             (Temperature, topics.TEMPERATURE), (JointState, '/gimbal_sim/los_error'),
@@ -71,6 +72,7 @@ def test_one_run_publishes_the_suites_inputs_takes_the_feedforward_and_exits(spa
     assert np.all(extra['feedforward_age'][extra['feedforward_age'] >= 0] >= 1)
 
 
+@pytest.mark.slow
 def test_sigint_ends_a_run_cleanly_and_records_it(spawn, probe, tmp_path):
     probe.subscribe(JointState, topics.JOINT_STATES, 1000)
     record = tmp_path / 'run.npz'
@@ -103,6 +105,7 @@ def _exited(node, timeout: float = 20.0) -> bool:
     return True
 
 
+@pytest.mark.slow
 def test_the_truth_is_the_nodes_own_and_the_configured_model_does_not_move_it(spawn, tmp_path):
     """The configured model (model.walther_a, what the feedforward and the estimator use) leaves the simulated
     truth friction as it is; the node's own truth parameter (truth_walther_a) moves it."""

@@ -89,6 +89,7 @@ def _send_pairs(probe, n: int, start: int = 0, temperature: float = -40.0):
     return expected
 
 
+@pytest.mark.slow
 def test_pairs_and_closes_a_readable_log(spawn, probe, tmp_path):
     _setup(probe)
     folder = tmp_path / 'res'
@@ -134,6 +135,7 @@ def test_pairs_and_closes_a_readable_log(spawn, probe, tmp_path):
     assert len(siblings) == 1 and (siblings[0] / 'metadata.yaml').exists()
 
 
+@pytest.mark.slow
 def test_two_loggers_on_one_folder_each_write_their_own_sibling_log(spawn, probe, tmp_path):
     """Started at once with the same output_dir, two loggers write two separate logs side by side, each named in
     its log line; neither log is inside the other, and each closes cleanly."""
@@ -160,6 +162,7 @@ def test_two_loggers_on_one_folder_each_write_their_own_sibling_log(spawn, probe
         assert (f / 'metadata.yaml').exists() and not [p for p in f.iterdir() if p.is_dir()]
 
 
+@pytest.mark.slow
 def test_sigkill_leaves_readable_chunks_and_rotation(spawn, probe, tmp_path):
     _setup(probe)
     folder = tmp_path / 'killed'
@@ -187,6 +190,7 @@ def test_sigkill_leaves_readable_chunks_and_rotation(spawn, probe, tmp_path):
     assert np.all(np.isfinite(rows.residual_nm))
 
 
+@pytest.mark.slow
 def test_unwritable_folder_reported_node_stays_up(spawn, probe, tmp_path):
     _setup(probe)
     blocker = tmp_path / 'file'
@@ -203,6 +207,7 @@ def test_unwritable_folder_reported_node_stays_up(spawn, probe, tmp_path):
     assert rc == 0 and 'Traceback' not in out
 
 
+@pytest.mark.slow
 def test_runtime_period_change_takes_effect_and_start_up_only_setting_is_refused(spawn, probe, tmp_path):
     import time
 

@@ -28,6 +28,7 @@ def cold_study():
     return res, seen
 
 
+@pytest.mark.slow
 def test_ideal_beats_feedforward_beats_no_compensation_in_the_cold(cold_study):
     """(e) <= (c) < (a) at -40 degC on the short tracking (1/3 rpm, one reversal) and pointing profiles."""
     res, _ = cold_study
@@ -67,6 +68,7 @@ def test_refit_case_is_built_from_the_estimators_residual_rows_of_the_same_simul
     assert any('walther_a 8.6195 -> 8.6345' in n for n in res.notes)
 
 
+@pytest.mark.slow
 def test_default_refit_finds_the_truths_direction_asymmetry():
     res = run_study(SimConfig(), AxisParams(), temperatures=[-40.0, 60.0], profiles=['tracking', 'pointing'],
                     cases=['feedforward', 'refit'], short=True)
@@ -119,6 +121,7 @@ def test_case_d_from_observer_samples_of_pointing_alone():
     assert rms[('ideal', -40.0)] < rms[('refit', -40.0)] < rms[('none', -40.0)]
 
 
+@pytest.mark.slow
 def test_steady_state_method_collects_the_constant_speed_sweep_only():
     seen = []
 
