@@ -445,6 +445,15 @@ class Feedforward:
         correction_nm = along(joint, temperature_c, velocity_rad_s, position_rad, model_nm)
         return corrected_torque_nm(model_nm, correction_nm, velocity_rad_s, self._v_th, self._max_torque_nm, xp)
 
+    def model_nm(self, joint: str, velocity_rad_s: Any, temperature_c: Any, xp: Any) -> Any:
+        """``k_dir · M``: the model friction of ``joint`` along the motion [N·m] (>= 0) at velocities [rad/s] and
+        temperatures [°C] (finite), as the torque rule evaluates it (the table); what a learned correction is added
+        to and what residuals for learning one are taken against (model friction signed like the motion =
+        ``sign(v)`` × this)."""
+        terms = self.tables[joint].temperature_terms(temperature_c, xp)
+        k_positive, k_negative = direction_factors(self.axes[joint], temperature_c, xp)
+        return model_friction_nm(terms, k_positive, k_negative, velocity_rad_s, xp)
+
     def torque_at(self, joint: str, velocity_rad_s: float, temperature_c: float,
                   position_rad: float = math.nan) -> float:
         """Feedforward torque [N·m] of ``joint`` at ``velocity_rad_s`` [rad/s], ``temperature_c`` [°C] (NaN:
