@@ -55,6 +55,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
+from gimbal_friction.chamber.learned import correction_record, correction_settings, learn_correction
 from gimbal_friction.cli._common import (
     add_common,
     format_table,
@@ -64,16 +65,7 @@ from gimbal_friction.cli._common import (
     write_text_atomic,
 )
 from gimbal_friction.common.errors import ConfigError, FitError, GimbalFrictionError
-from gimbal_friction.common.settings import settings_from, settings_from_parameters
-from gimbal_friction.config.loader import (
-    all_axis_params,
-    axis_names,
-    axis_params,
-    load_parameters,
-    render_parameter_file,
-)
-from gimbal_friction.feedforward.correction import CorrectionSettings
-from gimbal_friction.feedforward.rule import FeedforwardSettings
+from gimbal_friction.config.loader import axis_names, axis_params, load_parameters, render_parameter_file
 from gimbal_friction.physics.direction import ARRAY, direction_factor
 from gimbal_friction.physics.model import friction_torque
 from gimbal_friction.physics.params import AxisParams
@@ -88,7 +80,7 @@ from gimbal_friction.refit.fit import (
     palmgren_threshold_temperature,
     refit_stats,
 )
-from gimbal_friction.refit.logs import AxisData, LearnedCorrection, correction_table, read_correction, read_stats
+from gimbal_friction.refit.logs import AxisData, LearnedCorrection, correction_table, read_stats
 from gimbal_friction.refit.records import confounding_record, offset_record
 
 DEFAULT_FIT = 'walther_a'
@@ -420,21 +412,6 @@ def calibration_se_by_axis(args: argparse.Namespace, axes: list[str]) -> dict[st
     return out
 
 
-def correction_settings(params: dict[str, Any]) -> CorrectionSettings:
-    """The layout of a learned correction from the ``correction_<field>`` parameters of ``friction_feedforward``
-    (merged ``ros__parameters``; defaults for those not given), validated."""
-    return settings_from(CorrectionSettings, {k[len('correction_'):]: v for k, v in params.items()
-                                              if k.startswith('correction_')}) if params else CorrectionSettings()
-
-
-def learn_correction(logs: list[Path], layers: list[Path], label: str = 'refit: correction') -> LearnedCorrection:
-    """The correction of ``logs`` against the model of the parameter files ``layers`` (the configuration with the
-    refitted file last): what the feedforward will run."""
-    node = load_parameters(layers, node_name='friction_feedforward')
-    return read_correction(logs, all_axis_params(load_parameters(layers)), settings=correction_settings(node),
-                           feedforward_settings=settings_from_parameters(FeedforwardSettings, node), label=label)
-
-
 def print_correction(learned: LearnedCorrection, path: Path) -> None:
     """The learned cells of a correction as a table (N*mm)."""
     table, _ = correction_table(learned.correction)
@@ -448,13 +425,6 @@ def print_correction(learned: LearnedCorrection, path: Path) -> None:
         if reasons:
             print(f'  {joint}: samples not learned: ' + ', '.join(f'{k} {v}' for k, v in sorted(reasons.items())))
     print(f'wrote {path}')
-
-
-def correction_record(learned: LearnedCorrection, path: Path) -> dict[str, Any]:
-    """The JSON ``correction`` record: the file, the cells (N*mm), rows read and samples refused per joint."""
-    _, records = correction_table(learned.correction)
-    return {'out': str(path), 'cells': records, 'rows': learned.rows, 'refused': learned.refused,
-            'samples': sum(r['samples'] for r in records)}
 
 
 def run(args: argparse.Namespace) -> int:
@@ -516,7 +486,7 @@ def run(args: argparse.Namespace) -> int:
             print(f'gimbal-friction refit: warning: axis {f.axis}: {warning}', file=sys.stderr)
     learned = None
     if correction_out is not None:   # against the model the feedforward will run: the configuration + the refit
-        learned = learn_correction(list(args.logs), [*args.config, out])
+        learned = learn_correction(list(args.logs), [*args.config, out], label='refit: correction')
         learned.correction.save(correction_out)
 
     if args.format == 'json':
