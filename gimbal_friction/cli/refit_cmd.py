@@ -496,8 +496,10 @@ def run(args: argparse.Namespace) -> int:
                     'plot': None if args.plot is None else str(args.plot), 'fit': list(fit),
                     'config': [str(c) for c in args.config], 'offset_mode': args.offset,
                     'ignored_joints': ignored, 'axes': {f.axis: _axis_record(f) for f in fits},
-                    'correction': None if learned is None else correction_record(learned, correction_out)})
-        print(f'wrote {out}' + ('' if args.plot is None else f', plot: {args.plot}'), file=sys.stderr)
+                    'correction': None if learned is None or correction_out is None
+                    else correction_record(learned, correction_out)})
+        print(f'wrote {out}' + ('' if args.plot is None else f', plot: {args.plot}')
+              + ('' if correction_out is None else f', correction: {correction_out}'), file=sys.stderr)
         return 0
     print(f'refit of {", ".join(fit)} from {len(report.files)} file(s) in {where}'
           + (f' (skipped: {report.summary()})' if report.skipped else ''))

@@ -180,6 +180,7 @@ def test_the_reference_position_is_used_when_the_velocity_is_the_references():
 LEARNED = {bins: learned(bins) for bins in (0, 16)}
 
 
+@pytest.mark.slow
 @settings(max_examples=40, deadline=None)
 @given(steps=st.lists(st.tuples(st.sampled_from(['ref', 'js', 'both', 'temp']),
                                 st.one_of(st.floats(-0.2, 0.2), st.sampled_from(ODD)),   # reference velocity
