@@ -470,7 +470,8 @@ class Feedforward:
         _, terms, k_positive, k_negative = cached
         correction = self._correction
         torque: float
-        if correction is None or correction._lut.get(joint) is None:  # no learned value: the model (as :meth:`rule`)
+        # (every configured joint is in the correction: set_correction checks; no learned value: the model, as rule)
+        if correction is None or correction._lut[joint] is None:
             torque = feedforward_torque_nm(terms, k_positive, k_negative, velocity_rad_s, self._v_th,
                                            self._max_torque_nm, SCALAR)
         else:
@@ -521,8 +522,9 @@ class Feedforward:
         measured = self._velocity_source == 'measured'
         position = idx.position
         velocity, torque_at = self.velocity, self.torque_at
-        corrected = self._correction is not None
-        if corrected and (positions is None or len(positions) != len(names)):
+        # the correction's lookup lists per joint (None: no learned value, the model's torque and no position)
+        luts = None if self._correction is None else self._correction._lut
+        if luts is not None and (positions is None or len(positions) != len(names)):
             positions = None
         out_names: list[str] = []
         torques: list[float] = []
@@ -539,7 +541,7 @@ class Feedforward:
                 c.add(bucket, NON_FINITE_VELOCITY)
                 commands.append(0.0)
                 continue
-            if corrected:
+            if luts is not None and luts[joint] is not None:
                 p = math.nan if positions is None else float(positions[i])
                 torque = torque_at(joint, v, temperature, p if measured else self.position(joint, p, time_s))
             else:
