@@ -43,7 +43,7 @@ def learned(settings: CorrectionSettings) -> Correction:
     c = Correction(settings, model_identity({'elevation': {}}))
     for values in c.values_nm.values():
         values[:] = 1e-5 * np.sin(np.arange(values.size))
-    c._rebuild()
+    c.rebuild()
     return c
 
 

@@ -234,18 +234,19 @@ class Correction:
         self.sum_model_nm = {j: np.zeros(nc) for j in identity.joints}            #: Σ |model| per cell [N·m]
         self.values_nm = {j: np.zeros(nn) for j in identity.joints}               #: applied value per node [N·m]
         self.lookup_saturations = 0  #: lookups whose value the bound clipped [-]
-        self._lut: dict[str, _Lookup | None] = {}
+        #: per joint, the lookup lists of its learned values (None: nothing learned, the correction is 0 there)
+        self.lookups: dict[str, _Lookup | None] = {}
         pos = (np.arange(s.n_position) + 0.5) / s.n_position
         k = np.arange(1, s.harmonics + 1)[:, None] if s.position_bins else np.zeros((0, 1))
         self._cos, self._sin = np.cos(2 * np.pi * k * pos), np.sin(2 * np.pi * k * pos)   # (K, P)
         # keep harmonics 1..K of the bin means, undoing the bin average's attenuation sinc(pi k / P)
         gain = 2.0 / s.n_position / np.sinc(k / s.n_position)
         self._smooth = (self._cos * gain).T @ self._cos + (self._sin * gain).T @ self._sin   # (P, P)
-        self._rebuild()
+        self.rebuild()
 
-    def _rebuild(self) -> None:
+    def rebuild(self) -> None:
         """Recompute the lookup lists after the values changed."""
-        self._lut = {j: (_Lookup(self.settings, v) if np.any(v) else None) for j, v in self.values_nm.items()}
+        self.lookups = {j: (_Lookup(self.settings, v) if np.any(v) else None) for j, v in self.values_nm.items()}
 
     # ------------------------------------------------------------------ lookup (the feedforward's hot path)
     def along_nm(self, joint: str, temperature_c: float, velocity_rad_s: float, position_rad: float,
@@ -254,7 +255,7 @@ class Correction:
         ``temperature_c`` [°C] and reference position ``position_rad`` [rad] (NaN: the position map is skipped),
         bounded by ``max_relative`` × ``|model_nm|`` [N·m] + ``floor_nm``. Add it to the model magnitude before the
         smooth sign. Exactly 0.0 for a joint without a learned value; unknown joint: KeyError."""
-        lut = self._lut[joint]
+        lut = self.lookups[joint]
         if lut is None:
             return 0.0
         x = (temperature_c - lut.t0) * lut.inv_bin
@@ -299,7 +300,7 @@ class Correction:
         same numbers (tested); clipped lookups are counted the same way. Units as :meth:`along_nm`."""
         t, v, p, m = np.broadcast_arrays(*(np.asarray(a, dtype=float) for a in (temperature_c, velocity_rad_s,
                                                                                position_rad, model_nm)))
-        lut = self._lut[joint]
+        lut = self.lookups[joint]
         if lut is None:
             return np.zeros(t.shape)
         vals = self.values_nm[joint].reshape(2, self.settings.n_temperature, lut.npos)
@@ -399,7 +400,7 @@ class Correction:
         """Apply the learned values at once (batch learning; the :class:`Learner` moves them at a limited rate)."""
         for j in self.values_nm:
             self.values_nm[j] = self.targets(j)[0]
-        self._rebuild()
+        self.rebuild()
 
     @classmethod
     def from_residuals(cls, settings: CorrectionSettings, identity: ModelIdentity,
@@ -532,7 +533,7 @@ class Learner:
             if not np.array_equal(new, values):
                 c.values_nm[j], changed = new, True
         if changed:
-            c._rebuild()
+            c.rebuild()
         return changed
 
     def freeze(self, frozen: bool = True) -> None:
@@ -546,7 +547,7 @@ class Learner:
             for a in arrays.values():
                 a[:] = 0
         self.accepted = 0
-        c._rebuild()
+        c.rebuild()
 
     def snapshot(self) -> Correction:
         """An independent copy of the correction, to save or publish."""

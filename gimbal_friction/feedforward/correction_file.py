@@ -137,5 +137,5 @@ def _from_mapping(doc: Any) -> Correction:
         numbers = (c.count[j], c.sum_nm[j], c.values_nm[j], c.sum_sq_nm2[j], c.sum_model_nm[j])
         if not all(np.all(np.isfinite(a)) for a in numbers) or np.any(c.count[j] < 0):
             raise CorrectionError(f'joint {j}: non-finite values or negative sample counts; delete it')
-    c._rebuild()
+    c.rebuild()
     return c

@@ -437,13 +437,22 @@ class Feedforward:
         k_positive, k_negative = direction_factors(self.axes[joint], temperature_c, xp)
         correction = self._correction
         # (the correction's lookup lists: None for a joint without a learned value, where the torque is the model's)
-        if correction is None or correction._lut.get(joint) is None:
+        if correction is None or correction.lookups.get(joint) is None:
             return feedforward_torque_nm(terms, k_positive, k_negative, velocity_rad_s, self._v_th,
                                          self._max_torque_nm, xp)
         model_nm = model_friction_nm(terms, k_positive, k_negative, velocity_rad_s, xp)
         along = correction.along_nm if xp is SCALAR else correction.along_nm_array
         correction_nm = along(joint, temperature_c, velocity_rad_s, position_rad, model_nm)
         return corrected_torque_nm(model_nm, correction_nm, velocity_rad_s, self._v_th, self._max_torque_nm, xp)
+
+    def model_nm(self, joint: str, velocity_rad_s: Any, temperature_c: Any, xp: Any) -> Any:
+        """``k_dir · M``: the model friction of ``joint`` along the motion [N·m] (>= 0) at velocities [rad/s] and
+        temperatures [°C] (finite), as the torque rule evaluates it (the table); what a learned correction is added
+        to and what residuals for learning one are taken against (model friction signed like the motion =
+        ``sign(v)`` × this)."""
+        terms = self.tables[joint].temperature_terms(temperature_c, xp)
+        k_positive, k_negative = direction_factors(self.axes[joint], temperature_c, xp)
+        return model_friction_nm(terms, k_positive, k_negative, velocity_rad_s, xp)
 
     def torque_at(self, joint: str, velocity_rad_s: float, temperature_c: float,
                   position_rad: float = math.nan) -> float:
@@ -461,7 +470,8 @@ class Feedforward:
         _, terms, k_positive, k_negative = cached
         correction = self._correction
         torque: float
-        if correction is None or correction._lut.get(joint) is None:  # no learned value: the model (as :meth:`rule`)
+        # (every configured joint is in the correction: set_correction checks; no learned value: the model, as rule)
+        if correction is None or correction.lookups[joint] is None:
             torque = feedforward_torque_nm(terms, k_positive, k_negative, velocity_rad_s, self._v_th,
                                            self._max_torque_nm, SCALAR)
         else:
@@ -512,8 +522,9 @@ class Feedforward:
         measured = self._velocity_source == 'measured'
         position = idx.position
         velocity, torque_at = self.velocity, self.torque_at
-        corrected = self._correction is not None
-        if corrected and (positions is None or len(positions) != len(names)):
+        # the correction's lookup lists per joint (None: no learned value, the model's torque and no position)
+        luts = None if self._correction is None else self._correction.lookups
+        if luts is not None and (positions is None or len(positions) != len(names)):
             positions = None
         out_names: list[str] = []
         torques: list[float] = []
@@ -530,7 +541,7 @@ class Feedforward:
                 c.add(bucket, NON_FINITE_VELOCITY)
                 commands.append(0.0)
                 continue
-            if corrected:
+            if luts is not None and luts[joint] is not None:
                 p = math.nan if positions is None else float(positions[i])
                 torque = torque_at(joint, v, temperature, p if measured else self.position(joint, p, time_s))
             else:

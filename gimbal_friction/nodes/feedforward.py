@@ -178,7 +178,7 @@ class CorrectionKeeper:
         out = Correction(self.settings, c.identity)
         for name in ('count', 'sum_nm', 'sum_sq_nm2', 'sum_model_nm', 'values_nm'):
             setattr(out, name, getattr(c, name))
-        out._rebuild()
+        out.rebuild()
         return out
 
     def start(self, path: str) -> None:

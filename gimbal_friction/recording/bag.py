@@ -1117,15 +1117,16 @@ class _Window:
         reference = None
         if self.bag_reference is not None:  # a message whose velocities do not match its names is not used
             reference = finished[self.bag_reference]
+            # (not NamedTuple._replace: JointStateArrays' __len__ counts messages, which _replace's check trips on)
             bad = self.joint_collectors[self.bag_reference].mismatched(1)
             if bad.any():
-                reference = reference._replace(velocity={n: np.where(bad, np.nan, v)
-                                                         for n, v in reference.velocity.items()})
+                reference = type(reference)(**{**reference._asdict(), 'velocity': {
+                    n: np.where(bad, np.nan, v) for n, v in reference.velocity.items()}})
             # positions (a learned correction's position map) only from a message with one per name, as the node
             no_position = self.joint_collectors[self.bag_reference].mismatched(0)
             if no_position.any():
-                reference = reference._replace(position={n: np.where(no_position, np.nan, p)
-                                                         for n, p in reference.position.items()})
+                reference = type(reference)(**{**reference._asdict(), 'position': {
+                    n: np.where(no_position, np.nan, p) for n, p in reference.position.items()}})
         return ChamberArrays(
             temperature=temperature,
             joint_states=finished[bag.topic_map[JOINT_STATES]],

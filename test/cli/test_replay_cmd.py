@@ -375,3 +375,24 @@ def test_replay_with_a_correction_equals_the_node_message_by_message_with_refere
     err = capsys.readouterr().err.strip()
     assert 'learned against model parameters' in err and '\n' not in err
     assert not (tmp_path / 'refused').exists()
+
+
+def test_replay_takes_the_nodes_correction_file_unless_told_otherwise(tmp_path):
+    """replay_correction: --correction first, else friction_feedforward's correction_file (if it exists and
+    use_correction is not false): what the live node would load."""
+    from gimbal_friction.chamber.replay import replay_correction
+
+    axes, _, _ = node_settings([])
+    path = tmp_path / 'unit.correction.yaml'
+    _learned_correction(axes, bins=0).save(path)
+    cfg = tmp_path / 'node.yaml'
+    cfg.write_text(f'friction_feedforward:\n  ros__parameters:\n    correction_file: {path}\n')
+    c, source = replay_correction(axes, [cfg])
+    assert source == str(path) and c is not None and c.summary()['samples'] > 0
+    off = tmp_path / 'off.yaml'
+    off.write_text('friction_feedforward:\n  ros__parameters:\n    use_correction: false\n')
+    assert replay_correction(axes, [cfg, off]) == (None, None)
+    missing = tmp_path / 'missing.yaml'
+    missing.write_text(f'friction_feedforward:\n  ros__parameters:\n    correction_file: {tmp_path / "none.yaml"}\n')
+    assert replay_correction(axes, [missing]) == (None, None)   # nothing learned yet
+    assert replay_correction(axes, [missing], path)[1] == str(path)

@@ -87,7 +87,7 @@ def test_lookup_interpolates_between_bin_centres_and_clamps_at_the_ends():
     c = Correction(CorrectionSettings(), IDENT)
     nt = c.settings.n_temperature
     c.values_nm['elevation'][:nt] = np.arange(nt) * 1e-6   # cw: 1e-6 N*m per bin, centres -60, -55, ... degC
-    c._rebuild()
+    c.rebuild()
     assert c.along_nm('elevation', -40.0, 0.1, 0.0, 1.0) == pytest.approx(4e-6, rel=1e-12)
     assert c.along_nm('elevation', -38.0, 0.1, 0.0, 1.0) == pytest.approx(4.4e-6, rel=1e-12)
     assert c.along_nm('elevation', -90.0, 0.1, 0.0, 1.0) == 0.0                       # clamped at the cold end
@@ -102,7 +102,7 @@ def test_the_array_lookup_gives_the_scalar_lookups_numbers(bins):
     c = Correction(s, IDENT)
     assert np.array_equal(c.along_nm_array('elevation', [0.0, 1.0], [1.0, -1.0], 0.0, 1e-3), [0.0, 0.0])
     c.values_nm['elevation'][:] = rng.normal(0.0, 1e-4, c.values_nm['elevation'].size)
-    c._rebuild()
+    c.rebuild()
     n = 4000
     t = np.concatenate([rng.uniform(-80.0, 140.0, n - 4), [-60.0, 120.0, math.nan, 20.0]])
     v = np.concatenate([rng.normal(0.0, 0.05, n - 4), [0.0, -0.0, 0.1, -0.1]])

@@ -181,6 +181,7 @@ def test_the_reference_position_is_used_when_the_velocity_is_the_references():
 LEARNED = {bins: learned(bins) for bins in (0, 16)}
 
 
+@pytest.mark.slow
 @settings(max_examples=40, deadline=None)
 @given(steps=st.lists(st.tuples(st.sampled_from(['ref', 'js', 'both', 'temp']),
                                 st.one_of(st.floats(-0.2, 0.2), st.sampled_from(ODD)),   # reference velocity
@@ -198,19 +199,22 @@ def test_with_a_correction_the_bag_arrays_equal_the_per_message_rule(steps, sour
     """The replay's array path with a learned correction (position map or not) gives what the node's per-message
     path gives, message for message, with measured and reference positions."""
     s = FeedforwardSettings(velocity_source=source, stale_policy=policy, reference_timeout_s=0.6,
-                            temperature_timeout_s=1.2, max_torque_nm=0.004)
+                            temperature_timeout_s=1.2, max_torque_nm=0.01)
     c_one, c_bag = copy.deepcopy(LEARNED[bins]), copy.deepcopy(LEARNED[bins])
     one = Feedforward(AXES, s, correction=c_one)
     clock = 10 * S
     t_msgs, js_msgs, ref_msgs, events = [], [], [], []
     for kind, v_ref, v_meas, pos, temp, dt, which in steps:
+        # (a NaN velocity with a NaN position is what the arrays call absent: keep those apart)
+        ref_pos = 0.0 if math.isnan(pos) and math.isnan(v_ref) else pos
+        pos = 0.0 if math.isnan(pos) and math.isnan(v_meas) else pos
         names = [['elevation'], ['azimuth', 'elevation'], ['azimuth']][which]
         clock += S // 4
         if kind == 'temp':
             t_msgs.append((clock, clock + dt * S // 4, temp))
             events.append(('t', clock + dt * S // 4, temp))
         if kind in ('ref', 'both'):
-            vel, ps = [v_ref, -v_ref][:len(names)], [pos + 1.0, -pos][:len(names)]
+            vel, ps = [v_ref, -v_ref][:len(names)], [ref_pos + 1.0, -ref_pos][:len(names)]
             stamp = clock + dt * S // 4
             ref_msgs.append((clock, stamp, names, ps, vel, []))
             events.append(('r', stamp, names, vel, ps))
@@ -239,8 +243,6 @@ def test_with_a_correction_the_bag_arrays_equal_the_per_message_rule(steps, sour
         assert (e is None) == (g is None)
         if e is not None:
             np.testing.assert_allclose(g, e, rtol=1e-12, atol=1e-18)
-            assert all(math.isfinite(x) and abs(x) <= 0.004 for x in g)
-    # (the counters, but a reference with a NaN velocity and a NaN position: the arrays cannot tell it from absent)
-    for name in ('joint_state_rejected', 'temperature_rejected', 'saturated', 'published'):
-        assert getattr(ff.counters, name) == getattr(one.counters, name), name
+            assert all(math.isfinite(x) and abs(x) <= 0.01 for x in g)
+    assert ff.counters == one.counters
     assert c_bag.lookup_saturations == c_one.lookup_saturations
