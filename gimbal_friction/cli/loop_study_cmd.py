@@ -17,7 +17,8 @@ from typing import Any
 from gimbal_friction.cli._common import add_common, parse_temperature_spec, print_json, progress, refuse_existing
 from gimbal_friction.common.errors import ConfigError
 
-CASE_CHOICES = ('none', 'constant', 'feedforward', 'refit', 'ideal', 'feedforward_measured', 'feedforward_reference')
+CASE_CHOICES = ('none', 'constant', 'feedforward', 'refit', 'learned', 'bound', 'ideal', 'feedforward_measured',
+                'feedforward_reference')
 
 
 def add_parser(sub: Any) -> None:

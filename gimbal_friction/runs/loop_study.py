@@ -38,11 +38,11 @@ from gimbal_friction.config.loader import axis_names, axis_params, load_paramete
 from gimbal_friction.estimation.estimator import EstimatorSettings
 from gimbal_friction.feedforward.rule import FeedforwardSettings
 from gimbal_friction.physics.params import AxisParams
-from gimbal_friction.sim.compensation import CASES, EXTRA_CASES
 from gimbal_friction.sim.config import SECTION, SimConfig, truth_differences, with_truth
 from gimbal_friction.sim.study import (
     DEFAULT_REFIT_FIT,
     DEFAULT_TEMPERATURES,
+    REPORT_ORDER,
     FeedforwardSetup,
     StudyResult,
     goal_checks,
@@ -59,7 +59,7 @@ TABLE_FILE = 'loop_study.txt'
 #: Fields of every record (docs/cli.md ``loop-study`` JSON plus the current margin and the mode).
 RECORD_FIELDS = ('case', 'temperature_c', 'profile', 'rate_error_rms_rad_s', 'rate_error_peak_rad_s',
                  'position_error_rms_rad', 'position_error_peak_rad', 'reversal_error_peak_rad', 'current_margin',
-                 'duration_s', 'mode')
+                 'duration_s', 'mode', 'learning_worst_window_ratio')
 #: Velocity sources the study accepts from the parameter files (``auto`` = reference when fresh, else measured; the
 #: simulated reference is always fresh).
 
@@ -203,7 +203,7 @@ def table_text(doc: dict[str, Any]) -> str:
     out: list[str] = []
     offline = [r for r in records if r.get('mode', 'offline') == 'offline']
     temps = sorted({r['temperature_c'] for r in offline})
-    order = {c: i for i, c in enumerate(CASES + EXTRA_CASES)}
+    order = {c: i for i, c in enumerate(REPORT_ORDER)}
     for p in dict.fromkeys(r['profile'] for r in offline):
         rows = []
         for c in sorted({r['case'] for r in offline if r['profile'] == p}, key=lambda c: order.get(c, 99)):
@@ -254,7 +254,8 @@ def table_text(doc: dict[str, Any]) -> str:
 
 # ---------------------------------------------------------------------------------------------- figures
 _CASE_STYLE = {'none': ('k', 'o'), 'constant': ('tab:orange', 's'), 'feedforward': ('tab:blue', '^'),
-               'refit': ('tab:green', 'v'), 'ideal': ('0.6', 'x'), 'feedforward_measured': ('tab:purple', 'd'),
+               'refit': ('tab:green', 'v'), 'ideal': ('0.6', 'x'), 'learned': ('tab:red', 'D'),
+               'learning': ('salmon', 'd'), 'bound': ('tab:brown', '*'), 'feedforward_measured': ('tab:purple', 'd'),
                'feedforward_reference': ('tab:cyan', 'P')}
 
 
