@@ -56,8 +56,8 @@ from gimbal_friction.feedforward.rule import (
     velocity_used,
 )
 from gimbal_friction.physics.direction import direction_factors, select_direction
-from gimbal_friction.physics.table import magnitude_from_terms
 from gimbal_friction.physics.params import AxisParams
+from gimbal_friction.physics.table import magnitude_from_terms
 from gimbal_friction.streams.inputs import is_fresh, temperature_valid
 
 Array = NDArray[np.float64]
