@@ -121,11 +121,11 @@ LEARN_CHUNK_S = 0.1
 #: Correction layout of case ``learned``: 5 °C bins, prior 20 samples, bound 50 % of the model; a position map of
 #: 16 bins over 3.4° (the period of the packaged truth's main ripple, which a user reads off the residuals'
 #: spectrum; the 0.85° ripple is its 4th harmonic), 4 harmonics.
-STUDY_CORRECTION = CorrectionSettings(prior_samples=20.0, position_bins=16, position_period_rad=math.radians(3.4), harmonics=4)
-#: Learning of case ``learned``: the applied correction moves by at most 3e-2 N·m per minute (the node's default is
-#: 3e-4: the study compresses the service life into a learning window of a minute or less; the scan at -40 °C
-#: reached 2.84 mrad/s at 1e-2 and 2.11 at 3e-2, with the learning run never worse than the feedforward), stepped
-#: every 0.1 s.
+STUDY_CORRECTION = CorrectionSettings(prior_samples=20.0, position_bins=16, position_period_rad=math.radians(3.4),
+                                      harmonics=4)
+#: Learning of case ``learned``: the applied correction moves by at most 3e-2 N·m per minute (the node default is
+#: 3e-4: the study compresses service life into a learning window of a minute or less; the scan at -40 °C reached
+#: 2.84 mrad/s at 1e-2 and 2.11 at 3e-2, the learning run never worse than the feedforward), stepped every 0.1 s.
 STUDY_LEARNING = LearningSettings(max_rate_nm_per_min=3e-2, step_period_s=0.1)
 #: Cases in report order (``learning``: the learning run of ``learned``, scored on its own seed and window).
 REPORT_ORDER = (*CASES[:4], 'learning', *CASES[4:], *EXTRA_CASES)
