@@ -8,7 +8,9 @@ environment at t = 0 unless ``initial_bearing_offset_c`` says otherwise).
 Case (d) ``refit`` closes the suite's own loop, estimate → log → refit → better feedforward, through the very
 functions the nodes and ``gimbal-friction refit`` run:
 
-1. the case-(c) runs of every profile (``refit_profiles``) at every plateau are turned into the estimator's input
+1. the plain-feedforward runs of every profile (``refit_profiles``) at every plateau, in the *learning window*
+   (another noise seed, :data:`LEARN_SEED`, and another time window of the profile, so the refit is scored out of
+   sample), are turned into the estimator's input
    streams at the controller rate (:meth:`~gimbal_friction.sim.engine.EstimatorTrace.chamber_arrays`) and fed to
    :class:`~gimbal_friction.estimation.estimator.EstimatorLogic` (method ``observer`` by default: friction while the
    gimbal works, no constant-speed sweep needed; ``steady_state`` and ``both`` are offered);
@@ -23,11 +25,22 @@ functions the nodes and ``gimbal-friction refit`` run:
    (:data:`DEFAULT_REFIT_FIT`, see :func:`refit_rows`);
 4. case (d) runs the same feedforward with the refitted parameters.
 
+Case ``learned`` learns in service: in the same learning window the feedforward runs with a learned correction
+(:class:`~gimbal_friction.feedforward.correction.Correction`) that a
+:class:`~gimbal_friction.feedforward.correction.Learner` updates online from the estimator's observer samples (fed
+every :data:`LEARN_CHUNK_S` of simulated time: samples the estimator accepts, then the learner's gates, not near a
+reversal and a fresh temperature; the applied correction moves at the learner's limited rate and acts at once).
+The correction is then frozen and scored like every case on seed 0 over the scoring window; the learning run is
+reported too (case ``learning``, with its worst 10 s window against the plain feedforward of the same window).
+Case ``bound`` is the truth's own static map through the feedforward's delivery
+(:func:`~gimbal_friction.sim.compensation.truth_bound`).
+
 Records (one per case × temperature × profile) carry at least ``case``, ``temperature_c``, ``profile``,
 ``rate_error_rms_rad_s``, ``rate_error_peak_rad_s``, ``position_error_rms_rad``, ``position_error_peak_rad``,
 ``reversal_error_peak_rad``, ``current_margin`` (docs/cli.md ``loop-study``), plus ``duration_s``.
 :func:`goal_checks` evaluates the study's goals on them (the feedforward against no compensation, the
-constant and the ideal; at reversals).
+constant and the ideal; at reversals; the learning goals of :data:`LEARNING_GOALS`); :func:`explain_misses` names
+the truth term responsible for each missed learning goal.
 """
 
 from __future__ import annotations
