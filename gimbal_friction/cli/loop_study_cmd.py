@@ -31,7 +31,10 @@ def add_parser(sub: Any) -> None:
         'datasheet, LuGre breakaway and pre-sliding, position ripple, the measured CW/CCW asymmetry) over '
         'temperature plateaus and profiles, with each compensation case: none, constant (temperature-blind Coulomb '
         'tuned at +20 degC), feedforward (the suite\'s, as configured), refit (the feedforward after a refit from '
-        'the residual rows the suite\'s estimator collected in the same simulation), ideal (the truth cancelled). '
+        'the residual rows the suite\'s estimator collected in a learning run on another seed and time window), '
+        'learned (the feedforward with a correction learned online in such a learning run, then frozen; the learning '
+        'run is reported as learning), bound (the truth\'s own static map through the feedforward\'s delivery), '
+        'ideal (the truth cancelled). '
         'Reports the LOS rate and position error RMS and peak, the peak error at reversals and the current margin.')
     add_common(parser)
     parser.add_argument('--axis', metavar='NAME', help='configured axis to simulate (default: the first)')
@@ -40,9 +43,9 @@ def add_parser(sub: Any) -> None:
     parser.add_argument('--profiles', default='tracking,scan,pointing', metavar='LIST',
                         help='profiles: tracking (1/3 rpm with reversals), scan (sine), pointing (fixed target under '
                         'base motion); comma-separated (default all)')
-    parser.add_argument('--cases', default='none,constant,feedforward,refit,ideal', metavar='LIST',
+    parser.add_argument('--cases', default='none,constant,feedforward,refit,learned,bound,ideal', metavar='LIST',
                         help=f'cases, comma-separated, from {", ".join(CASE_CHOICES)} '
-                        '(default none,constant,feedforward,refit,ideal)')
+                        '(default none,constant,feedforward,refit,learned,bound,ideal)')
     parser.add_argument('--truth', type=Path, metavar='PATH',
                         help='YAML file of the simulated truth\'s parameters (flat or in a gimbal_sim section; the '
                         'truth group of config/gimbal_sim.yaml plus temperature_bias_c, '
