@@ -5,7 +5,9 @@ freshness and stale policy, table lookup, Walther viscosity, Palmgren, smooth si
 for comparison, ``Feedforward.message`` (the node's per-message path, two axes) — against the baseline measured in
 the same run: one scalar ``numpy.interp`` on a 1801-point table (the cheapest lookup a controller could write with
 numpy). Goals (issue 22): one axis ≤ 1.0 µs per call and below ``numpy.interp`` in the same run; a two-axis
-message ≤ 3 µs.
+message ≤ 3 µs. The same calls are also measured with a learned correction (issue 21): an empty one (goal: at most
+~0.1 µs more than without), and one learned over every temperature bin and both directions, without and with a
+position map (16 bins), looked up at the position passed.
 
 A benchmark, not a test: the machine is shared, so only the ratios measured in one run compare. Median of
 ``--repeat`` rounds of ``--calls`` calls each.
@@ -30,9 +32,26 @@ sys.path.insert(0, str(ROOT))
 
 from gimbal_friction.config.loader import render_parameter_file  # noqa: E402
 from gimbal_friction.controller import load_feedforward  # noqa: E402
+from gimbal_friction.feedforward.correction import Correction, CorrectionSettings  # noqa: E402
+from gimbal_friction.feedforward.rule import Feedforward  # noqa: E402
 
 TARGET_US = 1.0          #: one axis, per call [µs] (and below numpy.interp)
 TARGET_MESSAGE_US = 3.0  #: a two-axis message [µs]
+TARGET_EMPTY_EXTRA_US = 0.1  #: an empty correction adds at most this per scalar call [µs]
+
+
+def learned_correction(ff: Feedforward, position_bins: int) -> Correction:
+    """A correction of ``ff``'s joints with a value in every temperature bin and both directions [N·m]."""
+    c = Correction(CorrectionSettings(prior_samples=1.0, position_bins=position_bins, harmonics=3), ff.model_identity())
+    rng = np.random.default_rng(0)
+    n = 50_000
+    t = rng.uniform(-62.0, 122.0, n)
+    v = rng.choice([-1.0, 1.0], n) * rng.uniform(0.01, 0.1, n)
+    p = rng.uniform(0.0, 2 * np.pi, n)
+    for joint in ff.order:
+        c.add_residuals(joint, t, v, p, 1e-4 * np.sign(v) * (1.0 + np.sin(3 * p)), np.full(n, 2e-3))
+    c.settle()
+    return c
 
 
 def per_call_us(fn: Callable[[int], object], calls: int) -> float:
@@ -54,15 +73,21 @@ def main(argv: list[str] | None = None) -> int:
     two = ROOT / 'bench' / '.two_axes.yaml'
     two.write_text(render_parameter_file(axes=['elevation', 'azimuth']))
     try:
-        ff2 = load_feedforward(two)
+        ff2, ff2_empty = load_feedforward(two), load_feedforward(two)
     finally:
         two.unlink()
-    ff.update_temperature(-35.0, 0.0)
-    ff2.update_temperature(-35.0, 0.0)
+    ff_empty, ff_learned, ff_map = (load_feedforward() for _ in range(3))
+    ff_empty.set_correction(Correction(CorrectionSettings(), ff.model_identity()))
+    ff_learned.set_correction(learned_correction(ff, 0))
+    ff_map.set_correction(learned_correction(ff, 16))
+    ff2_empty.set_correction(Correction(CorrectionSettings(), ff2.model_identity()))
+    for f in (ff, ff2, ff_empty, ff_learned, ff_map, ff2_empty):
+        f.update_temperature(-35.0, 0.0)
     grid = np.linspace(-60.0, 120.0, 1801)
     values = np.sin(grid / 30.0)
     temps = (-40.0 + (np.arange(1000) % 100)).tolist()
     vels = (0.035 * np.sin(np.arange(1000) / 7.0)).tolist()
+    poss = (np.arange(1000) * 0.01).tolist()
     names = ['elevation', 'azimuth']
 
     workloads: dict[str, Callable[[int], object]] = {
@@ -70,6 +95,15 @@ def main(argv: list[str] | None = None) -> int:
         'Feedforward.torque_nm, one axis': lambda i: ff.torque_nm('elevation', vels[i % 1000], 1e-3 * (i % 1000)),
         'Feedforward.message, two axes': lambda i: ff2.message(names, [vels[i % 1000], -vels[i % 1000]],
                                                                 1e-3 * (i % 1000)),
+        'torque_nm, empty correction': lambda i: ff_empty.torque_nm('elevation', vels[i % 1000], 1e-3 * (i % 1000),
+                                                                     poss[i % 1000]),
+        'torque_nm, learned correction': lambda i: ff_learned.torque_nm('elevation', vels[i % 1000],
+                                                                         1e-3 * (i % 1000), poss[i % 1000]),
+        'torque_nm, learned with map': lambda i: ff_map.torque_nm('elevation', vels[i % 1000], 1e-3 * (i % 1000),
+                                                                   poss[i % 1000]),
+        'message, two axes, empty corr.': lambda i: ff2_empty.message(names, [vels[i % 1000], -vels[i % 1000]],
+                                                                        1e-3 * (i % 1000),
+                                                                        [poss[i % 1000], poss[i % 1000]]),
     }
     results: dict[str, list[float]] = {k: [] for k in workloads}
     for r in range(args.repeat):
@@ -80,9 +114,12 @@ def main(argv: list[str] | None = None) -> int:
     base = med['numpy.interp scalar (baseline)']
     one = med['Feedforward.torque_nm, one axis']
     message = med['Feedforward.message, two axes']
+    extra = med['torque_nm, empty correction'] - one
     doc = {'per_call_us': med, 'ratio_to_numpy_interp': {k: v / base for k, v in med.items()},
            'target_us': TARGET_US, 'target_message_us': TARGET_MESSAGE_US,
-           'pass': one <= TARGET_US and one < base, 'pass_message': message <= TARGET_MESSAGE_US}
+           'empty_correction_extra_us': extra, 'target_empty_correction_extra_us': TARGET_EMPTY_EXTRA_US,
+           'pass': one <= TARGET_US and one < base, 'pass_message': message <= TARGET_MESSAGE_US,
+           'pass_empty_correction': extra <= TARGET_EMPTY_EXTRA_US}
     if args.json:
         print(json.dumps(doc, indent=1))
         return 0
@@ -94,6 +131,9 @@ def main(argv: list[str] | None = None) -> int:
           f'numpy.interp: {verdict}')
     verdict = 'PASS' if doc['pass_message'] else 'MISS'
     print(f'two-axis message: {message:.2f} us, target <= {TARGET_MESSAGE_US:g} us: {verdict}')
+    verdict = 'PASS' if doc['pass_empty_correction'] else 'MISS'
+    print(f'an empty correction adds {extra:+.3f} us per scalar call, target <= {TARGET_EMPTY_EXTRA_US:g} us: '
+          f'{verdict}')
     return 0
 
 

@@ -18,6 +18,13 @@ A controller loop (Python, e.g. a custom rclpy control node or a test-bench scri
 rate the controller commands; never the inertial LOS rate of the gyro. Times are seconds on any clock, as long as
 temperature and tick times share it.
 
+A learned correction (``refit --correction-out``; :mod:`gimbal_friction.feedforward.correction`) is added to the
+model friction when its file is given: ``load_feedforward('refit.yaml', correction='refit.correction.yaml')``, then
+pass the joint position (the reference position with a reference velocity) for its position map:
+``ff.torque_nm('elevation', v, time_s=t, position_rad=p)``. A file learned against other parameters, or corrupt, is
+refused with one line (:class:`~gimbal_friction.feedforward.correction.CorrectionError`); ``ff.set_correction(None)``
+returns to the pure model at run time.
+
 >>> ff = load_feedforward()
 >>> ff.update_temperature(-40.0, time_s=100.0)
 >>> round(ff.torque_nm('elevation', 0.0349066, time_s=100.001) * 1e3, 3)   # N*mm at 1/3 rpm, -40 degC
@@ -31,13 +38,14 @@ from pathlib import Path
 
 from gimbal_friction.common.settings import settings_from_parameters
 from gimbal_friction.config.loader import all_axis_params, check_config_files, load_parameters
+from gimbal_friction.feedforward.correction import Correction, CorrectionError, model_identity
 from gimbal_friction.feedforward.rule import Feedforward, FeedforwardSettings
 
-__all__ = ['Feedforward', 'FeedforwardSettings', 'load_feedforward']
+__all__ = ['Correction', 'CorrectionError', 'Feedforward', 'FeedforwardSettings', 'load_feedforward']
 
 
 def load_feedforward(*param_files: str | Path, node_name: str = 'friction_feedforward',
-                     axes: Iterable[str] | None = None) -> Feedforward:
+                     axes: Iterable[str] | None = None, correction: str | Path | None = None) -> Feedforward:
     """The feedforward object of the node ``node_name``, built from parameter files layered over the packaged
     defaults.
 
@@ -49,6 +57,9 @@ def load_feedforward(*param_files: str | Path, node_name: str = 'friction_feedfo
         Whose node section applies besides ``/**`` (default the feedforward node's).
     axes : iterable of str, optional
         Only these configured joints (default: every configured axis).
+    correction : str or Path, optional
+        A learned correction file (``refit --correction-out``), added to the model friction; it must have been
+        learned against the parameters these files configure (all configured axes).
 
     Raises
     ------
@@ -56,10 +67,13 @@ def load_feedforward(*param_files: str | Path, node_name: str = 'friction_feedfo
         A missing or invalid file or value (named), or a joint that is not configured.
     ModelDomainError
         Parameters for which the model cannot be evaluated over the temperature range.
+    CorrectionError
+        The correction file is missing, corrupt, or learned against other joints or parameters (one line).
     """
     paths = [Path(p) for p in param_files]
     check_config_files(paths)   # a misspelt name is refused, not silently ignored
     configured = all_axis_params(load_parameters(paths))
+    whole = model_identity(configured)   # a correction is learned against every configured axis
     if axes is not None:
         wanted = list(axes)
         missing = [a for a in wanted if a not in configured]
@@ -68,4 +82,7 @@ def load_feedforward(*param_files: str | Path, node_name: str = 'friction_feedfo
             raise ConfigError('axes', f'not configured: {", ".join(missing)} (configured: {", ".join(configured)})')
         configured = {a: configured[a] for a in wanted}
     settings = settings_from_parameters(FeedforwardSettings, load_parameters(paths, node_name=node_name))
-    return Feedforward(configured, settings)
+    ff = Feedforward(configured, settings)
+    if correction is not None:
+        ff.set_correction(Correction.load(correction, expected=whole), expected=whole)
+    return ff

@@ -46,3 +46,38 @@ def test_layered_files_refit_and_node_section(tmp_path):
         load_feedforward(refit, axes=['roll'])
     with pytest.raises(ConfigError):
         load_feedforward(tmp_path / 'missing.yaml')
+
+
+def test_a_correction_file_is_added_and_a_mismatched_or_corrupt_one_refused(tmp_path):
+    from gimbal_friction.feedforward.correction import Correction, CorrectionError, CorrectionSettings, model_identity
+
+    refit = tmp_path / 'refit.yaml'
+    refit.write_text(render_parameter_file(axes=['elevation', 'azimuth']))
+    plain = load_feedforward(refit)
+    c = Correction(CorrectionSettings(prior_samples=1.0), plain.model_identity())
+    c.add_residuals('azimuth', [-40.0] * 99, [0.03] * 99, [0.0] * 99, [2e-4] * 99, [3e-3] * 99)
+    c.settle()
+    path = tmp_path / 'unit.correction.yaml'
+    c.save(path)
+    ff = load_feedforward(refit, correction=path)
+    for f in (plain, ff):
+        f.update_temperature(-40.0, 0.0)
+    assert ff.torque_nm('azimuth', 0.03, 0.0) - plain.torque_nm('azimuth', 0.03, 0.0) == pytest.approx(
+        math.tanh(0.03 / FeedforwardSettings().velocity_threshold_rad_s) * 2e-4 * 0.99, rel=1e-9)
+    assert ff.torque_nm('elevation', 0.03, 0.0) == plain.torque_nm('elevation', 0.03, 0.0)
+    only = load_feedforward(refit, axes=['azimuth'], correction=path)   # a subset of the configured joints
+    only.update_temperature(-40.0, 0.0)
+    assert only.torque_nm('azimuth', 0.03, 0.0) == ff.torque_nm('azimuth', 0.03, 0.0)
+    other = tmp_path / 'other.yaml'
+    other.write_text(render_parameter_file(axes=['elevation', 'azimuth'],
+                                           axes_overrides={'elevation': {'palmgren_factor': 3.0}}))
+    for params, bad, match in ((other, path, 'learned against model parameters'),
+                               (refit, tmp_path / 'missing.yaml', 'missing.yaml')):
+        with pytest.raises(CorrectionError, match=match) as e:
+            load_feedforward(params, correction=bad)
+        assert '\n' not in str(e.value)
+    corrupt = tmp_path / 'corrupt.yaml'
+    corrupt.write_text('format: [')
+    with pytest.raises(CorrectionError):
+        load_feedforward(refit, correction=corrupt)
+    assert Correction.load(path).identity == model_identity(load_feedforward(refit).axes)

@@ -91,6 +91,8 @@ class FitSettings(NamedTuple):
     loss: str = 'linear'
     calibration_se_nm: float | None = None
     direction: str = 'both'
+    #: folder for each unit's ``<unit>.refit.yaml`` and learned ``<unit>.correction.yaml`` (None: not written)
+    correction_dir: str | None = None
 
 
 # ------------------------------------------------------------------------------------------------------------
@@ -259,6 +261,7 @@ def process_unit(unit: UnitSpec, settings: FitSettings) -> dict[str, Any]:
         rec['skipped_rows'] = {a: {'nonfinite': stats[a].tally.skipped_nonfinite,
                                    'standstill': stats[a].tally.skipped_standstill} for a in axes}
         rec['cells'] = {a: len(stats[a]) for a in axes}
+        refitted: dict[str, dict[str, float]] = {}
         for axis in axes:
             base = settings.axes[axis]
             try:
@@ -269,6 +272,9 @@ def process_unit(unit: UnitSpec, settings: FitSettings) -> dict[str, Any]:
                 rec['axes'][axis] = {'error': str(err)}
                 continue
             rec['axes'][axis] = _axis_record(result, base)
+            refitted[axis] = result.refitted
+        if settings.correction_dir is not None:
+            rec['correction'] = unit_correction(unit, settings, refitted)
     except GimbalFrictionError as err:
         rec['error'] = str(err)
     except Exception as err:  # one unit's failure must not stop the fleet: it is its record
@@ -276,6 +282,32 @@ def process_unit(unit: UnitSpec, settings: FitSettings) -> dict[str, Any]:
     rec['seconds'] = time.perf_counter() - t0
     rec['max_rss_mb'] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
     return rec
+
+
+def correction_paths(folder: str | Path, unit: str) -> tuple[Path, Path]:
+    """Where ``fleet --correction-out`` writes a unit's refitted parameters and its learned correction."""
+    return Path(folder) / f'{unit}.refit.yaml', Path(folder) / f'{unit}.correction.yaml'
+
+
+def unit_correction(unit: UnitSpec, settings: FitSettings, refitted: dict[str, dict[str, float]]) -> dict[str, Any]:
+    """Write the unit's refitted parameters (``<unit>.refit.yaml``, layerable as ``refit --out``) and the correction
+    learned from its residual log against that model (``<unit>.correction.yaml``, a second streamed pass); the
+    record of both (``error`` instead for a bag unit: replay it first)."""
+    from gimbal_friction.chamber.learned import correction_record, learn_correction
+    from gimbal_friction.common.files import write_text_atomic
+    from gimbal_friction.config.loader import render_parameter_file
+
+    if unit.kind != 'log' or settings.correction_dir is None:
+        return {'error': 'a chamber bag: replay it (gimbal-friction replay) and pass its residual log to learn a '
+                         'correction'}
+    params_path, path = correction_paths(settings.correction_dir, unit.name)
+    header = (f'gimbal-friction fleet: unit {unit.name} ({unit.path}): refitted parameters (layer over '
+              + ' + '.join(['packaged defaults', *settings.config_paths]) + f'); learned correction: {path.name}')
+    write_text_atomic(params_path, render_parameter_file(axes_overrides=refitted, header=header))
+    learned = learn_correction([Path(unit.path)], [*map(Path, settings.config_paths), params_path],
+                               label='fleet: correction')
+    learned.correction.save(path)
+    return {'params': str(params_path), **correction_record(learned, path)}
 
 
 # ------------------------------------------------------------------------------------------------------------

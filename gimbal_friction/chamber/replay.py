@@ -3,7 +3,9 @@
 The same objects and functions the live nodes run, fed with the whole bag at once instead of a message at a time:
 
 - ``friction_feedforward``: :meth:`~gimbal_friction.feedforward.rule.Feedforward.bag_torques` (the rules of
-  :meth:`~gimbal_friction.feedforward.rule.Feedforward.message`, evaluated on arrays);
+  :meth:`~gimbal_friction.feedforward.rule.Feedforward.message`, evaluated on arrays), with the learned correction
+  the node would load (:func:`replay_correction`: ``--correction``, else the node's ``correction_file``), held as
+  it is in the file (the replay does not learn);
 - ``friction_estimator``: :meth:`~gimbal_friction.estimation.estimator.EstimatorLogic.feed` (the node feeds the
 messages of
   each timer tick; the result does not depend on the batching);
@@ -30,6 +32,7 @@ from gimbal_friction.common.settings import settings_from_parameters
 from gimbal_friction.config.loader import all_axis_params, check_config_files, load_parameters
 from gimbal_friction.estimation.estimator import EstimatorCounters, EstimatorLogic, EstimatorSettings
 from gimbal_friction.estimation.residuals import match_predictions, plateau_summary
+from gimbal_friction.feedforward.correction import Correction, model_identity
 from gimbal_friction.feedforward.rule import (
     SOURCE_MEASURED,
     BagTorques,
@@ -71,6 +74,7 @@ class ReplayResult(NamedTuple):
     messages_in: int
     messages_out: int
     findings: list[str]                #: one line per reason the replay matched little or nothing
+    correction: str | None = None      #: the learned correction file the feedforward added (None: pure model)
 
     @property
     def estimate(self) -> MeasurementArrays:
@@ -89,12 +93,29 @@ def node_settings(config_paths: Sequence[Path] = ()) -> tuple[dict[str, AxisPara
     return axes, ff, est
 
 
+def replay_correction(axes: Mapping[str, AxisParams], config_paths: Sequence[Path] = (),
+                      correction_path: str | Path | None = None) -> tuple[Correction | None, str | None]:
+    """The learned correction the feedforward node would add, and where it came from: ``correction_path`` if given
+    (it must exist), else the ``correction_file`` parameter of ``friction_feedforward`` in the parameter files
+    (unless ``use_correction`` is false; a file that does not exist yet is no correction, as for a node that has
+    not learned anything). Raises CorrectionError (one line): a corrupt file, or one learned against other joints
+    or parameters than ``axes``."""
+    if correction_path is None:
+        params = load_parameters(list(config_paths), node_name='friction_feedforward')
+        named = str(params.get('correction_file') or '')
+        if not named or params.get('use_correction', True) is False or not Path(named).exists():
+            return None, None
+        correction_path = named
+    return Correction.load(correction_path, expected=model_identity(axes)), str(correction_path)
+
+
 def replay_arrays(arrays: ChamberArrays, axes: dict[str, AxisParams], ff_settings: FeedforwardSettings,
-                  est_settings: EstimatorSettings) -> tuple[BagTorques, Feedforward, MeasurementArrays,
-                                                            NDArray[np.int64], EstimatorLogic, ResidualRows]:
-    """The three nodes' logic over a bag's arrays: the feedforward, the measurements with the log time that
-    completed each, and the residual rows."""
-    ff_logic = Feedforward(axes, ff_settings)
+                  est_settings: EstimatorSettings, correction: Correction | None = None
+                  ) -> tuple[BagTorques, Feedforward, MeasurementArrays, NDArray[np.int64], EstimatorLogic,
+                             ResidualRows]:
+    """The three nodes' logic over a bag's arrays: the feedforward (with ``correction``, learned against
+    ``axes``), the measurements with the log time that completed each, and the residual rows."""
+    ff_logic = Feedforward(axes, ff_settings, correction=correction)
     ff = ff_logic.bag_torques(arrays)
     est_logic = EstimatorLogic(axes, est_settings)
     measured, measured_log = est_logic.feed_timed(arrays)
@@ -113,8 +134,12 @@ def _flat_feedforward(ff: BagTorques) -> tuple[NDArray[np.str_], NDArray[np.int6
 
 def replay_bag(bag_path: str | Path, out_dir: str | Path | None, *, config_paths: Sequence[Path] = (),
                topic_map: Mapping[str, str] | None = None, joint_map: Mapping[str, str] | None = None,
-               log_inputs: bool = True, progress: Progress | None = None) -> ReplayResult:
+               log_inputs: bool = True, progress: Progress | None = None,
+               correction_path: str | Path | None = None) -> ReplayResult:
     """Run the three nodes' logic over a chamber-test bag; write ``out_dir/residuals/`` (if given).
+
+    The feedforward adds the learned correction of :func:`replay_correction` (``correction_path``, else the node's
+    ``correction_file``); the residual log's feedforward and residuals are then against the corrected model.
 
     ``topic_map`` maps contract topics to the bag's (``{'/joint_states': '/robot/joint_states'}``), ``joint_map``
     recorded joint names to configured ones (``{'joint_2': 'elevation'}``). ``findings`` of the result says, one
@@ -126,19 +151,22 @@ def replay_bag(bag_path: str | Path, out_dir: str | Path | None, *, config_paths
         EmptyInputError: no configured axis in the bag (the joints present, the mapping, ``--joint``), or no
             friction sample accepted (the estimator's reasons); raised before anything is written.
         ConfigError: a bad parameter file.
+        CorrectionError: a corrupt correction file, or one learned against other parameters (one line).
     """
     def report(stage: str, frac: float) -> None:
         if progress is not None:
             progress(stage, frac)
 
     axes, ff_settings, est_settings = node_settings(list(config_paths))
+    correction, correction_from = replay_correction(axes, list(config_paths), correction_path)
     bag = open_chamber_bag(bag_path, dict(topic_map) if topic_map else None,
                            joint_map=dict(joint_map) if joint_map else None, axes=list(axes))
     report('reading bag', 0.0)
     arrays, raw = _read_inputs(bag, log_inputs and out_dir is not None)
     report('reading bag', 1.0)
     report('nodes', 0.0)
-    ff, ff_logic, measured, measured_log, est_logic, rows = replay_arrays(arrays, axes, ff_settings, est_settings)
+    ff, ff_logic, measured, measured_log, est_logic, rows = replay_arrays(arrays, axes, ff_settings, est_settings,
+                                                                          correction)
     report('nodes', 1.0)
     if not len(measured):   # nothing usable: refuse before anything is written
         why = [f for f in bag.describe(arrays).findings(list(axes)) + _findings(ff, measured, est_logic, [])
@@ -167,7 +195,7 @@ def replay_bag(bag_path: str | Path, out_dir: str | Path | None, *, config_paths
         report('writing residual log', 1.0)
     findings = bag.describe(arrays).findings(list(axes)) + _findings(ff, measured, est_logic, summary)
     return ReplayResult(ff, measured, rows, ff_logic.counters, est_logic.counters, summary, residual_dir,
-                        bag.message_count, messages_out, findings)
+                        bag.message_count, messages_out, findings, correction_from)
 
 
 def _findings(ff: BagTorques, measured: MeasurementArrays, est: EstimatorLogic,

@@ -12,6 +12,11 @@ The table and its check live in :mod:`gimbal_friction.export.table`; the model p
 settings come from the packaged defaults layered with ``--config`` (as for the nodes: ``/**`` then
 ``friction_feedforward``), so a refit's parameter file in gives the refitted table out.
 
+With ``--correction FILE`` (a learned correction, ``refit --correction-out``; learned against the same
+configuration, else refused with one line) every file also carries the correction of its axis per temperature bin
+and direction with its error bound (the cells' standard errors), and the C feedforward and the lookup rule add it
+as the node does (:class:`~gimbal_friction.export.table.TableCorrection`).
+
 The files are written into a temporary directory next to ``DIR`` and renamed into place when all are complete, so a
 failed run leaves nothing half-written. An existing non-empty ``DIR`` is refused unless ``--force``, and even then
 only a directory holding nothing but export files (``gimbal_friction_*.csv|.h|.yaml``) is replaced.
@@ -46,7 +51,9 @@ from gimbal_friction.export.table import (
     Provenance,
     build_table,
     c_identifier,
+    table_correction,
 )
+from gimbal_friction.feedforward.correction import Correction, model_identity
 from gimbal_friction.feedforward.rule import FeedforwardSettings
 
 #: files an export directory may hold (what --force may replace)
@@ -84,6 +91,10 @@ def add_parser(sub: Any) -> None:
                         '%(default)d)')
     parser.add_argument('--seed', type=int, default=_DEFAULTS.seed, metavar='N',
                         help='seed of the random check points (default %(default)d)')
+    parser.add_argument('--correction', type=Path, metavar='FILE',
+                        help='learned correction file (refit --correction-out) to carry in every table (values and '
+                        'error bounds per temperature bin and direction; the C feedforward adds it); refused if '
+                        'corrupt or learned against other parameters')
     add_common(parser)
     parser.set_defaults(func=run)
 
@@ -202,6 +213,10 @@ def _summary(out: Path, table: ExportTable) -> dict[str, Any]:
                         'scale_positive': table.params.scale_positive,
                         'scale_negative': table.params.scale_negative},
         'report': table.report.as_dict(),
+        'correction': None if table.correction is None else {
+            'source': table.correction.source, 'samples': int(table.correction.samples.sum()),
+            'cells': int((table.correction.samples > 0).sum()),
+            'max_abs_nm': float(abs(table.correction.values_nm).max())},
     }
 
 
@@ -213,6 +228,11 @@ def run(args: argparse.Namespace) -> int:
                                         load_parameters(config, node_name='friction_feedforward'))
     options = build_options(args, settings)
     names = select_axes(list(axes), args.axis)
+    correction = None
+    if args.correction is not None:   # refused (one line) before anything is built
+        correction = Correction.load(args.correction, expected=model_identity(axes))
+        digest = hashlib.sha256(Path(args.correction).read_bytes()).hexdigest()
+        correction_source = f'{args.correction} (SHA-256 {digest})'
     replace = _check_out(args.out, args.force)
     prov = Provenance(f'gimbal-friction export {__version__}',
                       datetime.now(timezone.utc).isoformat(timespec='seconds'), sources(config))
@@ -220,6 +240,8 @@ def run(args: argparse.Namespace) -> int:
     status = (lambda line: print(f'export: {line}', file=sys.stderr)) if show else None
     t0 = time.perf_counter()
     tables = [build_table(name, axes[name], settings, options, progress=status) for name in names]
+    if correction is not None:
+        tables = [t._replace(correction=table_correction(correction, t.axis, correction_source)) for t in tables]
     files: dict[str, str] = {}
     for table in tables:
         fn = file_names(table.axis)

@@ -80,6 +80,11 @@ def add_parser(sub: Any) -> None:
                         help='1-sigma uncertainty of the no-load torque T_0 [N*m], to judge each unit\'s offset')
     parser.add_argument('--bin-width', type=float, default=5.0, metavar='DEGC',
                         help='temperature bin width [degC] (default 5)')
+    parser.add_argument('--correction-out', type=Path, metavar='DIR',
+                        help='also write, per unit with a residual log, DIR/<unit>.refit.yaml (its refitted '
+                        'parameters) and DIR/<unit>.correction.yaml (the correction learned against them, as refit '
+                        '--correction-out); named in fleet.json units[].correction. Existing files are refused '
+                        'unless --force')
     parser.add_argument('--z-max', type=float, default=Z_MAX, metavar='Z',
                         help=f'a unit is outside when |x - median| > Z robust spreads (default {Z_MAX:g})')
     parser.set_defaults(func=run)
@@ -143,8 +148,21 @@ def run(args: argparse.Namespace) -> int:
     fit = parse_fit(args.fit)
     axes = all_axis_params(load_parameters(args.config))
     units = discover_units(list(args.paths))
+    correction_dir: Path | None = args.correction_out
+    if correction_dir is not None:
+        from gimbal_friction.chamber.fleet import correction_paths
+        from gimbal_friction.chamber.learned import correction_settings
+        if correction_dir.exists() and not correction_dir.is_dir():
+            msg = f'--correction-out {correction_dir} exists and is not a directory'
+            raise GimbalFrictionError(msg)
+        correction_settings(load_parameters(args.config, node_name='friction_feedforward'))   # refuse bad ones now
+        for unit in units:
+            for path in correction_paths(correction_dir, unit.name):
+                refuse_existing(path, '--correction-out', force=args.force)
+        correction_dir.mkdir(parents=True, exist_ok=True)
     settings = FitSettings(axes=axes, config_paths=tuple(str(Path(c).resolve()) for c in args.config), fit=fit,
-                           offset=args.offset, bin_width_c=args.bin_width, calibration_se_nm=args.calibration_se)
+                           offset=args.offset, bin_width_c=args.bin_width, calibration_se_nm=args.calibration_se,
+                           correction_dir=None if correction_dir is None else str(correction_dir.resolve()))
     print(f'fleet: {len(units)} unit(s) on ' + (f'Dask scheduler {args.scheduler}' if args.scheduler else
                                                 'an embedded local Dask cluster'), file=sys.stderr)
     result = run_fleet(units, settings, scheduler=args.scheduler, workers=args.workers, processes=not args.threads,
@@ -188,6 +206,10 @@ def run(args: argparse.Namespace) -> int:
             print(f'OUTLIER {o["unit"]} ({o["axis"]}): {o["reason"]}')
     else:
         print('no unit outside the population')
+    written = [r['correction'] for r in result.records if 'out' in (r.get('correction') or {})]
+    if written:
+        print(f'learned corrections: {len(written)} unit(s), '
+              + ', '.join(f'{Path(c["out"]).name} ({c["samples"]} samples)' for c in written))
     print(f'{len(units)} unit(s) in {result.seconds:.1f} s ({doc["units_per_minute"]:.1f} units/min) on '
           f'{result.workers} worker(s); wrote {out / "fleet.json"}, {out / "fleet.csv"}'
           + (f', {out / "fleet.png"}' if ok else ''))

@@ -27,6 +27,16 @@ What the read skipped (damaged chunks and the messages lost with them, files cut
 rows) is said on stderr and in the header line, and counted in the JSON ``read`` record; an axis without usable
 samples is refused naming the logs, the direction filter and the rows skipped.
 
+Learned correction (``--correction-out FILE.yaml``): after the refit, a second pass over the same logs learns the
+correction of the feedforward (:mod:`gimbal_friction.feedforward.correction`) from each row's residual against the
+*refitted* model (measured friction − the model of the configuration with the refitted file layered over it, both
+signed like the motion; :func:`~gimbal_friction.refit.logs.read_correction`), per temperature bin × direction (and
+position map if ``correction_position_bins`` is configured), with the layout and shrinkage of the
+``correction_*`` parameters of ``friction_feedforward`` (defaults otherwise). It is written atomically next to the
+parameter file, refused if it exists unless ``--force``; the learned cells are printed (and in the JSON
+``correction`` record). Load both: ``--config refit.yaml`` + ``correction_file`` (node), ``load_feedforward(...,
+correction=...)``, ``replay --correction``, ``export --correction``.
+
 A fit set that cannot separate its parameters from the calibration offset (``palmgren_factor`` switches it off)
 is checked: the JSON ``offset_confounding`` record and a warning say which parameters a 1-sigma offset (the
 calibration's, else K_T × 1 mA) moves by more than their standard error, by how much, and the viscosity at the
@@ -45,6 +55,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
+from gimbal_friction.chamber.learned import correction_record, correction_settings, learn_correction
 from gimbal_friction.cli._common import (
     add_common,
     format_table,
@@ -69,7 +80,7 @@ from gimbal_friction.refit.fit import (
     palmgren_threshold_temperature,
     refit_stats,
 )
-from gimbal_friction.refit.logs import AxisData, read_stats
+from gimbal_friction.refit.logs import AxisData, LearnedCorrection, correction_table, read_stats
 from gimbal_friction.refit.records import confounding_record, offset_record
 
 DEFAULT_FIT = 'walther_a'
@@ -127,7 +138,11 @@ def add_parser(sub: Any) -> None:
                         help='parameter file to write (only after a successful fit; an existing file is refused '
                         'unless --force)')
     parser.add_argument('--force', action='store_true',
-                        help='replace an existing --out file (and --plot figure)')
+                        help='replace an existing --out file (and --plot figure, --correction-out file)')
+    parser.add_argument('--correction-out', type=Path, metavar='FILE.yaml',
+                        help='also write the learned correction (residuals against the refitted model, per '
+                        'temperature bin and direction, with sample counts and standard errors) to this file; an '
+                        'existing file is refused unless --force')
     add_common(parser)
     parser.add_argument('--axis', action='append', metavar='NAME',
                         help='axis to refit (repeatable; default: every configured axis present in the logs)')
@@ -397,12 +412,34 @@ def calibration_se_by_axis(args: argparse.Namespace, axes: list[str]) -> dict[st
     return out
 
 
+def print_correction(learned: LearnedCorrection, path: Path) -> None:
+    """The learned cells of a correction as a table (N*mm)."""
+    table, _ = correction_table(learned.correction)
+    n = sum(int(r[5]) for r in table)
+    print(f'learned correction (residual against the refitted model, along the motion; {n} samples in '
+          f'{len(table)} cells):')
+    if table:
+        print(format_table(table, ['joint', 't bin [degC]', 'dir', 'value [N*mm]', 'std. error', 'samples',
+                                   'saturated']))
+    for joint, reasons in learned.refused.items():
+        if reasons:
+            print(f'  {joint}: samples not learned: ' + ', '.join(f'{k} {v}' for k, v in sorted(reasons.items())))
+    print(f'wrote {path}')
+
+
 def run(args: argparse.Namespace) -> int:
     out: Path = args.out
     if out.is_dir():
         msg = f'--out {out} is a directory; give a file name such as refit.yaml'
         raise GimbalFrictionError(msg)
     refuse_existing(out, '--out', force=args.force)
+    correction_out: Path | None = args.correction_out
+    if correction_out is not None:
+        if correction_out.is_dir() or correction_out.resolve() == out.resolve():
+            msg = f'--correction-out {correction_out}: give a file name other than --out, such as refit.correction.yaml'
+            raise GimbalFrictionError(msg)
+        refuse_existing(correction_out, '--correction-out', force=args.force)
+        correction_settings(load_parameters(args.config, node_name='friction_feedforward'))   # refuse bad ones now
     if args.plot is not None:
         refuse_existing(args.plot, '--plot', force=args.force)
     if not (math.isfinite(args.bin_width) and args.bin_width > 0.0):
@@ -447,6 +484,10 @@ def run(args: argparse.Namespace) -> int:
     for f in fits:
         for warning in f.result.warnings:
             print(f'gimbal-friction refit: warning: axis {f.axis}: {warning}', file=sys.stderr)
+    learned = None
+    if correction_out is not None:   # against the model the feedforward will run: the configuration + the refit
+        learned = learn_correction(list(args.logs), [*args.config, out], label='refit: correction')
+        learned.correction.save(correction_out)
 
     if args.format == 'json':
         print_json({'logs': [str(p) for p in args.logs], 'files': [str(p) for p in report.files],
@@ -454,7 +495,8 @@ def run(args: argparse.Namespace) -> int:
                     'out': str(out),
                     'plot': None if args.plot is None else str(args.plot), 'fit': list(fit),
                     'config': [str(c) for c in args.config], 'offset_mode': args.offset,
-                    'ignored_joints': ignored, 'axes': {f.axis: _axis_record(f) for f in fits}})
+                    'ignored_joints': ignored, 'axes': {f.axis: _axis_record(f) for f in fits},
+                    'correction': None if learned is None else correction_record(learned, correction_out)})
         print(f'wrote {out}' + ('' if args.plot is None else f', plot: {args.plot}'), file=sys.stderr)
         return 0
     print(f'refit of {", ".join(fit)} from {len(report.files)} file(s) in {where}'
@@ -469,4 +511,7 @@ def run(args: argparse.Namespace) -> int:
     print(f'wrote {out} ({", ".join(written)})')
     if args.plot is not None:
         print(f'plot: {args.plot}')
+    if learned is not None and correction_out is not None:
+        print()
+        print_correction(learned, correction_out)
     return 0

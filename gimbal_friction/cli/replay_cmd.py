@@ -34,6 +34,10 @@ def add_parser(sub: Any) -> None:
     parser.add_argument('--joint', action='append', default=[], metavar='CONFIGURED=RECORDED',
                         help='the configured axis CONFIGURED is the joint recorded as RECORDED in the bag, e.g. '
                         'elevation=joint_2 (repeatable)')
+    parser.add_argument('--correction', type=Path, metavar='FILE',
+                        help='learned correction file (refit --correction-out) the feedforward adds, as the node '
+                        'does; default: the correction_file of friction_feedforward in --config, if it exists. A '
+                        'corrupt file or one learned against other parameters is refused (exit 1)')
     parser.add_argument('--no-inputs', action='store_true',
                         help='do not copy the input topics into the residual log (smaller, faster)')
     parser.set_defaults(func=run)
@@ -85,7 +89,8 @@ def run(args: argparse.Namespace) -> int:
         progress(int(frac * 1000), 1000, f'{stage:<22}')
 
     result = replay_bag(args.bag, out, config_paths=args.config, topic_map=topic_map or None,
-                        joint_map=joint_map or None, log_inputs=not args.no_inputs, progress=show)
+                        joint_map=joint_map or None, log_inputs=not args.no_inputs, progress=show,
+                        correction_path=args.correction)
     elapsed = time.perf_counter() - t0
     summary = [{k: r[k] for k in ('joint', *SUMMARY_FIELDS, 'sign', 'measured_std_nmm')} for r in result.summary]
     write_text_atomic(out / 'summary.json', json.dumps(summary, indent=1) + '\n')
@@ -98,7 +103,7 @@ def run(args: argparse.Namespace) -> int:
         'feedforward_outputs': len(result.feedforward), 'accepted_samples': len(est),
         'rejected': result.estimator_counters.as_dict().get('rejected', {}), 'seconds': round(elapsed, 3),
         'messages_per_s': round(result.messages_in / elapsed, 1) if elapsed > 0 else None,
-        'notes': result.findings,
+        'notes': result.findings, 'correction': result.correction,
     }
     if args.format == 'json':
         print_json({**info, 'plateaus': summary})
@@ -106,5 +111,7 @@ def run(args: argparse.Namespace) -> int:
     print(f'replayed {args.bag}: {result.messages_in} messages in {elapsed:.2f} s '
           f'({info["messages_per_s"]:.0f} msg/s); {len(est)} samples accepted')
     print(summary_table(result.summary))
+    if result.correction is not None:
+        print(f'feedforward with the learned correction {result.correction}')
     print(f'residual log: {result.residual_dir}/   summary: {out / "summary.json"}')
     return 0

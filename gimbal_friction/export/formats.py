@@ -16,7 +16,9 @@ import yaml
 from numpy.typing import NDArray
 
 from gimbal_friction.common.units import nm_from_nmm, rpm_from_rad_s
-from gimbal_friction.export.table import PALMGREN_JUMP, ExportTable, Provenance, c_identifier
+from gimbal_friction.common.xp import ARRAY
+from gimbal_friction.export.table import PALMGREN_JUMP, ExportTable, Provenance, c_identifier, correction_nm
+from gimbal_friction.physics.direction import direction_factor
 from gimbal_friction.physics.model import FrictionResult
 
 Array = NDArray[np.float64]
@@ -26,6 +28,9 @@ Array = NDArray[np.float64]
 #: CSV columns, in order (units in the names)
 CSV_FIELDS = ('temperature_c', 'speed_rpm', 'speed_rad_s', 'eta', 'm_total_nmm', 'm_total_nm', 'm_rolling_nmm',
               'm_sliding_nmm', 'm_viscous_nmm', 'viscosity_cst', 'switch_speed_rad_s')
+#: CSV columns added with a learned correction: what the feedforward adds along the motion at the row's temperature
+#: and speed, per direction, and its error bound [N*m]
+CSV_CORRECTION_FIELDS = ('correction_cw_nm', 'correction_cw_error_nm', 'correction_ccw_nm', 'correction_ccw_error_nm')
 
 #: the lookup rule, as written into every file
 LOOKUP_RULE = (
@@ -89,7 +94,23 @@ def provenance_lines(table: ExportTable, prov: Provenance) -> list[str]:
                  f'scale_negative = {p.scale_negative!r} (v < 0), a(T) from {p.direction_asymmetry_cold!r} at '
                  f'{p.direction_asymmetry_cold_c!r} degC to {p.direction_asymmetry_warm!r} at '
                  f'{p.direction_asymmetry_warm_c!r} degC (linear, held outside)')
-    lines.append('Feedforward: tau = clamp(tanh(v/velocity_threshold) * k_dir * M(t, |v|), +-max_torque) [N*m].')
+    c = table.correction
+    if c is None:
+        lines.append('Feedforward: tau = clamp(tanh(v/velocity_threshold) * k_dir * M(t, |v|), +-max_torque) [N*m].')
+        return [_clean(line) for line in lines]
+    lines += [
+        (f'Learned correction: {c.source}; {int(c.samples.sum())} samples in {int((c.samples > 0).sum())} cells '
+        f'(temperature bins of {1.0 / c.inv_bin_per_c:g} degC centred {c.centres_c[0]:g} .. {c.centres_c[-1]:g} '
+        'degC, cw: v >= 0, ccw: v < 0).'),
+        ('Feedforward: tau = clamp(tanh(v/velocity_threshold) * (k_dir * M(t, |v|) + c), +-max_torque) [N*m], with '
+        'the correction c along the motion'),
+        ('  interpolated linearly between bin centres (held beyond the first and last), clamped to '
+        f'+-({c.max_relative!r} * k_dir * M + {c.floor_nm!r} N*m).'),
+        'Its error bound per cell: standard error of the cell mean x n/(n + n0) (0: no data; unknown with one '
+        'sample: nan, -1 in C and ROS).'
+        + (f' The file\'s position map ({c.position_bins} bins) is not exported: the cells\' means over '
+           'position are.' if c.position_bins else ''),
+    ]
     return [_clean(line) for line in lines]
 
 
@@ -114,7 +135,20 @@ def csv_rows(table: ExportTable) -> list[dict[str, float]]:
         if i < k:
             for j in range(2):
                 out.append(record(g.upper, (i, j), float(g.upper_speed_rad_s[i, j]), float(g.eta[j]), i))
+    if table.correction is not None and out:
+        t = np.array([r['temperature_c'] for r in out])
+        m = np.array([r['m_total_nm'] for r in out])
+        for sign, name in ((1.0, 'cw'), (-1.0, 'ccw')):
+            model = direction_factor(table.params, t, sign, ARRAY) * m
+            value, error = correction_nm(table.correction, t, np.full(t.shape, sign), model)
+            for r, cv, ce in zip(out, value.tolist(), error.tolist(), strict=True):
+                r[f'correction_{name}_nm'], r[f'correction_{name}_error_nm'] = cv, ce
     return out
+
+
+def csv_fields(table: ExportTable) -> tuple[str, ...]:
+    """The CSV columns of ``table`` (with a learned correction: :data:`CSV_CORRECTION_FIELDS` too)."""
+    return CSV_FIELDS if table.correction is None else CSV_FIELDS + CSV_CORRECTION_FIELDS
 
 
 def render_csv(table: ExportTable, prov: Provenance) -> str:
@@ -127,10 +161,14 @@ def render_csv(table: ExportTable, prov: Provenance) -> str:
         *LOOKUP_RULE,
         'Columns: torques of the whole axis in N*mm (paper) and N*m (SI); speed in rpm and rad/s; viscosity in cSt.',
     ]
+    if table.correction is not None:
+        head.append('Correction columns: what the feedforward adds along the motion at the row\'s temperature and '
+                    'speed, cw and ccw, and its error bound [N*m].')
+    fields = csv_fields(table)
     lines = [f'# {line}' for line in head]
-    lines.append(','.join(CSV_FIELDS))
+    lines.append(','.join(fields))
     for rec in csv_rows(table):
-        lines.append(','.join(_fmt(rec[f]) for f in CSV_FIELDS))
+        lines.append(','.join(_fmt(rec[f]) for f in fields))
     return '\n'.join(lines) + '\n'
 
 
@@ -160,6 +198,10 @@ def render_c_header(table: ExportTable, prov: Provenance) -> str:
         '  torque [N*m], clamp(tanh(v/v_th) * k_dir * M, +-max_torque); 0 for a non-finite input (the node outputs 0',
         '  for a non-finite velocity; it rejects a bad temperature and applies its stale policy: do that in your',
         '  code if you need it).',
+        *([] if table.correction is None else [
+            f'double gf_{a}_correction_nm(double temperature_c, double velocity_rad_s, double model_nm): the learned',
+            '  correction [N*m] along the motion for the model friction model_nm = k_dir * M [N*m]; its error bound:',
+            f'  gf_{a}_correction_error_nm(temperature_c, velocity_rad_s) [N*m] (negative: unknown).']),
         'C99, only <math.h>; link with -lm.',
     ])
     upper_rows = ',\n'.join(f'    {{{_fmt(g.upper_nm[i, 0])}, {_fmt(g.upper_nm[i, 1])}}}' for i in range(k))
@@ -259,15 +301,13 @@ static inline double gf_{a}_direction_factor(double temperature_c, double veloci
     return velocity_rad_s >= 0.0 ? GF_{A}_SCALE_POSITIVE * (1.0 + a) : GF_{A}_SCALE_NEGATIVE * (1.0 - a);
 }}
 
-static inline double gf_{a}_feedforward_nm(double temperature_c, double velocity_rad_s)
+{_c_correction(table)}static inline double gf_{a}_feedforward_nm(double temperature_c, double velocity_rad_s)
 {{
     double tau;
     if (!isfinite(temperature_c) || !isfinite(velocity_rad_s)) {{
         return 0.0;
     }}
-    tau = tanh(velocity_rad_s / GF_{A}_VELOCITY_THRESHOLD_RAD_S)
-          * gf_{a}_direction_factor(temperature_c, velocity_rad_s)
-          * gf_{a}_friction_nm(temperature_c, velocity_rad_s);
+{_c_torque(table)}
     if (tau > GF_{A}_MAX_TORQUE_NM) {{
         tau = GF_{A}_MAX_TORQUE_NM;
     }} else if (tau < -GF_{A}_MAX_TORQUE_NM) {{
@@ -277,6 +317,102 @@ static inline double gf_{a}_feedforward_nm(double temperature_c, double velocity
 }}
 
 #endif /* GIMBAL_FRICTION_{A}_H */
+'''
+
+
+def _c_torque(table: ExportTable) -> str:
+    """The feedforward's torque statement of the C header (with the learned correction if the table has one)."""
+    a = c_identifier(table.axis)
+    A = a.upper()
+    if table.correction is None:
+        return f'''    tau = tanh(velocity_rad_s / GF_{A}_VELOCITY_THRESHOLD_RAD_S)
+          * gf_{a}_direction_factor(temperature_c, velocity_rad_s)
+          * gf_{a}_friction_nm(temperature_c, velocity_rad_s);'''
+    return f'''    {{
+        double model = gf_{a}_direction_factor(temperature_c, velocity_rad_s)
+                       * gf_{a}_friction_nm(temperature_c, velocity_rad_s);
+        tau = tanh(velocity_rad_s / GF_{A}_VELOCITY_THRESHOLD_RAD_S)
+              * (model + gf_{a}_correction_nm(temperature_c, velocity_rad_s, model));
+    }}'''
+
+
+def _c_correction(table: ExportTable) -> str:
+    """The learned correction's arrays and lookup in the C header (:func:`~gimbal_friction.export.table.
+    correction_nm`; empty without one)."""
+    c = table.correction
+    if c is None:
+        return ''
+    a = c_identifier(table.axis)
+    A = a.upper()
+    err = np.where(np.isnan(c.error_nm), -1.0, c.error_nm)
+    arrays = []
+    for d, name in ((0, 'cw'), (1, 'ccw')):
+        sense = 'v >= 0' if d == 0 else 'v < 0'
+        arrays.append(f'''/* learned correction along the motion, {name} ({sense}), per bin [N*m] */
+static const double gf_{a}_correction_{name}_nm[GF_{A}_CORRECTION_N] = {{
+{_c_array(c.values_nm[d])}
+}};
+
+/* its error bound per bin [N*m] (-1: unknown, one sample) */
+static const double gf_{a}_correction_{name}_error_nm[GF_{A}_CORRECTION_N] = {{
+{_c_array(err[d])}
+}};
+
+/* samples per bin [-] */
+static const double gf_{a}_correction_{name}_samples[GF_{A}_CORRECTION_N] = {{
+{_c_array(c.samples[d].astype(float))}
+}};
+''')
+    body = '\n'.join(arrays)
+    return f'''#define GF_{A}_CORRECTION_N {c.centres_c.shape[0]}  /* temperature bins of the learned correction */
+#define GF_{A}_CORRECTION_T0_C {_fmt(c.centres_c[0])}  /* centre of the first bin [degC] */
+#define GF_{A}_CORRECTION_INV_BIN_PER_C {_fmt(c.inv_bin_per_c)}  /* 1 / bin width [1/degC] */
+#define GF_{A}_CORRECTION_MAX_RELATIVE {_fmt(c.max_relative)}  /* |c| <= this * |k_dir M| + floor [-] */
+#define GF_{A}_CORRECTION_FLOOR_NM {_fmt(c.floor_nm)}  /* [N*m] */
+
+{body}
+static inline double gf_{a}_correction_lerp(const double *c, double temperature_c)
+{{
+    double x = (temperature_c - GF_{A}_CORRECTION_T0_C) * GF_{A}_CORRECTION_INV_BIN_PER_C, w;
+    int i;
+    if (x > 0.0 && x < GF_{A}_CORRECTION_N - 1) {{
+        i = (int)x;
+        w = x - i;
+    }} else if (x > 0.0) {{
+        i = GF_{A}_CORRECTION_N - 2;
+        w = 1.0;
+    }} else {{  /* also NaN */
+        i = 0;
+        w = 0.0;
+    }}
+    return c[i] + w * (c[i + 1] - c[i]);
+}}
+
+static inline double gf_{a}_correction_nm(double temperature_c, double velocity_rad_s, double model_nm)
+{{
+    double c = gf_{a}_correction_lerp(velocity_rad_s >= 0.0 ? gf_{a}_correction_cw_nm : gf_{a}_correction_ccw_nm,
+                                       temperature_c);
+    double bound = GF_{A}_CORRECTION_MAX_RELATIVE * fabs(model_nm) + GF_{A}_CORRECTION_FLOOR_NM;
+    if (c > bound) {{
+        return bound;
+    }}
+    if (c < -bound) {{
+        return -bound;
+    }}
+    return c;
+}}
+
+static inline double gf_{a}_correction_error_nm(double temperature_c, double velocity_rad_s)
+{{
+    const double *e = velocity_rad_s >= 0.0 ? gf_{a}_correction_cw_error_nm : gf_{a}_correction_ccw_error_nm;
+    double x = (temperature_c - GF_{A}_CORRECTION_T0_C) * GF_{A}_CORRECTION_INV_BIN_PER_C;
+    int i = x > 0.0 ? (x < GF_{A}_CORRECTION_N - 1 ? (int)x : GF_{A}_CORRECTION_N - 2) : 0;
+    if (e[i] < 0.0 || e[i + 1] < 0.0) {{
+        return -1.0;
+    }}
+    return gf_{a}_correction_lerp(e, temperature_c);
+}}
+
 '''
 
 
@@ -306,6 +442,26 @@ def ros_parameters(table: ExportTable) -> dict[str, object]:
         'direction_asymmetry_warm': float(p.direction_asymmetry_warm),
         'direction_asymmetry_cold_c': float(p.direction_asymmetry_cold_c),
         'direction_asymmetry_warm_c': float(p.direction_asymmetry_warm_c),
+        **_ros_correction(table),
+    }
+
+
+def _ros_correction(table: ExportTable) -> dict[str, object]:
+    """The learned correction's entries of the ROS parameter file (none without one)."""
+    c = table.correction
+    if c is None:
+        return {}
+    err = np.where(np.isnan(c.error_nm), -1.0, c.error_nm)
+    return {
+        'correction_temperatures_c': [float(x) for x in c.centres_c],
+        'correction_cw_nm': [float(x) for x in c.values_nm[0]],
+        'correction_ccw_nm': [float(x) for x in c.values_nm[1]],
+        'correction_cw_error_nm': [float(x) for x in err[0]],
+        'correction_ccw_error_nm': [float(x) for x in err[1]],
+        'correction_cw_samples': [int(x) for x in c.samples[0]],
+        'correction_ccw_samples': [int(x) for x in c.samples[1]],
+        'correction_max_relative': float(c.max_relative),
+        'correction_floor_nm': float(c.floor_nm),
     }
 
 
@@ -318,6 +474,10 @@ def render_ros_yaml(table: ExportTable, prov: Provenance) -> str:
         'torque_upper_nm [N*m] row-major with shape torque_upper_shape = [rows, eta_breakpoints] (the first rows',
         'of temperatures_c); eta_breakpoints [-]; the feedforward settings and direction factors.',
         *LOOKUP_RULE,
+        *([] if table.correction is None else [
+            ('correction_*: the learned correction per temperature bin centre (correction_temperatures_c [degC]), cw '
+            'and ccw [N*m], its error bound [N*m] (-1: unknown) and samples; bounded by correction_max_relative * '
+            '|k_dir M| + correction_floor_nm.')]),
     ]
     doc = {ROS_NODE: {'ros__parameters': {c_identifier(table.axis): ros_parameters(table)}}}
     body: str = yaml.safe_dump(doc, sort_keys=False, default_flow_style=None, width=116)

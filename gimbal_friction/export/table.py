@@ -47,6 +47,13 @@ step squared); an interval holding a random point above the bound is split too. 
 ``max_breakpoints``; a bound that would need more is refused. Defaults: -60…120 °C (the feedforward node's table
 range), |v| ≤ 10 rad/s (573 °/s, above the slew rates of seeker gimbals; faster is clamped), bound 1e-4.
 
+**Learned correction.** With a correction file (``export --correction``; :class:`TableCorrection`), every table also
+carries the correction of its axis per temperature bin and direction (the cells' means over position: a position
+map is not exported) with each cell's error bound (the standard error of its mean, shrunk like its value), and the
+feedforward adds it exactly as the node does: ``c = clamp(lerp over bin centres, ±(max_relative k_dir M +
+floor))``, ``τ = clamp(tanh(v/v_th) (k_dir M + c), ±τ_max)`` (:func:`correction_nm`, the C function
+``gf_<axis>_correction_nm``).
+
 **Switch band.** The table decides the Palmgren branch with the interpolated switch speed, the model with the exact
 one; they differ by at most ``switch_band`` (relative, ≤ half the bound by construction). Inside that band, i.e.
 ``|ν n/2000 − 1| ≲ switch_band``, the table may sit on the other branch of Eq. (9) and differ from the model by the
@@ -73,6 +80,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from gimbal_friction.common.errors import GimbalFrictionError, ModelDomainError, check_rules
 from gimbal_friction.common.units import nm_from_nmm, rad_s_from_rpm, rpm_from_rad_s
+from gimbal_friction.feedforward.correction import Correction
 from gimbal_friction.feedforward.rule import FeedforwardSettings
 from gimbal_friction.physics.friction import PALMGREN_THRESHOLD_CST_RPM
 from gimbal_friction.physics.model import FrictionResult, friction_torque, viscosity_cst
@@ -178,6 +186,61 @@ class TableGrid(NamedTuple):
     upper_speed_rad_s: Array  #: speeds of the upper nodes [rad/s], (K, 2)
 
 
+class TableCorrection(NamedTuple):
+    """The learned correction of one axis as exported: per temperature bin and direction, along the motion."""
+
+    source: str                 #: the correction file and the SHA-256 of its bytes
+    centres_c: Array            #: temperature bin centres [°C], (B,)
+    inv_bin_per_c: float        #: 1 / bin width [1/°C] (the lookup's x = (t − centres_c[0]) · inv_bin_per_c)
+    values_nm: Array            #: applied value per (direction cw/ccw, bin), mean over position [N·m], (2, B)
+    error_nm: Array             #: its error bound: std. error of the cell mean × n/(n + n0); 0 without data, NaN
+    #: with one sample (unknown) [N·m], (2, B)
+    samples: NDArray[np.int64]  #: samples per (direction, bin) [-], (2, B)
+    max_relative: float         #: bound: |c| <= max_relative × |k_dir M| + floor_nm [-]
+    floor_nm: float             #: [N·m]
+    position_bins: int          #: bins of the file's position map (0: none; not exported) [-]
+
+
+def table_correction(correction: Correction, axis: str, source: str) -> TableCorrection:
+    """The exported form of ``correction``'s values of ``axis`` (see :class:`TableCorrection`)."""
+    s = correction.settings
+    nt, npos = s.n_temperature, s.n_position
+    values = correction.values_nm[axis].reshape(2, nt, npos).mean(axis=2)   # what a NaN position looks up
+    error = np.zeros((2, nt))
+    samples = np.zeros((2, nt), dtype=np.int64)
+    for cell in correction.cells(axis):
+        d = 0 if cell['direction'] == 'cw' else 1
+        n = cell['samples']
+        samples[d, cell['bin']] = n
+        se = cell['std_error_nm']
+        error[d, cell['bin']] = math.nan if se is None else se * n / (n + s.prior_samples)
+    centres = np.asarray(s.temperature_min_c + (np.arange(nt) + 0.5) * s.temperature_bin_c, dtype=np.float64)
+    centres[0] = s.temperature_min_c + 0.5 * s.temperature_bin_c   # (as the lookup computes its origin)
+    return TableCorrection(source, centres, 1.0 / s.temperature_bin_c, values, error, samples, s.max_relative,
+                           s.floor_nm, s.position_bins)
+
+
+def correction_nm(tc: TableCorrection, temperature_c: ArrayLike, velocity_rad_s: ArrayLike,
+                  model_nm: ArrayLike) -> tuple[Array, Array]:
+    """The exported correction [N·m] along the motion at temperatures [°C] and velocities [rad/s] (``>= 0``: cw)
+    for the model friction ``model_nm`` = k_dir M [N·m], and its error bound [N·m] (the cells' bounds interpolated
+    the same way; NaN where a cell's is unknown): the rule of
+    :meth:`~gimbal_friction.feedforward.correction.Correction.along_nm` without a position, and of the C function."""
+    t, v, m = np.broadcast_arrays(*(np.asarray(a, dtype=float) for a in (temperature_c, velocity_rad_s, model_nm)))
+    nt = tc.centres_c.shape[0]
+    x = (t - float(tc.centres_c[0])) * tc.inv_bin_per_c
+    inside = (x > 0.0) & (x < nt - 1)
+    i = np.where(inside, np.trunc(np.where(inside, x, 0.0)), np.where(x > 0.0, nt - 2, 0)).astype(np.int64)
+    w = np.where(inside, x - i, np.where(x > 0.0, 1.0, 0.0))
+    d = np.where(v >= 0.0, 0, 1)
+    a = tc.values_nm[d, i]
+    c = a + w * (tc.values_nm[d, i + 1] - a)
+    bound = tc.max_relative * np.abs(m) + tc.floor_nm
+    c = np.where(c > bound, bound, np.where(c < -bound, -bound, c))
+    e = tc.error_nm[d, i] + w * (tc.error_nm[d, i + 1] - tc.error_nm[d, i])
+    return np.asarray(c, dtype=float), np.asarray(e, dtype=float)
+
+
 class ExportTable(NamedTuple):
     """The exported table of one axis, its settings and its error report."""
 
@@ -187,6 +250,7 @@ class ExportTable(NamedTuple):
     options: ExportOptions
     grid: TableGrid
     report: ErrorReport
+    correction: TableCorrection | None = None   #: the learned correction carried (None: the model alone)
 
     @property
     def temperatures_c(self) -> Array:

@@ -7,9 +7,15 @@ joint at that temperature (:func:`~gimbal_friction.physics.direction.direction_f
 ``scale_negative`` and the temperature-dependent CW/CCW asymmetry), clamped to ``max_torque_nm``
 (:func:`feedforward_torque_nm`):
 
-.. math:: \tau = \operatorname{clamp}\left(\tanh(v / v_{th})\; k_{dir}\; M(t, |v|),\ \pm\tau_{max}\right)
+.. math:: \tau = \operatorname{clamp}\left(\tanh(v / v_{th})\; \big(k_{dir}\; M(t, |v|) + c\big),\ \pm\tau_{max}\right)
 
-``tanh`` reaches 0.995 at |v| = 3 v_th, so the output does not chatter around zero speed.
+``tanh`` reaches 0.995 at |v| = 3 v_th, so the output does not chatter around zero speed. ``c`` [N·m] is the
+optional learned correction along the motion (:class:`~gimbal_friction.feedforward.correction.Correction`,
+:meth:`Feedforward.set_correction`), looked up at the temperature used, the velocity used, the joint position and
+the model friction ``k_dir M``; the position is the reference position when the velocity used is the reference's
+and the reference message carried a finite one, else the joint state's (NaN: the position map is skipped). Without
+a correction, or for a joint the correction has no value for, the torque is exactly the model's (the same
+floating-point operations as without the correction).
 
 Temperature (the rules of :mod:`gimbal_friction.streams.inputs`): the latest valid temperature received is used
 while it is fresh, i.e. while the time of the sample (joint-state stamp; arrival time if the stamp is zero) and the
@@ -45,6 +51,7 @@ from gimbal_friction.common.errors import ConfigError, check_rules
 from gimbal_friction.common.settings import setting
 from gimbal_friction.common.units import NS_PER_S
 from gimbal_friction.common.xp import ARRAY, SCALAR
+from gimbal_friction.feedforward.correction import Correction, CorrectionError, ModelIdentity, model_identity
 from gimbal_friction.physics.direction import direction_factors, select_direction
 from gimbal_friction.physics.params import MODEL_T_MAX_C, MODEL_T_MIN_C, AxisParams
 from gimbal_friction.physics.table import FrictionTable, TemperatureTerms, magnitude_from_terms
@@ -131,6 +138,21 @@ def feedforward_torque_nm(terms: TemperatureTerms, k_positive: Any, k_negative: 
     magnitude_nm = magnitude_from_terms(terms, velocity_rad_s, xp)
     k_dir = select_direction(velocity_rad_s, k_positive, k_negative, xp)
     return xp.clip(xp.tanh(velocity_rad_s / v_th) * k_dir * magnitude_nm, -max_torque_nm, max_torque_nm)
+
+
+def model_friction_nm(terms: TemperatureTerms, k_positive: Any, k_negative: Any, velocity_rad_s: Any, xp: Any) -> Any:
+    """``k_dir · M``: the model friction along the motion [N·m] at velocity ``velocity_rad_s`` [rad/s] (arguments
+    as :func:`feedforward_torque_nm`); what a learned correction is added to."""
+    return select_direction(velocity_rad_s, k_positive, k_negative, xp) * magnitude_from_terms(terms, velocity_rad_s,
+                                                                                               xp)
+
+
+def corrected_torque_nm(model_nm: Any, correction_nm: Any, velocity_rad_s: Any, v_th: float, max_torque_nm: float,
+                        xp: Any) -> Any:
+    """``clamp(tanh(v/v_th) · (k_dir M + c), ±τ_max)`` [N·m]: the feedforward torque with a learned correction
+    ``correction_nm`` = c [N·m] along the motion added to the model friction ``model_nm`` = k_dir M [N·m]
+    (:func:`model_friction_nm`) at velocity ``velocity_rad_s`` [rad/s]."""
+    return xp.clip(xp.tanh(velocity_rad_s / v_th) * (model_nm + correction_nm), -max_torque_nm, max_torque_nm)
 
 
 def velocity_used(source: str, measured_rad_s: Any, reference_rad_s: Any, reference_fresh: Any, xp: Any) -> Any:
@@ -230,17 +252,23 @@ class Feedforward:
         Configured joints, in order, and their model parameters.
     settings : FeedforwardSettings
         Validated settings.
+    correction : Correction, optional
+        A learned correction added to the model friction (:meth:`set_correction`); None or an empty one: the
+        pure model.
 
     Raises
     ------
     ConfigError
         Invalid settings.
+    CorrectionError
+        ``correction`` was learned against other joints or parameters.
     ModelDomainError
         Parameters for which the model cannot be tabulated over the temperature range (the whole model is built
         and checked here, so a broken model is refused before it is used).
     """
 
-    def __init__(self, axes: dict[str, AxisParams], settings: FeedforwardSettings) -> None:
+    def __init__(self, axes: dict[str, AxisParams], settings: FeedforwardSettings,
+                 correction: Correction | None = None) -> None:
         settings.validate()
         if not axes:
             raise ConfigError('axes', 'must name at least one joint')
@@ -262,6 +290,11 @@ class Feedforward:
         self._scalar_terms: dict[str, tuple[float, TemperatureTerms, float, float]] = {}
         #: latest reference joint velocity per joint: (velocity [rad/s], time [s])
         self._reference: dict[str, tuple[float, float]] = {}
+        #: the reference position [rad] of the same message as ``_reference`` (NaN: none)
+        self._reference_position: dict[str, float] = {}
+        self._correction: Correction | None = None
+        if correction is not None:
+            self.set_correction(correction)
         #: :func:`temperature_used` of the latest valid temperature when stale and when fresh (index: fresh)
         self._used: tuple[tuple[float, int], tuple[float, int]] = ((math.nan, SOURCE_ZERO),) * 2
         self.last_temperature_c = math.nan   #: latest valid temperature [°C] (NaN: none)
@@ -283,9 +316,37 @@ class Feedforward:
         is still inside this object's credible range)."""
         self.counters = old.counters
         self._reference = {j: r for j, r in old._reference.items() if j in self.axes}
+        self._reference_position = {j: p for j, p in old._reference_position.items() if j in self.axes}
         s = self.settings
         if s.temperature_min_c <= old.last_temperature_c <= s.temperature_max_c:
             self.last_temperature_c, self.last_temperature_time_s = old.last_temperature_c, old.last_temperature_time_s
+
+    # ------------------------------------------------------------------ learned correction
+    @property
+    def correction(self) -> Correction | None:
+        """The learned correction added to the model friction (None: the pure model)."""
+        return self._correction
+
+    def model_identity(self) -> ModelIdentity:
+        """The identity of this object's model (:func:`~gimbal_friction.feedforward.correction.model_identity`):
+        what a correction must have been learned against."""
+        return model_identity(self.axes)
+
+    def set_correction(self, correction: Correction | None, expected: ModelIdentity | None = None) -> None:
+        """Use ``correction`` from the next call on (None: back to the pure model). The object is used as it is,
+        not copied: a :class:`~gimbal_friction.feedforward.correction.Learner` updating it in place is followed at
+        once.
+
+        Raises CorrectionError (one line) unless it was learned against ``expected`` (default: this object's model,
+        :meth:`model_identity`; pass the identity of the whole configuration when this object runs a subset of its
+        joints).
+        """
+        if correction is not None:
+            correction.check_identity(self.model_identity() if expected is None else expected)
+            unknown = [j for j in self.order if j not in correction.identity.joints]
+            if unknown:
+                raise CorrectionError(f'the correction has no joint {", ".join(unknown)}: relearn it for these joints')
+        self._correction = correction
 
     # ------------------------------------------------------------------ temperature
     def update_temperature(self, temperature_c: float, time_s: float) -> str | None:
@@ -306,21 +367,26 @@ class Feedforward:
         """The latest finite reference per configured joint: (velocity [rad/s], time [s]) (a copy)."""
         return dict(self._reference)
 
-    def update_reference(self, names: list[str], velocities: list[float], time_s: float) -> str | None:
-        """A reference joint-velocity message (``/gimbal/reference_velocity``: ``names``, ``velocities`` [rad/s])
-        of time ``time_s`` [s]. The first entry of each configured joint is kept if finite. Returns the reason
-        (counted) when the message is refused whole."""
+    def update_reference(self, names: list[str], velocities: list[float], time_s: float,
+                         positions: list[float] | None = None) -> str | None:
+        """A reference joint-velocity message (``/gimbal/reference_velocity``: ``names``, ``velocities`` [rad/s],
+        optionally ``positions`` [rad], ignored unless as long as ``names``) of time ``time_s`` [s]. The first entry
+        of each configured joint is kept if its velocity is finite (with its position: the reference position a
+        learned correction's position map is looked up at). Returns the reason (counted) when the message is refused
+        whole."""
         if len(velocities) != len(names):
             self.counters.add(self.counters.reference_rejected, J_MISMATCH)
             return J_MISMATCH
+        have_positions = positions is not None and len(positions) == len(names)
         seen: set[str] = set()
-        for name, v in zip(names, velocities, strict=True):
+        for k, (name, v) in enumerate(zip(names, velocities, strict=True)):
             if name in seen or name not in self.axes:
                 continue
             seen.add(name)
             value = float(v)
             if math.isfinite(value):
                 self._reference[name] = (value, float(time_s))
+                self._reference_position[name] = float(positions[k]) if have_positions else math.nan  # type: ignore[index]
             else:
                 self.counters.add(self.counters.reference_rejected, NON_FINITE_VELOCITY)
         return None
@@ -337,6 +403,18 @@ class Feedforward:
                                     SCALAR)
         return used
 
+    def position(self, joint: str, measured_rad: float, time_s: float) -> float:
+        """The position [rad] a learned correction of ``joint`` is looked up at, for a sample of time ``time_s``
+        [s] whose measured position is ``measured_rad`` [rad]: the reference position when the velocity used is the
+        reference's (:meth:`velocity`) and that reference carried a finite position, else the measured one."""
+        if self._velocity_source == 'measured':
+            return measured_rad
+        _, t = self._reference.get(joint, _NO_REFERENCE)
+        p = self._reference_position.get(joint, math.nan)
+        if p == p and is_fresh(time_s, t, self._reference_timeout_s, SCALAR):
+            return p
+        return measured_rad
+
     def temperature(self, time_s: float) -> tuple[float, int]:
         """Temperature [°C] to use for a sample of time ``time_s`` [s] (NaN: zero policy) and its source code."""
         # temperature_used of the latest valid temperature, evaluated when it arrived (last_temperature_c)
@@ -347,20 +425,40 @@ class Feedforward:
         return time_s - self.last_temperature_time_s
 
     # ------------------------------------------------------------------ one joint (a controller tick)
-    def rule(self, joint: str, velocity_rad_s: Any, temperature_c: Any, xp: Any, terms: Any = None) -> Any:
-        """The torque rule of ``joint`` [N·m] at velocities [rad/s] and temperatures [°C] (finite), floats
-        (``xp`` = SCALAR) or arrays (ARRAY); ``terms`` may carry the table's temperature terms already computed
-        for these temperatures. No counting, no input checks: the callers below do those."""
+    def rule(self, joint: str, velocity_rad_s: Any, temperature_c: Any, xp: Any, terms: Any = None,
+             position_rad: Any = math.nan) -> Any:
+        """The torque rule of ``joint`` [N·m] at velocities [rad/s], temperatures [°C] (finite) and positions [rad]
+        (for the learned correction's position map; NaN: none), floats (``xp`` = SCALAR) or arrays (ARRAY);
+        ``terms`` may carry the table's temperature terms already computed for these temperatures. No counting
+        (but the correction's clipped lookups), no input checks: the callers below do those."""
         table = self.tables[joint]
         if terms is None:
             terms = table.temperature_terms(temperature_c, xp)
         k_positive, k_negative = direction_factors(self.axes[joint], temperature_c, xp)
-        return feedforward_torque_nm(terms, k_positive, k_negative, velocity_rad_s, self._v_th, self._max_torque_nm,
-                                     xp)
+        correction = self._correction
+        # (the correction's lookup lists: None for a joint without a learned value, where the torque is the model's)
+        if correction is None or correction._lut.get(joint) is None:
+            return feedforward_torque_nm(terms, k_positive, k_negative, velocity_rad_s, self._v_th,
+                                         self._max_torque_nm, xp)
+        model_nm = model_friction_nm(terms, k_positive, k_negative, velocity_rad_s, xp)
+        along = correction.along_nm if xp is SCALAR else correction.along_nm_array
+        correction_nm = along(joint, temperature_c, velocity_rad_s, position_rad, model_nm)
+        return corrected_torque_nm(model_nm, correction_nm, velocity_rad_s, self._v_th, self._max_torque_nm, xp)
 
-    def torque_at(self, joint: str, velocity_rad_s: float, temperature_c: float) -> float:
-        """Feedforward torque [N·m] of ``joint`` at ``velocity_rad_s`` [rad/s] and ``temperature_c`` [°C] (NaN:
-        zero policy, 0 N·m). Non-finite velocity gives 0 N·m. Counts saturation."""
+    def model_nm(self, joint: str, velocity_rad_s: Any, temperature_c: Any, xp: Any) -> Any:
+        """``k_dir · M``: the model friction of ``joint`` along the motion [N·m] (>= 0) at velocities [rad/s] and
+        temperatures [°C] (finite), as the torque rule evaluates it (the table); what a learned correction is added
+        to and what residuals for learning one are taken against (model friction signed like the motion =
+        ``sign(v)`` × this)."""
+        terms = self.tables[joint].temperature_terms(temperature_c, xp)
+        k_positive, k_negative = direction_factors(self.axes[joint], temperature_c, xp)
+        return model_friction_nm(terms, k_positive, k_negative, velocity_rad_s, xp)
+
+    def torque_at(self, joint: str, velocity_rad_s: float, temperature_c: float,
+                  position_rad: float = math.nan) -> float:
+        """Feedforward torque [N·m] of ``joint`` at ``velocity_rad_s`` [rad/s], ``temperature_c`` [°C] (NaN:
+        zero policy, 0 N·m) and position ``position_rad`` [rad] (the learned correction's position map; NaN: none).
+        Non-finite velocity gives 0 N·m. Counts saturation."""
         if not (math.isfinite(velocity_rad_s) and temperature_c == temperature_c):
             return 0.0
         cached = self._scalar_terms.get(joint)
@@ -370,28 +468,41 @@ class Feedforward:
                       *direction_factors(self.axes[joint], temperature_c, SCALAR))
             self._scalar_terms[joint] = cached
         _, terms, k_positive, k_negative = cached
-        torque: float = feedforward_torque_nm(terms, k_positive, k_negative, velocity_rad_s, self._v_th,
-                                              self._max_torque_nm, SCALAR)
+        correction = self._correction
+        torque: float
+        if correction is None or correction._lut.get(joint) is None:  # no learned value: the model (as :meth:`rule`)
+            torque = feedforward_torque_nm(terms, k_positive, k_negative, velocity_rad_s, self._v_th,
+                                           self._max_torque_nm, SCALAR)
+        else:
+            model_nm = model_friction_nm(terms, k_positive, k_negative, velocity_rad_s, SCALAR)
+            torque = corrected_torque_nm(model_nm, correction.along_nm(joint, temperature_c, velocity_rad_s,
+                                                                       position_rad, model_nm),
+                                         velocity_rad_s, self._v_th, self._max_torque_nm, SCALAR)
         if abs(torque) >= self._max_torque_nm:
             self.counters.add(self.counters.saturated, joint)
         return torque
 
-    def torque_nm(self, joint: str, velocity_rad_s: float, time_s: float) -> float:
+    def torque_nm(self, joint: str, velocity_rad_s: float, time_s: float, position_rad: float = math.nan) -> float:
         """Feedforward torque [N·m] of ``joint`` for a velocity [rad/s] relative to the base at time ``time_s``
-        [s], with the temperature rules. The in-process controller call (about 1 µs: what depends on temperature
-        only is computed once per temperature, see :meth:`torque_at`).
+        [s], with the temperature rules; ``position_rad`` [rad] is where a learned correction's position map is
+        looked up (pass the reference position with a reference velocity; NaN: no position map). The in-process
+        controller call (about 1 µs: what depends on temperature only is computed once per temperature, see
+        :meth:`torque_at`).
 
         Raises:
             KeyError: ``joint`` is not configured.
         """
         # (self.temperature(time_s)[0], one call less)
         used = self._used[is_fresh(time_s, self.last_temperature_time_s, self._timeout_s, SCALAR)]
-        return self.torque_at(joint, velocity_rad_s, used[0])
+        return self.torque_at(joint, velocity_rad_s, used[0], position_rad)
 
     # ------------------------------------------------------------------ one message (the node)
-    def message(self, names: list[str], velocities: list[float], time_s: float) -> MessageTorques | None:
-        """The feedforward of one joint-state message (``names``, ``velocities`` [rad/s]) of time ``time_s`` [s]
-        (stamp, or arrival if the stamp is zero). None (reason counted) when the message is unusable."""
+    def message(self, names: list[str], velocities: list[float], time_s: float,
+                positions: list[float] | None = None) -> MessageTorques | None:
+        """The feedforward of one joint-state message (``names``, ``velocities`` [rad/s], optionally
+        ``positions`` [rad], used by a learned correction and ignored unless as long as ``names``; see
+        :meth:`position`) of time ``time_s`` [s] (stamp, or arrival if the stamp is zero). None (reason counted)
+        when the message is unusable."""
         c = self.counters
         bucket = c.joint_state_rejected
         key = (tuple(names), len(velocities))
@@ -410,6 +521,9 @@ class Feedforward:
         measured = self._velocity_source == 'measured'
         position = idx.position
         velocity, torque_at = self.velocity, self.torque_at
+        corrected = self._correction is not None
+        if corrected and (positions is None or len(positions) != len(names)):
+            positions = None
         out_names: list[str] = []
         torques: list[float] = []
         commands: list[float] = []
@@ -425,7 +539,11 @@ class Feedforward:
                 c.add(bucket, NON_FINITE_VELOCITY)
                 commands.append(0.0)
                 continue
-            torque = torque_at(joint, v, temperature)
+            if corrected:
+                p = math.nan if positions is None else float(positions[i])
+                torque = torque_at(joint, v, temperature, p if measured else self.position(joint, p, time_s))
+            else:
+                torque = torque_at(joint, v, temperature)
             out_names.append(joint)
             torques.append(torque)
             commands.append(torque)
@@ -439,8 +557,8 @@ class Feedforward:
     def bag_torques(self, arrays: ChamberArrays) -> BagTorques:
         """What the node would publish for every joint-state message of ``arrays`` (messages in log-time order;
         a temperature logged at the same time as a joint state arrived before it). The same rules as
-        :meth:`message`, evaluated on arrays; counters are updated the same way (a NaN position and velocity
-        means the joint is absent from that message)."""
+        :meth:`message` (with the joint states' and the references' positions), evaluated on arrays; counters are
+        updated the same way (a NaN position and velocity means the joint is absent from that message)."""
         s = self.settings
         c = self.counters
         temp, js = arrays.temperature, arrays.joint_states
@@ -485,16 +603,15 @@ class Feedforward:
             p = np.asarray(js.position[joint], dtype=np.float64)
             in_message = ~(np.isnan(p) & np.isnan(v))
             if s.velocity_source != 'measured':
-                v = self._bag_velocity(joint, v, arrays.reference_velocity, js_log, js_time)
+                v, p = self._bag_velocity(joint, v, p, arrays.reference_velocity, js_log, js_time)
             finite = np.isfinite(v)
             c.add(c.joint_state_rejected, NON_FINITE_VELOCITY, int(np.count_nonzero(~finite & in_message)))
             rows = np.flatnonzero(finite & in_message)
-            vv = v[rows]
             tt = t_used[rows]
-            zero = np.isnan(tt)
+            live = np.flatnonzero(~np.isnan(tt))   # the others: zero policy, 0 N*m
+            torque = np.zeros(rows.shape)
             with np.errstate(over='ignore', invalid='ignore'):  # absurd speeds saturate, as on floats
-                torque = self.rule(joint, vv, np.where(zero, s.fallback_temperature_c, tt), ARRAY)
-            torque = np.where(zero, 0.0, torque)
+                torque[live] = self.rule(joint, v[rows[live]], tt[live], ARRAY, position_rad=p[rows[live]])
             c.add(c.saturated, joint, int(np.count_nonzero(np.abs(torque) >= s.max_torque_nm)))
             commands[rows, j] = torque
             present[rows, j] = True
@@ -504,22 +621,29 @@ class Feedforward:
         return BagTorques(out.astype(np.int64), self.order, present[out], js_stamp[out], js_log[out], commands[out],
                           t_used[out], source[out])
 
-    def _bag_velocity(self, joint: str, measured: NDArray[np.float64], reference: JointStateArrays | None,
-                      js_log: NDArray[np.int64], js_time: NDArray[np.float64]) -> NDArray[np.float64]:
-        """:meth:`velocity` for every joint state of a bag: the latest finite reference of ``joint`` logged up to
-        each joint state (one logged at the same time arrived before it), fresh within ``reference_timeout_s``."""
+    def _bag_velocity(self, joint: str, measured: NDArray[np.float64], measured_position: NDArray[np.float64],
+                      reference: JointStateArrays | None, js_log: NDArray[np.int64], js_time: NDArray[np.float64]
+                      ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """:meth:`velocity` and :meth:`position` for every joint state of a bag: the latest finite reference of
+        ``joint`` logged up to each joint state (one logged at the same time arrived before it), fresh within
+        ``reference_timeout_s``, and its position where finite."""
         s = self.settings
         ref_v = np.full(measured.shape, np.nan)
+        ref_p = np.full(measured.shape, np.nan)
         ref_time = np.full(measured.shape, np.nan)
         if reference is not None and joint in reference.velocity and len(reference):
             values = np.asarray(reference.velocity[joint], dtype=np.float64)
             usable = np.isfinite(values)
             r_log = np.asarray(reference.log_time_ns, dtype=np.int64)[usable]
             r_time = effective_time(np.asarray(reference.stamp_ns, dtype=np.int64)[usable], r_log) / NS_PER_S
+            r_pos = np.asarray(reference.position.get(joint, np.full(values.shape, np.nan)), dtype=np.float64)[usable]
             k = np.searchsorted(r_log, js_log, side='right') - 1
             have = k >= 0
             if r_log.size:
                 ref_v = np.where(have, values[usable][np.maximum(k, 0)], np.nan)
+                ref_p = np.where(have, r_pos[np.maximum(k, 0)], np.nan)
                 ref_time = np.where(have, r_time[np.maximum(k, 0)], np.nan)
         fresh = is_fresh(js_time, ref_time, s.reference_timeout_s, ARRAY)
-        return np.asarray(velocity_used(s.velocity_source, measured, ref_v, fresh, ARRAY), dtype=np.float64)
+        velocity = np.asarray(velocity_used(s.velocity_source, measured, ref_v, fresh, ARRAY), dtype=np.float64)
+        position = np.where(fresh & ~np.isnan(ref_p), ref_p, measured_position)
+        return velocity, np.asarray(position, dtype=np.float64)

@@ -900,6 +900,11 @@ class _Window:
             if bad.any():
                 reference = reference._replace(velocity={n: np.where(bad, np.nan, v)
                                                          for n, v in reference.velocity.items()})
+            # positions (a learned correction's position map) only from a message with one per name, as the node
+            no_position = self.joint_collectors[self.bag_reference].mismatched(0)
+            if no_position.any():
+                reference = reference._replace(position={n: np.where(no_position, np.nan, p)
+                                                         for n, p in reference.position.items()})
         return ChamberArrays(
             temperature=temperature,
             joint_states=finished[bag.topic_map[JOINT_STATES]],

@@ -1,4 +1,6 @@
-"""Reading residual logs for a refit: per-joint sufficient statistics, streamed chunk by chunk with bounded memory.
+"""Reading residual logs for a refit: per-joint sufficient statistics, streamed chunk by chunk with bounded memory;
+and a learned correction against the refitted model (:func:`read_correction`, a second pass: the refitted model is
+known only once the statistics of every row are in).
 
 Used by ``gimbal-friction refit`` and by ``fleet`` (one unit per worker).
 """
@@ -8,8 +10,14 @@ from __future__ import annotations
 import sys
 from collections.abc import Sequence
 from pathlib import Path
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
+import numpy as np
+
+from gimbal_friction.common.xp import ARRAY
+from gimbal_friction.feedforward.correction import Correction, CorrectionSettings, model_identity
+from gimbal_friction.feedforward.rule import Feedforward, FeedforwardSettings
+from gimbal_friction.physics.params import AxisParams
 from gimbal_friction.recording.residual_read import ReadReport, iter_residual_rows
 from gimbal_friction.refit.sufficient import SufficientStats, accumulate_rows
 
@@ -42,3 +50,73 @@ def read_stats(logs: Sequence[Path], *, joints: list[str] | None = None, directi
         sys.stderr.write('\n')
     return {j: AxisData(s, s.tally.rows, s.tally.skipped_nonfinite, s.tally.skipped_standstill)
             for j, s in stats.items()}
+
+
+class LearnedCorrection(NamedTuple):
+    """A correction learned from residual logs, and what its gate refused."""
+
+    correction: Correction
+    rows: dict[str, int]                  #: rows read per configured joint [-]
+    refused: dict[str, dict[str, int]]    #: samples refused per joint and reason [-]
+
+
+def read_correction(logs: Sequence[Path], axes: dict[str, AxisParams], *,
+                    settings: CorrectionSettings | None = None,
+                    feedforward_settings: FeedforwardSettings | None = None,
+                    label: str = 'correction: reading') -> LearnedCorrection:
+    """The learned correction of the residual logs against the model of ``axes`` (every configured joint, the
+    refitted parameters layered in: the model the feedforward will run), streamed chunk by chunk.
+
+    Each row's residual is its measured friction minus the model friction of ``axes`` at its temperature and
+    velocity, both signed like the motion [N·m] (the model as the feedforward evaluates it,
+    :meth:`~gimbal_friction.feedforward.rule.Feedforward.model_nm`, on its table of ``feedforward_settings``),
+    learned per cell by :meth:`~gimbal_friction.feedforward.correction.Correction.add_residuals` at the row's
+    measured position; rows of joints not in ``axes`` are ignored. The values are settled (applied at once).
+    """
+    ff = Feedforward(axes, feedforward_settings or FeedforwardSettings())
+    c = Correction(settings or CorrectionSettings(), model_identity(axes))
+    rows = dict.fromkeys(axes, 0)
+    refused: dict[str, dict[str, int]] = {j: {} for j in axes}
+    done = 0
+    for chunk in iter_residual_rows(list(logs), chunk_rows=CHUNK_ROWS):
+        for joint in np.unique(chunk.joint).tolist():
+            if joint not in axes:
+                continue
+            k = np.flatnonzero(chunk.joint == joint)
+            t, v = chunk.temperature_c[k], chunk.velocity_rad_s[k]
+            usable = np.isfinite(t) & np.isfinite(v)
+            with np.errstate(invalid='ignore', over='ignore'):
+                model = np.where(usable, np.sign(v) * ff.model_nm(joint, np.where(usable, v, 0.0),
+                                                                  np.where(usable, t, 20.0), ARRAY), np.nan)
+                residual = chunk.measured_nm[k] - model
+            for reason, n in c.add_residuals(joint, t, v, chunk.position_rad[k], residual, model).items():
+                refused[joint][reason] = refused[joint].get(reason, 0) + n
+            rows[joint] += int(k.size)
+        done += len(chunk)
+        if sys.stderr.isatty():
+            sys.stderr.write(f'\r{label}: {done} rows')
+            sys.stderr.flush()
+    if done and sys.stderr.isatty():
+        sys.stderr.write('\n')
+    c.settle()
+    return LearnedCorrection(c, rows, refused)
+
+
+def correction_table(c: Correction) -> tuple[list[list[str]], list[dict[str, Any]]]:
+    """The learned cells of ``c`` as table rows (joint, temperature bin [degC], direction, value [N*mm], std. error
+    [N*mm], samples, saturated) and as JSON records (values in N*mm and N*m)."""
+    table: list[list[str]] = []
+    records: list[dict[str, Any]] = []
+    s = c.settings
+    for joint in c.identity.joints:
+        for cell in sorted(c.cells(joint), key=lambda r: (r['centre_c'], r['direction'])):
+            lo, hi = cell['centre_c'] - 0.5 * s.temperature_bin_c, cell['centre_c'] + 0.5 * s.temperature_bin_c
+            se = cell['std_error_nm']
+            table.append([joint, f'{lo:g}..{hi:g}', cell['direction'], f'{1e3 * cell["value_nm"]:+.4f}',
+                          '-' if se is None else f'{1e3 * se:.4f}', str(cell['samples']),
+                          'yes' if cell['saturated'] else ''])
+            records.append({'joint': joint, 'temperature_c': cell['centre_c'], 'temperature_bin_c': [lo, hi],
+                            'direction': cell['direction'], 'value_nmm': 1e3 * cell['value_nm'],
+                            'std_error_nmm': None if se is None else 1e3 * se, 'samples': cell['samples'],
+                            'saturated': cell['saturated']})
+    return table, records

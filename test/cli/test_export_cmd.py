@@ -170,3 +170,32 @@ def main_exit(argv):
     with pytest.raises(SystemExit) as info:
         main(argv)
     return info.value.code
+
+
+def test_correction_option_carries_it_into_every_file_and_refuses_a_mismatched_one(tmp_path, two_axes, capsys):
+    from gimbal_friction.config.loader import all_axis_params
+    from gimbal_friction.feedforward.correction import Correction, CorrectionSettings, model_identity
+
+    axes = all_axis_params(load_parameters([two_axes]))
+    c = Correction(CorrectionSettings(prior_samples=1.0), model_identity(axes))
+    c.add_residuals('azimuth', [-40.0] * 9, [0.03] * 9, [0.0] * 9, [2e-4] * 9, [3e-3] * 9)
+    c.settle()
+    path = tmp_path / 'unit.correction.yaml'
+    c.save(path)
+    out = tmp_path / 'table'
+    assert main(['export', '--out', str(out), '--config', str(two_axes), '--correction', str(path),
+                 '--format', 'json', *FAST]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    digest = hashlib.sha256(path.read_bytes()).hexdigest()
+    by_axis = {a['axis']: a['correction'] for a in doc['axes']}
+    assert by_axis['azimuth']['samples'] == 9 and by_axis['azimuth']['cells'] == 1
+    assert by_axis['elevation']['samples'] == 0 and digest in by_axis['azimuth']['source']
+    for ext in ('csv', 'h', 'yaml'):
+        assert digest in (out / f'gimbal_friction_azimuth.{ext}').read_text()
+    assert 'gf_azimuth_correction_nm' in (out / 'gimbal_friction_azimuth.h').read_text()
+    e = load_parameters([out / 'gimbal_friction_azimuth.yaml'], node_name=ROS_NODE)['azimuth']
+    assert max(e['correction_cw_nm']) == pytest.approx(2e-4 * 9 / 10)
+    # learned against other parameters (the packaged single axis): refused with one line, nothing written
+    assert main(['export', '--out', str(tmp_path / 'refused'), '--correction', str(path), *FAST]) == 1
+    _one_line_error(capsys, 'relearn it or delete the file')
+    assert not (tmp_path / 'refused').exists()

@@ -248,3 +248,40 @@ def test_a_bag_unit_is_read_in_windows_with_the_same_statistics(tmp_path, capsys
     np.testing.assert_array_equal(a.samples, b.samples)
     np.testing.assert_allclose(b.mean_y, a.mean_y, rtol=1e-12)
     np.testing.assert_allclose(b.sum_t, a.sum_t, rtol=1e-12)
+
+
+def test_correction_out_writes_each_units_refit_and_correction_as_refit_does(fleet_dir, tmp_path, capsys):
+    """fleet --correction-out DIR: per unit, DIR/<unit>.refit.yaml and DIR/<unit>.correction.yaml, the same
+    correction refit --correction-out learns from that unit's log with the same fit; named in fleet.json; loadable
+    together; refused on a second run unless --force."""
+    from gimbal_friction.controller import load_feedforward
+    from gimbal_friction.feedforward.correction import Correction
+
+    units = [fleet_dir / 'seeker_00', fleet_dir / 'seeker_04']
+    out, corr = tmp_path / 'fleet', tmp_path / 'corrections'
+    assert main(['fleet', *map(str, units), '--out', str(out), '--threads', '--correction-out', str(corr)]) == 0
+    shown = capsys.readouterr().out
+    assert 'learned corrections: 2 unit(s)' in shown
+    doc = json.loads((out / 'fleet.json').read_text())
+    for rec in doc['units']:
+        c = rec['correction']
+        assert c['out'] == str((corr / f'{rec["unit"]}.correction.yaml').resolve())
+        assert c['params'] == str((corr / f'{rec["unit"]}.refit.yaml').resolve())
+        assert c['samples'] == 960 and len(c['cells']) == 12
+    # the same as refit --correction-out of the unit's log with the fleet's fit
+    assert main(['refit', str(units[1]), '--out', str(tmp_path / 'r.yaml'), '--fit',
+                 'walther_a,sliding_friction_coefficient', '--correction-out',
+                 str(tmp_path / 'r.correction.yaml')]) == 0
+    capsys.readouterr()
+    mine, theirs = Correction.load(corr / 'seeker_04.correction.yaml'), Correction.load(tmp_path / 'r.correction.yaml')
+    assert mine.identity == theirs.identity
+    for a, b in zip(mine.cells('elevation'), theirs.cells('elevation'), strict=True):
+        assert a['samples'] == b['samples'] and a['value_nm'] == pytest.approx(b['value_nm'], rel=1e-9, abs=1e-15)
+    ff = load_feedforward(corr / 'seeker_04.refit.yaml', correction=corr / 'seeker_04.correction.yaml')
+    assert ff.correction is not None and ff.correction.summary()['samples'] == 960
+    # a second run is refused (nothing replaced) unless --force
+    before = (corr / 'seeker_00.correction.yaml').read_bytes()
+    assert main(['fleet', *map(str, units), '--out', str(tmp_path / 'fleet2'), '--threads', '--correction-out',
+                 str(corr)]) == 1
+    assert 'already exists' in capsys.readouterr().err
+    assert (corr / 'seeker_00.correction.yaml').read_bytes() == before

@@ -16,6 +16,7 @@ import pytest
 import yaml
 
 from gimbal_friction.cli.main import main
+from gimbal_friction.common.xp import ARRAY
 from gimbal_friction.config.loader import axis_params, load_parameters, render_parameter_file
 from gimbal_friction.physics.model import friction_torque, viscosity_cst
 from gimbal_friction.physics.params import AxisParams
@@ -547,3 +548,60 @@ def test_the_offset_warning_advises_the_calibration_not_palmgren_factor(sample_w
     assert 'exceeds the calibration uncertainty' in warning and 'recalibrate' in warning
     assert 'do not add palmgren_factor' in warning and '--fit ...,palmgren_factor' not in warning
     assert not rec['offset_confounding']['checked']
+
+
+# Learned correction (--correction-out): residuals against the refitted model.
+def test_correction_out_learns_the_residual_against_the_refitted_model(tmp_path, capsys):
+    """A truth the refit of walther_a cannot reach (CCW 10 % below CW): the correction holds, per temperature bin
+    and direction, the shrunk mean of measured - refitted model along the motion; the file loads with the refitted
+    parameters; an existing file is refused unless --force."""
+    from gimbal_friction.controller import load_feedforward
+    from gimbal_friction.feedforward.correction import Correction, CorrectionSettings
+    from gimbal_friction.feedforward.rule import Feedforward, FeedforwardSettings
+
+    rows, stamps = detail_rows(truth_params())
+    for r in rows:
+        if r[3] < 0.0:
+            r[5] *= 0.9   # measured_nm of CCW rows
+    log = tmp_path / 'residuals'
+    with ResidualLogWriter(log) as writer:
+        for row, stamp in zip(rows, stamps, strict=True):
+            writer.write(RESIDUAL_DETAIL, FLOAT64_MULTI_ARRAY_TYPE, stamp, make_float64_multi_array(row, 'elevation'))
+    out, corr = tmp_path / 'refit.yaml', tmp_path / 'refit.correction.yaml'
+    assert main(['refit', str(log), '--out', str(out), '--correction-out', str(corr), '--format', 'json']) == 0
+    doc = json.loads(capsys.readouterr().out)
+    c = Correction.load(corr)
+    refitted = Feedforward({'elevation': axis_params(load_parameters([out]), 'elevation')}, FeedforwardSettings())
+    a = np.asarray(rows)
+    t, v, measured = a[:, 1], a[:, 3], a[:, 5]
+    residual_along = np.sign(v) * measured - refitted.model_nm('elevation', v, t, ARRAY)
+    n0 = CorrectionSettings().prior_samples
+    cells = {(r['direction'], r['centre_c']): r for r in c.cells('elevation')}
+    assert len(cells) == 12 and len(doc['correction']['cells']) == 12
+    for plateau in PLATEAUS:
+        for sign, direction in ((1.0, 'cw'), (-1.0, 'ccw')):
+            k = (np.sign(v) == sign) & (np.abs(t - plateau) < 1.0)
+            cell = cells[(direction, plateau)]
+            assert cell['samples'] == int(k.sum()) == 120
+            assert cell['value_nm'] == pytest.approx(residual_along[k].sum() / (k.sum() + n0), rel=1e-9, abs=1e-15)
+            assert cell['std_error_nm'] == pytest.approx(residual_along[k].std(ddof=1) / math.sqrt(120), rel=1e-6)
+    # CCW measured 10 % low: the correction's CCW cells lie below its CW cells at every plateau
+    assert all(cells[('cw', p)]['value_nm'] > cells[('ccw', p)]['value_nm'] for p in PLATEAUS)
+    rec = {(r['direction'], r['temperature_c']): r for r in doc['correction']['cells']}
+    assert rec[('ccw', -40.0)]['value_nmm'] == pytest.approx(1e3 * cells[('ccw', -40.0)]['value_nm'])
+    assert rec[('ccw', -40.0)]['temperature_bin_c'] == [-42.5, -37.5] and doc['correction']['out'] == str(corr)
+    # the node / in-process API accept it with the refitted parameters (same model identity) ...
+    ff = load_feedforward(out, correction=corr)
+    ff.update_temperature(-40.0, 0.0)
+    plain = load_feedforward(out)
+    plain.update_temperature(-40.0, 0.0)
+    assert ff.torque_nm('elevation', -SPEED_RAD_S, 0.0) > plain.torque_nm('elevation', -SPEED_RAD_S, 0.0)  # |.| less
+    # ... the text output prints the cells; an existing correction is refused unless --force
+    before = corr.read_bytes()
+    assert main(['refit', str(log), '--out', str(tmp_path / 'again.yaml'), '--correction-out', str(corr)]) == 1
+    assert 'already exists' in capsys.readouterr().err and corr.read_bytes() == before
+    assert not (tmp_path / 'again.yaml').exists()
+    assert main(['refit', str(log), '--out', str(out), '--correction-out', str(corr), '--force']) == 0
+    shown = capsys.readouterr().out
+    assert 'learned correction' in shown and '-42.5..-37.5' in shown and f'wrote {corr}' in shown
+    assert Correction.load(corr).cells('elevation') == c.cells('elevation')

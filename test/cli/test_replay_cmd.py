@@ -295,3 +295,82 @@ def test_a_bag_not_in_cdr_is_unsupported_for_replay_and_for_recover(tmp_path, ca
     line = _one_line_refusal(capsys, 'recover')
     assert "serialized as 'protobuf'" in line and 'not supported' in line
     assert not (tmp_path / 'out').exists() and not (tmp_path / 'fixed').exists()
+
+
+def _learned_correction(axes, bins: int = 16):
+    from gimbal_friction.feedforward.correction import Correction, CorrectionSettings, model_identity
+    rng = np.random.default_rng(3)
+    n = 20_000
+    t = rng.uniform(-60.0, 60.0, n)
+    v = rng.choice([-1.0, 1.0], n) * rng.uniform(0.01, 0.1, n)
+    p = rng.uniform(-4.0, 4.0, n)
+    along = 3e-4 * (1.0 + 0.5 * (v > 0) + 0.5 * np.sin(3 * p))
+    c, _ = Correction.from_residuals(CorrectionSettings(prior_samples=1.0, position_bins=bins, harmonics=3),
+                                     model_identity(axes), {'elevation': (t, v, p, np.where(v > 0, along, -along),
+                                                                          np.full(n, 2e-3))})
+    return c
+
+
+def test_replay_with_a_correction_equals_the_node_message_by_message_with_reference_positions(tmp_path, capsys):
+    """replay --correction adds the learned correction as the node does: its position map at the reference
+    position while the reference drives the torque, else at the joint state's; refused with one line if it was
+    learned against other parameters."""
+    msgs = []
+    for i in range(300):
+        t = 1_000_000_000 + i * 20_000_000
+        v = 2 * math.pi / 180 * (1 if (i // 100) % 2 == 0 else -1)
+        msgs.append((topics.TEMPERATURE, topics.TEMPERATURE_TYPE, t, make_temperature(t, -40.0 + i * 0.1)))
+        msgs.append((topics.JOINT_STATES, topics.JOINT_STATE_TYPE, t,
+                     make_joint_state(t, ['elevation'], [0.0005 * i], [v])))
+        msgs.append((topics.MOTOR_CURRENT, topics.JOINT_STATE_TYPE, t + 1,
+                     make_joint_state(t, ['elevation'], effort=[0.06 * np.sign(v)])))
+        if i < 150:   # the reference, with its own positions, stops half way (then stale)
+            msgs.append((topics.REFERENCE_VELOCITY, topics.JOINT_STATE_TYPE, t - 1,
+                         make_joint_state(t, ['elevation'], [1.0 - 0.03 * i], [v])))
+    bag = write_chamber_bag(tmp_path / 'bag', msgs)
+    axes, ff_settings, _ = node_settings([])
+    c = _learned_correction(axes)
+    path = tmp_path / 'unit.correction.yaml'
+    c.save(path)
+    res = replay_bag(bag, None, config_paths=[], correction_path=path)
+    plain = replay_bag(bag, None, config_paths=[])
+    assert res.correction == str(path) and plain.correction is None
+    node = Feedforward(axes, ff_settings, correction=_learned_correction(axes))
+    arrays = open_chamber_bag(bag).read_arrays()
+    temp, js, ref = arrays.temperature, arrays.joint_states, arrays.reference_velocity
+    events = sorted([(int(t), 0, i) for i, t in enumerate(temp.log_time_ns)]
+                    + [(int(t), 1, i) for i, t in enumerate(ref.log_time_ns)]
+                    + [(int(t), 2, i) for i, t in enumerate(js.log_time_ns)])
+    torques = []
+    for _, kind, i in events:
+        if kind == 0:
+            node.update_temperature(float(temp.temperature_c[i]), int(temp.stamp_ns[i]) / 1e9)
+        elif kind == 1:
+            node.update_reference(['elevation'], [float(ref.velocity['elevation'][i])], int(ref.stamp_ns[i]) / 1e9,
+                                  [float(ref.position['elevation'][i])])
+        else:
+            torques.append(node.message(['elevation'], [float(js.velocity['elevation'][i])],
+                                        int(js.stamp_ns[i]) / 1e9, [float(js.position['elevation'][i])]).torques_nm[0])
+    np.testing.assert_allclose(res.feedforward.commands_nm[:, 0], torques, rtol=1e-12, atol=1e-18)
+    delta = res.feedforward.commands_nm[:, 0] - plain.feedforward.commands_nm[:, 0]
+    assert np.all(np.abs(delta) > 1e-5)   # the correction is there, along the motion
+    # the position used: the reference's while fresh (the ripple follows it), the joint state's after
+    at = Feedforward(axes, ff_settings, correction=c)
+    t_used = res.feedforward.temperature_c
+    v_used = np.asarray([-1.0 if (k // 100) % 2 else 1.0 for k in range(300)]) * 2 * math.pi / 180
+    p_ref, p_js = 1.0 - 0.03 * np.arange(300), 0.0005 * np.arange(300)
+    for k in (10, 120, 149, 200, 299):
+        p = p_ref[k] if k < 150 else p_js[k]
+        assert res.feedforward.commands_nm[k, 0] == pytest.approx(at.torque_at('elevation', v_used[k], t_used[k], p),
+                                                                   rel=1e-12)
+    # the command: --correction, the JSON names it; a correction of another model is refused, nothing written
+    assert main(['replay', str(bag), '--out', str(tmp_path / 'out'), '--correction', str(path),
+                 '--format', 'json']) == 0
+    assert json.loads(capsys.readouterr().out)['correction'] == str(path)
+    other = tmp_path / 'other.yaml'
+    other.write_text('/**:\n  ros__parameters:\n    axis:\n      elevation:\n        palmgren_factor: 3.0\n')
+    assert main(['replay', str(bag), '--out', str(tmp_path / 'refused'), '--config', str(other),
+                 '--correction', str(path)]) != 0
+    err = capsys.readouterr().err.strip()
+    assert 'learned against model parameters' in err and '\n' not in err
+    assert not (tmp_path / 'refused').exists()

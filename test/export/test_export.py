@@ -17,7 +17,7 @@ import yaml
 
 from gimbal_friction.common.errors import ConfigError, GimbalFrictionError
 from gimbal_friction.common.units import rad_s_from_rpm, rpm_from_rad_s
-from gimbal_friction.common.xp import SCALAR
+from gimbal_friction.common.xp import ARRAY, SCALAR
 from gimbal_friction.export.formats import CSV_FIELDS, ROS_NODE, render_c_header, render_csv, render_ros_yaml
 from gimbal_friction.export.table import (
     PALMGREN_JUMP,
@@ -406,3 +406,102 @@ def test_c_edges_and_non_finite_inputs(table, tmp_path):
     assert math.isnan(friction[6]) and math.isnan(friction[7])         # NaN in, NaN out
     assert ff[6] == ff[7] == ff[8] == ff[9] == 0.0                     # feedforward: 0 on non-finite input
     assert friction[9] == friction[3]                                 # +inf temperature clamps to the top
+
+
+# ---------------------------------------------------------------------------------------------- learned correction
+def _learned_correction(bins: int = 16):
+    from gimbal_friction.feedforward.correction import Correction, CorrectionSettings, model_identity
+    rng = np.random.default_rng(5)
+    n = 30_000
+    t = rng.uniform(-55.0, 70.0, n)
+    v = rng.choice([-1.0, 1.0], n) * rng.uniform(0.01, 0.1, n)
+    p = rng.uniform(0.0, 6.3, n)
+    along = 4e-4 * (-t / 50.0 + 0.5 * (v > 0) + 0.3 * np.sin(2 * p)) + rng.normal(0.0, 1e-4, n)
+    c, _ = Correction.from_residuals(CorrectionSettings(prior_samples=20.0, position_bins=bins, harmonics=3,
+                                                        max_relative=0.2),
+                                     model_identity({'elevation': AxisParams()}),
+                                     {'elevation': (t, v, p, np.where(v > 0, along, -along), np.full(n, 2e-3))})
+    one = Correction(c.settings, c.identity)   # a cell with one sample: its error is unknown
+    one.add_residuals('elevation', [100.0] * 1, [0.05], [0.0], [1e-4], [2e-3])
+    for name in ('count', 'sum_nm', 'sum_sq_nm2', 'sum_model_nm'):
+        getattr(c, name)['elevation'] += getattr(one, name)['elevation']
+    c.settle()
+    return c
+
+
+CORRECTION_DRIVER = r'''
+#include <stdio.h>
+#include "gimbal_friction_elevation.h"
+int main(void)
+{
+    double t, v, m;
+    while (scanf("%lf %lf %lf", &t, &v, &m) == 3) {
+        printf("%.17g %.17g %.17g %.17g\n", gf_elevation_correction_nm(t, v, m),
+               gf_elevation_correction_error_nm(t, v), gf_elevation_feedforward_nm(t, v),
+               gf_elevation_friction_nm(t, v));
+    }
+    return 0;
+}
+'''
+
+
+def test_a_correction_is_carried_in_every_format_and_the_c_feedforward_adds_it(table, tmp_path):
+    """export with a learned correction: the C header (compiled standalone, -pedantic -Werror) looks it up as the
+    feedforward does (the correction's own lookup at a NaN position: the cells' means) and adds it; its error bound
+    is the cells' (shrunk) standard errors; the CSV columns and the ROS arrays hold the same numbers."""
+    from gimbal_friction.export.formats import CSV_CORRECTION_FIELDS
+    from gimbal_friction.export.table import correction_nm, table_correction
+
+    c = _learned_correction()
+    tc = table_correction(c, 'elevation', 'unit.correction.yaml (SHA-256 ' + 'a' * 64 + ')')
+    ct = table._replace(correction=tc)
+    assert render_c_header(table, PROV) == render_c_header(table._replace(correction=None), PROV)   # unchanged
+    (tmp_path / 'gimbal_friction_elevation.h').write_text(render_c_header(ct, PROV))
+    src = tmp_path / 'driver.c'
+    src.write_text(CORRECTION_DRIVER)
+    exe = tmp_path / 'driver'
+    subprocess.run([_gcc(), *CFLAGS, '-O2', str(src), '-o', str(exe), '-lm'], check=True, capture_output=True,
+                   text=True, cwd=tmp_path)
+    rng = np.random.default_rng(9)
+    n = 3000
+    t = np.concatenate([rng.uniform(-80.0, 140.0, n - 4), [-62.5, 122.5, -60.0, 100.0]])
+    v = np.concatenate([rng.uniform(-0.2, 0.2, n - 4), [0.03, -0.03, -0.03, 0.05]])
+    m = rng.uniform(0.0, 4e-3, n)
+    text = ''.join(f'{float(a)!r} {float(b)!r} {float(x)!r}\n' for a, b, x in zip(t, v, m, strict=True))
+    out = subprocess.run([str(exe)], input=text, capture_output=True, text=True, check=True, timeout=60)
+    res = np.array(out.stdout.split(), dtype=float).reshape(-1, 4)
+    want = c.along_nm_array('elevation', t, v, np.full(n, np.nan), m)
+    np.testing.assert_allclose(res[:, 0], want, rtol=1e-14, atol=1e-19)
+    assert np.count_nonzero(want) > n // 2 and np.count_nonzero(np.abs(want) == 0.2 * m + c.settings.floor_nm) > 10
+    value, error = correction_nm(tc, t, v, m)
+    np.testing.assert_allclose(value, want, rtol=1e-14, atol=1e-19)
+    np.testing.assert_allclose(res[:, 1], np.where(np.isnan(error), -1.0, error), rtol=1e-12, atol=1e-19)
+    assert res[-1, 1] == -1.0   # next to the one-sample cell: unknown
+    # the error bound of a cell: its standard error of the mean, shrunk like its value
+    cell = next(r for r in c.cells('elevation') if r['direction'] == 'cw' and r['centre_c'] == -40.0)
+    k = int((-40.0 - tc.centres_c[0]) * tc.inv_bin_per_c + 0.5)
+    assert tc.error_nm[0, k] == pytest.approx(cell['std_error_nm'] * cell['samples'] / (cell['samples'] + 20.0))
+    assert tc.samples[0, k] == cell['samples']
+    # the C feedforward: clamp(tanh(v/v_th) (k_dir M + c), +-tau_max) with M from the table
+    k_dir = direction_factor(AxisParams(), t, v, ARRAY)
+    model = k_dir * res[:, 3]
+    tau = np.clip(np.tanh(v / V_TH) * (model + c.along_nm_array('elevation', t, v, np.full(n, np.nan), model)),
+                  -0.02, 0.02)
+    np.testing.assert_allclose(res[:, 2], tau, rtol=1e-12, atol=1e-18)
+    # CSV columns and ROS arrays
+    csv_text = render_csv(ct, PROV)
+    assert 'Learned correction: unit.correction.yaml' in csv_text and 'position map (16 bins) is not exported' in \
+        csv_text
+    rows = list(csv.DictReader(io.StringIO('\n'.join(line for line in csv_text.splitlines()
+                                                     if not line.startswith('#')))))
+    assert list(rows[0]) == [*CSV_FIELDS, *CSV_CORRECTION_FIELDS]
+    for r in rows[::7]:
+        tt, mm = float(r['temperature_c']), float(r['m_total_nm'])
+        for sign, name in ((1.0, 'cw'), (-1.0, 'ccw')):
+            kd = float(direction_factor(AxisParams(), tt, sign, SCALAR))
+            assert float(r[f'correction_{name}_nm']) == pytest.approx(c.along_nm('elevation', tt, sign, math.nan,
+                                                                                  kd * mm), rel=1e-14, abs=1e-19)
+    e = yaml.safe_load(render_ros_yaml(ct, PROV))[ROS_NODE]['ros__parameters']['elevation']
+    assert e['correction_cw_nm'] == tc.values_nm[0].tolist() and e['correction_ccw_samples'] == tc.samples[1].tolist()
+    assert e['correction_max_relative'] == 0.2 and len(e['correction_temperatures_c']) == 37
+    assert -1.0 in e['correction_cw_error_nm']
