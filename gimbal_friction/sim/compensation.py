@@ -55,9 +55,7 @@ from gimbal_friction.feedforward.rule import (
     temperature_used,
     velocity_used,
 )
-from gimbal_friction.physics.direction import direction_factors, select_direction
 from gimbal_friction.physics.params import AxisParams
-from gimbal_friction.physics.table import magnitude_from_terms
 from gimbal_friction.streams.inputs import is_fresh, temperature_valid
 
 Array = NDArray[np.float64]
@@ -168,10 +166,10 @@ def suite_feedforward(axis: AxisParams, settings: FeedforwardSettings | None = N
     resolver's joint rate relative to the base (``velocity_source='measured'``) or the reference joint velocity
     (``'reference'``), as the node's ``velocity_source``.
 
-    With ``correction`` (case ``learned``), the model magnitude k_dir M carries the correction along the motion c
-    (:meth:`~gimbal_friction.feedforward.correction.Correction.along_nm_array` at the resolver's joint angle, read at
-    every tick, so a learner updating the correction in place acts at once):
-    ``τ = clamp(tanh(v/v_th) (k_dir M + c), ±τ_max)``; an empty correction gives exactly the plain feedforward.
+    With ``correction`` (case ``learned``) the feedforward carries it (:meth:`Feedforward.rule`:
+    ``τ = clamp(tanh(v/v_th) (k_dir M + c), ±τ_max)``, looked up at the resolver's joint angle; read at every tick,
+    so a learner updating the correction in place acts at once); an empty correction gives exactly the plain
+    feedforward.
 
     >>> hook = suite_feedforward(AxisParams()).torque
     >>> x = hook(ControllerInputs(0.0, np.array([-40.0, 20.0]), np.zeros(2), np.zeros(2), np.full(2, -0.0349066),
@@ -185,7 +183,7 @@ def suite_feedforward(axis: AxisParams, settings: FeedforwardSettings | None = N
     """
     check_velocity_source(velocity_source)
     s = settings if settings is not None else FeedforwardSettings()
-    ff = Feedforward({JOINT: axis}, s)
+    ff = Feedforward({JOINT: axis}, s, correction=correction)
     cache = _TermsCache(ff, JOINT)
     state: dict[str, Array] = {}
 
@@ -207,15 +205,8 @@ def suite_feedforward(axis: AxisParams, settings: FeedforwardSettings | None = N
         t_used = np.broadcast_to(np.asarray(t_used, dtype=float), t_in.shape)
         zero = np.isnan(t_used)
         t_eval = np.where(zero, s.fallback_temperature_c, t_used)
-        v = _velocity(inputs, velocity_source)
-        if correction is None or correction._lut.get(JOINT) is None:
-            tau = ff.rule(JOINT, v, t_eval, ARRAY, terms=cache.get(t_eval))
-        else:
-            terms = cache.get(t_eval)
-            k_pos, k_neg = direction_factors(axis, t_eval, ARRAY)
-            model = select_direction(v, k_pos, k_neg, ARRAY) * magnitude_from_terms(terms, v, ARRAY)
-            c = correction.along_nm_array(JOINT, t_eval, v, inputs.joint_position_rad, model)
-            tau = np.clip(np.tanh(v / s.velocity_threshold_rad_s) * (model + c), -s.max_torque_nm, s.max_torque_nm)
+        tau = ff.rule(JOINT, _velocity(inputs, velocity_source), t_eval, ARRAY, terms=cache.get(t_eval),
+                      position_rad=inputs.joint_position_rad)
         return np.where(zero, 0.0, tau)
 
     return Compensator(torque, delayed=True)
@@ -230,15 +221,13 @@ def model_friction(axis: AxisParams) -> Callable[[ArrayLike, ArrayLike], Array]:
     [-3.143, 1.046]
     """
     ff = Feedforward({JOINT: axis}, FeedforwardSettings())
-    table = ff.tables[JOINT]
 
     def friction(temperature_c: ArrayLike, velocity_rad_s: ArrayLike) -> Array:
         t = np.asarray(temperature_c, dtype=float)
         v = np.asarray(velocity_rad_s, dtype=float)
-        terms = table.temperature_terms(np.where(np.isfinite(t), t, 20.0), ARRAY)
-        k_pos, k_neg = direction_factors(axis, t, ARRAY)
-        out = np.sign(v) * select_direction(v, k_pos, k_neg, ARRAY) * magnitude_from_terms(terms, v, ARRAY)
-        return np.asarray(np.where(np.isfinite(t), out, np.nan), dtype=float)
+        known = np.isfinite(t)
+        out = np.sign(v) * ff.model_nm(JOINT, v, np.where(known, t, 20.0), ARRAY)
+        return np.asarray(np.where(known, out, np.nan), dtype=float)
 
     return friction
 
