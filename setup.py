@@ -21,6 +21,7 @@ setup(
         ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
         ('share/' + package_name, ['package.xml']),
         ('share/' + package_name + '/config', glob('config/*.yaml') + glob('config/*.json')),
+        ('share/' + package_name + '/config/truths', glob('config/truths/*.yaml')),
         ('share/' + package_name + '/launch', glob('launch/*.launch.py')),
     ],
     # The ROS 2 Python packages come from the ROS install (colcon) or from requirements.txt (pip wheels);

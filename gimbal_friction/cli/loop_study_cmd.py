@@ -8,6 +8,7 @@ line on error. See those modules for what is computed and written.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import math
 import sys
 import time
@@ -17,7 +18,8 @@ from typing import Any
 from gimbal_friction.cli._common import add_common, parse_temperature_spec, print_json, progress, refuse_existing
 from gimbal_friction.common.errors import ConfigError
 
-CASE_CHOICES = ('none', 'constant', 'feedforward', 'refit', 'ideal', 'feedforward_measured', 'feedforward_reference')
+CASE_CHOICES = ('none', 'constant', 'feedforward', 'refit', 'learned', 'bound', 'ideal', 'feedforward_measured',
+                'feedforward_reference')
 
 
 def add_parser(sub: Any) -> None:
@@ -29,7 +31,10 @@ def add_parser(sub: Any) -> None:
         'datasheet, LuGre breakaway and pre-sliding, position ripple, the measured CW/CCW asymmetry) over '
         'temperature plateaus and profiles, with each compensation case: none, constant (temperature-blind Coulomb '
         "tuned at +20 degC), feedforward (the suite's, as configured), refit (the feedforward after a refit from "
-        "the residual rows the suite's estimator collected in the same simulation), ideal (the truth cancelled). "
+        "the residual rows the suite's estimator collected in a learning run on another seed and time window), "
+        'learned (the feedforward with a correction learned online in such a learning run, then frozen; the learning '
+        "run is reported as learning), bound (the truth's own static map through the feedforward's delivery), "
+        'ideal (the truth cancelled). '
         'Reports the LOS rate and position error RMS and peak, the peak error at reversals and the current margin.')
     add_common(parser)
     parser.add_argument('--axis', metavar='NAME', help='configured axis to simulate (default: the first)')
@@ -38,9 +43,9 @@ def add_parser(sub: Any) -> None:
     parser.add_argument('--profiles', default='tracking,scan,pointing', metavar='LIST',
                         help='profiles: tracking (1/3 rpm with reversals), scan (sine), pointing (fixed target under '
                         'base motion); comma-separated (default all)')
-    parser.add_argument('--cases', default='none,constant,feedforward,refit,ideal', metavar='LIST',
+    parser.add_argument('--cases', default='none,constant,feedforward,refit,learned,bound,ideal', metavar='LIST',
                         help=f'cases, comma-separated, from {", ".join(CASE_CHOICES)} '
-                        '(default none,constant,feedforward,refit,ideal)')
+                        '(default none,constant,feedforward,refit,learned,bound,ideal)')
     parser.add_argument('--truth', type=Path, metavar='PATH',
                         help="YAML file of the simulated truth's parameters (flat or in a gimbal_sim section; the "
                         'truth group of config/gimbal_sim.yaml plus temperature_bias_c, '
@@ -54,6 +59,19 @@ def add_parser(sub: Any) -> None:
     parser.add_argument('--refit-fit', default=None, metavar='LIST',
                         help='parameters refitted for case (d) (default walther_a,direction_asymmetry_cold,'
                         'direction_asymmetry_warm)')
+    parser.add_argument('--learn-rate', type=float, default=None, metavar='NM_PER_MIN',
+                        help='case learned: largest change of the applied correction per minute [N*m/min] '
+                        '(default 0.03: the study compresses service life into its learning window)')
+    parser.add_argument('--learn-prior', type=float, default=None, metavar='N',
+                        help='case learned: prior samples n0 of a cell (default 20)')
+    parser.add_argument('--learn-position-bins', type=int, default=None, metavar='N',
+                        help='case learned: bins of the position map over 3.4 deg (0: no map; default 16)')
+    parser.add_argument('--learn-factor', type=float, default=None, metavar='X',
+                        help='case learned/refit: learning window = X times the profile duration, after the scoring '
+                        'window, on another noise seed (default 4)')
+    parser.add_argument('--explain', action=argparse.BooleanOptionalAction, default=None,
+                        help='name the truth term responsible for each missed learning goal (reruns the missed cells '
+                        'with each term off, short durations; default on, off with --short)')
     parser.add_argument('--seed', type=int, metavar='N', help='sensor-noise seed (default the configured seed, 0)')
     parser.add_argument('--out', type=Path, metavar='DIR',
                         help="write loop_study.json, loop_study.txt, figures/ and residuals/ (case d's log) here")
@@ -87,11 +105,34 @@ def _names(text: str, option: str, allowed: tuple[str, ...]) -> list[str]:
     return list(dict.fromkeys(names))
 
 
+def _learn_setup(args: argparse.Namespace) -> Any:
+    """The study's learning setup with the --learn-* options (validated by the study)."""
+    from gimbal_friction.sim.study import LearnSetup
+    base = LearnSetup()
+    corr, lrn, factor = base.correction, base.learning, base.duration_factor
+    if args.learn_prior is not None:
+        corr = dataclasses.replace(corr, prior_samples=args.learn_prior)
+    if args.learn_position_bins is not None:
+        corr = dataclasses.replace(corr, position_bins=args.learn_position_bins)
+    if args.learn_rate is not None:
+        lrn = dataclasses.replace(lrn, max_rate_nm_per_min=args.learn_rate)
+    if args.learn_factor is not None:
+        factor = args.learn_factor
+    return LearnSetup(corr, lrn, factor)
+
+
 def run(args: argparse.Namespace) -> int:
     from gimbal_friction.refit.fit import FIT_PARAMETERS
-    from gimbal_friction.runs.loop_study import load_study_inputs, study, study_document, table_text, write_outputs
+    from gimbal_friction.runs.loop_study import (
+        explain,
+        load_study_inputs,
+        study,
+        study_document,
+        table_text,
+        write_outputs,
+    )
     from gimbal_friction.sim.config import PROFILES
-    from gimbal_friction.sim.study import DEFAULT_REFIT_FIT
+    from gimbal_friction.sim.study import DEFAULT_REFIT_FIT, goal_checks
 
     temperatures = [float(t) for t in parse_temperature_spec(args.temperatures)]
     profiles = _names(args.profiles, '--profiles', PROFILES)
@@ -117,8 +158,14 @@ def run(args: argparse.Namespace) -> int:
         progress(int(frac * 1000), 1000, f'loop-study {stage[:44]:<44}')
 
     t0 = time.perf_counter()
+    learn = _learn_setup(args)
     result = study(inputs, temperatures=temperatures, profiles=profiles, cases=cases, short=args.short,
-                   estimator_method=args.estimator_method, refit_fit=fit, progress=show)
+                   estimator_method=args.estimator_method, refit_fit=fit, learn=learn, progress=show)
+    goals = goal_checks(result.records)
+    explained = None
+    if args.explain if args.explain is not None else not args.short:
+        show('explain missed goals', 1.0)
+        explained = explain(result, inputs, goals, learn=learn)
     live = None
     if args.live:
         from gimbal_friction.runs.loop_live import live_study
@@ -127,7 +174,7 @@ def run(args: argparse.Namespace) -> int:
                           realtime_factor=args.live_realtime_factor, publish_every_ticks=args.live_publish_every,
                           work_dir=(args.out / 'live') if args.out is not None else None,
                           log=lambda text: print(text, file=sys.stderr, flush=True))
-    doc = study_document(result, inputs, live=live)
+    doc = study_document(result, inputs, live=live, goals=goals, explained=explained)
     doc['wall_s']['total'] = round(time.perf_counter() - t0, 3)
     if args.out is not None:
         written = write_outputs(args.out, doc, result)

@@ -38,13 +38,17 @@ from gimbal_friction.config.loader import axis_names, axis_params, load_paramete
 from gimbal_friction.estimation.estimator import EstimatorSettings
 from gimbal_friction.feedforward.rule import FeedforwardSettings
 from gimbal_friction.physics.params import AxisParams
-from gimbal_friction.sim.compensation import CASES, EXTRA_CASES
+from gimbal_friction.sim.compensation import CASES
 from gimbal_friction.sim.config import SECTION, SimConfig, truth_differences, with_truth
 from gimbal_friction.sim.study import (
     DEFAULT_REFIT_FIT,
     DEFAULT_TEMPERATURES,
+    LEARNING_GOALS,
+    REPORT_ORDER,
     FeedforwardSetup,
+    LearnSetup,
     StudyResult,
+    explain_misses,
     goal_checks,
     run_study,
 )
@@ -59,7 +63,7 @@ TABLE_FILE = 'loop_study.txt'
 #: Fields of every record (docs/cli.md ``loop-study`` JSON plus the current margin and the mode).
 RECORD_FIELDS = ('case', 'temperature_c', 'profile', 'rate_error_rms_rad_s', 'rate_error_peak_rad_s',
                  'position_error_rms_rad', 'position_error_peak_rad', 'reversal_error_peak_rad', 'current_margin',
-                 'duration_s', 'mode')
+                 'duration_s', 'mode', 'learning_worst_window_ratio')
 #: Velocity sources the study accepts from the parameter files (``auto`` = reference when fresh, else measured; the
 #: simulated reference is always fresh).
 
@@ -123,13 +127,21 @@ def load_study_inputs(config_paths: Sequence[str | Path] = (), axis: str | None 
 def study(inputs: StudyInputs, *, temperatures: Sequence[float] = DEFAULT_TEMPERATURES,
           profiles: Sequence[str] | None = None, cases: Sequence[str] = CASES, short: bool = False,
           estimator_method: str = 'observer', refit_fit: Sequence[str] = DEFAULT_REFIT_FIT,
-          progress: Callable[[str, float], None] | None = None) -> StudyResult:
+          learn: LearnSetup | None = None, progress: Callable[[str, float], None] | None = None) -> StudyResult:
     """:func:`~gimbal_friction.sim.study.run_study` with the inputs of the parameter files."""
     from gimbal_friction.sim.config import PROFILES
     return run_study(inputs.sim, inputs.axis, temperatures=temperatures,
                      profiles=PROFILES if profiles is None else profiles, cases=cases, short=short,
                      feedforward=inputs.feedforward, estimator=inputs.estimator, estimator_method=estimator_method,
-                     refit_fit=refit_fit, progress=progress)
+                     refit_fit=refit_fit, learn=learn, progress=progress)
+
+
+def explain(result: StudyResult, inputs: StudyInputs, goals: Sequence[dict[str, Any]], *,
+            learn: LearnSetup | None = None) -> list[dict[str, Any]]:
+    """The truth term responsible for each missed learning goal
+    (:func:`~gimbal_friction.sim.study.explain_misses`, short durations)."""
+    return explain_misses(result.config, inputs.axis, goals, feedforward=inputs.feedforward,
+                          estimator=inputs.estimator, learn=learn)
 
 
 def _number(x: Any) -> Any:
@@ -138,7 +150,8 @@ def _number(x: Any) -> Any:
     return x
 
 
-def study_document(result: StudyResult, inputs: StudyInputs, *, live: dict[str, Any] | None = None
+def study_document(result: StudyResult, inputs: StudyInputs, *, live: dict[str, Any] | None = None,
+                   explained: list[dict[str, Any]] | None = None, goals: list[dict[str, Any]] | None = None
                    ) -> dict[str, Any]:
     """The JSON document of a study (non-finite numbers are written as null by the CLI).
 
@@ -149,7 +162,7 @@ def study_document(result: StudyResult, inputs: StudyInputs, *, live: dict[str, 
     """
     records = [{k: _number(r[k]) for k in RECORD_FIELDS if k in r} | {'mode': 'offline'} for r in result.records]
     live_records = [] if live is None else list(live.get('records', []))
-    goals = goal_checks(result.records)
+    goals = list(goals) if goals is not None else goal_checks(result.records)
     look = {(r['profile'], r['case'], r['temperature_c']): r['rate_error_rms_rad_s'] for r in result.records}
     for p in dict.fromkeys(r['profile'] for r in result.records):
         a, d, e = (look.get((p, c, -40.0)) for c in ('none', 'refit', 'ideal'))
@@ -176,6 +189,8 @@ def study_document(result: StudyResult, inputs: StudyInputs, *, live: dict[str, 
         'records': records + live_records,
         'goals': goals,
         'refit': refit,
+        'explained': explained,
+        'learned': {p: c.summary() for p, c in (result.learned or {}).items()},
         'notes': list(result.notes),
         'settings': {'axis': inputs.axis_name, 'velocity_source': inputs.feedforward.velocity_source,
                      'velocity_threshold_rad_s': inputs.feedforward.settings.velocity_threshold_rad_s,
@@ -203,7 +218,7 @@ def table_text(doc: dict[str, Any]) -> str:
     out: list[str] = []
     offline = [r for r in records if r.get('mode', 'offline') == 'offline']
     temps = sorted({r['temperature_c'] for r in offline})
-    order = {c: i for i, c in enumerate(CASES + EXTRA_CASES)}
+    order = {c: i for i, c in enumerate(REPORT_ORDER)}
     for p in dict.fromkeys(r['profile'] for r in offline):
         rows = []
         for c in sorted({r['case'] for r in offline if r['profile'] == p}, key=lambda c: order.get(c, 99)):
@@ -216,11 +231,22 @@ def table_text(doc: dict[str, Any]) -> str:
         out.append('')
     missed = [g for g in doc['goals'] if not g['met']]
     met = len(doc['goals']) - len(missed)
-    out.append('study goals (feedforward vs none, vs constant, refit vs ideal, reversals): '
+    out.append('study goals (feedforward vs none, vs constant, refit vs ideal, reversals; learning goals): '
                f'{met} of {len(doc["goals"])} met')
+    for goal, what in LEARNING_GOALS.items():
+        mine = [g for g in doc['goals'] if g['goal'] == goal]
+        if mine:
+            out.append(f'  {goal} ({what}): {sum(g["met"] for g in mine)} of {len(mine)} cells met, worst '
+                       f'{max(g["value"] for g in mine):.3f}')
+    why = {(e['goal'], e['profile'], e['temperature_c']): e for e in doc.get('explained') or []}
     for g in missed:
+        e = why.get((g['goal'], g['profile'], g['temperature_c']))
+        reason = ''
+        if e is not None:
+            reason = (f'; responsible: {e["responsible"]} (without it {e["value_without"][e["responsible"]]:.3f})'
+                      if e['responsible'] else '; no single truth term is responsible')
         out.append(f'  missed {g["goal"]} ({g["profile"]}, {g["temperature_c"]:+g} degC): {g["value"]:.3f} '
-                   f'(target {g["target"]:g})')
+                   f'(target {g["target"]:g}){reason}')
     refit = doc.get('refit')
     if refit:
         out.append(f'refit (case d): {refit["rows"]} residual rows ({refit["accepted_by_method"]["observer"]} '
@@ -254,7 +280,8 @@ def table_text(doc: dict[str, Any]) -> str:
 
 # ---------------------------------------------------------------------------------------------- figures
 _CASE_STYLE = {'none': ('k', 'o'), 'constant': ('tab:orange', 's'), 'feedforward': ('tab:blue', '^'),
-               'refit': ('tab:green', 'v'), 'ideal': ('0.6', 'x'), 'feedforward_measured': ('tab:purple', 'd'),
+               'refit': ('tab:green', 'v'), 'ideal': ('0.6', 'x'), 'learned': ('tab:red', 'D'),
+               'learning': ('salmon', 'd'), 'bound': ('tab:brown', '*'), 'feedforward_measured': ('tab:purple', 'd'),
                'feedforward_reference': ('tab:cyan', 'P')}
 
 

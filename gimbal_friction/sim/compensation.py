@@ -20,6 +20,14 @@ Cases of the loop study (the default five):
 ``refit``
     the same feedforward with parameters refitted from the residuals the suite's estimator collected in the
     same simulation (see :mod:`gimbal_friction.sim.study`).
+``learned``
+    the same feedforward carrying a learned correction (:class:`~gimbal_friction.feedforward.correction.Correction`,
+    looked up at the resolver's joint angle): learned online during a learning run, then frozen and scored on
+    another seed and time window (see :mod:`gimbal_friction.sim.study`).
+``bound``
+    :func:`truth_bound`: the truth's own static friction map (temperature, direction, position, speed) delivered
+    through the same latency, current loop and smooth sign as the feedforward: what a perfect static feedforward
+    achieves.
 ``ideal``
     the truth friction torque of the current true state, without delay (handled inside the plant).
 
@@ -38,6 +46,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from gimbal_friction.common.xp import ARRAY
+from gimbal_friction.feedforward.correction import Correction
 from gimbal_friction.feedforward.rule import (
     VELOCITY_SOURCES,
     Feedforward,
@@ -52,10 +61,11 @@ from gimbal_friction.streams.inputs import is_fresh, temperature_valid
 Array = NDArray[np.float64]
 
 __all__ = ['CASES', 'CASE_IDEAL', 'CASE_NONE', 'EXTRA_CASES', 'JOINT', 'VELOCITY_SOURCES', 'Compensator',
-           'ControllerInputs', 'TorqueHook', 'constant_coulomb', 'suite_feedforward']
+           'ControllerInputs', 'TorqueHook', 'constant_coulomb', 'model_friction',
+           'suite_feedforward', 'truth_bound']
 
 #: The cases of the loop study, in report order.
-CASES = ('none', 'constant', 'feedforward', 'refit', 'ideal')
+CASES = ('none', 'constant', 'feedforward', 'refit', 'learned', 'bound', 'ideal')
 #: Optional cases the study also knows (not run by default).
 EXTRA_CASES = ('feedforward_measured', 'feedforward_reference')
 CASE_NONE = 'none'
@@ -145,7 +155,7 @@ def constant_coulomb(axis: AxisParams, settings: FeedforwardSettings | None = No
 
 
 def suite_feedforward(axis: AxisParams, settings: FeedforwardSettings | None = None, *,
-                      velocity_source: str = 'measured') -> Compensator:
+                      velocity_source: str = 'measured', correction: Correction | None = None) -> Compensator:
     """Case (c)/(d): the suite's feedforward over arrays of runs, delayed by the transport latency.
 
     The torque is :meth:`Feedforward.rule` of a :class:`~gimbal_friction.feedforward.rule.Feedforward` of ``axis``
@@ -155,6 +165,11 @@ def suite_feedforward(axis: AxisParams, settings: FeedforwardSettings | None = N
     (:func:`~gimbal_friction.feedforward.rule.temperature_used`; ``zero`` gives 0 N·m). The velocity is the
     resolver's joint rate relative to the base (``velocity_source='measured'``) or the reference joint velocity
     (``'reference'``), as the node's ``velocity_source``.
+
+    With ``correction`` (case ``learned``) the feedforward carries it (:meth:`Feedforward.rule`:
+    ``τ = clamp(tanh(v/v_th) (k_dir M + c), ±τ_max)``, looked up at the resolver's joint angle; read at every tick,
+    so a learner updating the correction in place acts at once); an empty correction gives exactly the plain
+    feedforward.
 
     >>> hook = suite_feedforward(AxisParams()).torque
     >>> x = hook(ControllerInputs(0.0, np.array([-40.0, 20.0]), np.zeros(2), np.zeros(2), np.full(2, -0.0349066),
@@ -168,7 +183,7 @@ def suite_feedforward(axis: AxisParams, settings: FeedforwardSettings | None = N
     """
     check_velocity_source(velocity_source)
     s = settings if settings is not None else FeedforwardSettings()
-    ff = Feedforward({JOINT: axis}, s)
+    ff = Feedforward({JOINT: axis}, s, correction=correction)
     cache = _TermsCache(ff, JOINT)
     state: dict[str, Array] = {}
 
@@ -190,7 +205,59 @@ def suite_feedforward(axis: AxisParams, settings: FeedforwardSettings | None = N
         t_used = np.broadcast_to(np.asarray(t_used, dtype=float), t_in.shape)
         zero = np.isnan(t_used)
         t_eval = np.where(zero, s.fallback_temperature_c, t_used)
-        tau = ff.rule(JOINT, _velocity(inputs, velocity_source), t_eval, ARRAY, terms=cache.get(t_eval))
+        tau = ff.rule(JOINT, _velocity(inputs, velocity_source), t_eval, ARRAY, terms=cache.get(t_eval),
+                      position_rad=inputs.joint_position_rad)
         return np.where(zero, 0.0, tau)
+
+    return Compensator(torque, delayed=True)
+
+
+def model_friction(axis: AxisParams) -> Callable[[ArrayLike, ArrayLike], Array]:
+    """The configured model's friction k_dir M [N·m], signed like the motion, as a function of temperatures [°C] and
+    velocities [rad/s] (what a residual is taken against: measured − model; NaN in, NaN out).
+
+    >>> f = model_friction(AxisParams())
+    >>> [round(float(x) * 1e3, 3) for x in f([-40.0, 20.0], [-0.0349066, 0.0349066])]   # N*mm
+    [-3.143, 1.046]
+    """
+    ff = Feedforward({JOINT: axis}, FeedforwardSettings())
+
+    def friction(temperature_c: ArrayLike, velocity_rad_s: ArrayLike) -> Array:
+        t = np.asarray(temperature_c, dtype=float)
+        v = np.asarray(velocity_rad_s, dtype=float)
+        known = np.isfinite(t)
+        out = np.sign(v) * ff.model_nm(JOINT, v, np.where(known, t, 20.0), ARRAY)
+        return np.asarray(np.where(known, out, np.nan), dtype=float)
+
+    return friction
+
+
+def truth_bound(config: Any, settings: FeedforwardSettings | None = None, *,
+                velocity_source: str = 'measured') -> Compensator:
+    """Case ``bound``: the truth's own static friction map through the feedforward's delivery, delayed.
+
+    τ = clamp(tanh(v / v_th) |F_ss(t, v, θ)|, ±τ_max) with ``F_ss`` the truth's steady-state friction
+    (:meth:`~gimbal_friction.sim.truth.TruthFriction.static_torque_nm`: the truth lubricant, direction asymmetry,
+    mean factor, position ripple at the resolver's joint angle θ, LuGre Stribeck level and no-load torque) at the
+    measured temperature less the sensor's known bias (a perfect static map keyed on what the feedforward sees),
+    ``v`` the feedforward's velocity (same ``velocity_source``), the same smooth sign, clamp and transport latency.
+    No temperature: no torque. ``config`` is the simulator's :class:`~gimbal_friction.sim.config.SimConfig`.
+    """
+    from gimbal_friction.sim.truth import TruthFriction, ripple
+    check_velocity_source(velocity_source)
+    s = settings if settings is not None else FeedforwardSettings()
+    truth = TruthFriction(config)
+    state: dict[str, Any] = {}
+
+    def torque(inputs: ControllerInputs) -> Array:
+        t_in = np.asarray(inputs.temperature_c, dtype=float) - config.temperature_bias_c
+        have = np.isfinite(t_in)
+        t_eval = np.where(have, t_in, s.fallback_temperature_c)
+        if 'at' not in state or not np.array_equal(state['at'], t_eval):
+            state['at'], state['terms'] = t_eval.copy(), truth.terms(t_eval)
+        v = _velocity(inputs, velocity_source)
+        g = truth.stribeck_level_nm(state['terms'], v, 1.0 + ripple(config, inputs.joint_position_rad, t_eval))
+        tau = np.clip(np.tanh(v / s.velocity_threshold_rad_s) * g, -s.max_torque_nm, s.max_torque_nm)
+        return np.where(have, tau, 0.0)
 
     return Compensator(torque, delayed=True)

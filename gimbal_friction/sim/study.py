@@ -8,7 +8,9 @@ environment at t = 0 unless ``initial_bearing_offset_c`` says otherwise).
 Case (d) ``refit`` closes the suite's own loop, estimate → log → refit → better feedforward, through the very
 functions the nodes and ``gimbal-friction refit`` run:
 
-1. the case-(c) runs of every profile (``refit_profiles``) at every plateau are turned into the estimator's input
+1. the plain-feedforward runs of every profile (``refit_profiles``) at every plateau, in the *learning window*
+   (another noise seed, :data:`LEARN_SEED`, and another time window of the profile, so the refit is scored out of
+   sample), are turned into the estimator's input
    streams at the controller rate (:meth:`~gimbal_friction.sim.engine.EstimatorTrace.chamber_arrays`) and fed to
    :class:`~gimbal_friction.estimation.estimator.EstimatorLogic` (method ``observer`` by default: friction while the
    gimbal works, no constant-speed sweep needed; ``steady_state`` and ``both`` are offered);
@@ -23,11 +25,22 @@ functions the nodes and ``gimbal-friction refit`` run:
    (:data:`DEFAULT_REFIT_FIT`, see :func:`refit_rows`);
 4. case (d) runs the same feedforward with the refitted parameters.
 
+Case ``learned`` learns in service: in the same learning window the feedforward runs with a learned correction
+(:class:`~gimbal_friction.feedforward.correction.Correction`) that a
+:class:`~gimbal_friction.feedforward.correction.Learner` updates online from the estimator's observer samples (fed
+every :data:`LEARN_CHUNK_S` of simulated time: samples the estimator accepts, then the learner's gates, not near a
+reversal and a fresh temperature; the applied correction moves at the learner's limited rate and acts at once).
+The correction is then frozen and scored like every case on seed 0 over the scoring window; the learning run is
+reported too (case ``learning``, with its worst 10 s window against the plain feedforward of the same window).
+Case ``bound`` is the truth's own static map through the feedforward's delivery
+(:func:`~gimbal_friction.sim.compensation.truth_bound`).
+
 Records (one per case × temperature × profile) carry at least ``case``, ``temperature_c``, ``profile``,
 ``rate_error_rms_rad_s``, ``rate_error_peak_rad_s``, ``position_error_rms_rad``, ``position_error_peak_rad``,
 ``reversal_error_peak_rad``, ``current_margin`` (docs/cli.md ``loop-study``), plus ``duration_s``.
 :func:`goal_checks` evaluates the study's goals on them (the feedforward against no compensation, the
-constant and the ideal; at reversals).
+constant and the ideal; at reversals; the learning goals of :data:`LEARNING_GOALS`); :func:`explain_misses` names
+the truth term responsible for each missed learning goal.
 """
 
 from __future__ import annotations
@@ -45,6 +58,13 @@ from gimbal_friction.common.errors import ConfigError, GimbalFrictionError
 from gimbal_friction.common.units import NS_PER_S, RAD_S_PER_RPM
 from gimbal_friction.estimation.estimator import EstimatorLogic, EstimatorSettings
 from gimbal_friction.estimation.residuals import credible_rows, match_predictions
+from gimbal_friction.feedforward.correction import (
+    Correction,
+    CorrectionSettings,
+    Learner,
+    LearningSettings,
+    model_identity,
+)
 from gimbal_friction.feedforward.rule import FeedforwardSettings, check_velocity_source
 from gimbal_friction.physics.params import AxisParams
 from gimbal_friction.refit.fit import FIT_PARAMETERS, RefitResult, refit_stats
@@ -55,20 +75,43 @@ from gimbal_friction.sim.compensation import (
     JOINT,
     Compensator,
     constant_coulomb,
+    model_friction,
     suite_feedforward,
+    truth_bound,
 )
 from gimbal_friction.sim.config import PROFILES, SimConfig
-from gimbal_friction.sim.engine import BatchResult, Run, simulate
+from gimbal_friction.sim.engine import BatchResult, ClosedLoop, EstimatorTrace, Run, simulate
 from gimbal_friction.sim.metrics import batch_metrics
-from gimbal_friction.sim.profiles import make_profile
+from gimbal_friction.sim.profiles import Profile, make_profile
 from gimbal_friction.streams.measurement import METHOD_OBSERVER, METHOD_STEADY_STATE, MeasurementArrays
 from gimbal_friction.streams.residual_row import ResidualRows, residual_rows
 
 Array = NDArray[np.float64]
 
-__all__ = ['DEFAULT_REFIT_FIT', 'DEFAULT_TEMPERATURES', 'ESTIMATOR_METHODS', 'SHORT_DURATIONS', 'FeedforwardSetup',
-           'RefitOutcome', 'ReversalTrace', 'StudyResult', 'estimator_rows', 'goal_checks', 'refit_rows',
-           'run_study']
+__all__ = [
+    'DEFAULT_REFIT_FIT',
+    'DEFAULT_TEMPERATURES',
+    'ESTIMATOR_METHODS',
+    'LEARNING_GOALS',
+    'LEARN_SEED',
+    'REPORT_ORDER',
+    'SHORT_DURATIONS',
+    'STUDY_CORRECTION',
+    'STUDY_LEARNING',
+    'TRUTH_TERMS',
+    'FeedforwardSetup',
+    'LearnSetup',
+    'RefitOutcome',
+    'ReversalTrace',
+    'StudyResult',
+    'estimator_rows',
+    'explain_misses',
+    'goal_checks',
+    'refit_rows',
+    'run_study',
+    'term_off',
+    'window_ratio',
+]
 
 #: Temperature plateaus of the study [°C] (the paper's chamber test).
 DEFAULT_TEMPERATURES = (-40.0, -20.0, 0.0, 20.0, 40.0, 60.0)
@@ -80,6 +123,25 @@ DEFAULT_REFIT_FIT = ('walther_a', 'direction_asymmetry_cold', 'direction_asymmet
 ESTIMATOR_METHODS = ('observer', 'steady_state', 'both')
 #: Window of the reversal traces around the first reversal after the transient [s].
 REVERSAL_TRACE_WINDOW_S = (-0.5, 1.0)
+#: Noise seed of the learning runs (scoring runs: seed 0), so ``refit`` and ``learned`` are scored out of sample.
+LEARN_SEED = 1
+#: A profile's learning window lasts this many times its duration (right after the scoring window) [-].
+LEARN_FACTOR = 4.0
+#: Window of the check "while learning never more than 5 % worse than the plain feedforward" [s].
+LEARN_WINDOW_S = 10.0
+#: The learning run feeds the estimator the messages of this much simulated time at once [s] (the node's timer).
+LEARN_CHUNK_S = 0.1
+#: Correction layout of case ``learned``: 5 °C bins, prior 20 samples, bound 50 % of the model; a position map of
+#: 16 bins over 3.4° (the period of the packaged truth's main ripple, which a user reads off the residuals'
+#: spectrum; the 0.85° ripple is its 4th harmonic), 4 harmonics.
+STUDY_CORRECTION = CorrectionSettings(prior_samples=20.0, position_bins=16, position_period_rad=math.radians(3.4),
+                                      harmonics=4)
+#: Learning of case ``learned``: the applied correction moves by at most 3e-2 N·m per minute (the node default is
+#: 3e-4: the study compresses service life into a learning window of a minute or less; the scan at -40 °C reached
+#: 2.84 mrad/s at 1e-2 and 2.11 at 3e-2, the learning run never worse than the feedforward), stepped every 0.1 s.
+STUDY_LEARNING = LearningSettings(max_rate_nm_per_min=3e-2, step_period_s=0.1)
+#: Cases in report order (``learning``: the learning run of ``learned``, scored on its own seed and window).
+REPORT_ORDER = (*CASES[:4], 'learning', *CASES[4:], *EXTRA_CASES)
 #: Gap between the stamps of successive runs in the estimator's streams [s] (a run's stamps never overlap another's).
 RUN_GAP_S = 60.0
 
@@ -95,9 +157,20 @@ class FeedforwardSetup(NamedTuple):
     settings: FeedforwardSettings = FeedforwardSettings()
     velocity_source: str = 'measured'   #: the node's ``velocity_source`` (VELOCITY_SOURCES)
 
-    def compensator(self, params: AxisParams, velocity_source: str | None = None) -> Compensator:
-        """The feedforward of ``params`` (case (c) or (d)), on ``velocity_source`` (default the configured one)."""
-        return suite_feedforward(params, self.settings, velocity_source=velocity_source or self.velocity_source)
+    def compensator(self, params: AxisParams, velocity_source: str | None = None, *,
+                    correction: Correction | None = None) -> Compensator:
+        """The feedforward of ``params`` (cases feedforward, refit, learned with ``correction``), on
+        ``velocity_source`` (default the configured one)."""
+        return suite_feedforward(params, self.settings, velocity_source=velocity_source or self.velocity_source,
+                                 correction=correction)
+
+
+class LearnSetup(NamedTuple):
+    """How case ``learned`` learns (the correction's layout, the learner's rate, the learning window)."""
+
+    correction: CorrectionSettings = STUDY_CORRECTION
+    learning: LearningSettings = STUDY_LEARNING
+    duration_factor: float = LEARN_FACTOR   #: learning window / profile duration [-]
 
 
 class ReversalTrace(NamedTuple):
@@ -136,6 +209,8 @@ class StudyResult(NamedTuple):
     notes: list[str]                       #: what happened that a reader should know (refit outcome, ...)
     wall_s: dict[str, float]               #: wall time per stage [s]
     config: SimConfig                      #: the configuration the study ran with (short durations applied)
+    learned: dict[str, Correction] | None = None   #: case ``learned``: the correction learned per profile (frozen)
+    learners: dict[str, Learner] | None = None     #: ... and its learner (counters, state)
 
     @property
     def refit_params(self) -> AxisParams | None:
@@ -276,19 +351,121 @@ def _check(temperatures: Sequence[float], profiles: Sequence[str], cases: Sequen
     return list(dict.fromkeys(temps))
 
 
+def _learning_profile(cfg: SimConfig, name: str, factor: float) -> Profile:
+    """The learning window of profile ``name``: ``factor`` × its duration D, right after the scoring window
+    [0, D] (times re-zeroed at the window's start)."""
+    d = cfg.profile_duration_s(name)
+    full = make_profile(cfg, name, d * (1.0 + factor))
+    k0 = int(round(d * cfg.rate_loop_hz))
+    t0 = float(full.time_s[k0])
+    rev = full.reversal_times_s[full.reversal_times_s >= t0] - t0
+    return Profile(name, full.time_s[k0:] - t0, full.target_angle_rad[k0:], full.target_rate_rad_s[k0:],
+                   full.base_angle_rad[k0:], full.base_rate_rad_s[k0:], rev, full.base_motion)
+
+
+def _learn_chunk(result: BatchResult, k0: int, k1: int, logics: dict[int, EstimatorLogic], learner: Learner,
+                 model: Callable[[Any, Any], Array], start_ns: int) -> None:
+    """Feed ticks [k0, k1) of the learning runs to their estimators and the accepted samples, in time order, to the
+    learner (the node's gates: accepted by the estimator, then the learner's: not near a reversal, fresh
+    temperature)."""
+    tr = result.traces
+    stamps = start_ns + np.round(result.profile.time_s[k0:k1] * NS_PER_S).astype(np.int64)
+    parts = []
+    for i, logic in logics.items():
+        trace = EstimatorTrace(result.runs[i], stamps, tr.joint_position_rad[k0:k1, i],
+                               tr.joint_velocity_rad_s[k0:k1, i], tr.current_measured_a[k0:k1, i],
+                               tr.temperature_c[k0:k1, i], result.temperature_sampled[k0:k1],
+                               tr.gyro_rate_rad_s[k0:k1, i])
+        m = logic.feed(trace.chamber_arrays(JOINT))
+        if len(m):
+            parts.append(m)
+    if not parts:
+        return
+    m = MeasurementArrays.concatenate(parts)
+    order = np.argsort(m.stamp_ns, kind='stable')
+    t, v, p = m.temperature_c[order], m.velocity_rad_s[order], m.position_rad[order]
+    f, fresh = m.friction_nm[order], m.temperature_fresh[order]
+    modelled = model(t, v)
+    now = m.stamp_ns[order] / NS_PER_S
+    for k in range(len(order)):
+        learner.update(JOINT, float(t[k]), float(v[k]), float(p[k]), float(f[k] - modelled[k]), float(modelled[k]),
+                       float(now[k]), bool(fresh[k]))
+    learner.step(float(now[-1]))
+
+
+def window_ratio(result: BatchResult, run: int, reference: int, window_s: float = LEARN_WINDOW_S,
+                 step_s: float = 1.0) -> float:
+    """Largest ratio of the LOS rate error RMS of run ``run`` over run ``reference`` in any window of ``window_s``
+    [s] after the transient (``settle_s``), windows every ``step_s`` [s] (the whole run if shorter) [-]."""
+    cfg, prof, tr = result.config, result.profile, result.traces
+    keep = prof.time_s >= cfg.settle_s
+    e = (tr.los_rate_rad_s[keep][:, [run, reference]] - prof.target_rate_rad_s[keep][:, None]) ** 2
+    n = e.shape[0]
+    w = min(n, max(1, int(round(window_s * cfg.rate_loop_hz))))
+    step = max(1, int(round(step_s * cfg.rate_loop_hz)))
+    c = np.concatenate([np.zeros((1, 2)), np.cumsum(e, axis=0)])
+    starts = np.arange(0, n - w + 1, step)
+    sums = c[starts + w] - c[starts]
+    ratio = np.sqrt(sums[:, 0] / np.maximum(sums[:, 1], 1e-300))
+    return float(ratio.max())
+
+
+def _learning_batch(cfg: SimConfig, axis: AxisParams, ff: FeedforwardSetup, name: str, temps: Sequence[float],
+                    learn: LearnSetup, estimator: EstimatorSettings, want_learned: bool,
+                    report: Callable[[float], None]) -> tuple[BatchResult, Learner | None]:
+    """The learning runs of profile ``name`` (seed :data:`LEARN_SEED`, the learning window): the plain feedforward
+    at every plateau (the refit's data and the reference of the cost while learning) and, with ``want_learned``,
+    the feedforward learning online (one :class:`~gimbal_friction.feedforward.correction.Learner` over the
+    plateaus, from an empty correction)."""
+    prof = _learning_profile(cfg, name, learn.duration_factor)
+    runs = [Run('feedforward', t, LEARN_SEED) for t in temps]
+    comps = {'feedforward': ff.compensator(axis)}
+    learner: Learner | None = None
+    if want_learned:
+        learner = Learner(Correction(learn.correction, model_identity({JOINT: axis})), learn.learning)
+        runs += [Run('learned', t, LEARN_SEED) for t in temps]
+        comps['learned'] = ff.compensator(axis, correction=learner.correction)
+    loop = ClosedLoop(cfg, axis, prof, runs, comps)
+    if learner is None:
+        while not loop.done:
+            loop.step()
+            if loop.k % 1000 == 0:
+                report(loop.k / loop.ticks)
+        return loop.result(), None
+    settings = dataclasses.replace(estimator, method='observer')
+    logics = {i: EstimatorLogic({JOINT: axis}, settings) for i, r in enumerate(runs) if r.case == 'learned'}
+    model = model_friction(axis)
+    chunk = max(1, int(round(LEARN_CHUNK_S * cfg.rate_loop_hz)))
+    k0 = 0
+    while not loop.done:
+        for _ in range(min(chunk, loop.ticks - loop.k)):
+            loop.step()
+        _learn_chunk(loop.result(), k0, loop.k, logics, learner, model, NS_PER_S)
+        k0 = loop.k
+        report(loop.k / loop.ticks)
+    learner.freeze()
+    return loop.result(), learner
+
+
 def run_study(config: SimConfig, axis: AxisParams | None = None, *,
               temperatures: Sequence[float] = DEFAULT_TEMPERATURES, profiles: Sequence[str] = PROFILES,
               cases: Sequence[str] = CASES, short: bool = False,
               feedforward: FeedforwardSetup | None = None, estimator: EstimatorSettings | None = None,
               estimator_method: str = 'observer', refit_fit: Sequence[str] = DEFAULT_REFIT_FIT,
               refit_profiles: Sequence[str] | None = None, refit: RefitHook | None = None,
-              progress: Progress | None = None) -> StudyResult:
+              learn: LearnSetup | None = None, progress: Progress | None = None) -> StudyResult:
     """Run the closed loop for every case × temperature × profile and measure the LOS errors.
+
+    Cases ``refit`` and ``learned`` are scored out of sample: they learn from learning runs on another noise seed
+    (:data:`LEARN_SEED`) and another time window of the profile (``learn.duration_factor`` × its duration, right
+    after the scoring window), then every case is scored on seed 0 over [0, duration]. The learning run of
+    ``learned`` is scored too (case ``learning``, with ``learning_worst_window_ratio``: its worst 10 s window
+    against the plain feedforward on the same seed and window).
 
     Parameters
     ----------
     config : SimConfig
-        Simulator configuration (``feedforward_latency_s`` is the transport latency of cases (c) and (d)).
+        Simulator configuration (``feedforward_latency_s`` is the transport latency of the node cases).
     axis : AxisParams, optional
         The configured model of the axis (default: the suite's defaults).
     temperatures : sequence of float
@@ -296,24 +473,26 @@ def run_study(config: SimConfig, axis: AxisParams | None = None, *,
     profiles : sequence of str
         Any of ``tracking``, ``scan``, ``pointing``.
     cases : sequence of str
-        Any of ``none``, ``constant``, ``feedforward``, ``refit``, ``ideal`` (:data:`CASES`), and the optional
-        ``feedforward_measured`` / ``feedforward_reference`` (the feedforward on one velocity source).
+        Any of :data:`CASES` and the optional ``feedforward_measured`` / ``feedforward_reference``.
     short : bool
         Use the short durations of :data:`SHORT_DURATIONS` (CI).
     feedforward : FeedforwardSetup, optional
-        The feedforward's settings and velocity source (default: the node's defaults). Case (b) uses the same
-        smooth sign and velocity.
+        The feedforward's settings and velocity source (default: the node's defaults). Cases ``constant`` and
+        ``bound`` use the same smooth sign and velocity.
     estimator : EstimatorSettings, optional
-        The estimator's settings for case (d) (default: the node's); ``method`` is replaced by
-        ``estimator_method`` and ``commanded_speed_rad_s`` by the tracking speed.
+        The estimator's settings for cases ``refit`` and ``learned`` (default: the node's); ``commanded_speed_rad_s``
+        is replaced by the tracking speed, ``method`` by ``estimator_method`` for the refit and by ``observer``
+        for the learning.
     estimator_method : str
         ``observer`` (default: friction while the gimbal works), ``steady_state`` or ``both``.
     refit_fit : sequence of str
-        Parameters refitted for case (d) (default :data:`DEFAULT_REFIT_FIT`).
+        Parameters refitted for case ``refit`` (default :data:`DEFAULT_REFIT_FIT`).
     refit_profiles : sequence of str, optional
-        Profiles whose case-(c) runs feed the estimator (default: the study's profiles).
+        Profiles whose learning-window feedforward runs feed the refit (default: the study's profiles).
     refit : callable, optional
         Replaces :func:`refit_rows` (rows, configured params) -> RefitResult or AxisParams.
+    learn : LearnSetup, optional
+        Correction layout and learning settings of case ``learned`` (default :class:`LearnSetup`).
     progress : callable, optional
         ``progress(stage, fraction)``, fraction of the whole study done.
 
@@ -323,48 +502,80 @@ def run_study(config: SimConfig, axis: AxisParams | None = None, *,
     """
     axis = axis if axis is not None else AxisParams()
     ff = feedforward if feedforward is not None else FeedforwardSetup()
+    lrn = learn if learn is not None else LearnSetup()
+    lrn.correction.validate()
+    lrn.learning.validate()
+    if not (math.isfinite(lrn.duration_factor) and 0.5 <= lrn.duration_factor <= 1000.0):
+        raise ConfigError('learn_duration_factor', 'must lie in [0.5, 1000] [-]', lrn.duration_factor)
     profiles = list(dict.fromkeys(profiles))
     cases = list(dict.fromkeys(cases))
     temps = _check(temperatures, profiles, cases, ff, estimator_method, refit_fit, refit_profiles)
     cfg = _short_config(config) if short else config
+    est = estimator if estimator is not None else EstimatorSettings()
+    est = dataclasses.replace(est, commanded_speed_rad_s=cfg.tracking_speed_rpm * RAD_S_PER_RPM)
     notes: list[str] = []
     wall: dict[str, float] = {}
-    want_refit = 'refit' in cases
-    calib = list(dict.fromkeys(refit_profiles)) if refit_profiles else profiles
+    want_refit, want_learned = 'refit' in cases, 'learned' in cases
+    calib = (list(dict.fromkeys(refit_profiles)) if refit_profiles else profiles) if want_refit else []
+    learn_profiles = list(dict.fromkeys([*calib, *(profiles if want_learned else [])]))
     figure_profile = 'tracking' if 'tracking' in profiles else profiles[0]
-    # stage 1: every profile with the cases other than refit (and the feedforward runs the refit learns from);
-    # stage 2: the refit case on the study's profiles
-    stages: list[tuple[str, list[str]]] = []
-    for p in dict.fromkeys([*profiles, *(calib if want_refit else [])]):
-        first = [c for c in cases if c != 'refit'] if p in profiles else []
-        if want_refit and p in calib and 'feedforward' not in first:
-            first.append('feedforward')
-        if first:
-            stages.append((p, first))
-    if want_refit:
-        stages += [(p, ['refit']) for p in profiles]
-    work = [len(cs) * len(temps) * cfg.profile_duration_s(p) for p, cs in stages]
-    total, done = float(sum(work)), 0.0
+    n_learn = {p: len(temps) * (1 + int(want_learned and p in profiles)) for p in learn_profiles}
+    work = [n_learn[p] * lrn.duration_factor * cfg.profile_duration_s(p) * (3.0 if want_learned else 1.0)
+            for p in learn_profiles] + [len(cases) * len(temps) * cfg.profile_duration_s(p) for p in profiles]
+    total, done = float(sum(work)) or 1.0, 0.0
     records: list[dict[str, Any]] = []
     reversal: list[ReversalTrace] = []
     calibration: list[tuple[BatchResult, list[int]]] = []
+    learned: dict[str, Correction] = {}
+    learners: dict[str, Learner] = {}
+    # stage 1: the learning runs (another seed and time window)
+    for name, w in zip(learn_profiles, work, strict=False):
+        t0 = time.perf_counter()
+        label = f'{name} (learning window)'
+
+        def report(f: float, label: str = label, base: float = done, w: float = w) -> None:
+            if progress is not None:
+                progress(label, (base + f * w) / total)
+
+        result, learner = _learning_batch(cfg, axis, ff, name, temps, lrn, est, want_learned and name in profiles,
+                                          report)
+        done += w
+        ff_runs = [i for i, r in enumerate(result.runs) if r.case == 'feedforward']
+        if name in calib:
+            calibration.append((result, ff_runs))
+        if learner is not None:
+            learners[name] = learner
+            learned[name] = learner.snapshot()
+            recs = _records(result, float(result.profile.time_s[-1]) + cfg.controller_period_s)
+            for i, rec in enumerate(recs):
+                if rec['case'] != 'learned':
+                    continue
+                ref = next(j for j in ff_runs if result.runs[j].temperature_c == rec['temperature_c'])
+                rec['case'] = 'learning'
+                rec['learning_worst_window_ratio'] = window_ratio(result, i, ref)
+                records.append(rec)
+            summ = learner.summary()
+            notes.append(f'learned ({name}): {summ["accepted"]} samples learned in {summ["cells_with_data"]} cells '
+                         f'(refused: {", ".join(f"{k} {v}" for k, v in sorted(summ["rejected"].items())) or "none"}),'
+                         f' largest |correction| {summ["max_abs_correction_nm"] * 1e3:.3f} N*mm, '
+                         f'{summ["saturated_cells"]} saturated cells')
+        wall[label] = time.perf_counter() - t0
     outcome: RefitOutcome | None = None
     refit_params: AxisParams | None = None
-    for (name, stage_cases), w in zip(stages, work, strict=True):
-        if stage_cases == ['refit'] and want_refit and outcome is None:
-            t1 = time.perf_counter()
-            if progress is not None:
-                progress('refit: estimator -> residual rows -> refit', done / total)
-            outcome = _refit(calibration, axis, cfg, estimator, estimator_method, refit_fit, refit, notes)
-            refit_params = outcome.params
-            calibration.clear()
-            wall['refit'] = time.perf_counter() - t1
-        if stage_cases == ['refit'] and refit_params is None:
-            done += w
-            continue
+    if want_refit:
+        t1 = time.perf_counter()
+        if progress is not None:
+            progress('refit: estimator -> residual rows -> refit', done / total)
+        outcome = _refit(calibration, axis, cfg, est, estimator_method, refit_fit, refit, notes)
+        refit_params = outcome.params
+        calibration.clear()
+        wall['refit'] = time.perf_counter() - t1
+    # stage 2: every case scored on seed 0 over [0, duration]
+    for name, w in zip(profiles, work[len(learn_profiles):], strict=True):
         t0 = time.perf_counter()
         prof = make_profile(cfg, name)
         comps: dict[str, Compensator] = {}
+        stage_cases = [c for c in cases if not (c == 'refit' and refit_params is None)]
         for c in stage_cases:
             if c == 'constant':
                 comps[c] = constant_coulomb(axis, ff.settings, velocity_source=ff.velocity_source)
@@ -376,6 +587,10 @@ def run_study(config: SimConfig, axis: AxisParams | None = None, *,
                 comps[c] = ff.compensator(axis, 'reference')
             elif c == 'refit' and refit_params is not None:
                 comps[c] = ff.compensator(refit_params)
+            elif c == 'learned':
+                comps[c] = ff.compensator(axis, correction=learned[name])
+            elif c == 'bound':
+                comps[c] = truth_bound(cfg, ff.settings, velocity_source=ff.velocity_source)
         runs = [Run(c, t) for c in stage_cases for t in temps]
         label = f'{name} ({", ".join(stage_cases)})'
 
@@ -385,19 +600,16 @@ def run_study(config: SimConfig, axis: AxisParams | None = None, *,
 
         result = simulate(cfg, axis, prof, runs, comps, progress=report)
         done += w
-        if name in profiles:
-            records.extend(r for r in _records(result, cfg.profile_duration_s(name)) if r['case'] in cases)
-            if name == figure_profile:
-                reversal.extend(t for t in _reversal_traces(result, min(temps)) if t.case in cases)
-        if want_refit and name in calib and 'refit' not in stage_cases:
-            calibration.append((result, [i for i, r in enumerate(result.runs) if r.case == 'feedforward']))
+        records.extend(_records(result, cfg.profile_duration_s(name)))
+        if name == figure_profile:
+            reversal.extend(_reversal_traces(result, min(temps)))
         wall[label] = time.perf_counter() - t0
     if progress is not None:
         progress('done', 1.0)
-    order = {c: i for i, c in enumerate(CASES + EXTRA_CASES)}
+    order = {c: i for i, c in enumerate(REPORT_ORDER)}
     records.sort(key=lambda r: (profiles.index(r['profile']), order[r['case']], r['temperature_c']))
     reversal.sort(key=lambda t: order[t.case])
-    return StudyResult(records, reversal, outcome, notes, wall, cfg)
+    return StudyResult(records, reversal, outcome, notes, wall, cfg, learned, learners)
 
 
 def _refit(calibration: Sequence[tuple[BatchResult, Sequence[int]]], axis: AxisParams, cfg: SimConfig,
@@ -410,7 +622,8 @@ def _refit(calibration: Sequence[tuple[BatchResult, Sequence[int]]], axis: AxisP
     n_obs = int(np.count_nonzero(measured.method == METHOD_OBSERVER))
     n_ss = int(np.count_nonzero(measured.method == METHOD_STEADY_STATE))
     runs = sum(len(i) for _, i in calibration)
-    notes.append(f'refit data: estimator ({method}) on the feedforward runs ({runs} runs of '
+    notes.append(f'refit data: estimator ({method}) on the feedforward runs of the learning windows '
+                 f'(seed {LEARN_SEED}; {runs} runs of '
                  f'{", ".join(dict.fromkeys(b.profile.name for b, _ in calibration))}): {len(rows)} residual rows '
                  f'({n_obs} observer, {n_ss} steady-state)')
     result: RefitResult | None = None
@@ -439,15 +652,29 @@ def _lookup(records: Sequence[dict[str, Any]]) -> dict[tuple[str, str, float], d
     return {(r['profile'], r['case'], float(r['temperature_c'])): r for r in records}
 
 
+#: Goals of issue 21 on the learned correction (name, what): evaluated by :func:`goal_checks`.
+LEARNING_GOALS = {
+    'learned_vs_constant': 'learned <= constant',
+    'learned_vs_bound': 'learned <= 1.5 x bound',
+    'learned_vs_none_cold': 'learned/none <= 0.4 at -40 and -20 degC where bound/none <= 0.25',
+    'learning_cost': 'while learning never more than 5 % worse than the plain feedforward over any 10 s window',
+    'ff_vs_constant': 'feedforward <= 1.05 x constant',
+    'refit_vs_ff': 'refit (out of sample) <= feedforward',
+}
+
+
 def goal_checks(records: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
-    """The study's goals (feedforward vs none, vs constant, refit vs ideal, reversals) evaluated on study records,
-    per profile (those the records allow).
+    """The study's goals evaluated on study records, per profile and plateau (those the records allow).
 
     - ``c_vs_a_cold``: (c) cuts the LOS rate error RMS by ≥ 60 % vs (a) at −40 and −20 °C;
     - ``c_vs_a_all``: by ≥ 30 % at every plateau;
     - ``c_vs_b_cold``: by ≥ 30 % vs (b) at −40 °C;
     - ``d_near_e_cold``: (d) within 20 % of (e) at −40 °C (RMS(d) ≤ 1.2 RMS(e));
-    - ``c_reversal``: the peak error at reversals of (c) no worse than (a), at every plateau.
+    - ``c_reversal``: the peak error at reversals of (c) no worse than (a), at every plateau;
+    - the learning goals (:data:`LEARNING_GOALS`, value = the ratio, target its limit): ``learned_vs_constant``
+      (≤ 1), ``learned_vs_bound`` (learned/bound ≤ 1.5), ``learned_vs_none_cold`` (≤ 0.4 at −40 and −20 °C where
+      bound/none ≤ 0.25), ``learning_cost`` (the learning run's worst 10 s window / the plain feedforward's ≤ 1.05),
+      ``ff_vs_constant`` (≤ 1.05), ``refit_vs_ff`` (≤ 1).
 
     Each check: ``goal``, ``profile``, ``temperature_c``, ``value`` (the reduction [-] or the ratio), ``target``,
     ``met``.
@@ -458,6 +685,11 @@ def goal_checks(records: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
     def rms(p: str, c: str, t: float) -> float | None:
         r = look.get((p, c, t))
         return None if r is None else float(r['rate_error_rms_rad_s'])
+
+    def ratio_goal(goal: str, p: str, t: float, num: float | None, den: float | None, target: float) -> None:
+        if num is not None and den is not None and den > 0.0:
+            out.append({'goal': goal, 'profile': p, 'temperature_c': t, 'value': num / den, 'target': target,
+                        'met': num / den <= target})
 
     for p in dict.fromkeys(r['profile'] for r in records):
         temps = sorted({float(r['temperature_c']) for r in records if r['profile'] == p})
@@ -484,4 +716,81 @@ def goal_checks(records: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
                 ratio = d / e
                 out.append({'goal': 'd_near_e_cold', 'profile': p, 'temperature_c': t, 'value': ratio,
                             'target': 1.2, 'met': ratio <= 1.2})
+            le, bd = rms(p, 'learned', t), rms(p, 'bound', t)
+            ratio_goal('learned_vs_constant', p, t, le, b, 1.0)
+            ratio_goal('learned_vs_bound', p, t, le, bd, 1.5)
+            if t in (-40.0, -20.0) and a is not None and bd is not None and bd / a <= 0.25:
+                ratio_goal('learned_vs_none_cold', p, t, le, a, 0.4)
+            lr = look.get((p, 'learning', t))
+            if lr is not None and lr.get('learning_worst_window_ratio') is not None:
+                ratio_goal('learning_cost', p, t, float(lr['learning_worst_window_ratio']), 1.0, 1.05)
+            ratio_goal('ff_vs_constant', p, t, c, b, 1.05)
+            ratio_goal('refit_vs_ff', p, t, d, c, 1.0)
+    return out
+
+
+#: Truth terms the study can switch off to name the one responsible for a missed goal: name -> changes of the
+#: simulator's configuration (``lubricant``: the truth's lubricant set to the configured model's).
+TRUTH_TERMS = ('asymmetry', 'ripple', 'lubricant', 'breakaway', 'sensor', 'disturbance')
+#: Goals whose misses :func:`explain_misses` attributes, and the cases each needs.
+_GOAL_CASES = {'learned_vs_constant': ('constant', 'learned'), 'learned_vs_bound': ('learned', 'bound'),
+               'learned_vs_none_cold': ('none', 'learned', 'bound'), 'ff_vs_constant': ('constant', 'feedforward'),
+               'refit_vs_ff': ('feedforward', 'refit'), 'learning_cost': ('feedforward', 'learned')}
+
+
+def term_off(config: SimConfig, axis: AxisParams, term: str) -> SimConfig | None:
+    """``config`` with truth term ``term`` (:data:`TRUTH_TERMS`) switched off, or None if it is already off."""
+    if term == 'asymmetry':
+        changes: dict[str, Any] = {'asymmetry_enabled': False}
+    elif term == 'ripple':
+        changes = {'ripple_amplitudes': tuple(0.0 for _ in config.ripple_amplitudes)}
+    elif term == 'lubricant':
+        changes = {'truth_walther_a': axis.walther_a, 'truth_walther_b': axis.walther_b,
+                   'lubricant_walther_a_shift': 0.0, 'truth_palmgren_factor': axis.palmgren_factor}
+    elif term == 'breakaway':
+        changes = {'breakaway_ratio': 1.0}
+    elif term == 'sensor':
+        changes = {'temperature_bias_c': 0.0, 'temperature_sensor_time_constant_s': 0.0}
+    elif term == 'disturbance':
+        changes = {'disturbance_torque_nm': 0.0}
+    else:
+        raise ConfigError('term', f'unknown truth term (choose from {", ".join(TRUTH_TERMS)})', term)
+    new = config.replace(**changes)
+    return None if new == config else new
+
+
+def explain_misses(config: SimConfig, axis: AxisParams, goals: Sequence[dict[str, Any]], **study: Any
+                   ) -> list[dict[str, Any]]:
+    """For every missed learning goal (:data:`LEARNING_GOALS`), the truth term responsible: the cell (profile,
+    plateau) is run again (``short`` durations, only the cases the goal needs) with each active truth term of
+    :data:`TRUTH_TERMS` switched off in turn (:func:`term_off`); the term whose removal brings the goal's value
+    down most is named. ``study``: further arguments of :func:`run_study` (feedforward, estimator, learn).
+
+    Returns one record per missed goal: ``goal``, ``profile``, ``temperature_c``, ``value``, ``responsible`` (the
+    term, or None if no removal helps), ``value_without`` (term -> the goal's value with that term off).
+    """
+    missed = [g for g in goals if not g['met'] and g['goal'] in _GOAL_CASES]
+    out = []
+    cells: dict[str, set[float]] = {}
+    needs: dict[str, set[str]] = {}
+    for g in missed:
+        cells.setdefault(g['profile'], set()).add(g['temperature_c'])
+        needs.setdefault(g['profile'], set()).update(_GOAL_CASES[g['goal']])
+    without: dict[tuple[str, str, float, str], float] = {}
+    for p, temps in cells.items():
+        cases = [c for c in REPORT_ORDER if c in needs[p]]
+        for term in TRUTH_TERMS:
+            cfg = term_off(config, axis, term)
+            if cfg is None:
+                continue
+            res = run_study(cfg, axis, temperatures=sorted(temps), profiles=[p], cases=cases, short=True, **study)
+            for g in goal_checks(res.records):
+                without[(g['goal'], p, g['temperature_c'], term)] = g['value']
+    for g in missed:
+        vals = {term: without[(g['goal'], g['profile'], g['temperature_c'], term)] for term in TRUTH_TERMS
+                if (g['goal'], g['profile'], g['temperature_c'], term) in without}
+        best = min(vals, key=lambda k: vals[k]) if vals else None
+        responsible = best if best is not None and vals[best] < g['value'] else None
+        out.append({'goal': g['goal'], 'profile': g['profile'], 'temperature_c': g['temperature_c'],
+                    'value': g['value'], 'responsible': responsible, 'value_without': vals})
     return out

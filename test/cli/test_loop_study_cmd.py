@@ -32,16 +32,19 @@ def study_out(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, dict, str
 def test_json_has_one_record_per_case_temperature_and_profile_with_the_contract_fields(study_out):
     _, doc, _ = study_out
     records = doc['records']
-    assert len(records) == 5 * 2
-    assert {(r['case'], r['temperature_c']) for r in records} == {
-        (c, t) for c in ('none', 'constant', 'feedforward', 'refit', 'ideal') for t in (-40.0, 20.0)}
+    cases = ('none', 'constant', 'feedforward', 'refit', 'learning', 'learned', 'bound', 'ideal')
+    assert len(records) == len(cases) * 2
+    assert {(r['case'], r['temperature_c']) for r in records} == {(c, t) for c in cases for t in (-40.0, 20.0)}
     for r in records:
         assert set(r) >= CONTRACT_FIELDS and r['profile'] == 'tracking' and r['mode'] == 'offline'
+        assert ('learning_worst_window_ratio' in r) == (r['case'] == 'learning')
         assert all(isinstance(r[k], float) and math.isfinite(r[k]) for k in CONTRACT_FIELDS - {'case', 'profile'})
     rms = {(r['case'], r['temperature_c']): r['rate_error_rms_rad_s'] for r in records}
     assert rms[('ideal', -40.0)] <= rms[('feedforward', -40.0)] < rms[('none', -40.0)]
     assert {g['goal'] for g in doc['goals']} >= {'c_vs_a_cold', 'c_vs_a_all', 'c_vs_b_cold', 'd_near_e_cold',
-                                                 'c_reversal'}
+                                                 'c_reversal', 'learned_vs_constant', 'learned_vs_bound',
+                                                 'learning_cost', 'ff_vs_constant', 'refit_vs_ff'}
+    assert doc['explained'] is None   # --short: no attribution unless --explain
     assert doc['settings']['velocity_source'] == 'auto' and doc['refit']['accepted_by_method']['observer'] > 0
 
 
@@ -138,3 +141,22 @@ def test_truth_file_sets_the_simulated_truth_and_refuses_other_parameters(tmp_pa
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and 'rate_bandwidth_hz' in err[0] and 'not a truth parameter' in err[0]
     assert '--config' in err[0]
+
+
+@pytest.mark.slow
+def test_the_ci_study_of_the_learned_and_bound_cases(capsys):
+    code = main(['loop-study', '--short', '--cases', 'none,constant,feedforward,learned,bound', '--format', 'json'])
+    out = capsys.readouterr()
+    assert code == 0, out.err
+    doc = json.loads(out.out)
+    cells = {(r['profile'], r['case'], r['temperature_c']): r['rate_error_rms_rad_s'] for r in doc['records']}
+    assert {p for p, _, _ in cells} == {'tracking', 'scan', 'pointing'}
+    assert {c for _, c, _ in cells} == {'none', 'constant', 'feedforward', 'learning', 'learned', 'bound'}
+    for p in ('tracking', 'scan', 'pointing'):
+        # the learned correction beats the plain feedforward in the cold, and the constant everywhere
+        assert cells[(p, 'learned', -40.0)] < cells[(p, 'feedforward', -40.0)]
+        assert cells[(p, 'bound', -40.0)] < cells[(p, 'feedforward', -40.0)]
+    goals = [g for g in doc['goals'] if g['goal'] == 'learned_vs_constant']
+    assert len(goals) == 18 and all(g['met'] for g in goals)
+    assert set(doc['learned']) == {'tracking', 'scan', 'pointing'}
+    assert all(s['samples'] > 0 for s in doc['learned'].values())

@@ -50,7 +50,7 @@ def test_records_carry_the_contract_fields(cold_study):
     assert res.config.tracking_duration_s == 5.5
 
 
-def test_refit_case_is_built_from_the_estimators_residual_rows_of_the_same_simulation():
+def test_refit_case_is_built_from_the_estimators_residual_rows_of_the_learning_window():
     calls = []
 
     def refit(rows, axis):
@@ -107,7 +107,8 @@ def test_goal_checks():
                      'reversal_error_peak_rad': rev})
     got = {g['goal']: (round(g['value'], 6), g['met']) for g in goal_checks(recs)}
     assert got == {'c_vs_a_cold': (0.7, True), 'c_vs_a_all': (0.7, True), 'c_reversal': (1.2, False),
-                   'c_vs_b_cold': (0.4, True), 'd_near_e_cold': (1.1, True)}
+                   'c_vs_b_cold': (0.4, True), 'd_near_e_cold': (1.1, True), 'ff_vs_constant': (0.6, True),
+                   'refit_vs_ff': (round(1.1 / 3.0, 6), True)}
 
 
 def test_case_d_from_observer_samples_of_pointing_alone():
