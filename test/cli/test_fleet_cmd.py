@@ -110,6 +110,7 @@ def test_fleet_json_on_stdout_with_processes_and_a_bag(fleet_dir, tmp_path, caps
     assert doc['population']['axes']['elevation']['walther_a']['n'] == 3 and doc['workers'] == 1
 
 
+@pytest.mark.slow
 def test_a_broken_unit_is_reported_not_fatal(fleet_dir, tmp_path, capsys):
     broken = tmp_path / 'broken'
     broken.mkdir()

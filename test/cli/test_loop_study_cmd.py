@@ -48,6 +48,7 @@ def test_json_has_one_record_per_case_temperature_and_profile_with_the_contract_
     assert doc['settings']['velocity_source'] == 'auto' and doc['refit']['accepted_by_method']['observer'] > 0
 
 
+@pytest.mark.slow
 def test_out_holds_the_document_the_table_the_figures_and_the_residual_log(study_out, capsys):
     out, doc, _ = study_out
     assert json.loads((out / 'loop_study.json').read_text()) == doc

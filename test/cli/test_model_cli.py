@@ -103,6 +103,7 @@ def test_report_writes_every_figure(tmp_path, capsys):
     assert all((tmp_path / n).stat().st_size > 10000 for n in names)
 
 
+@pytest.mark.slow
 def test_console_script_runs_and_help(tmp_path):
     exe = [sys.executable, '-m', 'gimbal_friction.cli.main']
     out = subprocess.run(exe + ['--help'], capture_output=True, text=True, timeout=60)

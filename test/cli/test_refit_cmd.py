@@ -167,6 +167,7 @@ def test_second_cold_plateau_determines_two_constants(tmp_path, capsys):
                                rtol=0.03)
 
 
+@pytest.mark.slow
 def test_two_axes_and_several_logs(tmp_path, capsys):
     first = write_log(tmp_path / 'a', joints=('elevation', 'azimuth'))
     second = write_log(tmp_path / 'b', joints=('azimuth',), plateaus=(-40.0, 20.0))

@@ -391,6 +391,7 @@ def test_observer_removes_the_inertia_term_while_the_gimbal_works():
     assert _working_motion(steady, J, lambda v: 1.5e-3) == []
 
 
+@pytest.mark.slow
 def test_observer_rejects_large_and_noisy_accelerations():
     logic = EstimatorLogic({EL: AxisParams(torque_constant_nm_per_a=KT, no_load_current_a=I0)},
                            EstimatorSettings(method='observer', observer_max_accel_rad_s2=0.2))

@@ -153,6 +153,7 @@ def test_a_correction_of_another_model_is_refused_with_one_line():
 
 
 # ---------------------------------------------------------------------------------------------------- position
+@pytest.mark.slow
 def test_the_reference_position_is_used_when_the_velocity_is_the_references():
     c = learned(bins=16)
     s = FeedforwardSettings(velocity_source='auto', reference_timeout_s=0.5, temperature_timeout_s=1e4)

@@ -160,6 +160,7 @@ def test_asymmetry_needs_both_directions_and_its_anchor_range():
     assert 'above direction_asymmetry_cold_c = -40 degC' in above.identifiability['direction_asymmetry_warm'].reason
 
 
+@pytest.mark.slow
 def test_offset_keeps_the_viscosity_when_the_calibration_is_off():
     base = AxisParams()
     truth = base.replace(walther_a=base.walther_a + 0.02)

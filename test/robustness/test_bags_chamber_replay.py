@@ -43,6 +43,7 @@ def test_only_the_inputs_are_published_by_default(tmp_path: Path, spawn, probe, 
     assert 'not published: /add/_service_event, /camera/frame, /diagnostics, /rosout' in out
 
 
+@pytest.mark.slow
 def test_other_topics_by_name_or_star_and_excluded_ones(tmp_path: Path, spawn, probe, rb) -> None:
     bag = recorded_with_all(tmp_path / 'all.mcap', rb)
     node = spawn('chamber_replay', '--ros-args', '-p', f'bag:={bag}', '-p', 'loop:=true', '-p', 'rate:=0.2',

@@ -238,6 +238,7 @@ def test_logger_refuses_every_wrong_value(logger):
     assert not result.successful and 'output_dir' in result.reason and 'start-up' in result.reason
 
 
+@pytest.mark.slow
 @settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(data=st.data())
 def test_any_value_is_either_applied_whole_or_refused_with_nothing_changed(ff, data):

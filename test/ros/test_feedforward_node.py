@@ -233,6 +233,7 @@ def test_bad_parameter_file_exits_with_one_line(spawn, tmp_path):
     assert len(lines) == 1 and 'model.ball_diameter_mm' in lines[0] and 'Traceback' not in out
 
 
+@pytest.mark.slow
 def test_refitted_parameter_file_changes_the_output(spawn, probe, tmp_path, monkeypatch):
     """A refit output (values under axis.<joint>) layered as a second --params-file changes the feedforward."""
     from gimbal_friction.config.loader import render_parameter_file

@@ -72,6 +72,7 @@ def _traces_equal(a, b, index):
         np.testing.assert_array_equal(getattr(a, name)[:, index], getattr(b, name)[:, 0], err_msg=name)
 
 
+@pytest.mark.slow
 def test_a_batch_is_its_runs_one_by_one():
     cfg = SimConfig(environment_ramp_c_per_s=0.5, initial_bearing_offset_c=3.0)   # temperatures move too
     prof = make_profile(cfg, 'pointing', 0.6)

@@ -39,6 +39,7 @@ def _node_loop(cfg: SimConfig, settings: RealtimeSettings, ff: Feedforward, dela
     return run
 
 
+@pytest.mark.slow
 def test_the_node_loop_is_the_offline_loop_with_the_same_latency():
     """Stepping tick by tick with the node's per-message Feedforward (floats) and the torque coming back one tick
     later gives the offline study's run (arrays, 1 ms latency): same traces to rounding, same metrics."""

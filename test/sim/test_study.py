@@ -50,6 +50,7 @@ def test_records_carry_the_contract_fields(cold_study):
     assert res.config.tracking_duration_s == 5.5
 
 
+@pytest.mark.slow
 def test_refit_case_is_built_from_the_estimators_residual_rows_of_the_learning_window():
     calls = []
 
@@ -79,6 +80,7 @@ def test_default_refit_finds_the_truths_direction_asymmetry():
     assert -0.17 < fitted['direction_asymmetry_warm'] < -0.08
 
 
+@pytest.mark.slow
 def test_a_refused_refit_leaves_the_case_out_with_a_note():
     def refit(rows, axis):
         raise FitError('too few samples: 0 (need at least 20)')
@@ -111,6 +113,7 @@ def test_goal_checks():
                    'refit_vs_ff': (round(1.1 / 3.0, 6), True)}
 
 
+@pytest.mark.slow
 def test_case_d_from_observer_samples_of_pointing_alone():
     """No constant-speed sweep at all: the observer samples the gimbal collects while holding a target under base
     motion are enough to refit (issue 9, section 3)."""
@@ -138,6 +141,7 @@ def test_steady_state_method_collects_the_constant_speed_sweep_only():
     assert np.all(np.abs(speed - 0.0349066) <= 0.1 * 0.0349066 + 1e-9)
 
 
+@pytest.mark.slow
 def test_the_reference_velocity_wiring_orders_the_cases_in_the_cold():
     from gimbal_friction.feedforward.rule import FeedforwardSettings
     from gimbal_friction.sim.study import FeedforwardSetup

@@ -37,6 +37,7 @@ def test_bound_beats_the_feedforward_in_a_cold_cell_and_ideal_beats_bound():
     assert ideal < bound < 0.8 * ff   # measured: 0.175 < 0.606 < 1.059 mrad/s
 
 
+@pytest.mark.slow
 def test_bound_is_the_truths_map_whatever_the_configured_model():
     wrong = AxisParams().replace(walther_a=AxisParams().walther_a + 0.05)
     a = run_study(SimConfig(), temperatures=[-40.0], profiles=['scan'], cases=['bound'], short=True)
