@@ -434,6 +434,23 @@ class TemperatureRows(NamedTuple):
     """Indexes of the messages that are not plain little-endian CDR of this type (decode them with the type store)."""
 
 
+def message_views(buffer: bytes | bytearray | memoryview, starts: ArrayLike,
+                  lengths: ArrayLike) -> tuple[NDArray[np.uint8], NDArray[np.int64], NDArray[np.int64]]:
+    """The buffer as bytes and the (n,) message offsets and lengths [B] as int64, checked to lie inside it (the one
+    bounds rule of the batch decoders).
+
+    Raises:
+        ValueError: a message reaches outside the buffer.
+    """
+    u8 = np.frombuffer(buffer, dtype=np.uint8)
+    start = np.asarray(starts, dtype=np.int64).reshape(-1)
+    length = np.asarray(lengths, dtype=np.int64).reshape(-1)
+    if start.shape[0] and (int((start + length).max()) > u8.shape[0] or int(start.min()) < 0):
+        msg = 'message bounds outside the buffer'
+        raise ValueError(msg)
+    return u8, start, length
+
+
 def temperature_rows(buffer: bytes, starts: ArrayLike, lengths: ArrayLike) -> TemperatureRows:
     """Decode the ``sensor_msgs/Temperature`` messages ``buffer[starts[i] : starts[i] + lengths[i]]`` in bulk.
 
@@ -447,13 +464,8 @@ def temperature_rows(buffer: bytes, starts: ArrayLike, lengths: ArrayLike) -> Te
         starts: (n,) offset of each message in ``buffer`` [B].
         lengths: (n,) length of each message [B].
     """
-    u8 = np.frombuffer(buffer, dtype=np.uint8)
-    start = np.asarray(starts, dtype=np.int64).reshape(-1)
-    length = np.asarray(lengths, dtype=np.int64).reshape(-1)
+    u8, start, length = message_views(buffer, starts, lengths)
     n = start.shape[0]
-    if n and (int((start + length).max()) > u8.shape[0] or int(start.min()) < 0):
-        msg = 'message bounds outside the buffer'
-        raise ValueError(msg)
     ok = length >= 16
     if not ok.any():
         empty = np.zeros(0, dtype=np.intp)
@@ -558,16 +570,11 @@ def float64_multi_array_rows(buffer: bytes, starts: ArrayLike, lengths: ArrayLik
         starts: (n,) offset of each message in ``buffer`` [B].
         lengths: (n,) length of each message [B].
     """
-    u8 = np.frombuffer(buffer, dtype=np.uint8)
-    start = np.asarray(starts, dtype=np.int64).reshape(-1)
-    length = np.asarray(lengths, dtype=np.int64).reshape(-1)
+    u8, start, length = message_views(buffer, starts, lengths)
     blocks: list[tuple[NDArray[np.intp], str, NDArray[np.float64]]] = []
     others: list[NDArray[np.intp]] = []
     if start.shape[0] == 0:
         return MultiArrayRows(blocks, np.zeros(0, dtype=np.intp))
-    if int((start + length).max()) > u8.shape[0] or int(start.min()) < 0:
-        msg = 'message bounds outside the buffer'
-        raise ValueError(msg)
     for size in np.unique(length).tolist():
         pending = np.flatnonzero(length == size)
         while pending.shape[0]:
@@ -766,14 +773,9 @@ class JointStateColumns:
         ``decode(i)`` returns message ``i`` decoded by the type store (a rosbags JointState); it is called for the
         messages that are not plain little-endian CDR.
         """
-        u8 = np.frombuffer(buffer, dtype=np.uint8)
-        start = np.asarray(starts, dtype=np.int64).reshape(-1)
-        length = np.asarray(lengths, dtype=np.int64).reshape(-1)
+        u8, start, length = message_views(buffer, starts, lengths)
         logs = np.asarray(log_time_ns, dtype=np.int64).reshape(-1)
         n = start.shape[0]
-        if n and (int((start + length).max()) > u8.shape[0] or int(start.min()) < 0):
-            msg = 'message bounds outside the buffer'
-            raise ValueError(msg)
         base = self._count
         others: list[int] = []
         layouts = 0
