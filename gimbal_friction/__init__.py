@@ -4,7 +4,8 @@ Folders, bottom to top (each imports only folders below it; ``test/test_layers.p
 ``physics`` (the paper's equations), ``streams``, ``feedforward`` and ``estimation``, ``recording``, ``refit``,
 ``export`` and ``plots``, ``sim``, ``config``, ``chamber``, ``runs``, then the thin ``nodes`` (ROS 2) and ``cli``
 (``gimbal-friction``). Public facades at this level: :mod:`gimbal_friction.controller` (the feedforward in your own
-process), :mod:`gimbal_friction.cli.demo` (the main job) and :mod:`gimbal_friction.core` (the model without ROS).
+process), :mod:`gimbal_friction.demo` (the main job: ``python -m gimbal_friction.demo``) and
+:mod:`gimbal_friction.core` (the model without ROS).
 """
 
 from __future__ import annotations

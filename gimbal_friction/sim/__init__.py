@@ -1,4 +1,4 @@
-"""Closed-loop simulation of a gimbal axis with the suite's friction compensation (pure: numpy/scipy + core).
+"""Closed-loop simulation of a gimbal axis with the suite's friction compensation (pure: numpy, scipy, lower layers).
 
 Never imports rclpy and does no file I/O: the ``gimbal_sim`` node (:mod:`gimbal_friction.nodes.gimbal_sim`) and the
 ``loop-study`` CLI (:mod:`gimbal_friction.runs.loop_study`, :mod:`gimbal_friction.runs.loop_live`) are thin
