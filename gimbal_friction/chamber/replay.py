@@ -174,7 +174,7 @@ def replay_bag(bag_path: str | Path, out_dir: str | Path | None, *, config_paths
         msg = f'bag {bag.path}: no friction sample was accepted, nothing written: {"; ".join(why)}'
         raise EmptyInputError(msg)
     report('summary', 0.0)
-    # the plateaus by the one rule (core/plateaus.py), judged on the samples' own temperatures
+    # the plateaus by the one rule (estimation/plateaus.py), judged on the samples' own temperatures
     summary = plateau_summary(rows.temperature_c, rows.velocity_rad_s, rows.measured_nm, rows.predicted_nm,
                               joint=rows.joint.tolist(), bin_c=est_settings.temperature_bin_c, stamp_s=rows.stamp_s)
     report('summary', 1.0)

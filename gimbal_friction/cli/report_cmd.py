@@ -123,7 +123,7 @@ def _fig13_data(args: argparse.Namespace, axis: str,
         why = (f'joints present: {", ".join(present)}; pass --axis with one of them or --config with those axes'
                if present else f'no residual rows at all: {report.summary()}')
         raise GimbalFrictionError(f'{where}: the residual logs hold no samples of axis {axis!r} ({why})')
-    # the plateaus by the one rule of replay and refit (core/plateaus.py), on the samples' own temperatures
+    # the plateaus by the one rule of replay and refit (estimation/plateaus.py), on the samples' own temperatures
     summary = plateau_summary(d.temperature_c[sel], d.velocity_rad_s[sel], d.measured_nm[sel],
                               d.predicted_nm[sel], joint=d.joint[sel], stamp_s=d.stamp_s[sel])
     if not summary:

@@ -84,7 +84,7 @@ def add_parser(sub: Any) -> None:
     parser.add_argument('--preset', choices=list(PRESETS), default='default',
                         help="paper = a test whose plateau means are the paper's four measured values (CW 3.19 / CCW "
                         '-2.45 N*mm at -40 degC, 1.05 / -1.34 at +60): truth lubricant, Palmgren factor and the '
-                        'temperature-dependent direction asymmetry of core/direction.py (default: the default truth '
+                        'temperature-dependent direction asymmetry of physics/direction.py (default: the default truth '
                         'and a synthetic cold CCW asymmetry)')
     parser.add_argument('--truth-out', type=Path, metavar='FILE.yaml',
                         help='also write the truth as a parameter file (layerable with --config)')

@@ -154,7 +154,7 @@ class AxisParams:
                                Bound(0.0, 10.0, True), group='direction')
     scale_negative: float = _p(1.0, '-', '', 'factor on the model torque while moving in the negative direction',
                                Bound(0.0, 10.0, True), group='direction')
-    # Temperature-dependent direction asymmetry (core/direction.py): k = scale_dir * (1 + dir * a(T)),
+    # Temperature-dependent direction asymmetry (physics/direction.py): k = scale_dir * (1 + dir * a(T)),
     # a(T) linear from the cold to the warm anchor, constant outside; zero by default (no asymmetry)
     direction_asymmetry_cold: float = _p(0.0, '-', 'a_c', 'direction asymmetry a at direction_asymmetry_cold_c: '
                                          'CW (positive) friction x (1 + a), CCW x (1 - a); paper -40 degC: 0.131',

@@ -20,7 +20,7 @@ FIT_PARAMETERS = ('walther_a', 'walther_b', 'viscosity_offset_cst', 'palmgren_fa
                   'direction_asymmetry_warm')
 #: The Walther constants of the lubricant (Eq. 20/21).
 VISCOSITY_PARAMETERS = ('walther_a', 'walther_b', 'viscosity_offset_cst')
-#: The temperature-dependent direction asymmetry (core/direction.py).
+#: The temperature-dependent direction asymmetry (physics/direction.py).
 ASYMMETRY_PARAMETERS = ('direction_asymmetry_cold', 'direction_asymmetry_warm')
 #: Name of the nuisance torque offset inside the fit [N·m] (not a model parameter).
 OFFSET = 'torque_offset_nm'

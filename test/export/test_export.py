@@ -1,4 +1,4 @@
-"""core/export.py: the exported table meets its error bound against the full model, handles the kinks and the
+"""export/table.py: the exported table meets its error bound against the full model, handles the kinks and the
 Palmgren branch switch, follows the parameters, refuses impossible bounds; the C header compiles with gcc and
 its functions agree with the Python model and the feedforward rule."""
 

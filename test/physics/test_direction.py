@@ -1,4 +1,4 @@
-"""The temperature-dependent direction term (core/direction.py): one rule on floats and arrays, defaults neutral."""
+"""The temperature-dependent direction term (physics/direction.py): one rule on floats and arrays, defaults neutral."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Refit of the lubricant parameters (core.refit): recovery of a synthetic truth, identifiability, refusals.
+"""Refit of the lubricant parameters (refit.fit): recovery of a synthetic truth, identifiability, refusals.
 
 The synthetic truth is the package model with ``walther_a`` shifted by +0.02 (ν(−40 °C) 44.7k -> 74k cSt);
 samples sit on temperature plateaus (sensor noise 0.05 °C), both directions, with a position ripple of ±5 % and

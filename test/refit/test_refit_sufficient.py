@@ -1,4 +1,4 @@
-"""Refit on sufficient statistics (core.sufficient + core.refit): equal to the per-sample refit, associative,
+"""Refit on sufficient statistics (refit.sufficient + refit.fit): equal to the per-sample refit, associative,
 the direction asymmetry and the calibration offset.
 
 Synthetic samples as in test_refit.py: plateaus with 0.05 degC sensor noise, both directions, +/-5 % position

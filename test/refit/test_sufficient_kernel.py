@@ -1,4 +1,4 @@
-"""The accumulation kernel of the sufficient statistics (core.sufficient) against a plain reference: the same cells
+"""The accumulation kernel of the sufficient statistics (refit.sufficient) against a plain reference: the same cells
 and, per cell, the same count, sums, mean and centred sum of squares (1e-12 relative), whichever path the kernel
 takes (dense cell code, sorted codes for wide key ranges, rows of keys beyond 2^62 cells) and however the samples
 are cut into accumulation steps."""

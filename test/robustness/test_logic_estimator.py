@@ -5,7 +5,7 @@ stamp does not lock it up).
 
 The stream is a plausible chamber run (joint states at 100 Hz at the commanded speed, currents paired with them,
 temperatures) with hostile messages injected at random places, fed one message at a time (the node feeds batches;
-batch invariance is tested in test/core/test_estimator.py).
+batch invariance is tested in test/estimation/test_estimator.py).
 """
 
 from __future__ import annotations

@@ -1,7 +1,7 @@
 """Feedforward (pure) under hostile inputs: never an exception, never NaN/Inf or beyond the clamp, the documented
 fallback applied, every rejection counted under its cause.
 
-Complements test/core/test_feedforward_logic.py (the rule itself, arrays == floats) with generated input streams:
+Complements test/feedforward/test_feedforward_logic.py (the rule itself, arrays == floats) with generated input streams:
 any float (NaN, +-Inf, 1e308, subnormals), any names (unknown, duplicated, empty), arrays of the wrong length,
 stamps anywhere (0 = unstamped, far future, backwards), temperatures anywhere.
 """
