@@ -1,4 +1,4 @@
-"""The one plateau rule (estimation/plateaus.py): which samples belong to which plateau, for the summary and the refit."""
+"""The one plateau rule (estimation/plateaus.py): which samples belong to which plateau (summary and refit)."""
 
 from __future__ import annotations
 
