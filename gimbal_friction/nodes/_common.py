@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import dataclasses
 import inspect
+import re
 import signal
 import sys
 import threading
@@ -525,7 +526,8 @@ def node_help(exe: str, doc: str | None) -> str:
     lines = [f'usage: {exe} [-h] [--ros-args [--params-file FILE] [-p NAME:=VALUE] [-r FROM:=TO] ...]',
              f'       ros2 run gimbal_friction {exe} [--ros-args ...]', '']
     if doc:
-        lines += [line.replace('``', '') for line in inspect.cleandoc(doc).splitlines()] + ['']
+        plain = re.sub(r':[a-z]+:`~?([^`]+)`', r'\1', inspect.cleandoc(doc)).replace('``', '')  # no Sphinx roles
+        lines += [*plain.splitlines(), '']
     lines.append('parameters (name = default [unit]: description; set with -p NAME:=VALUE or --params-file):')
     for spec in node_parameter_specs(exe):
         default = 'unset' if spec['default'] is None else repr(spec['default'])
