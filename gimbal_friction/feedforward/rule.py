@@ -65,6 +65,7 @@ from gimbal_friction.streams.inputs import (
     effective_time,
     index_joints,
     is_fresh,
+    latest_before,
     temperature_rejection,
     temperature_valid,
 )
@@ -573,10 +574,7 @@ class Feedforward:
         js_log = np.asarray(js.log_time_ns, dtype=np.int64)
         js_stamp = np.asarray(js.stamp_ns, dtype=np.int64)
         js_time = effective_time(js_stamp, js_log) / NS_PER_S
-        k = np.searchsorted(t_log, js_log, side='right') - 1
-        have = k >= 0
-        last_c = np.where(have, t_val[np.maximum(k, 0)] if t_val.size else np.nan, np.nan)
-        last_time = np.where(have, t_time[np.maximum(k, 0)] if t_val.size else np.nan, np.nan)
+        last_c, last_time = latest_before(t_log, js_log, (t_val, t_time), inclusive=True)
         fresh = is_fresh(js_time, last_time, s.temperature_timeout_s, ARRAY)
         t_used, source = temperature_used(last_c, fresh, s, ARRAY)
         t_used = np.broadcast_to(np.asarray(t_used, dtype=np.float64), js_log.shape)
@@ -639,12 +637,8 @@ class Feedforward:
             r_log = np.asarray(reference.log_time_ns, dtype=np.int64)[usable]
             r_time = effective_time(np.asarray(reference.stamp_ns, dtype=np.int64)[usable], r_log) / NS_PER_S
             r_pos = np.asarray(reference.position.get(joint, np.full(values.shape, np.nan)), dtype=np.float64)[usable]
-            k = np.searchsorted(r_log, js_log, side='right') - 1
-            have = k >= 0
             if r_log.size:
-                ref_v = np.where(have, values[usable][np.maximum(k, 0)], np.nan)
-                ref_p = np.where(have, r_pos[np.maximum(k, 0)], np.nan)
-                ref_time = np.where(have, r_time[np.maximum(k, 0)], np.nan)
+                ref_v, ref_p, ref_time = latest_before(r_log, js_log, (values[usable], r_pos, r_time), inclusive=True)
         fresh = is_fresh(js_time, ref_time, s.reference_timeout_s, ARRAY)
         velocity = np.asarray(velocity_used(s.velocity_source, measured, ref_v, fresh, ARRAY), dtype=np.float64)
         position = np.where(fresh & ~np.isnan(ref_p), ref_p, measured_position)
