@@ -250,6 +250,11 @@ class SimConfig:
         """Oldest feedforward the controller applies, in whole controller ticks [-]."""
         return int(math.floor(self.feedforward_timeout_s * self.rate_loop_hz + 1e-9))
 
+    def feedforward_fresh(self, age_ticks: int) -> bool:
+        """The controller applies a feedforward ``age_ticks`` controller ticks old [-]: 0 <= age <= timeout_ticks
+        (a negative age: none received yet)."""
+        return 0 <= age_ticks <= self.timeout_ticks
+
     @property
     def rate_kp_per_s(self) -> float:
         """Rate-loop proportional gain K_p = 2π f_rate [1/s] (torque = J K_p e)."""
