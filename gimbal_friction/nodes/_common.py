@@ -27,6 +27,7 @@ from rclpy.signals import SignalHandlerOptions
 
 from gimbal_friction.common.errors import ConfigError, GimbalFrictionError, ModelDomainError
 from gimbal_friction.common.settings import settings_from
+from gimbal_friction.common.text import did_you_mean
 from gimbal_friction.config.loader import AXES_DESCRIPTION, axis_names, check_parameter_names, load_parameters
 from gimbal_friction.config.rcl import command_line_parameters
 from gimbal_friction.physics.params import AxisParams, parameter_specs
@@ -209,10 +210,7 @@ def name_undeclared_parameters(node: Node) -> None:
         undeclared = [p.name for p in parameter_list if not node.has_parameter(p.name)]
         if not undeclared:
             return original(parameter_list)
-        import difflib
-        known = sorted(node.list_parameters([], 0).names)
-        close = difflib.get_close_matches(undeclared[0], known, n=1, cutoff=0.75)
-        hint = f' (did you mean {close[0]!r}?)' if close else ''
+        hint = did_you_mean(undeclared[0], sorted(node.list_parameters([], 0).names))
         names = ', '.join(repr(n) for n in undeclared)
         return SetParametersResult(successful=False, reason=f'parameter {names}: not a parameter of '
                                    f'{node.get_name()}{hint}; ros2 param list {node.get_fully_qualified_name()} '

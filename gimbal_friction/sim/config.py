@@ -88,6 +88,7 @@ from typing import Any
 
 from gimbal_friction.common.errors import ConfigError, check_rules
 from gimbal_friction.common.settings import coerce, setting, settings_from
+from gimbal_friction.common.text import did_you_mean
 
 #: Profiles the simulator knows (see :mod:`gimbal_friction.sim.profiles`).
 PROFILES = ('tracking', 'scan', 'pointing')
@@ -304,8 +305,7 @@ class SimConfig:
             if name in node:   # the gimbal_sim node's own settings share the section
                 continue
             if name not in fields:
-                close = [n for n in fields if n.split('_')[0] == str(name).split('_')[0]]
-                hint = f' (did you mean {close[0]!r}?)' if close else ''
+                hint = did_you_mean(str(name), fields, same_first_word=True)
                 raise ConfigError(str(name), f'unknown simulator parameter{hint}', value)
             kwargs[name] = _coerce(name, value, getattr(start, name))
         return dataclasses.replace(start, **kwargs)
