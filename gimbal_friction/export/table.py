@@ -1,5 +1,8 @@
 """The model as an interpolation table with a stated error bound, for a controller or drive firmware.
 
+One job in one module: building the table and proving its error bound (the grid and its check share the model
+evaluations).
+
 Pure: builds the table from :func:`~gimbal_friction.physics.model.friction_torque` (the full model) and checks it
 against the full model. :mod:`gimbal_friction.export.formats` renders it as text (CSV, a C99 header, a ROS parameter
 YAML); ``gimbal-friction export`` (:mod:`gimbal_friction.cli.export_cmd`) writes the files.

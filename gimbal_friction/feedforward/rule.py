@@ -1,6 +1,9 @@
 r"""The feedforward of ``friction_feedforward`` as one object: the node, the offline replay, the closed-loop study
 and a controller in the same process all use :class:`Feedforward` (pure: no rclpy, no I/O).
 
+One job in one module: the feedforward rule (its settings, the rules on floats and arrays and the object that
+applies them per message and per bag must change together).
+
 Torque of a joint = model friction magnitude at the bearing temperature and speed (the tabulated fast path,
 :class:`~gimbal_friction.physics.table.FrictionTable`) × a smooth sign of the velocity × the direction factor of the
 joint at that temperature (:func:`~gimbal_friction.physics.direction.direction_factor`: ``scale_positive`` /

@@ -1,5 +1,8 @@
 """Machinery shared by the nodes: model/settings parameters with descriptors, diagnostics, and ``main``.
 
+One job in one module: the nodes' shared ROS machinery (parameter declaration and validation, diagnostics and
+``main`` share the declared descriptors).
+
 Model parameters (every :class:`AxisParams` field) are declared as ``model.<field>`` with the packaged defaults,
 and per-joint overrides as ``axis.<joint>.<field>`` (unset unless given), exactly the layout of the parameter
 files (config.py). Values are validated by the core on start-up and on every ``set_parameters``: an invalid value

@@ -1,5 +1,8 @@
 """Configuration of the gimbal-axis simulator: every parameter with its unit, default, justification and rule.
 
+One job in one module: the simulator's parameters, each with its unit, default, justification and rule, in one
+dataclass.
+
 One frozen dataclass, :class:`SimConfig`, holds the simulator's own parameters (plant, motor drive, sensors, the
 seeker's stabilization controller, the truth friction beyond the model, the thermal lag, base motion, the
 feedforward transport latency and the study profiles). The *configured* model of the axis (K_T, I_0, J, the
