@@ -1,5 +1,7 @@
 """Many units' chamber tests at once: per-unit refits on Dask, the population, and the units outside it.
 
+One job in one module: the fleet run (finding the units, the per-unit work on Dask and the population summary).
+
 A production line tests every seeker; each unit leaves a residual log (``residual_logger`` / ``replay`` output) or
 a chamber-test bag. :func:`run_fleet` finds the units (:func:`discover_units`), runs :func:`process_unit` for each
 on a Dask cluster (an embedded :class:`distributed.LocalCluster` by default, or an existing scheduler), and

@@ -606,7 +606,7 @@ def messages(data: SynthData, *, frame_id: str = 'gimbal') -> Iterator[tuple[str
     ``header.stamp`` is the sample time; messages are rosbags typestore objects built by
     :mod:`gimbal_friction.recording.bag`.
     """
-    from gimbal_friction.recording.bag import make_joint_state, make_temperature
+    from gimbal_friction.recording.bag_write import make_joint_state, make_temperature
 
     names = list(data.joints)
     log, stream, index = message_order(data)

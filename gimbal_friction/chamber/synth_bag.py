@@ -105,7 +105,7 @@ def _with_progress(items: Iterator[Any], total: int, progress: Progress | None, 
 
 
 def _write_zstd_mcap(path: Path, items: Iterator[tuple[str, str, int, Any]]) -> None:
-    """Like :func:`~gimbal_friction.recording.bag.write_chamber_bag` (mcap), with zstd-compressed chunks."""
+    """Like :func:`~gimbal_friction.recording.bag_write.write_chamber_bag` (mcap), with zstd-compressed chunks."""
     from rosbags.rosbag2 import StoragePlugin, Writer, WriterError
     from rosbags.rosbag2.enums import CompressionFormat, CompressionMode
     from rosbags.serde import SerdeError
@@ -130,7 +130,7 @@ def _write_zstd_mcap(path: Path, items: Iterator[tuple[str, str, int, Any]]) -> 
 def write_bag(data: SynthData, out: Path, *, storage: str = 'mcap', compression: str = 'none',
               replace: bool = False, progress: Progress | None = None) -> int:
     """Write ``data`` as a bag directory at ``out`` atomically (temporary sibling, then rename); size [bytes]."""
-    from gimbal_friction.recording.bag import write_chamber_bag
+    from gimbal_friction.recording.bag_write import write_chamber_bag
 
     if compression not in COMPRESSIONS:
         raise ConfigError('--compression', f'must be one of {", ".join(COMPRESSIONS)}', compression)

@@ -1,7 +1,7 @@
 """``gimbal-friction synth-bag``: write a synthetic chamber-test bag that follows the paper's protocol (Sec. 6).
 
 The data come from :mod:`gimbal_friction.chamber.synth` (pure, seeded); the bag is written by
-:func:`gimbal_friction.recording.bag.write_chamber_bag`. The bag directory holds only the bag: the truth behind
+:func:`gimbal_friction.recording.bag_write.write_chamber_bag`. The bag directory holds only the bag: the truth behind
 the data is printed in the summary (``--format json``: key ``truth``) and, with ``--truth-out FILE.yaml``, written
 as a parameter file layerable with ``--config`` / ``--params-file``.
 

@@ -1,8 +1,10 @@
-"""Plain-text and JSON output shared by commands and library reports: tables, CSV, JSON with nulls for non-finite."""
+"""Plain-text and JSON output shared by commands and library reports: tables, CSV, JSON with nulls for non-finite,
+the "did you mean" hint of an unknown name."""
 
 from __future__ import annotations
 
 import csv
+import difflib
 import io
 import math
 from collections.abc import Iterable, Mapping
@@ -37,3 +39,23 @@ def format_table(rows: list[list[str]], header: list[str]) -> str:
     out = [line, '  '.join('-' * w for w in widths)]
     out += ['  '.join(c.rjust(w) for c, w in zip(r, widths, strict=True)) for r in rows]
     return '\n'.join(out)
+
+
+def did_you_mean(name: str, known: Iterable[str], *, same_first_word: bool = False) -> str:
+    """The hint appended to an unknown-name error: `` (did you mean 'x'?)`` or empty. The nearest spelling among
+    ``known`` (difflib ratio >= 0.75), or with ``same_first_word`` the first of ``known`` whose first
+    ``_``-separated word is ``name``'s (a model or simulator parameter of the same family).
+
+    >>> did_you_mean('rate_loop', ['rate_loop_hz', 'seed'])
+    " (did you mean 'rate_loop_hz'?)"
+    >>> did_you_mean('walther_x', ['seed', 'walther_a'], same_first_word=True)
+    " (did you mean 'walther_a'?)"
+    >>> did_you_mean('zzz', ['seed'])
+    ''
+    """
+    if same_first_word:
+        family = name.split('_', maxsplit=1)[0]
+        close = [n for n in known if n.split('_', maxsplit=1)[0] == family]
+    else:
+        close = difflib.get_close_matches(name, list(known), n=1, cutoff=0.75)
+    return f' (did you mean {close[0]!r}?)' if close else ''

@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import copy
 import dataclasses
-import difflib
 import functools
 import math
 from collections.abc import Iterable, Mapping, Sequence
@@ -32,6 +31,7 @@ from typing import Any
 import yaml
 
 from gimbal_friction.common.errors import ConfigError, ConfigFileError
+from gimbal_friction.common.text import did_you_mean
 from gimbal_friction.config.rcl import yaml_error_text
 from gimbal_friction.physics.params import AxisParams
 from gimbal_friction.streams.inputs import unconfigured_joints
@@ -391,6 +391,5 @@ def check_parameter_names(node: str, values: Mapping[str, Any], node_specific: I
         if parts[0] == 'axis' and len(parts) == 3 and parts[2] in MODEL_PARAMETERS:
             rule = f'{unconfigured_joints([parts[1]], axes)}: add it to axes{origin}'
             raise ConfigError(name, rule, values[name])
-        close = difflib.get_close_matches(name, sorted(everything), n=1, cutoff=0.75)
-        hint = f' (did you mean {close[0]!r}?)' if close else ''
+        hint = did_you_mean(name, sorted(everything))
         raise ConfigError(name, f'unknown parameter{hint}{origin}', values[name])

@@ -1,5 +1,8 @@
 """The model as an interpolation table with a stated error bound, for a controller or drive firmware.
 
+One job in one module: building the table and proving its error bound (the grid and its check share the model
+evaluations).
+
 Pure: builds the table from :func:`~gimbal_friction.physics.model.friction_torque` (the full model) and checks it
 against the full model. :mod:`gimbal_friction.export.formats` renders it as text (CSV, a C99 header, a ROS parameter
 YAML); ``gimbal-friction export`` (:mod:`gimbal_friction.cli.export_cmd`) writes the files.
@@ -83,7 +86,7 @@ from gimbal_friction.common.units import nm_from_nmm, rad_s_from_rpm, rpm_from_r
 from gimbal_friction.feedforward.correction import Correction
 from gimbal_friction.feedforward.rule import FeedforwardSettings
 from gimbal_friction.physics.friction import PALMGREN_THRESHOLD_CST_RPM
-from gimbal_friction.physics.model import FrictionResult, friction_torque, viscosity_cst
+from gimbal_friction.physics.model import FrictionResult, friction_torque, palmgren_threshold_temperature, viscosity_cst
 from gimbal_friction.physics.params import MODEL_T_MAX_C, MODEL_T_MIN_C, AxisParams
 from gimbal_friction.physics.thermal import loose_fit_temperature
 
@@ -467,13 +470,7 @@ def _speed_matters_below(params: AxisParams, o: ExportOptions) -> float | None:
         return None
     if f_hi <= 0.0:
         return hi
-    for _ in range(60):
-        mid = 0.5 * (lo + hi)
-        if float(_ln_switch_speed(params, np.array([mid]))[0]) - ln_max > 0.0:
-            hi = mid
-        else:
-            lo = mid
-    return 0.5 * (lo + hi)
+    return min(max(palmgren_threshold_temperature(params, rpm_from_rad_s(o.max_speed_rad_s)), lo), hi)
 
 
 def _relative_error(table: Array, model: Array) -> Array:

@@ -1,5 +1,7 @@
 r"""A learned additive correction to the physics friction torque, learned from residuals (pure numpy; no rclpy).
 
+One job in one module: the correction (its cells, lookups and learning update share one layout).
+
 The physics model gives the friction magnitude ``k_d(T) M(T, |v|)`` [N·m]; a real gimbal adds what the model
 leaves out (cold CW/CCW asymmetry, position ripple, a lubricant off its datasheet, a temperature sensor offset).
 :class:`Correction` holds that residue as a correction ``c`` *along the motion* [N·m] (positive: more friction than

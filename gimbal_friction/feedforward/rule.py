@@ -1,6 +1,9 @@
 r"""The feedforward of ``friction_feedforward`` as one object: the node, the offline replay, the closed-loop study
 and a controller in the same process all use :class:`Feedforward` (pure: no rclpy, no I/O).
 
+One job in one module: the feedforward rule (its settings, the rules on floats and arrays and the object that
+applies them per message and per bag must change together).
+
 Torque of a joint = model friction magnitude at the bearing temperature and speed (the tabulated fast path,
 :class:`~gimbal_friction.physics.table.FrictionTable`) × a smooth sign of the velocity × the direction factor of the
 joint at that temperature (:func:`~gimbal_friction.physics.direction.direction_factor`: ``scale_positive`` /
@@ -41,8 +44,9 @@ True
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any, NamedTuple
+from typing import NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
@@ -50,7 +54,7 @@ from numpy.typing import NDArray
 from gimbal_friction.common.errors import ConfigError, check_rules
 from gimbal_friction.common.settings import setting
 from gimbal_friction.common.units import NS_PER_S
-from gimbal_friction.common.xp import ARRAY, SCALAR
+from gimbal_friction.common.xp import ARRAY, SCALAR, BoolOrArray, Namespace, X
 from gimbal_friction.feedforward.correction import Correction, CorrectionError, ModelIdentity, model_identity
 from gimbal_friction.physics.direction import direction_factors, select_direction
 from gimbal_friction.physics.params import MODEL_T_MAX_C, MODEL_T_MIN_C, AxisParams
@@ -65,6 +69,7 @@ from gimbal_friction.streams.inputs import (
     effective_time,
     index_joints,
     is_fresh,
+    latest_before,
     temperature_rejection,
     temperature_valid,
 )
@@ -128,8 +133,8 @@ class FeedforwardSettings:
 
 
 # ---------------------------------------------------------------------------------------------------- the rules
-def feedforward_torque_nm(terms: TemperatureTerms, k_positive: Any, k_negative: Any, velocity_rad_s: Any,
-                          v_th: float, max_torque_nm: float, xp: Any) -> Any:
+def feedforward_torque_nm(terms: TemperatureTerms[X], k_positive: X, k_negative: X, velocity_rad_s: X,
+                          v_th: float, max_torque_nm: float, xp: Namespace[X]) -> X:
     """``clamp(tanh(v/v_th) · k_dir · M, ±τ_max)``: the feedforward torque [N·m] at velocity ``velocity_rad_s``
     [rad/s] from what depends on temperature only: the table's ``terms`` (:meth:`FrictionTable.temperature_terms`,
     giving the magnitude M [N·m] with :func:`~gimbal_friction.physics.table.magnitude_from_terms`) and the direction
@@ -140,22 +145,24 @@ def feedforward_torque_nm(terms: TemperatureTerms, k_positive: Any, k_negative: 
     return xp.clip(xp.tanh(velocity_rad_s / v_th) * k_dir * magnitude_nm, -max_torque_nm, max_torque_nm)
 
 
-def model_friction_nm(terms: TemperatureTerms, k_positive: Any, k_negative: Any, velocity_rad_s: Any, xp: Any) -> Any:
+def model_friction_nm(terms: TemperatureTerms[X], k_positive: X, k_negative: X, velocity_rad_s: X,
+                      xp: Namespace[X]) -> X:
     """``k_dir · M``: the model friction along the motion [N·m] at velocity ``velocity_rad_s`` [rad/s] (arguments
     as :func:`feedforward_torque_nm`); what a learned correction is added to."""
     return select_direction(velocity_rad_s, k_positive, k_negative, xp) * magnitude_from_terms(terms, velocity_rad_s,
                                                                                                xp)
 
 
-def corrected_torque_nm(model_nm: Any, correction_nm: Any, velocity_rad_s: Any, v_th: float, max_torque_nm: float,
-                        xp: Any) -> Any:
+def corrected_torque_nm(model_nm: X, correction_nm: X, velocity_rad_s: X, v_th: float, max_torque_nm: float,
+                        xp: Namespace[X]) -> X:
     """``clamp(tanh(v/v_th) · (k_dir M + c), ±τ_max)`` [N·m]: the feedforward torque with a learned correction
     ``correction_nm`` = c [N·m] along the motion added to the model friction ``model_nm`` = k_dir M [N·m]
     (:func:`model_friction_nm`) at velocity ``velocity_rad_s`` [rad/s]."""
     return xp.clip(xp.tanh(velocity_rad_s / v_th) * (model_nm + correction_nm), -max_torque_nm, max_torque_nm)
 
 
-def velocity_used(source: str, measured_rad_s: Any, reference_rad_s: Any, reference_fresh: Any, xp: Any) -> Any:
+def velocity_used(source: str, measured_rad_s: X, reference_rad_s: X, reference_fresh: BoolOrArray,
+                  xp: Namespace[X]) -> X:
     """The velocity [rad/s] the torque uses under ``velocity_source`` = ``source`` (:data:`VELOCITY_SOURCES`).
 
     ``measured``: the joint state's velocity (relative to the base); ``reference``: the reference joint velocity
@@ -177,11 +184,13 @@ def check_velocity_source(source: str) -> None:
         raise ConfigError('velocity_source', f'must be one of {", ".join(VELOCITY_SOURCES)}', source)
 
 
-def temperature_used(last_c: Any, fresh: Any, settings: FeedforwardSettings, xp: Any) -> tuple[Any, Any]:
+def temperature_used(last_c: X, fresh: BoolOrArray, settings: FeedforwardSettings, xp: Namespace[X]) -> tuple[X, X]:
     """The temperature [°C] to use and its source code (``SOURCE_*``), from the latest valid temperature
     ``last_c`` (NaN: none yet) and whether it is ``fresh``. The ``zero`` policy gives NaN (output 0 N·m)."""
     s = settings
     have = last_c == last_c  # not NaN
+    stale_c: X | float
+    stale_source: X | float
     if s.stale_policy == 'hold_last':
         stale_c = xp.where(have, last_c, s.fallback_temperature_c)
         stale_source = xp.where(have, SOURCE_HOLD_LAST, SOURCE_FALLBACK)
@@ -287,7 +296,7 @@ class Feedforward:
         #: per joint, the terms of the rule at the last temperature of a scalar call: (temperature [°C], the
         #: table's temperature terms, k_+ [-], k_- [-]) (the temperature changes at the sensor's rate, not the
         #: joints')
-        self._scalar_terms: dict[str, tuple[float, TemperatureTerms, float, float]] = {}
+        self._scalar_terms: dict[str, tuple[float, TemperatureTerms[float], float, float]] = {}
         #: latest reference joint velocity per joint: (velocity [rad/s], time [s])
         self._reference: dict[str, tuple[float, float]] = {}
         #: the reference position [rad] of the same message as ``_reference`` (NaN: none)
@@ -425,8 +434,8 @@ class Feedforward:
         return time_s - self.last_temperature_time_s
 
     # ------------------------------------------------------------------ one joint (a controller tick)
-    def rule(self, joint: str, velocity_rad_s: Any, temperature_c: Any, xp: Any, terms: Any = None,
-             position_rad: Any = math.nan) -> Any:
+    def rule(self, joint: str, velocity_rad_s: X, temperature_c: X, xp: Namespace[X],
+             terms: TemperatureTerms[X] | None = None, position_rad: X | float = math.nan) -> X:
         """The torque rule of ``joint`` [N·m] at velocities [rad/s], temperatures [°C] (finite) and positions [rad]
         (for the learned correction's position map; NaN: none), floats (``xp`` = SCALAR) or arrays (ARRAY);
         ``terms`` may carry the table's temperature terms already computed for these temperatures. No counting
@@ -441,11 +450,13 @@ class Feedforward:
             return feedforward_torque_nm(terms, k_positive, k_negative, velocity_rad_s, self._v_th,
                                          self._max_torque_nm, xp)
         model_nm = model_friction_nm(terms, k_positive, k_negative, velocity_rad_s, xp)
-        along = correction.along_nm if xp is SCALAR else correction.along_nm_array
+        # SCALAR's rule takes floats, ARRAY's arrays: xp is SCALAR exactly when X is float
+        along: Callable[[str, X, X, X | float, X], X] = (
+            correction.along_nm if xp is SCALAR else correction.along_nm_array)  # type: ignore[assignment]  # see above
         correction_nm = along(joint, temperature_c, velocity_rad_s, position_rad, model_nm)
         return corrected_torque_nm(model_nm, correction_nm, velocity_rad_s, self._v_th, self._max_torque_nm, xp)
 
-    def model_nm(self, joint: str, velocity_rad_s: Any, temperature_c: Any, xp: Any) -> Any:
+    def model_nm(self, joint: str, velocity_rad_s: X, temperature_c: X, xp: Namespace[X]) -> X:
         """``k_dir · M``: the model friction of ``joint`` along the motion [N·m] (>= 0) at velocities [rad/s] and
         temperatures [°C] (finite), as the torque rule evaluates it (the table); what a learned correction is added
         to and what residuals for learning one are taken against (model friction signed like the motion =
@@ -573,14 +584,11 @@ class Feedforward:
         js_log = np.asarray(js.log_time_ns, dtype=np.int64)
         js_stamp = np.asarray(js.stamp_ns, dtype=np.int64)
         js_time = effective_time(js_stamp, js_log) / NS_PER_S
-        k = np.searchsorted(t_log, js_log, side='right') - 1
-        have = k >= 0
-        last_c = np.where(have, t_val[np.maximum(k, 0)] if t_val.size else np.nan, np.nan)
-        last_time = np.where(have, t_time[np.maximum(k, 0)] if t_val.size else np.nan, np.nan)
+        last_c, last_time = latest_before(t_log, js_log, (t_val, t_time), inclusive=True)
         fresh = is_fresh(js_time, last_time, s.temperature_timeout_s, ARRAY)
-        t_used, source = temperature_used(last_c, fresh, s, ARRAY)
-        t_used = np.broadcast_to(np.asarray(t_used, dtype=np.float64), js_log.shape)
-        source = np.broadcast_to(np.asarray(source, dtype=np.int8), js_log.shape)
+        used_c, used_source = temperature_used(last_c, fresh, s, ARRAY)
+        t_used = np.broadcast_to(np.asarray(used_c, dtype=np.float64), js_log.shape)
+        source = np.broadcast_to(np.asarray(used_source, dtype=np.int8), js_log.shape)
 
         ref = arrays.reference_velocity
         if ref is not None:  # as update_reference: a configured joint's non-finite reference is counted
@@ -639,12 +647,8 @@ class Feedforward:
             r_log = np.asarray(reference.log_time_ns, dtype=np.int64)[usable]
             r_time = effective_time(np.asarray(reference.stamp_ns, dtype=np.int64)[usable], r_log) / NS_PER_S
             r_pos = np.asarray(reference.position.get(joint, np.full(values.shape, np.nan)), dtype=np.float64)[usable]
-            k = np.searchsorted(r_log, js_log, side='right') - 1
-            have = k >= 0
             if r_log.size:
-                ref_v = np.where(have, values[usable][np.maximum(k, 0)], np.nan)
-                ref_p = np.where(have, r_pos[np.maximum(k, 0)], np.nan)
-                ref_time = np.where(have, r_time[np.maximum(k, 0)], np.nan)
+                ref_v, ref_p, ref_time = latest_before(r_log, js_log, (values[usable], r_pos, r_time), inclusive=True)
         fresh = is_fresh(js_time, ref_time, s.reference_timeout_s, ARRAY)
         velocity = np.asarray(velocity_used(s.velocity_source, measured, ref_v, fresh, ARRAY), dtype=np.float64)
         position = np.where(fresh & ~np.isnan(ref_p), ref_p, measured_position)

@@ -1,5 +1,8 @@
 """Machinery shared by the nodes: model/settings parameters with descriptors, diagnostics, and ``main``.
 
+One job in one module: the nodes' shared ROS machinery (parameter declaration and validation, diagnostics and
+``main`` share the declared descriptors).
+
 Model parameters (every :class:`AxisParams` field) are declared as ``model.<field>`` with the packaged defaults,
 and per-joint overrides as ``axis.<joint>.<field>`` (unset unless given), exactly the layout of the parameter
 files (config.py). Values are validated by the core on start-up and on every ``set_parameters``: an invalid value
@@ -28,6 +31,7 @@ from rclpy.signals import SignalHandlerOptions
 
 from gimbal_friction.common.errors import ConfigError, GimbalFrictionError, ModelDomainError
 from gimbal_friction.common.settings import settings_from
+from gimbal_friction.common.text import did_you_mean
 from gimbal_friction.config.loader import AXES_DESCRIPTION, axis_names, check_parameter_names, load_parameters
 from gimbal_friction.config.rcl import command_line_parameters
 from gimbal_friction.physics.params import AxisParams, parameter_specs
@@ -210,10 +214,7 @@ def name_undeclared_parameters(node: Node) -> None:
         undeclared = [p.name for p in parameter_list if not node.has_parameter(p.name)]
         if not undeclared:
             return original(parameter_list)
-        import difflib
-        known = sorted(node.list_parameters([], 0).names)
-        close = difflib.get_close_matches(undeclared[0], known, n=1, cutoff=0.75)
-        hint = f' (did you mean {close[0]!r}?)' if close else ''
+        hint = did_you_mean(undeclared[0], sorted(node.list_parameters([], 0).names))
         names = ', '.join(repr(n) for n in undeclared)
         return SetParametersResult(successful=False, reason=f'parameter {names}: not a parameter of '
                                    f'{node.get_name()}{hint}; ros2 param list {node.get_fully_qualified_name()} '

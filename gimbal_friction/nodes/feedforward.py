@@ -1,5 +1,8 @@
 """``friction_feedforward``: model-predicted friction torque of every configured joint as a feedforward term.
 
+One job in one module: the ROS wrapper of :class:`~gimbal_friction.feedforward.rule.Feedforward` (its
+subscriptions, parameters, learning service and diagnostics share the node's state).
+
 Subscribes ``/gimbal/temperature`` (sensor_msgs/Temperature, °C) and ``/joint_states`` (sensor_msgs/JointState);
 and ``/gimbal/reference_velocity`` (JointState, velocity = reference joint rate [rad/s]), used by ``velocity_source``
 ``auto`` (the default: while fresh) and ``reference``.

@@ -28,6 +28,7 @@ from typing import Any, NamedTuple
 
 from gimbal_friction.common.errors import ConfigError
 from gimbal_friction.common.settings import coerce
+from gimbal_friction.common.text import did_you_mean
 
 VISCOSITY_MODELS = ('walther_improved', 'walther')
 HYSTERESIS_RADII = ('harris', 'half_ball')
@@ -204,9 +205,7 @@ class AxisParams:
         kwargs: dict[str, Any] = {}
         for name, value in values.items():
             if name not in fields:
-                close = [n for n in fields if n.split('_')[0] == name.split('_')[0]]
-                hint = f' (did you mean {close[0]!r}?)' if close else ''
-                msg = f'unknown model parameter{hint}'
+                msg = f'unknown model parameter{did_you_mean(name, fields, same_first_word=True)}'
                 raise ConfigError(name, msg, value)
             kwargs[name] = coerce(name, value, getattr(start, name))
         params = dataclasses.replace(start, **kwargs)

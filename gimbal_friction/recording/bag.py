@@ -1,4 +1,5 @@
-"""Chamber-test bags: open and check, read the three input streams into arrays, describe them; write small bags.
+"""Chamber-test bags: open and check, read the three input streams into arrays, describe them (writing one:
+:mod:`~gimbal_friction.recording.bag_write`).
 One job in one module: the chamber-test bag (its checks, reading and the refusals of what it lacks share one view).
 
 A chamber-test bag (docs/ros.md "Files") is a rosbag2 bag directory (MCAP or sqlite3 storage, whatever
@@ -27,7 +28,7 @@ from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 import yaml
-from rosbags.rosbag2 import Reader, StoragePlugin, Writer, WriterError
+from rosbags.rosbag2 import Reader
 from rosbags.serde import SerdeError
 from rosbags.typesys import TypesysError, get_types_from_idl, get_types_from_msg, get_typestore
 
@@ -37,10 +38,6 @@ from gimbal_friction.recording.cdr import (
     JointStateColumns,
     default_typestore,
     distinct,
-    make_float64_multi_array,
-    make_header,
-    make_joint_state,
-    make_temperature,
     temperature_rows,
 )
 from gimbal_friction.recording.errors import LIBRARY_READ_ERRORS, EmptyInputError, RecordingError, recover_hint
@@ -84,20 +81,12 @@ __all__ = [
     'TopicInfo',
     'default_typestore',
     'foreign_serialization',
-    'make_float64_multi_array',
-    'make_header',
-    'make_joint_state',
-    'make_temperature',
     'open_chamber_bag',
     'unsupported_serialization',
-    'write_chamber_bag',
 ]
 
 #: storage files a bag may be given as directly (a bare file)
 BAG_SUFFIXES = ('.mcap', '.db3')
-_STORAGE_PLUGINS = {'mcap': StoragePlugin.MCAP, 'sqlite3': StoragePlugin.SQLITE3}
-#: what writing a bag raises on bad input or I/O (wrong message objects surface as AttributeError etc.)
-_WRITE_ERRORS = (WriterError, SerdeError, TypesysError, OSError, KeyError, AttributeError, TypeError, struct.error)
 #: the fastest safe YAML loader (libyaml's when PyYAML has it)
 _YAML_LOADER = getattr(yaml, 'CSafeLoader', yaml.SafeLoader)
 #: what decoding a message with the type store raises on bytes that are not that message
@@ -231,52 +220,6 @@ class BagDescription(NamedTuple):
             listed = ', '.join(f'{t} ({m or "several types"})' for t, m in sorted(self.ignored.items()))
             out.append(f'not read (no input uses them): {listed}')
         return out
-
-
-# ----------------------------------------------------------------------------------------------------------------
-# writing
-
-
-def write_chamber_bag(
-    path: str | os.PathLike[str],
-    messages: Iterable[tuple[str, str, int, object]],
-    *,
-    storage: str = 'mcap',
-    typestore: Typestore | None = None,
-) -> Path:
-    """Write a rosbag2 bag directory (version 9) from ``(topic, msgtype, log_time_ns, msg)`` tuples.
-
-    Args:
-        path: bag directory to create; must not exist.
-        messages: ``msg`` is a rosbags message object (see :func:`make_joint_state` ...), ``log_time_ns`` [ns].
-        storage: ``'mcap'`` or ``'sqlite3'``.
-        typestore: type store to serialize with (default :func:`default_typestore`).
-
-    Returns:
-        The bag directory.
-
-    Raises:
-        RecordingError: the path exists, the storage is unknown, a message does not serialize, or I/O fails.
-    """
-    bag = Path(path)
-    if storage not in _STORAGE_PLUGINS:
-        msg = f'unknown bag storage {storage!r}; expected one of {sorted(_STORAGE_PLUGINS)}'
-        raise RecordingError(msg)
-    store = typestore or default_typestore()
-    connections: dict[tuple[str, str], Connection] = {}
-    try:
-        with Writer(bag, version=9, storage_plugin=_STORAGE_PLUGINS[storage]) as writer:
-            for topic, msgtype, log_time_ns, message in messages:
-                key = (topic, msgtype)
-                conn = connections.get(key)
-                if conn is None:
-                    conn = writer.add_connection(topic, msgtype, typestore=store)
-                    connections[key] = conn
-                writer.write(conn, int(log_time_ns), store.serialize_cdr(message, msgtype))
-    except _WRITE_ERRORS as err:
-        msg = f'writing bag {bag}: {err!r}'
-        raise RecordingError(msg) from err
-    return bag
 
 
 # ----------------------------------------------------------------------------------------------------------------

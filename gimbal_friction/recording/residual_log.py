@@ -38,6 +38,7 @@ from mcap.writer import Writer as McapWriter
 from rosbags.serde import SerdeError
 from rosbags.typesys import TypesysError
 
+from gimbal_friction.common.files import write_bytes_atomic
 from gimbal_friction.common.units import NS_PER_S
 from gimbal_friction.recording import mcap_bulk
 from gimbal_friction.recording.cdr import default_typestore
@@ -406,7 +407,7 @@ class ResidualLogWriter:
                 self._finish(current)
                 self._flushed = self._messages
                 self._write_metadata()
-            except OSError as err:
+            except (OSError, RecordingError) as err:
                 with contextlib.suppress(OSError):
                     current.stream.close()
                 self._failed = f'closing: {err}'
@@ -724,7 +725,11 @@ class ResidualLogWriter:
         current.messages += m
 
     def _write_metadata(self) -> None:
-        """Write ``metadata.yaml`` (rosbag2 version 9, storage mcap) atomically; OSError propagates."""
+        """Write ``metadata.yaml`` (rosbag2 version 9, storage mcap) atomically.
+
+        Raises:
+            RecordingError: it cannot be written.
+        """
         files = self._finished
         with_messages = [x for x in files if x.messages]
         start = min((x.start_ns for x in with_messages), default=0)
@@ -764,14 +769,8 @@ class ResidualLogWriter:
             'ros_distro': os.environ.get('ROS_DISTRO', ''),
         }
         text = yaml.safe_dump({'rosbag2_bagfile_information': info}, sort_keys=False, default_flow_style=False)
-        path = self.folder / 'metadata.yaml'
-        tmp = path.with_name('metadata.yaml.tmp')
-        with tmp.open('w', encoding='utf-8') as out:
-            out.write(text)
-            out.flush()
-            if self.fsync:
-                os.fsync(out.fileno())
-        tmp.replace(path)
+        write_bytes_atomic(self.folder / 'metadata.yaml', text.encode('utf-8'), fsync=self.fsync,
+                           what='rosbag2 metadata', error=RecordingError)
 
 
 def _open_exclusive(path: Path) -> BinaryIO:

@@ -260,22 +260,22 @@ def _offline_twin(inputs: Any, live: BatchResult, case: str, latency_ticks: int,
     comps: dict[str, Compensator] = {}
     if case == 'feedforward':
         comps['feedforward'] = ff.compensator(inputs.axis) if ages is None else _replayed(
-            ff.compensator(inputs.axis), ages, cfg.timeout_ticks)
+            ff.compensator(inputs.axis), ages, cfg)
     res = simulate(cfg, inputs.axis, live.profile, [Run(case, live.runs[0].temperature_c, live.runs[0].seed)],
                    comps)
     return float(batch_metrics(res)[0].rate_error_rms_rad_s)
 
 
-def _replayed(comp: Compensator, age: np.ndarray, timeout_ticks: int) -> Compensator:
+def _replayed(comp: Compensator, age: np.ndarray, config: SimConfig) -> Compensator:
     """``comp`` applied with the per-tick age of a live run: at tick k the torque computed at tick k − age[k]
-    (0 N·m where the live run had received none yet or it was older than ``timeout_ticks``)."""
+    (0 N·m where the live run had received none yet or it was too old: :meth:`SimConfig.feedforward_fresh`)."""
     history: list[np.ndarray] = []
 
     def torque(inputs: ControllerInputs) -> np.ndarray:
         history.append(np.asarray(comp.torque(inputs), dtype=float))
         k = len(history) - 1
         a = int(age[k]) if k < age.shape[0] else -1
-        return history[k - a] if 0 <= a <= min(k, timeout_ticks) else np.zeros_like(history[k])
+        return history[k - a] if a <= k and config.feedforward_fresh(a) else np.zeros_like(history[k])
 
     return Compensator(torque, delayed=False)
 

@@ -40,7 +40,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from typing import Any, NamedTuple
+from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -56,7 +56,12 @@ from gimbal_friction.feedforward.rule import (
     velocity_used,
 )
 from gimbal_friction.physics.params import AxisParams
+from gimbal_friction.physics.table import TemperatureTerms
 from gimbal_friction.streams.inputs import is_fresh, temperature_valid
+
+if TYPE_CHECKING:
+    from gimbal_friction.sim.config import SimConfig
+    from gimbal_friction.sim.truth import TruthTerms
 
 Array = NDArray[np.float64]
 
@@ -110,10 +115,10 @@ class _TermsCache:
     def __init__(self, ff: Feedforward, joint: str) -> None:
         self.table = ff.tables[joint]
         self.at: Array | None = None
-        self.terms: Any = None
+        self.terms: TemperatureTerms[Array] | None = None
 
-    def get(self, t_c: Array) -> Any:
-        if self.at is None or self.at.shape != t_c.shape or not np.array_equal(self.at, t_c):
+    def get(self, t_c: Array) -> TemperatureTerms[Array]:
+        if self.terms is None or self.at is None or self.at.shape != t_c.shape or not np.array_equal(self.at, t_c):
             self.at = np.array(t_c, dtype=float)
             self.terms = self.table.temperature_terms(self.at, ARRAY)
         return self.terms
@@ -232,7 +237,7 @@ def model_friction(axis: AxisParams) -> Callable[[ArrayLike, ArrayLike], Array]:
     return friction
 
 
-def truth_bound(config: Any, settings: FeedforwardSettings | None = None, *,
+def truth_bound(config: SimConfig, settings: FeedforwardSettings | None = None, *,
                 velocity_source: str = 'measured') -> Compensator:
     """Case ``bound``: the truth's own static friction map through the feedforward's delivery, delayed.
 
@@ -247,16 +252,16 @@ def truth_bound(config: Any, settings: FeedforwardSettings | None = None, *,
     check_velocity_source(velocity_source)
     s = settings if settings is not None else FeedforwardSettings()
     truth = TruthFriction(config)
-    state: dict[str, Any] = {}
+    cached: list[tuple[Array, TruthTerms]] = []   # the last temperatures asked for and their terms
 
     def torque(inputs: ControllerInputs) -> Array:
         t_in = np.asarray(inputs.temperature_c, dtype=float) - config.temperature_bias_c
         have = np.isfinite(t_in)
         t_eval = np.where(have, t_in, s.fallback_temperature_c)
-        if 'at' not in state or not np.array_equal(state['at'], t_eval):
-            state['at'], state['terms'] = t_eval.copy(), truth.terms(t_eval)
+        if not cached or not np.array_equal(cached[0][0], t_eval):
+            cached[:] = [(t_eval.copy(), truth.terms(t_eval))]
         v = _velocity(inputs, velocity_source)
-        g = truth.stribeck_level_nm(state['terms'], v, 1.0 + ripple(config, inputs.joint_position_rad, t_eval))
+        g = truth.stribeck_level_nm(cached[0][1], v, 1.0 + ripple(config, inputs.joint_position_rad, t_eval))
         tau = np.clip(np.tanh(v / s.velocity_threshold_rad_s) * g, -s.max_torque_nm, s.max_torque_nm)
         return np.where(have, tau, 0.0)
 

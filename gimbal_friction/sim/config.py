@@ -1,5 +1,8 @@
 """Configuration of the gimbal-axis simulator: every parameter with its unit, default, justification and rule.
 
+One job in one module: the simulator's parameters, each with its unit, default, justification and rule, in one
+dataclass.
+
 One frozen dataclass, :class:`SimConfig`, holds the simulator's own parameters (plant, motor drive, sensors, the
 seeker's stabilization controller, the truth friction beyond the model, the thermal lag, base motion, the
 feedforward transport latency and the study profiles). The *configured* model of the axis (K_T, I_0, J, the
@@ -88,6 +91,7 @@ from typing import Any
 
 from gimbal_friction.common.errors import ConfigError, check_rules
 from gimbal_friction.common.settings import coerce, setting, settings_from
+from gimbal_friction.common.text import did_you_mean
 
 #: Profiles the simulator knows (see :mod:`gimbal_friction.sim.profiles`).
 PROFILES = ('tracking', 'scan', 'pointing')
@@ -250,6 +254,11 @@ class SimConfig:
         """Oldest feedforward the controller applies, in whole controller ticks [-]."""
         return int(math.floor(self.feedforward_timeout_s * self.rate_loop_hz + 1e-9))
 
+    def feedforward_fresh(self, age_ticks: int) -> bool:
+        """The controller applies a feedforward ``age_ticks`` controller ticks old [-]: 0 <= age <= timeout_ticks
+        (a negative age: none received yet)."""
+        return 0 <= age_ticks <= self.timeout_ticks
+
     @property
     def rate_kp_per_s(self) -> float:
         """Rate-loop proportional gain K_p = 2π f_rate [1/s] (torque = J K_p e)."""
@@ -299,8 +308,7 @@ class SimConfig:
             if name in node:   # the gimbal_sim node's own settings share the section
                 continue
             if name not in fields:
-                close = [n for n in fields if n.split('_')[0] == str(name).split('_')[0]]
-                hint = f' (did you mean {close[0]!r}?)' if close else ''
+                hint = did_you_mean(str(name), fields, same_first_word=True)
                 raise ConfigError(str(name), f'unknown simulator parameter{hint}', value)
             kwargs[name] = _coerce(name, value, getattr(start, name))
         return dataclasses.replace(start, **kwargs)

@@ -354,7 +354,7 @@ class ClosedLoop:
                 if buf.shape[0] > 1:
                     buf[1:] = buf[:-1]
                 buf[0] = out
-                tau_ff[idx] = buf[-1] if buf.shape[0] - 1 <= cfg.timeout_ticks else 0.0   # too old: not applied
+                tau_ff[idx] = buf[-1] if cfg.feedforward_fresh(buf.shape[0] - 1) else 0.0   # too old: not applied
                 tau_new[idx] = out
             i_raw = i_raw + tau_ff / K_T
         i_cmd = np.clip(i_raw, -limit, limit)

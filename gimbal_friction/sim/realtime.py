@@ -140,9 +140,9 @@ class RealtimeRun:
     def _hook(self, inputs: ControllerInputs) -> Array:
         k = self.loop.k
         age = k - self._ff_tick if self._ff_tick >= 0 else -1
-        fresh = 0 <= age <= self.config.timeout_ticks
+        fresh = self.config.feedforward_fresh(age)
         self.feedforward_age[k] = age
-        if age > self.config.timeout_ticks:
+        if age >= 0 and not fresh:
             self.timed_out += 1
         return np.full(inputs.temperature_c.shape, self._ff_nm if fresh else 0.0)
 

@@ -1,5 +1,8 @@
 """The closed-loop study (engine of ``gimbal-friction loop-study``): cases × temperature plateaus × profiles.
 
+One job in one module: the study's run (its cases, the learning window and the scoring share one batch layout
+and one report).
+
 For every profile, all cases × temperatures integrate together in one vectorised batch
 (:func:`~gimbal_friction.sim.engine.simulate`); every run sees the same sensor-noise stream (common random
 numbers), so differences between cases are the cases'. Each temperature is a soaked plateau (bearing =

@@ -163,7 +163,7 @@ def ripple(config: SimConfig, theta_rad: ArrayLike, t_c: ArrayLike) -> Array:
 class TruthTerms(NamedTuple):
     """Everything of the truth that depends on temperature only, per run."""
 
-    model: TemperatureTerms   #: the core table's temperature terms of the truth parameters
+    model: TemperatureTerms[Array]   #: the core table's temperature terms of the truth parameters
     k_positive: Array         #: m(t) · k_+(t) [-]
     k_negative: Array         #: m(t) · k_-(t) [-]
 

@@ -18,7 +18,7 @@ from gimbal_friction.chamber.fleet import FitSettings, UnitSpec, discover_units,
 from gimbal_friction.cli.main import main
 from gimbal_friction.physics.model import friction_torque
 from gimbal_friction.physics.params import AxisParams
-from gimbal_friction.recording.bag import make_float64_multi_array
+from gimbal_friction.recording.bag_write import make_float64_multi_array
 from gimbal_friction.recording.residual_log import ResidualLogWriter
 from gimbal_friction.recording.topics import FLOAT64_MULTI_ARRAY_TYPE, RESIDUAL_DETAIL
 from gimbal_friction.streams.residual_row import RESIDUAL_FIELDS
@@ -210,7 +210,7 @@ def test_process_unit_records_an_unconfigured_joint(fleet_dir):
 def test_a_bag_unit_without_a_configured_axis_says_which_joints_it_has(tmp_path):
     """A chamber bag read by fleet goes through the reader's rule (issue 19, 3): its record's error names the joints
     recorded in the bag (not 'joints present: none'), the mapping and the fix."""
-    from gimbal_friction.recording.bag import make_joint_state, make_temperature, write_chamber_bag
+    from gimbal_friction.recording.bag_write import make_joint_state, make_temperature, write_chamber_bag
     from gimbal_friction.recording.topics import (
         JOINT_STATE_TYPE,
         JOINT_STATES,

@@ -116,7 +116,7 @@ def test_console_script_runs_and_help(tmp_path):
 def test_report_refuses_logs_without_the_axis_naming_the_joints_and_draws_nothing(tmp_path, capsys):
     import numpy as np
 
-    from gimbal_friction.recording.bag import make_float64_multi_array
+    from gimbal_friction.recording.bag_write import make_float64_multi_array
     from gimbal_friction.recording.residual_log import ResidualLogWriter
     from gimbal_friction.recording.topics import FLOAT64_MULTI_ARRAY_TYPE, RESIDUAL_DETAIL
     t0 = 1_700_000_000_000_000_000

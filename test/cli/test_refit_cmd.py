@@ -20,7 +20,7 @@ from gimbal_friction.common.xp import ARRAY
 from gimbal_friction.config.loader import axis_params, load_parameters, render_parameter_file
 from gimbal_friction.physics.model import friction_torque, viscosity_cst
 from gimbal_friction.physics.params import AxisParams
-from gimbal_friction.recording.bag import make_float64_multi_array, make_temperature, write_chamber_bag
+from gimbal_friction.recording.bag_write import make_float64_multi_array, make_temperature, write_chamber_bag
 from gimbal_friction.recording.residual_log import ResidualLogWriter
 from gimbal_friction.recording.topics import (
     FLOAT64_MULTI_ARRAY_TYPE,

@@ -17,13 +17,8 @@ from gimbal_friction.estimation.estimator import EstimatorLogic
 from gimbal_friction.feedforward.rule import Feedforward
 from gimbal_friction.physics.model import friction_torque
 from gimbal_friction.recording import topics
-from gimbal_friction.recording.bag import (
-    default_typestore,
-    make_joint_state,
-    make_temperature,
-    open_chamber_bag,
-    write_chamber_bag,
-)
+from gimbal_friction.recording.bag import default_typestore, open_chamber_bag
+from gimbal_friction.recording.bag_write import make_joint_state, make_temperature, write_chamber_bag
 from gimbal_friction.recording.errors import EmptyInputError
 from gimbal_friction.recording.residual_read import read_residual_rows
 

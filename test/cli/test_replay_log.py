@@ -14,12 +14,8 @@ from rosbags.highlevel import AnyReader
 from gimbal_friction.chamber.replay import replay_bag
 from gimbal_friction.config.loader import render_parameter_file
 from gimbal_friction.recording import topics
-from gimbal_friction.recording.bag import (
-    default_typestore,
-    make_joint_state,
-    make_temperature,
-    write_chamber_bag,
-)
+from gimbal_friction.recording.bag import default_typestore
+from gimbal_friction.recording.bag_write import make_joint_state, make_temperature, write_chamber_bag
 from gimbal_friction.recording.residual_read import read_residual_rows
 from gimbal_friction.streams.measurement import MEASUREMENT_FIELDS
 

@@ -14,7 +14,8 @@ from rosbags.highlevel import AnyReader
 from rosbags.rosbag2 import StoragePlugin, Writer
 
 from gimbal_friction.common.errors import GimbalFrictionError
-from gimbal_friction.recording.bag import ChamberArrays, foreign_serialization, open_chamber_bag, write_chamber_bag
+from gimbal_friction.recording.bag import ChamberArrays, foreign_serialization, open_chamber_bag
+from gimbal_friction.recording.bag_write import write_chamber_bag
 from gimbal_friction.recording.cdr import (
     default_typestore,
     make_float64_multi_array,

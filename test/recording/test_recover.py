@@ -13,7 +13,8 @@ from mcap.reader import make_reader
 from rosbags.highlevel import AnyReader
 from test_residual_read import damage_one_chunk, stamps, write_log
 
-from gimbal_friction.recording.bag import open_chamber_bag, write_chamber_bag
+from gimbal_friction.recording.bag import open_chamber_bag
+from gimbal_friction.recording.bag_write import write_chamber_bag
 from gimbal_friction.recording.cdr import default_typestore, make_joint_state, make_temperature
 from gimbal_friction.recording.errors import RecordingError
 from gimbal_friction.recording.recover import recover, recover_db3, recover_mcap

@@ -26,7 +26,7 @@ from typing import NamedTuple
 
 import pytest
 
-from gimbal_friction.recording.bag import write_chamber_bag
+from gimbal_friction.recording.bag_write import write_chamber_bag
 from gimbal_friction.recording.cdr import make_joint_state, make_temperature
 from gimbal_friction.recording.topics import (
     JOINT_STATE_TYPE,

@@ -9,7 +9,8 @@ from pathlib import Path
 
 from mcap.writer import Writer as McapWriter
 
-from gimbal_friction.recording.bag import open_chamber_bag, write_chamber_bag
+from gimbal_friction.recording.bag import open_chamber_bag
+from gimbal_friction.recording.bag_write import write_chamber_bag
 from gimbal_friction.recording.cdr import default_typestore
 from gimbal_friction.recording.mcap_scan import McapScanner
 from gimbal_friction.recording.topics import (

@@ -261,7 +261,7 @@ def test_refitted_parameter_file_changes_the_output(spawn, probe, tmp_path, monk
 
 
 def test_chamber_replay_refuses_a_bag_without_the_contract_topics(spawn, tmp_path):
-    from gimbal_friction.recording.bag import make_temperature, write_chamber_bag
+    from gimbal_friction.recording.bag_write import make_temperature, write_chamber_bag
     bag = write_chamber_bag(tmp_path / 'bag', [('/gimbal/temperature', 'sensor_msgs/msg/Temperature', 1,
                                                 make_temperature(1, 20.0))])
     node = spawn('chamber_replay', '--ros-args', '-p', f'bag:={bag}')
