@@ -34,7 +34,7 @@ BATCH = 100_000
 CHILD = """
 import sys, threading, time
 sys.path.insert(0, {root!r})
-from gimbal_friction.cli.refit_cmd import read_stats
+from gimbal_friction.refit.logs import read_stats
 from pathlib import Path
 
 
