@@ -16,9 +16,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import statistics
 import sys
-import time
 from collections.abc import Callable
 from pathlib import Path
 
@@ -27,15 +25,9 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from inprocess_call import interleaved_medians  # noqa: E402  # the same timing loop as the feedforward bench
+
 from gimbal_friction.feedforward.correction import Correction, CorrectionSettings, model_identity  # noqa: E402
-
-
-def per_call_us(fn: Callable[[int], object], calls: int) -> float:
-    """Wall time per call [µs] of ``fn(i)`` for i in range(calls)."""
-    t0 = time.perf_counter()
-    for i in range(calls):
-        fn(i)
-    return (time.perf_counter() - t0) / calls * 1e6
 
 
 def learned(settings: CorrectionSettings) -> Correction:
@@ -73,12 +65,7 @@ def main(argv: list[str] | None = None) -> int:
         'along_nm, 64-bin position map': lambda i: ripple.along_nm('elevation', temps[i % 1000], vels[i % 1000],
                                                                    pos[i % 1000], 3e-3),
     }
-    results: dict[str, list[float]] = {k: [] for k in workloads}
-    for r in range(args.repeat):
-        items = list(workloads.items())
-        for name, fn in (items if r % 2 == 0 else items[::-1]):
-            results[name].append(per_call_us(fn, args.calls))
-    med = {k: statistics.median(v) for k, v in results.items()}
+    med = interleaved_medians(workloads, args.repeat, args.calls)
     call = med['empty call (baseline)']
     doc = {'per_call_us': med, 'net_of_call_overhead_us': {k: v - call for k, v in med.items()},
            'ratio_to_numpy_interp': {k: v / med['numpy.interp scalar (baseline)'] for k, v in med.items()}}

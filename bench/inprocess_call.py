@@ -62,6 +62,17 @@ def per_call_us(fn: Callable[[int], object], calls: int) -> float:
     return (time.perf_counter() - t0) / calls * 1e6
 
 
+def interleaved_medians(workloads: dict[str, Callable[[int], object]], repeat: int, calls: int) -> dict[str, float]:
+    """Median time per call [µs] of each workload over ``repeat`` rounds, run in turn (the order reversed every
+    other round, so that no workload always runs on a warm or a cold machine)."""
+    results: dict[str, list[float]] = {k: [] for k in workloads}
+    for r in range(repeat):
+        items = list(workloads.items())
+        for name, fn in (items if r % 2 == 0 else items[::-1]):
+            results[name].append(per_call_us(fn, calls))
+    return {k: statistics.median(v) for k, v in results.items()}
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument('--calls', type=int, default=200_000)
@@ -105,12 +116,7 @@ def main(argv: list[str] | None = None) -> int:
                                                                         1e-3 * (i % 1000),
                                                                         [poss[i % 1000], poss[i % 1000]]),
     }
-    results: dict[str, list[float]] = {k: [] for k in workloads}
-    for r in range(args.repeat):
-        items = list(workloads.items())
-        for name, fn in (items if r % 2 == 0 else items[::-1]):
-            results[name].append(per_call_us(fn, args.calls))
-    med = {k: statistics.median(v) for k, v in results.items()}
+    med = interleaved_medians(workloads, args.repeat, args.calls)
     base = med['numpy.interp scalar (baseline)']
     one = med['Feedforward.torque_nm, one axis']
     message = med['Feedforward.message, two axes']

@@ -156,3 +156,25 @@ def probe(ros_env: tuple[int, dict[str, str]]) -> Iterator[Probe]:
     p = Probe(ros_env[0])
     yield p
     p.close()
+
+
+def _zero_mcap_chunk_middle(path: Path, index: int) -> None:
+    """Zero 16 bytes in the middle of chunk record ``index`` (0-based) of MCAP file ``path``: damaged chunks for the
+    readers' skip-and-count rule."""
+    data = bytearray(path.read_bytes())
+    pos, k = 8, 0
+    while True:
+        length = int.from_bytes(data[pos + 1 : pos + 9], 'little')
+        if data[pos] == 0x06:
+            if k == index:
+                data[pos + 9 + length // 2 : pos + 25 + length // 2] = bytes(16)
+                break
+            k += 1
+        pos += 9 + length
+    path.write_bytes(bytes(data))
+
+
+@pytest.fixture
+def damage_mcap_chunk() -> Callable[[Path, int], None]:
+    """``damage_mcap_chunk(path, index)``: zero 16 bytes in the middle of chunk ``index`` of an MCAP file."""
+    return _zero_mcap_chunk_middle

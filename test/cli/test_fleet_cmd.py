@@ -123,7 +123,7 @@ def test_a_broken_unit_is_reported_not_fatal(fleet_dir, tmp_path, capsys):
     assert 'broken' in capsys.readouterr().err
 
 
-def test_damaged_chunks_of_a_unit_are_counted_and_said(tmp_path):
+def test_damaged_chunks_of_a_unit_are_counted_and_said(tmp_path, damage_mcap_chunk):
     """Every command that skips data says how much: the unit's record carries the count, its progress line says it."""
     import io
 
@@ -132,17 +132,7 @@ def test_damaged_chunks_of_a_unit_are_counted_and_said(tmp_path):
     folder = write_unit(tmp_path / 'unit', AxisParams().replace(walther_a=AxisParams().walther_a + 0.02), seed=3,
                         chunk_size=4096)
     (path,) = folder.glob('*.mcap')
-    data = bytearray(path.read_bytes())
-    pos, k = 8, 0
-    while True:  # zero 16 bytes in the middle of the third chunk
-        length = int.from_bytes(data[pos + 1:pos + 9], 'little')
-        if data[pos] == 0x06:
-            if k == 2:
-                data[pos + 9 + length // 2:pos + 25 + length // 2] = bytes(16)
-                break
-            k += 1
-        pos += 9 + length
-    path.write_bytes(bytes(data))
+    damage_mcap_chunk(path, 2)  # the third chunk
     scan = McapScanner(path)
     sum(len(b) for b in scan.blocks())
     lost = scan.report.lost_messages

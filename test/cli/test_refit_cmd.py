@@ -251,7 +251,7 @@ def test_an_existing_output_is_refused_unless_force(log_dir, tmp_path, capsys):
     assert 'walther_a' in yaml.safe_load(out.read_text())['/**']['ros__parameters']['axis']['elevation']
 
 
-def test_damaged_chunks_are_counted_in_the_output_and_the_json(tmp_path, capsys):
+def test_damaged_chunks_are_counted_in_the_output_and_the_json(tmp_path, capsys, damage_mcap_chunk):
     """Every command that skips data says how much: a damaged chunk of the log is a note and a JSON count."""
     from gimbal_friction.recording.mcap_scan import McapScanner
     folder = tmp_path / 'damaged'
@@ -260,17 +260,7 @@ def test_damaged_chunks_are_counted_in_the_output_and_the_json(tmp_path, capsys)
         for row, stamp in zip(rows, stamps, strict=True):
             writer.write(RESIDUAL_DETAIL, FLOAT64_MULTI_ARRAY_TYPE, stamp, make_float64_multi_array(row, 'elevation'))
     (path,) = folder.glob('*.mcap')
-    data = bytearray(path.read_bytes())
-    pos, k = 8, 0
-    while True:  # zero 16 bytes in the middle of the fourth chunk
-        length = int.from_bytes(data[pos + 1:pos + 9], 'little')
-        if data[pos] == 0x06:
-            if k == 3:
-                data[pos + 9 + length // 2:pos + 25 + length // 2] = bytes(16)
-                break
-            k += 1
-        pos += 9 + length
-    path.write_bytes(bytes(data))
+    damage_mcap_chunk(path, 3)  # the fourth chunk
     scan = McapScanner(path)
     sum(len(b) for b in scan.blocks())
     lost = scan.report.lost_messages
