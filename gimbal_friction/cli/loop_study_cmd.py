@@ -65,7 +65,7 @@ def add_parser(sub: Any) -> None:
     parser.add_argument('--learn-prior', type=float, default=None, metavar='N',
                         help='case learned: prior samples n0 of a cell (default 20)')
     parser.add_argument('--learn-position-bins', type=int, default=None, metavar='N',
-                        help='case learned: bins of the position map over 3.4 deg (0: no map; default 16)')
+                        help='case learned: bins of the position map over 3.4 deg (0: no map; default 32)')
     parser.add_argument('--learn-factor', type=float, default=None, metavar='X',
                         help='case learned/refit: learning window = X times the profile duration, after the scoring '
                         'window, on another noise seed (default 4)')

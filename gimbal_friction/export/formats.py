@@ -103,13 +103,15 @@ def provenance_lines(table: ExportTable, prov: Provenance) -> list[str]:
         f'(temperature bins of {1.0 / c.inv_bin_per_c:g} degC centred {c.centres_c[0]:g} .. {c.centres_c[-1]:g} '
         'degC, cw: v >= 0, ccw: v < 0).'),
         ('Feedforward: tau = clamp(tanh(v/velocity_threshold) * (k_dir * M(t, |v|) + c), +-max_torque) [N*m], with '
-        'the correction c along the motion'),
-        ('  interpolated linearly between bin centres (held beyond the first and last), clamped to '
+        'the correction c = c0 + c_speed * x along the motion,'),
+        (f'  x = (max(|v|, {c.settings.min_speed_rad_s!r}) / {c.settings.speed_reference_rad_s!r} rad/s)^(2/3) '
+         "(the speed shape of Palmgren's viscous torque),"),
+        ('  c0 and c_speed interpolated linearly between bin centres (held beyond the first and last), c clamped to '
         f'+-({c.max_relative!r} * k_dir * M + {c.floor_nm!r} N*m).'),
         'Its error bound per cell: standard error of the cell mean x n/(n + n0) (0: no data; unknown with one '
         'sample: nan, -1 in C and ROS).'
-        + (f" The file's position map ({c.position_bins} bins) is not exported: the cells' means over "
-           'position are.' if c.position_bins else ''),
+        + (f" The file's position map ({c.position_bins} bins, a relative ripple) is not exported." if
+           c.position_bins else ''),
     ]
     return [_clean(line) for line in lines]
 
@@ -138,9 +140,12 @@ def csv_rows(table: ExportTable) -> list[dict[str, float]]:
     if table.correction is not None and out:
         t = np.array([r['temperature_c'] for r in out])
         m = np.array([r['m_total_nm'] for r in out])
+        speed = np.array([r['speed_rad_s'] for r in out])
         for sign, name in ((1.0, 'cw'), (-1.0, 'ccw')):
             model = direction_factor(table.params, t, sign, ARRAY) * m
-            value, error = correction_nm(table.correction, t, np.full(t.shape, sign), model)
+            # at the row's speed (the speed term is held below min_speed_rad_s; the sign picks the direction)
+            v = sign * np.maximum(speed, table.correction.settings.min_speed_rad_s)
+            value, error = correction_nm(table.correction, t, v, model)
             for r, cv, ce in zip(out, value.tolist(), error.tolist(), strict=True):
                 r[f'correction_{name}_nm'], r[f'correction_{name}_error_nm'] = cv, ce
     return out
@@ -348,9 +353,14 @@ def _c_correction(table: ExportTable) -> str:
     arrays = []
     for d, name in ((0, 'cw'), (1, 'ccw')):
         sense = 'v >= 0' if d == 0 else 'v < 0'
-        arrays.append(f"""/* learned correction along the motion, {name} ({sense}), per bin [N*m] */
+        arrays.append(f"""/* learned correction along the motion, {name} ({sense}), per bin, at speed term 0 [N*m] */
 static const double gf_{a}_correction_{name}_nm[GF_{A}_CORRECTION_N] = {{
 {_c_array(c.values_nm[d])}
+}};
+
+/* its coefficient of the speed term x per bin [N*m] (gf_{a}_correction_speed_term) */
+static const double gf_{a}_correction_{name}_speed_nm[GF_{A}_CORRECTION_N] = {{
+{_c_array(c.speed_nm[d])}
 }};
 
 /* its error bound per bin [N*m] (-1: unknown, one sample) */
@@ -369,6 +379,8 @@ static const double gf_{a}_correction_{name}_samples[GF_{A}_CORRECTION_N] = {{
 #define GF_{A}_CORRECTION_INV_BIN_PER_C {_fmt(c.inv_bin_per_c)}  /* 1 / bin width [1/degC] */
 #define GF_{A}_CORRECTION_MAX_RELATIVE {_fmt(c.max_relative)}  /* |c| <= this * |k_dir M| + floor [-] */
 #define GF_{A}_CORRECTION_FLOOR_NM {_fmt(c.floor_nm)}  /* [N*m] */
+#define GF_{A}_CORRECTION_MIN_SPEED_RAD_S {_fmt(c.settings.min_speed_rad_s)}  /* the speed term is held below [rad/s] */
+#define GF_{A}_CORRECTION_SPEED_REFERENCE_RAD_S {_fmt(c.settings.speed_reference_rad_s)}  /* x = 1 here [rad/s] */
 
 {body}
 static inline double gf_{a}_correction_lerp(const double *c, double temperature_c)
@@ -388,10 +400,19 @@ static inline double gf_{a}_correction_lerp(const double *c, double temperature_
     return c[i] + w * (c[i + 1] - c[i]);
 }}
 
+/* the speed term x = (max(|v|, min speed) / reference speed)^(2/3) [-] (Palmgren's viscous torque, Eq. 9) */
+static inline double gf_{a}_correction_speed_term(double velocity_rad_s)
+{{
+    return pow(fmax(fabs(velocity_rad_s), GF_{A}_CORRECTION_MIN_SPEED_RAD_S) / GF_{A}_CORRECTION_SPEED_REFERENCE_RAD_S,
+               2.0 / 3.0);
+}}
+
 static inline double gf_{a}_correction_nm(double temperature_c, double velocity_rad_s, double model_nm)
 {{
-    double c = gf_{a}_correction_lerp(velocity_rad_s >= 0.0 ? gf_{a}_correction_cw_nm : gf_{a}_correction_ccw_nm,
-                                       temperature_c);
+    int cw = velocity_rad_s >= 0.0;
+    double c = gf_{a}_correction_lerp(cw ? gf_{a}_correction_cw_nm : gf_{a}_correction_ccw_nm, temperature_c)
+               + gf_{a}_correction_lerp(cw ? gf_{a}_correction_cw_speed_nm : gf_{a}_correction_ccw_speed_nm,
+                                        temperature_c) * gf_{a}_correction_speed_term(velocity_rad_s);
     double bound = GF_{A}_CORRECTION_MAX_RELATIVE * fabs(model_nm) + GF_{A}_CORRECTION_FLOOR_NM;
     if (c > bound) {{
         return bound;
@@ -456,6 +477,10 @@ def _ros_correction(table: ExportTable) -> dict[str, object]:
         'correction_temperatures_c': [float(x) for x in c.centres_c],
         'correction_cw_nm': [float(x) for x in c.values_nm[0]],
         'correction_ccw_nm': [float(x) for x in c.values_nm[1]],
+        'correction_cw_speed_nm': [float(x) for x in c.speed_nm[0]],
+        'correction_ccw_speed_nm': [float(x) for x in c.speed_nm[1]],
+        'correction_min_speed_rad_s': float(c.settings.min_speed_rad_s),
+        'correction_speed_reference_rad_s': float(c.settings.speed_reference_rad_s),
         'correction_cw_error_nm': [float(x) for x in err[0]],
         'correction_ccw_error_nm': [float(x) for x in err[1]],
         'correction_cw_samples': [int(x) for x in c.samples[0]],

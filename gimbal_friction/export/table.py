@@ -83,7 +83,8 @@ from numpy.typing import ArrayLike, NDArray
 
 from gimbal_friction.common.errors import GimbalFrictionError, ModelDomainError, check_rules
 from gimbal_friction.common.units import nm_from_nmm, rad_s_from_rpm, rpm_from_rad_s
-from gimbal_friction.feedforward.correction import Correction
+from gimbal_friction.common.xp import ARRAY
+from gimbal_friction.feedforward.correction import Correction, CorrectionSettings, speed_term
 from gimbal_friction.feedforward.rule import FeedforwardSettings
 from gimbal_friction.physics.friction import PALMGREN_THRESHOLD_CST_RPM
 from gimbal_friction.physics.model import FrictionResult, friction_torque, palmgren_threshold_temperature, viscosity_cst
@@ -195,20 +196,24 @@ class TableCorrection(NamedTuple):
     source: str                 #: the correction file and the SHA-256 of its bytes
     centres_c: Array            #: temperature bin centres [°C], (B,)
     inv_bin_per_c: float        #: 1 / bin width [1/°C] (the lookup's x = (t − centres_c[0]) · inv_bin_per_c)
-    values_nm: Array            #: applied value per (direction cw/ccw, bin), mean over position [N·m], (2, B)
+    values_nm: Array            #: applied value per (direction cw/ccw, bin) at speed term 0 [N·m], (2, B)
+    speed_nm: Array             #: coefficient of the speed term x per (direction, bin) [N·m], (2, B)
     error_nm: Array             #: its error bound: std. error of the cell mean × n/(n + n0); 0 without data, NaN
     #: with one sample (unknown) [N·m], (2, B)
     samples: NDArray[np.int64]  #: samples per (direction, bin) [-], (2, B)
     max_relative: float         #: bound: |c| <= max_relative × |k_dir M| + floor_nm [-]
     floor_nm: float             #: [N·m]
     position_bins: int          #: bins of the file's position map (0: none; not exported) [-]
+    settings: CorrectionSettings  #: the file's layout (the speed term's speeds: speed_term)
 
 
 def table_correction(correction: Correction, axis: str, source: str) -> TableCorrection:
     """The exported form of ``correction``'s values of ``axis`` (see :class:`TableCorrection`)."""
     s = correction.settings
-    nt, npos = s.n_temperature, s.n_position
-    values = correction.values_nm[axis].reshape(2, nt, npos).mean(axis=2)   # what a NaN position looks up
+    nt = s.n_temperature
+    # what a NaN position looks up: the cells' values and speed terms (written at speed term 0)
+    speed = correction.speed_nm[axis].reshape(2, nt)
+    values = correction.values_nm[axis].reshape(2, nt) - speed * correction.speed_ref[axis].reshape(2, nt)
     error = np.zeros((2, nt))
     samples = np.zeros((2, nt), dtype=np.int64)
     for cell in correction.cells(axis):
@@ -219,8 +224,8 @@ def table_correction(correction: Correction, axis: str, source: str) -> TableCor
         error[d, cell['bin']] = math.nan if se is None else se * n / (n + s.prior_samples)
     centres = np.asarray(s.temperature_min_c + (np.arange(nt) + 0.5) * s.temperature_bin_c, dtype=np.float64)
     centres[0] = s.temperature_min_c + 0.5 * s.temperature_bin_c   # (as the lookup computes its origin)
-    return TableCorrection(source, centres, 1.0 / s.temperature_bin_c, values, error, samples, s.max_relative,
-                           s.floor_nm, s.position_bins)
+    return TableCorrection(source, centres, 1.0 / s.temperature_bin_c, values, speed.copy(), error, samples,
+                           s.max_relative, s.floor_nm, s.position_bins, s)
 
 
 def correction_nm(tc: TableCorrection, temperature_c: ArrayLike, velocity_rad_s: ArrayLike,
@@ -238,6 +243,8 @@ def correction_nm(tc: TableCorrection, temperature_c: ArrayLike, velocity_rad_s:
     d = np.where(v >= 0.0, 0, 1)
     a = tc.values_nm[d, i]
     c = a + w * (tc.values_nm[d, i + 1] - a)
+    a = tc.speed_nm[d, i]
+    c = c + (a + w * (tc.speed_nm[d, i + 1] - a)) * speed_term(tc.settings, v, ARRAY)
     bound = tc.max_relative * np.abs(m) + tc.floor_nm
     c = np.where(c > bound, bound, np.where(c < -bound, -bound, c))
     e = tc.error_nm[d, i] + w * (tc.error_nm[d, i + 1] - tc.error_nm[d, i])

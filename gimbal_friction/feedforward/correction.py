@@ -11,30 +11,38 @@ the model in that direction), which the feedforward adds to the model magnitude 
           |c| \le r_{max}\,k_d M + c_{floor}
 
 Cells: temperature bin (default 5 °C wide, centred on multiples of 5 °C, -60…120 °C) × direction (``cw``: v > 0,
-``ccw``: v < 0) × position bin (``position_bins`` over ``position_period_rad``, 0 = no position map). A cell holds
-the sample count ``n``, the sum ``S`` of residuals along the motion [N·m], their sum of squares and the sum of
-``|model|``. Its value is shrunk towards zero with a prior of ``n0`` samples (``prior_samples``):
+``ccw``: v < 0). Within a cell the correction is
 
-.. math:: c_{cell} = S / (n + n_0)
+.. math:: c = c_0 + b\,x + \rho(\theta)\,|k_d M|,\qquad x = \big(\max(|v|, v_{min}) / v_{ref}\big)^{2/3}
 
-so an empty correction is exactly 0 and a thin cell stays near 0. With a position map the cell's deviation from its
-mean in each position bin, shrunk the same way, is smoothed to its first ``harmonics`` Fourier harmonics over the
-period (like ODrive's anticogging map; looked up at the *reference* position). A cell's value is held within
-``max_relative`` × its mean ``|model|`` + ``floor_nm`` (``saturated`` otherwise); the lookup applies the same bound
-with the caller's model torque and counts the lookups it clipped (:attr:`Correction.lookup_saturations`).
-Lookup interpolates linearly in temperature between bin centres (clamped at the ends) and in position between
-position-bin centres (periodic): pure float math on lists precomputed whenever the values change
-(:meth:`Correction.along_nm`; on arrays :meth:`Correction.along_nm_array`, the same numbers). A map per cell
-follows a ripple that grows in the cold; each position bin has the prior n0 too, so a map needs about
-``position_bins`` times the data of its cell's mean. There is no speed axis: a residual that depends on speed (the
-viscous part of a lubricant shift) is learned as its mean over the speeds seen (refit the lubricant for that).
+- ``c_0`` [N·m], the cell's value: its residuals' mean shrunk towards zero with a prior of ``n0`` samples
+  (``prior_samples``), :math:`S / (n + n_0)`, so an empty correction is exactly 0 and a thin cell stays near 0;
+- ``b x``, the speed term (``speed_term``): x is the speed shape of Palmgren's viscous torque (Eq. 9,
+  M_L ∝ (ν n)^(2/3)), held below the gate's ``min_speed_rad_s``; b [N·m] is a ridge regression of the residuals on
+  x from the speed changes met within each position bin (so a ripple met at the slow end of a motion is not taken
+  for speed), shrunk to 0 where the speeds hardly vary (``speed_prior_spread``): a lubricant off its datasheet is
+  followed at every speed, and a cell learned at one speed keeps its value at every speed;
+- ``ρ(θ) |k_d M|``, with a position map (``position_bins`` over ``position_period_rad``, 0 = none), the ripple as a
+  fraction ρ [-] of the model friction (a race's waviness modulates the friction it carries, so a map learned at one
+  speed holds at another): per position bin the residual left after c_0 and b x over its Σ|model| (with n0 prior
+  samples), smoothed to its first ``harmonics`` Fourier harmonics over the period (like ODrive's anticogging map;
+  looked up at the *reference* position).
+
+Per node (direction × temperature bin × position bin) a cell keeps the sums learning resumes from (samples, Σr,
+Σx, Σx², Σx·r, Σ|model|; Σr² per cell). A cell's value is held within ``max_relative`` × its mean ``|model|`` +
+``floor_nm`` (``saturated`` otherwise), ρ within ± ``max_relative``; the lookup bounds the whole correction by
+``max_relative`` × the caller's ``|model|`` + ``floor_nm`` and counts the lookups it clipped
+(:attr:`Correction.lookup_saturations`). Lookup interpolates linearly in temperature between bin centres (clamped at
+the ends) and in position between position-bin centres (periodic): pure float math on lists precomputed whenever
+the values change (:meth:`Correction.along_nm`; on arrays :meth:`Correction.along_nm_array`, the same numbers).
 
 File: :mod:`gimbal_friction.feedforward.correction_file` (YAML with units, the model's identity, per-cell values and
 sample counts; :meth:`Correction.save` is atomic, :meth:`Correction.load` refuses a bad file with one line).
 
 Learning: :meth:`Correction.add_residuals` (arrays: the chamber test, ``refit``) and :meth:`Learner.update` (one
 sample: in service) share the gate and the cell rule (written once against ``xp``), and the value rule.
-The learner publishes rate-limited values (at most ``max_rate_nm_per_min`` per node per minute).
+The learner moves the applied values at a limited rate (at most ``max_rate_nm_per_min`` per minute, at the speeds and
+friction the cell has seen).
 
 >>> ident = model_identity({'elevation': {'walther_a': 8.6195}})
 >>> c = Correction(CorrectionSettings(prior_samples=10.0), ident)
@@ -93,6 +101,12 @@ class CorrectionSettings:
     position_bins: int = setting(0, '-', 'bins of the position map over position_period_rad (0: no map)')
     position_period_rad: float = setting(2.0 * math.pi, 'rad', 'period of the position map (ripple period)')
     harmonics: int = setting(4, '-', 'Fourier harmonics kept in the position map')
+    speed_term: bool = setting(True, '-', 'learn and apply, per cell, a term in (|v| / speed_reference_rad_s)^(2/3) '
+                               "(the speed dependence of Palmgren's viscous torque, Eq. 9: a lubricant off its "
+                               'datasheet); false: one value per cell')
+    speed_reference_rad_s: float = setting(0.0349066, 'rad/s', 'speed where the speed term is 1 (default 1/3 rpm)')
+    speed_prior_spread: float = setting(0.2, '-', 'the speed term is shrunk towards 0 like prior_samples samples '
+                                        "whose speed term spreads by this fraction of the cell's mean one")
 
     @property
     def n_temperature(self) -> int:
@@ -125,6 +139,9 @@ class CorrectionSettings:
             ('position_period_rad', 0.0 < self.position_period_rad <= 2.0 * math.pi + 1e-12,
              'must lie in (0, 2 pi] [rad]'),
             ('harmonics', p == 0 or 1 <= self.harmonics < p / 2, 'must lie in [1, position_bins / 2) [-]'),
+            ('speed_term', isinstance(self.speed_term, bool), 'must be true or false'),
+            ('speed_reference_rad_s', 1e-4 <= self.speed_reference_rad_s <= 100.0, 'must lie in [1e-4, 100] [rad/s]'),
+            ('speed_prior_spread', 1e-3 <= self.speed_prior_spread <= 10.0, 'must lie in [1e-3, 10] [-]'),
         ])
 
 
@@ -198,30 +215,65 @@ def cell_of(s: CorrectionSettings, t_c: Any, v: Any, p: Any, r: Any, m: Any, xp:
     return cell * npos + pj, cell, xp.where(v > 0.0, r, -r), xp.abs(m)
 
 
-class _Lookup:
-    """Precomputed lists of one joint for :meth:`Correction.along_nm`."""
+def speed_term(s: CorrectionSettings, v: Any, xp: Any) -> Any:
+    """The speed term x = (max(|v|, ``min_speed_rad_s``) / ``speed_reference_rad_s``)^(2/3) [-] at velocity ``v``
+    [rad/s]: the shape of Palmgren's viscous torque in speed (Eq. 9, M_L ∝ (ν n)^(2/3)), held below the slowest
+    speed learned (the gate's ``min_speed_rad_s``) rather than extrapolated towards zero speed.
 
-    __slots__ = ('ccw', 'cw', 'dc_ccw', 'dc_cw', 'floor', 'hi', 'inv_bin', 'npos', 'rel', 'scale', 't0')
+    >>> s = CorrectionSettings()
+    >>> round(speed_term(s, -8 * 0.0349066, SCALAR), 12), speed_term(s, 0.0, SCALAR) == speed_term(s, 0.005, SCALAR)
+    (4.0, True)
+    """
+    return (xp.maximum(xp.abs(v), s.min_speed_rad_s) / s.speed_reference_rad_s) ** (2.0 / 3.0)
+
+
+class _Lookup:
+    """Precomputed lists of one joint for :meth:`Correction.along_nm`, per direction: the value at speed term 0 per
+    temperature bin (``cw``, ``ccw``), the speed coefficient per temperature bin (``sl_*``; None: all 0) and the
+    relative ripple per (temperature bin, position bin) (``rp_*``; None: no map or all 0)."""
+
+    __slots__ = ('ccw', 'cw', 'floor', 'hi', 'inv_bin', 'npos', 'rel', 'rp_ccw', 'rp_cw', 'scale', 'sl_ccw', 'sl_cw',
+                 't0')
     cw: list[float]
     ccw: list[float]
-    dc_cw: list[float]
-    dc_ccw: list[float]
+    sl_cw: list[float] | None
+    sl_ccw: list[float] | None
+    rp_cw: list[float] | None
+    rp_ccw: list[float] | None
 
-    def __init__(self, s: CorrectionSettings, values: Array) -> None:
+    def __init__(self, s: CorrectionSettings, values: Array, speed_nm: Array, speed_ref: Array, ripple: Array) -> None:
         nt, npos = s.n_temperature, s.n_position
-        v = values.reshape(2, nt, npos)
-        self.cw, self.ccw = v[0].ravel().tolist(), v[1].ravel().tolist()
-        self.dc_cw, self.dc_ccw = v[0].mean(axis=1).tolist(), v[1].mean(axis=1).tolist()
+        v = (values - speed_nm * speed_ref).reshape(2, nt)   # at speed term 0 (exactly ``values`` without one)
+        self.cw, self.ccw = v[0].tolist(), v[1].tolist()
+        sl = speed_nm.reshape(2, nt)
+        self.sl_cw, self.sl_ccw = (sl[0].tolist(), sl[1].tolist()) if np.any(sl) else (None, None)
+        rp = ripple.reshape(2, nt * npos)
+        self.rp_cw, self.rp_ccw = (rp[0].tolist(), rp[1].tolist()) if s.position_bins and np.any(rp) else (None, None)
         self.t0 = s.temperature_min_c + 0.5 * s.temperature_bin_c
         self.inv_bin, self.hi, self.npos = 1.0 / s.temperature_bin_c, nt - 1, npos
         self.scale = npos / s.position_period_rad
         self.rel, self.floor = s.max_relative, s.floor_nm
 
 
+class LearnedFit(NamedTuple):
+    """What a correction's sums say for one joint (:meth:`Correction.fit`)."""
+
+    values_nm: Array                #: value per cell at its mean speed term [N·m] (shrunk, bounded)
+    speed_nm: Array                 #: coefficient of the speed term per cell [N·m] (0 unless speed_term)
+    speed_mean: Array               #: mean speed term per cell [-] (0: no data)
+    ripple: Array                   #: relative ripple per node [-] (position map; 0 without one)
+    model_mean_nm: Array            #: mean |model| per cell [N·m] (0: no data)
+    saturated: NDArray[np.bool_]    #: the cell's value was clipped by the bound
+
+
 class Correction:
     """A learned correction of the joints of ``identity`` (the model the residuals are taken against,
     :func:`model_identity`) laid out by ``settings`` (see the module notes). ConfigError: invalid settings, no joint.
     """
+
+    #: the arrays that hold a correction's state (sums learning resumes from, applied values), per joint
+    STATE = ('count', 'sum_nm', 'sum_speed', 'sum_speed_sq', 'sum_speed_res_nm', 'sum_model_nm', 'sum_sq_nm2',
+             'values_nm', 'speed_nm', 'speed_ref', 'ripple')
 
     def __init__(self, settings: CorrectionSettings, identity: ModelIdentity) -> None:
         settings.validate()
@@ -230,11 +282,20 @@ class Correction:
         self.settings, self.identity = settings, identity
         s = settings
         nc, nn = 2 * s.n_temperature, 2 * s.n_temperature * s.n_position
-        self.count = {j: np.zeros(nn, dtype=np.int64) for j in identity.joints}   #: samples per node [-]
-        self.sum_nm = {j: np.zeros(nn) for j in identity.joints}                  #: Σ residual per node [N·m]
-        self.sum_sq_nm2 = {j: np.zeros(nc) for j in identity.joints}              #: Σ residual² per cell [N²·m²]
-        self.sum_model_nm = {j: np.zeros(nc) for j in identity.joints}            #: Σ |model| per cell [N·m]
-        self.values_nm = {j: np.zeros(nn) for j in identity.joints}               #: applied value per node [N·m]
+        joints = identity.joints
+        # sums per node (direction, temperature bin, position bin)
+        self.count = {j: np.zeros(nn, dtype=np.int64) for j in joints}  #: samples [-]
+        self.sum_nm = {j: np.zeros(nn) for j in joints}                 #: Σ residual r [N·m]
+        self.sum_speed = {j: np.zeros(nn) for j in joints}              #: Σ speed term x [-]
+        self.sum_speed_sq = {j: np.zeros(nn) for j in joints}           #: Σ x² [-]
+        self.sum_speed_res_nm = {j: np.zeros(nn) for j in joints}       #: Σ x·r [N·m]
+        self.sum_model_nm = {j: np.zeros(nn) for j in joints}           #: Σ |model| [N·m]
+        self.sum_sq_nm2 = {j: np.zeros(nc) for j in joints}             #: Σ r² per cell [N²·m²]
+        # applied: per cell c = value + speed_nm (x - speed_ref), plus ripple(θ) |model| with a position map
+        self.values_nm = {j: np.zeros(nc) for j in joints}   #: value per cell at the speed term speed_ref [N·m]
+        self.speed_nm = {j: np.zeros(nc) for j in joints}    #: coefficient of the speed term per cell [N·m]
+        self.speed_ref = {j: np.zeros(nc) for j in joints}   #: reference speed term per cell [-]
+        self.ripple = {j: np.zeros(nn) for j in joints}      #: relative ripple per node [-]
         self.lookup_saturations = 0  #: lookups whose value the bound clipped [-]
         #: per joint, the lookup lists of its learned values (None: nothing learned, the correction is 0 there)
         self.lookups: dict[str, _Lookup | None] = {}
@@ -248,15 +309,19 @@ class Correction:
 
     def rebuild(self) -> None:
         """Recompute the lookup lists after the values changed."""
-        self.lookups = {j: (_Lookup(self.settings, v) if np.any(v) else None) for j, v in self.values_nm.items()}
+        self.lookups = {j: (_Lookup(self.settings, v, self.speed_nm[j], self.speed_ref[j], self.ripple[j])
+                            if np.any(v) or np.any(self.speed_nm[j]) or np.any(self.ripple[j]) else None)
+                        for j, v in self.values_nm.items()}
 
     # ------------------------------------------------------------------ lookup (the feedforward's hot path)
     def along_nm(self, joint: str, temperature_c: float, velocity_rad_s: float, position_rad: float,
                  model_nm: float) -> float:
         """Correction along the motion [N·m] for motion at ``velocity_rad_s`` [rad/s] (``>= 0``: cw) at
         ``temperature_c`` [°C] and reference position ``position_rad`` [rad] (NaN: the position map is skipped),
-        bounded by ``max_relative`` × ``|model_nm|`` [N·m] + ``floor_nm``. Add it to the model magnitude before the
-        smooth sign. Exactly 0.0 for a joint without a learned value; unknown joint: KeyError."""
+        for the model friction ``model_nm`` [N·m], bounded by ``max_relative`` × ``|model_nm|`` + ``floor_nm``: the
+        cell's value and speed term interpolated in temperature, plus the relative ripple at the position ×
+        ``|model_nm|``. Add it to the model magnitude before the smooth sign. Exactly 0.0 for a joint without a
+        learned value; unknown joint: KeyError."""
         lut = self.lookups[joint]
         if lut is None:
             return 0.0
@@ -268,33 +333,36 @@ class Correction:
             i, w = lut.hi - 1, 1.0
         else:
             i, w = 0, 0.0  # (NaN too)
-        npos = lut.npos
-        if npos == 1:  # no position map
-            vals = lut.cw if velocity_rad_s >= 0.0 else lut.ccw
-            a = vals[i]
-            c = a + w * (vals[i + 1] - a)
-        else:
+        cw = velocity_rad_s >= 0.0
+        vals = lut.cw if cw else lut.ccw
+        a = vals[i]
+        c = a + w * (vals[i + 1] - a)
+        slopes = lut.sl_cw if cw else lut.sl_ccw
+        if slopes is not None:  # the speed term, its coefficient interpolated the same way
+            a = slopes[i]
+            c += (a + w * (slopes[i + 1] - a)) * speed_term(self.settings, velocity_rad_s, SCALAR)
+        m = abs(model_nm)
+        ripple = lut.rp_cw if cw else lut.rp_ccw
+        if ripple is not None:
+            npos = lut.npos
             y = (position_rad * lut.scale) % npos - 0.5
-            if y != y:  # a NaN position: the cells' means
-                vals = lut.dc_cw if velocity_rad_s >= 0.0 else lut.dc_ccw
-                a = vals[i]
-                return self._bounded(a + w * (vals[i + 1] - a), lut, model_nm)
-            vals = lut.cw if velocity_rad_s >= 0.0 else lut.ccw
-            if y < 0.0:
-                y += npos
-            j = int(y)
-            u = y - j
-            j1 = j + 1 if j + 1 < npos else 0
-            r0 = i * npos
-            a = vals[r0 + j]
-            a += u * (vals[r0 + j1] - a)
-            r0 += npos
-            b = vals[r0 + j]
-            c = a + w * (b + u * (vals[r0 + j1] - b) - a)
-        bound = lut.rel * abs(model_nm) + lut.floor
+            if y == y:  # (a NaN position: no ripple)
+                if y < 0.0:
+                    y += npos
+                j = int(y)
+                u = y - j
+                j1 = j + 1 if j + 1 < npos else 0
+                r0 = i * npos
+                a = ripple[r0 + j]
+                a += u * (ripple[r0 + j1] - a)
+                r0 += npos
+                b = ripple[r0 + j]
+                c += (a + w * (b + u * (ripple[r0 + j1] - b) - a)) * m
+        bound = lut.rel * m + lut.floor
         if -bound <= c <= bound:
             return c
-        return self._bounded(c, lut, model_nm)
+        self.lookup_saturations += 1
+        return bound if c > 0.0 else -bound
 
     def along_nm_array(self, joint: str, temperature_c: ArrayLike, velocity_rad_s: ArrayLike, position_rad: ArrayLike,
                        model_nm: ArrayLike) -> Array:
@@ -305,39 +373,39 @@ class Correction:
         lut = self.lookups[joint]
         if lut is None:
             return np.zeros(t.shape)
-        vals = self.values_nm[joint].reshape(2, self.settings.n_temperature, lut.npos)
+        s = self.settings
+        nt = s.n_temperature
         x = (t - lut.t0) * lut.inv_bin
         inside = (x > 0.0) & (x < lut.hi)
         i = np.where(inside, np.trunc(np.where(inside, x, 0.0)), np.where(x > 0.0, lut.hi - 1, 0)).astype(np.int64)
         w = np.where(inside, x - i, np.where(x > 0.0, 1.0, 0.0))
         d = np.where(v >= 0.0, 0, 1)
-        dc = vals.mean(axis=2)
-        a = dc[d, i]
-        c = a + w * (dc[d, i + 1] - a)
-        if lut.npos > 1:
+        vals = (self.values_nm[joint] - self.speed_nm[joint] * self.speed_ref[joint]).reshape(2, nt)
+        a = vals[d, i]
+        c = a + w * (vals[d, i + 1] - a)
+        if lut.sl_cw is not None:
+            sl = self.speed_nm[joint].reshape(2, nt)
+            a = sl[d, i]
+            c = c + (a + w * (sl[d, i + 1] - a)) * speed_term(s, v, ARRAY)
+        m = np.abs(m)
+        if lut.rp_cw is not None:
+            npos = lut.npos
+            rp = self.ripple[joint].reshape(2, nt, npos)
             with np.errstate(invalid='ignore'):
-                y = (p * lut.scale) % lut.npos - 0.5
+                y = (p * lut.scale) % npos - 0.5
             mapped = ~np.isnan(y)
-            y = np.where(mapped, np.where(y < 0.0, y + lut.npos, y), 0.0)
+            y = np.where(mapped, np.where(y < 0.0, y + npos, y), 0.0)
             j = y.astype(np.int64)
             u = y - j
-            j1 = np.where(j + 1 < lut.npos, j + 1, 0)
-            a = vals[d, i, j]
-            a = a + u * (vals[d, i, j1] - a)
-            b = vals[d, i + 1, j]
-            c = np.where(mapped, a + w * (b + u * (vals[d, i + 1, j1] - b) - a), c)
-        bound = lut.rel * np.abs(m) + lut.floor
+            j1 = np.where(j + 1 < npos, j + 1, 0)
+            a = rp[d, i, j]
+            a = a + u * (rp[d, i, j1] - a)
+            b = rp[d, i + 1, j]
+            c = np.where(mapped, c + (a + w * (b + u * (rp[d, i + 1, j1] - b) - a)) * m, c)
+        bound = lut.rel * m + lut.floor
         clipped = ~((-bound <= c) & (c <= bound))
         self.lookup_saturations += int(np.count_nonzero(clipped))
         return np.asarray(np.where(clipped, np.where(c > 0.0, bound, -bound), c), dtype=np.float64)
-
-    def _bounded(self, c: float, lut: _Lookup, model_nm: float) -> float:
-        """``c`` [N·m] within the bound of ``model_nm`` [N·m]; a clipped value is counted."""
-        bound = lut.rel * abs(model_nm) + lut.floor
-        if -bound <= c <= bound:
-            return c
-        self.lookup_saturations += 1
-        return bound if c > 0.0 else -bound
 
     # ------------------------------------------------------------------ learning (shared by batch and online)
     def add_residuals(self, joint: str, temperature_c: ArrayLike, velocity_rad_s: ArrayLike, position_rad: ArrayLike,
@@ -361,13 +429,15 @@ class Correction:
         with np.errstate(invalid='ignore'):
             code = np.asarray(gate_code(s, t, v, p, r, m, f.astype(bool), ARRAY)).ravel()
         ok = code == 0
-        node, cell, along, mabs = cell_of(s, t.ravel()[ok], v.ravel()[ok], p.ravel()[ok], r.ravel()[ok],
-                                          m.ravel()[ok], ARRAY)
+        vv = v.ravel()[ok]
+        node, cell, along, mabs = cell_of(s, t.ravel()[ok], vv, p.ravel()[ok], r.ravel()[ok], m.ravel()[ok], ARRAY)
+        x = speed_term(s, vv, ARRAY)
         nn, nc = self.count[joint].size, self.sum_sq_nm2[joint].size
         self.count[joint] += np.bincount(node, minlength=nn)
-        self.sum_nm[joint] += np.bincount(node, weights=along, minlength=nn)
+        for name, weights in (('sum_nm', along), ('sum_speed', x), ('sum_speed_sq', x * x),
+                              ('sum_speed_res_nm', x * along), ('sum_model_nm', mabs)):
+            getattr(self, name)[joint] += np.bincount(node, weights=weights, minlength=nn)
         self.sum_sq_nm2[joint] += np.bincount(cell, weights=along * along, minlength=nc)
-        self.sum_model_nm[joint] += np.bincount(cell, weights=mabs, minlength=nc)
         return {REASONS[k]: int(n) for k, n in enumerate(np.bincount(code, minlength=len(REASONS))) if k and n}
 
     def _add_one(self, joint: str, t_c: float, v: float, p: float, r: float, m: float, fresh: bool) -> str | None:
@@ -377,31 +447,75 @@ class Correction:
         if code:
             return REASONS[code]
         node, cell, along, mabs = cell_of(s, t_c, v, p, r, m, SCALAR)
+        x = speed_term(s, v, SCALAR)
         self.count[joint][node] += 1
         self.sum_nm[joint][node] += along
+        self.sum_speed[joint][node] += x
+        self.sum_speed_sq[joint][node] += x * x
+        self.sum_speed_res_nm[joint][node] += x * along
+        self.sum_model_nm[joint][node] += mabs
         self.sum_sq_nm2[joint][cell] += along * along
-        self.sum_model_nm[joint][cell] += mabs
         return None
 
     def targets(self, joint: str) -> tuple[Array, NDArray[np.bool_]]:
-        """The learned (shrunk, smoothed, bounded) value of every node [N·m] and whether each cell saturated."""
+        """The learned (shrunk, bounded) value of every cell [N·m] at its mean speed term and whether each cell
+        saturated (:meth:`fit`)."""
+        f = self.fit(joint)
+        return f.values_nm, f.saturated
+
+    def fit(self, joint: str) -> LearnedFit:
+        r"""What the sums of ``joint`` say (:class:`LearnedFit`), per cell (direction × temperature bin):
+
+        - the speed coefficient b [N·m] of the residual r on the speed term x (:func:`speed_term`), from the
+          variation of x *within* each position bin (so a ripple met at the slow end of a motion is not taken for
+          speed), ridge-shrunk with ``prior_samples`` n0 and ``speed_prior_spread`` ρ; 0 unless ``speed_term``:
+
+          .. math:: b = \frac{\sum_{bins} \sum (x - \bar x_{bin})(r - \bar r_{bin})}
+                             {\sum_{bins} \sum (x - \bar x_{bin})^2 + n_0 (\rho \bar x)^2}
+
+          (a cell learned at one speed keeps b near 0: its value holds at every speed);
+        - the value at the cell's mean speed term x̄ [N·m]: the mean residual shrunk towards 0,
+          ``S / (n + n0)``, bounded by ``max_relative`` × the cell's mean ``|model|`` + ``floor_nm``;
+        - with a position map, the relative ripple of each position bin [-]: the bin's residual left after the value
+          and the speed term, over its ``Σ|model|`` (with n0 prior samples at the cell's mean ``|model|``),
+          smoothed to ``harmonics`` Fourier harmonics; bounded by ``max_relative``. Relative, because a race's
+          ripple scales with the friction it modulates (a map learned at one speed holds at another).
+        """
         s = self.settings
         nc, npos, n0 = 2 * s.n_temperature, s.n_position, s.prior_samples
         n = self.count[joint].reshape(nc, npos).astype(float)
         total = self.sum_nm[joint].reshape(nc, npos)
+        xs = self.sum_speed[joint].reshape(nc, npos)
+        ms = self.sum_model_nm[joint].reshape(nc, npos)
         n_cell, s_cell = n.sum(axis=1), total.sum(axis=1)
-        value = (s_cell / (n_cell + n0))[:, None] * np.ones(npos)
-        mean = np.divide(s_cell, n_cell, out=np.zeros(nc), where=n_cell > 0)
+        have = n_cell > 0
+        mean = np.divide(s_cell, n_cell, out=np.zeros(nc), where=have)
+        x_bar = np.divide(xs.sum(axis=1), n_cell, out=np.zeros(nc), where=have)
+        m_bar = np.divide(ms.sum(axis=1), n_cell, out=np.zeros(nc), where=have)
+        b = np.zeros(nc)
+        if s.speed_term:
+            inv_n = np.divide(1.0, n, out=np.zeros(n.shape), where=n > 0)
+            sxx = np.maximum((self.sum_speed_sq[joint].reshape(nc, npos) - xs * xs * inv_n).sum(axis=1), 0.0)
+            sxy = (self.sum_speed_res_nm[joint].reshape(nc, npos) - xs * total * inv_n).sum(axis=1)
+            den = sxx + n0 * (s.speed_prior_spread * x_bar) ** 2
+            b = np.divide(sxy, den, out=np.zeros(nc), where=have & (den > 0.0))
+        value = s_cell / (n_cell + n0)
+        bound = s.max_relative * m_bar + s.floor_nm
+        ripple = np.zeros((nc, npos))
         if s.position_bins:
-            value = value + ((total - n * mean[:, None]) / (n + n0)) @ self._smooth
-        bound = (s.max_relative * np.divide(self.sum_model_nm[joint], n_cell, out=np.zeros(nc), where=n_cell > 0)
-                 + s.floor_nm)[:, None]
-        return np.clip(value, -bound, bound).ravel(), (np.abs(value) > bound).any(axis=1) & (n_cell > 0)
+            left = total - n * mean[:, None] - b[:, None] * (xs - n * x_bar[:, None])   # after value and speed term
+            den_m = ms + n0 * m_bar[:, None]
+            raw = np.divide(left, den_m, out=np.zeros(left.shape), where=den_m > 0.0)
+            ripple = np.clip(raw @ self._smooth, -s.max_relative, s.max_relative)
+        return LearnedFit(np.clip(value, -bound, bound), b, x_bar, ripple.ravel(), m_bar,
+                          (np.abs(value) > bound) & have)
 
     def settle(self) -> None:
         """Apply the learned values at once (batch learning; the :class:`Learner` moves them at a limited rate)."""
         for j in self.values_nm:
-            self.values_nm[j] = self.targets(j)[0]
+            f = self.fit(j)
+            self.values_nm[j], self.speed_nm[j], self.speed_ref[j], self.ripple[j] = (f.values_nm, f.speed_nm,
+                                                                                      f.speed_mean, f.ripple)
         self.rebuild()
 
     @classmethod
@@ -420,40 +534,53 @@ class Correction:
         s = self.settings
         nt, npos = s.n_temperature, s.n_position
         _, sat = self.targets(joint)
-        n = self.count[joint].reshape(2 * nt, npos)
-        tot = self.sum_nm[joint].reshape(2 * nt, npos)
-        val = self.values_nm[joint].reshape(2 * nt, npos)
+        node = {name: getattr(self, name)[joint].reshape(2 * nt, npos) for name in (
+            'count', 'sum_nm', 'sum_speed', 'sum_speed_sq', 'sum_speed_res_nm', 'sum_model_nm', 'ripple')}
+        n = node['count']
         out = []
         for c in np.flatnonzero(n.sum(axis=1)).tolist():
             k, b = int(n[c].sum()), c % nt
-            mean = float(tot[c].sum()) / k
+            total = float(node['sum_nm'][c].sum())
+            mean = total / k
             var = (float(self.sum_sq_nm2[joint][c]) - k * mean * mean) / (k - 1) if k > 1 else math.nan
             rec = {'direction': DIRECTIONS[c // nt], 'bin': b, 'centre_c': s.temperature_min_c + (b + 0.5) *
-                   s.temperature_bin_c, 'value_nm': float(val[c].mean()), 'samples': k, 'sum_nm': float(tot[c].sum()),
-                   'mean_nm': mean, 'std_error_nm': math.sqrt(max(var, 0.0) / k) if k > 1 else None,
+                   s.temperature_bin_c, 'value_nm': float(self.values_nm[joint][c]),
+                   'speed_nm': float(self.speed_nm[joint][c]), 'speed_ref': float(self.speed_ref[joint][c]),
+                   'samples': k, 'sum_nm': total, 'mean_nm': mean,
+                   'std_error_nm': math.sqrt(max(var, 0.0) / k) if k > 1 else None,
                    'sum_sq_nm2': float(self.sum_sq_nm2[joint][c]),
-                   'sum_abs_model_nm': float(self.sum_model_nm[joint][c]),
+                   'sum_abs_model_nm': float(node['sum_model_nm'][c].sum()),
+                   'sum_speed': float(node['sum_speed'][c].sum()), 'sum_speed_sq': float(node['sum_speed_sq'][c].sum()),
+                   'sum_speed_residual_nm': float(node['sum_speed_res_nm'][c].sum()),
                    'saturated': bool(sat[c])}
             if s.position_bins:
-                dev = val[c] - val[c].mean()
-                rec |= {'values_nm': val[c].tolist(), 'position_samples': n[c].tolist(),
-                        'position_sums_nm': tot[c].tolist(),
-                        'harmonics_cos_nm': (self._cos @ dev * 2.0 / npos).tolist(),
-                        'harmonics_sin_nm': (self._sin @ dev * 2.0 / npos).tolist()}
+                rp = node['ripple'][c]
+                rec |= {'ripple_relative': rp.tolist(), 'position_samples': n[c].tolist(),
+                        'position_sums_nm': node['sum_nm'][c].tolist(),
+                        'position_speed_sums': node['sum_speed'][c].tolist(),
+                        'position_speed_sq_sums': node['sum_speed_sq'][c].tolist(),
+                        'position_speed_residual_sums_nm': node['sum_speed_res_nm'][c].tolist(),
+                        'position_model_sums_nm': node['sum_model_nm'][c].tolist(),
+                        'harmonics_cos': (self._cos @ rp * 2.0 / npos).tolist(),
+                        'harmonics_sin': (self._sin @ rp * 2.0 / npos).tolist()}
             out.append(rec)
         return out
 
     def summary(self) -> dict[str, Any]:
-        """Cells with data, samples, largest |value| [N·m] and saturated cells, per joint and in total."""
+        """Cells with data, samples, largest |value| [N·m], largest |speed coefficient| [N·m], largest |relative
+        ripple| [-] and saturated cells, per joint and in total."""
         joints = {}
         for j in self.identity.joints:
             n_cell = self.count[j].reshape(2 * self.settings.n_temperature, -1).sum(axis=1)
             joints[j] = {'cells_with_data': int(np.count_nonzero(n_cell)), 'samples': int(n_cell.sum()),
                          'max_abs_correction_nm': float(np.abs(self.values_nm[j]).max()),
+                         'max_abs_speed_nm': float(np.abs(self.speed_nm[j]).max()),
+                         'max_abs_ripple': float(np.abs(self.ripple[j]).max()),
                          'saturated_cells': int(np.count_nonzero(self.targets(j)[1]))}
         out: dict[str, Any] = {k: sum(d[k] for d in joints.values()) for k in ('cells_with_data', 'samples',
                                                                               'saturated_cells')}
-        out['max_abs_correction_nm'] = max(d['max_abs_correction_nm'] for d in joints.values())
+        for k in ('max_abs_correction_nm', 'max_abs_speed_nm', 'max_abs_ripple'):
+            out[k] = max(d[k] for d in joints.values())
         return {**out, 'lookup_saturations': self.lookup_saturations, 'joints': joints}
 
     # ------------------------------------------------------------------ file
@@ -528,12 +655,26 @@ class Learner:
             return False
         c = self.correction
         limit = self.settings.max_rate_nm_per_min * min(now_s - last, self.settings.step_period_s) / 60.0
+        npos = c.settings.n_position
         changed = False
         for j, values in c.values_nm.items():
-            target = c.targets(j)[0]
-            new = values + np.clip(target - values, -limit, limit)
-            if not np.array_equal(new, values):
-                c.values_nm[j], changed = new, True
+            f = c.fit(j)
+            coef, ref, ripple = c.speed_nm[j], c.speed_ref[j], c.ripple[j]
+            # the applied values move to the new mean speed term with the applied correction unchanged, then all
+            # move towards the learned ones: a value by at most ``limit``, the speed coefficient by at most ``limit``
+            # per unit of the mean speed term and the relative ripple by at most ``limit`` per mean |model| (so the
+            # correction changes by about ``limit`` at the speeds seen)
+            new_ref = np.where(f.speed_mean > 0.0, f.speed_mean, ref)
+            moved = values + coef * (new_ref - ref)
+            new = moved + np.clip(f.values_nm - moved, -limit, limit)
+            coef_limit = limit / np.maximum(new_ref, 1e-3)
+            new_coef = coef + np.clip(f.speed_nm - coef, -coef_limit, coef_limit)
+            ripple_limit = np.repeat(limit / np.maximum(f.model_mean_nm, c.settings.floor_nm + 1e-9), npos)
+            new_ripple = ripple + np.clip(f.ripple - ripple, -ripple_limit, ripple_limit)
+            if not (np.array_equal(new, values) and np.array_equal(new_coef, coef)
+                    and np.array_equal(new_ripple, ripple)):
+                c.values_nm[j], c.speed_nm[j], c.speed_ref[j], c.ripple[j] = new, new_coef, new_ref, new_ripple
+                changed = True
         if changed:
             c.rebuild()
         return changed
@@ -545,8 +686,8 @@ class Learner:
     def reset(self) -> None:
         """Back to the pure model at once: an empty correction (the counters of refused samples stay)."""
         c = self.correction
-        for arrays in (c.count, c.sum_nm, c.sum_sq_nm2, c.sum_model_nm, c.values_nm):
-            for a in arrays.values():
+        for name in Correction.STATE:
+            for a in getattr(c, name).values():
                 a[:] = 0
         self.accepted = 0
         c.rebuild()

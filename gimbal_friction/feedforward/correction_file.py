@@ -1,16 +1,26 @@
 """The correction file: a :class:`~gimbal_friction.feedforward.correction.Correction` as YAML a user can read, diff
 and version (no rclpy; YAML is imported when a file is read or written).
 
-Content: ``format: gimbal_friction/correction``, ``version: 1``, the units (``torque_unit: N*m``,
+Content: ``format: gimbal_friction/correction``, ``version: 2``, the units (``torque_unit: N*m``,
 ``temperature_unit: degC``, ``position_unit: rad``), ``model`` (the joints and the SHA-256 of their parameters,
 :func:`~gimbal_friction.feedforward.correction.model_identity`: a file learned against other parameters is refused),
 ``settings`` (:class:`~gimbal_friction.feedforward.correction.CorrectionSettings`: bins, shrinkage ``prior_samples``,
 bound, gate), ``temperature_edges_c`` and, per joint, one record per cell with data: ``direction`` (cw/ccw), ``bin``,
-``centre_c`` [°C], ``value_nm`` (applied), ``samples``, ``sum_nm``, ``mean_nm``, ``std_error_nm`` [N·m],
-``saturated``, and the sums learning resumes from (``sum_sq_nm2``, ``sum_abs_model_nm``). With a position map a cell
-also holds the applied ``values_nm`` at the position-bin centres, ``position_samples``, ``position_sums_nm`` and the
-map's harmonics ``harmonics_cos_nm`` / ``harmonics_sin_nm`` [N·m] (for reading: map(θ) ≈ value_nm + Σ_k a_k
-cos(2πkθ/period) + b_k sin(2πkθ/period)). One field per line; lists of numbers on one line.
+``centre_c`` [°C], ``value_nm`` [N·m] (applied, at the speed term ``speed_ref``), ``speed_nm`` [N·m] (applied: the
+correction is ``value_nm + speed_nm · (x − speed_ref)`` with the speed term x = (max(|v|, min_speed_rad_s) /
+speed_reference_rad_s)^(2/3)), ``samples``, ``sum_nm``, ``mean_nm``, ``std_error_nm`` [N·m], ``saturated``, and the
+sums learning resumes from (``sum_sq_nm2``, ``sum_abs_model_nm``, ``sum_speed``, ``sum_speed_sq``,
+``sum_speed_residual_nm``). With a position map a cell also holds the applied relative ripple ``ripple_relative``
+[-] at the position-bin centres (the correction adds ripple(θ) × |model|), the same sums per position bin
+(``position_samples``, ``position_sums_nm``, ``position_speed_sums``, ``position_speed_sq_sums``,
+``position_speed_residual_sums_nm``, ``position_model_sums_nm``) and the ripple's harmonics ``harmonics_cos`` /
+``harmonics_sin`` [-] (for reading: ripple(θ) ≈ Σ_k a_k cos(2πkθ/period) + b_k sin(2πkθ/period)). One field per
+line; lists of numbers on one line. Last, ``samples_total`` per joint (a file cut short is refused).
+
+Version 1 files (no speed term, an additive position map) are still read: ``speed_term: false``, ``speed_nm`` 0,
+their position map turned into a relative ripple at the cell's mean |model| (equal there); their samples count as
+taken at ``speed_reference_rad_s`` (the chamber test's 1/3 rpm), so learning on from them with ``speed_term`` learns
+the speed term from the new samples.
 
 :func:`save` writes through a temporary file renamed over the target (a crash leaves the old file or the new one,
 never half of one); :func:`load` refuses a missing, corrupt, unknown-version or mismatched file with one line naming
@@ -41,7 +51,18 @@ from gimbal_friction.feedforward.correction import (
 __all__ = ['FORMAT', 'UNITS', 'VERSION', 'load', 'save', 'to_mapping']
 
 FORMAT = 'gimbal_friction/correction'
-VERSION = 1
+VERSION = 2
+#: versions :func:`load` reads (1: before the slope on the model friction)
+READS = (1, 2)
+#: settings a version-1 file does not hold, and what it meant
+#: a version-2 cell's per-position-bin lists (with a position map) and sums (without one): state name -> key
+_POSITION_LISTS = {'count': 'position_samples', 'sum_nm': 'position_sums_nm', 'sum_speed': 'position_speed_sums',
+                   'sum_speed_sq': 'position_speed_sq_sums', 'sum_speed_res_nm': 'position_speed_residual_sums_nm',
+                   'sum_model_nm': 'position_model_sums_nm', 'ripple': 'ripple_relative'}
+_CELL_SUMS = {'count': 'samples', 'sum_nm': 'sum_nm', 'sum_speed': 'sum_speed', 'sum_speed_sq': 'sum_speed_sq',
+              'sum_speed_res_nm': 'sum_speed_residual_nm', 'sum_model_nm': 'sum_abs_model_nm'}
+V1_SETTINGS = {'speed_term': False, 'speed_reference_rad_s': CorrectionSettings().speed_reference_rad_s,
+               'speed_prior_spread': CorrectionSettings().speed_prior_spread}
 UNITS = {'torque_unit': 'N*m', 'temperature_unit': 'degC', 'position_unit': 'rad'}
 
 
@@ -50,7 +71,9 @@ def to_mapping(c: Correction) -> dict[str, Any]:
     return {'format': FORMAT, 'version': VERSION, **UNITS,
             'model': {'joints': list(c.identity.joints), 'params_sha256': c.identity.params_sha256},
             'settings': asdict(c.settings), 'temperature_edges_c': c.settings.edges_c(),
-            'joints': {j: c.cells(j) for j in c.identity.joints}}
+            'joints': {j: c.cells(j) for j in c.identity.joints},
+            # last: a file cut short (a full disk, a copy interrupted) misses it and is refused
+            'samples_total': {j: int(c.count[j].sum()) for j in c.identity.joints}}
 
 
 def save(c: Correction, path: str | os.PathLike[str]) -> None:
@@ -99,16 +122,22 @@ def load(path: str | os.PathLike[str], expected: ModelIdentity | None = None) ->
 def _from_mapping(doc: Any) -> Correction:
     if not isinstance(doc, dict) or doc.get('format') != FORMAT:
         raise CorrectionError(f'not a correction file (format is not {FORMAT}); delete it or name another')
-    if doc.get('version') != VERSION:
-        raise CorrectionError(f'version {doc.get("version")!r} is not supported (this version reads {VERSION}); '
-                              'relearn it')
+    version = doc.get('version')
+    if version not in READS:
+        raise CorrectionError(f'version {version!r} is not supported (this version reads '
+                              f'{", ".join(map(str, READS))}); relearn it')
     for key, unit in UNITS.items():
         if doc.get(key) != unit:
             raise CorrectionError(f'{key} must be {unit}, not {doc.get(key)!r}')
     names = {f.name for f in fields(CorrectionSettings)}
-    if set(doc['settings']) != names:
+    given = dict(doc['settings'])
+    if version == 1:
+        names -= set(V1_SETTINGS)
+    if set(given) != names:
         raise CorrectionError(f'settings must name exactly {", ".join(sorted(names))}')
-    s = settings_from(CorrectionSettings, doc['settings'])
+    if version == 1:
+        given |= V1_SETTINGS
+    s = settings_from(CorrectionSettings, given)
     if doc['temperature_edges_c'] != s.edges_c():
         raise CorrectionError('temperature_edges_c do not match the settings; delete it')
     model = doc['model']
@@ -123,19 +152,37 @@ def _from_mapping(doc: Any) -> Correction:
                 raise CorrectionError(f'joint {j}: a cell has bin {b} or direction {rec["direction"]!r}, out of range')
             cell = DIRECTIONS.index(rec['direction']) * nt + b
             nodes = slice(cell * npos, (cell + 1) * npos)
-            if s.position_bins:
-                counts, sums, vals = rec['position_samples'], rec['position_sums_nm'], rec['values_nm']
-                if not len(counts) == len(sums) == len(vals) == npos or sum(counts) != rec['samples']:
-                    raise CorrectionError(f"joint {j}: a cell's position lists do not match position_bins/samples")
+            n = int(rec['samples'])
+            value = float(rec['value_nm'])
+            if version == 1:   # no speed sums: its samples count as taken at speed_reference_rad_s (x = 1)
+                m_bar = float(rec['sum_abs_model_nm']) / n if n else 0.0
+                if s.position_bins:
+                    counts, sums = rec['position_samples'], rec['position_sums_nm']
+                    ripple = [(float(x) - value) / m_bar if m_bar > 0.0 else 0.0 for x in rec['values_nm']]
+                else:
+                    counts, sums, ripple = [n], [rec['sum_nm']], [0.0]
+                node = {'count': counts, 'sum_nm': sums, 'sum_speed': counts, 'sum_speed_sq': counts,
+                        'sum_speed_res_nm': sums, 'sum_model_nm': [k * m_bar for k in counts], 'ripple': ripple}
+                speed_nm, speed_ref = 0.0, 1.0
             else:
-                counts, sums, vals = [rec['samples']], [rec['sum_nm']], [rec['value_nm']]
-            c.count[j][nodes] = [int(k) for k in counts]
-            c.sum_nm[j][nodes] = [float(x) for x in sums]
-            c.values_nm[j][nodes] = [float(x) for x in vals]
+                if s.position_bins:
+                    node = {name: rec[key] for name, key in _POSITION_LISTS.items()}
+                else:
+                    node = {name: [rec[key]] for name, key in _CELL_SUMS.items()} | {'ripple': [0.0]}
+                speed_nm, speed_ref = float(rec['speed_nm']), float(rec['speed_ref'])
+            if any(len(x) != npos for x in node.values()) or sum(int(k) for k in node['count']) != n:
+                raise CorrectionError(f"joint {j}: a cell's position lists do not match position_bins/samples")
+            for name, values in node.items():
+                getattr(c, name)[j][nodes] = [int(k) for k in values] if name == 'count' else \
+                    [float(x) for x in values]
             c.sum_sq_nm2[j][cell] = float(rec['sum_sq_nm2'])
-            c.sum_model_nm[j][cell] = float(rec['sum_abs_model_nm'])
-        numbers = (c.count[j], c.sum_nm[j], c.values_nm[j], c.sum_sq_nm2[j], c.sum_model_nm[j])
+            c.values_nm[j][cell], c.speed_nm[j][cell], c.speed_ref[j][cell] = value, speed_nm, speed_ref
+        numbers = [getattr(c, name)[j] for name in Correction.STATE]
         if not all(np.all(np.isfinite(a)) for a in numbers) or np.any(c.count[j] < 0):
             raise CorrectionError(f'joint {j}: non-finite values or negative sample counts; delete it')
+    if version > 1:
+        totals = doc['samples_total']
+        if not isinstance(totals, dict) or {j: int(c.count[j].sum()) for j in c.identity.joints} != totals:
+            raise CorrectionError('samples_total does not match the cells (a file cut short or edited); delete it')
     c.rebuild()
     return c

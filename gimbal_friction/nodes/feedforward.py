@@ -179,7 +179,7 @@ class CorrectionKeeper:
         if c.settings == self.settings:
             return c
         out = Correction(self.settings, c.identity)
-        for name in ('count', 'sum_nm', 'sum_sq_nm2', 'sum_model_nm', 'values_nm'):
+        for name in Correction.STATE:
             setattr(out, name, getattr(c, name))
         out.rebuild()
         return out

@@ -416,14 +416,15 @@ def _learned_correction(bins: int = 16):
     t = rng.uniform(-55.0, 70.0, n)
     v = rng.choice([-1.0, 1.0], n) * rng.uniform(0.01, 0.1, n)
     p = rng.uniform(0.0, 6.3, n)
-    along = 4e-4 * (-t / 50.0 + 0.5 * (v > 0) + 0.3 * np.sin(2 * p)) + rng.normal(0.0, 1e-4, n)
+    along = 4e-4 * (-t / 50.0 + 0.5 * (v > 0) + 0.3 * np.sin(2 * p) + 0.5 * np.abs(v / 0.0349066) ** (2 / 3)) \
+        + rng.normal(0.0, 1e-4, n)   # with a speed term
     c, _ = Correction.from_residuals(CorrectionSettings(prior_samples=20.0, position_bins=bins, harmonics=3,
                                                         max_relative=0.2),
                                      model_identity({'elevation': AxisParams()}),
                                      {'elevation': (t, v, p, np.where(v > 0, along, -along), np.full(n, 2e-3))})
     one = Correction(c.settings, c.identity)   # a cell with one sample: its error is unknown
     one.add_residuals('elevation', [100.0] * 1, [0.05], [0.0], [1e-4], [2e-3])
-    for name in ('count', 'sum_nm', 'sum_sq_nm2', 'sum_model_nm'):
+    for name in Correction.STATE[:7]:   # the sums
         getattr(c, name)['elevation'] += getattr(one, name)['elevation']
     c.settle()
     return c
@@ -490,18 +491,20 @@ def test_a_correction_is_carried_in_every_format_and_the_c_feedforward_adds_it(t
     np.testing.assert_allclose(res[:, 2], tau, rtol=1e-12, atol=1e-18)
     # CSV columns and ROS arrays
     csv_text = render_csv(ct, PROV)
-    assert 'Learned correction: unit.correction.yaml' in csv_text and 'position map (16 bins) is not exported' in \
-        csv_text
+    assert 'Learned correction: unit.correction.yaml' in csv_text and \
+        'position map (16 bins, a relative ripple) is not exported' in csv_text
+    assert np.abs(c.speed_nm['elevation']).max() > 1e-4   # the speed term is carried
     rows = list(csv.DictReader(io.StringIO('\n'.join(line for line in csv_text.splitlines()
                                                      if not line.startswith('#')))))
     assert list(rows[0]) == [*CSV_FIELDS, *CSV_CORRECTION_FIELDS]
     for r in rows[::7]:
-        tt, mm = float(r['temperature_c']), float(r['m_total_nm'])
-        for sign, name in ((1.0, 'cw'), (-1.0, 'ccw')):
+        tt, mm, speed = float(r['temperature_c']), float(r['m_total_nm']), float(r['speed_rad_s'])
+        for sign, name in ((1.0, 'cw'), (-1.0, 'ccw')):   # at the row's speed (0: held at the gate's speed)
             kd = float(direction_factor(AxisParams(), tt, sign, SCALAR))
-            assert float(r[f'correction_{name}_nm']) == pytest.approx(c.along_nm('elevation', tt, sign, math.nan,
-                                                                                  kd * mm), rel=1e-14, abs=1e-19)
+            want = c.along_nm('elevation', tt, sign * max(speed, c.settings.min_speed_rad_s), math.nan, kd * mm)
+            assert float(r[f'correction_{name}_nm']) == pytest.approx(want, rel=1e-14, abs=1e-19)
     e = yaml.safe_load(render_ros_yaml(ct, PROV))[ROS_NODE]['ros__parameters']['elevation']
     assert e['correction_cw_nm'] == tc.values_nm[0].tolist() and e['correction_ccw_samples'] == tc.samples[1].tolist()
     assert e['correction_max_relative'] == 0.2 and len(e['correction_temperatures_c']) == 37
+    assert e['correction_cw_speed_nm'] == tc.speed_nm[0].tolist() and e['correction_min_speed_rad_s'] == 0.005
     assert -1.0 in e['correction_cw_error_nm']
