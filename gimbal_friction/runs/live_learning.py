@@ -160,8 +160,10 @@ class _FileWatch:
 
 def live_learning(*, sup: Any, watcher: Any, node_args: list[str], work_dir: Path, inputs: Any, learn: Any,
                   run_sim: Callable[[str, Callable[[], None]], Any], wait_connected: Callable[[], None],
-                  log: Callable[[str], None], timeout_s: float) -> tuple[dict[str, Any], dict[str, Any]]:
-    """Steps 1-5 of the module docstring; returns (the ``learning`` report, the ``gimbal_sim`` runs by case).
+                  log: Callable[[str], None], timeout_s: float
+                  ) -> tuple[dict[str, Any], dict[str, Any], Correction | None]:
+    """Steps 1-5 of the module docstring; returns (the ``learning`` report, the ``gimbal_sim`` runs by case, the
+    correction the file held when the node was restarted: None if unreadable).
 
     ``run_sim(case, tick)`` runs ``gimbal_sim`` with the feedforward (calling ``tick`` while it waits, about every
     0.1 s) and returns its loaded run; ``wait_connected`` waits for the graph. Node failures raise
@@ -239,7 +241,7 @@ def live_learning(*, sup: Any, watcher: Any, node_args: list[str], work_dir: Pat
         periodic_samples=seen['periodic_samples'], hold_error=seen['hold_error'], stop_code=code,
         unsaved_at_stop=last.samples - before_stop[1], file_changed_at_stop=after_key != before_stop[0],
         shutdown_samples=after_samples, file_error=after_error)
-    return report, runs
+    return report, runs, saved
 
 
 def _set_save_period(node: Any, watcher: Any, period_s: float, timeout_s: float) -> str | None:

@@ -32,6 +32,7 @@ import numpy as np
 
 from gimbal_friction.common.errors import GimbalFrictionError
 from gimbal_friction.common.files import write_bytes_atomic
+from gimbal_friction.feedforward.correction import Correction
 from gimbal_friction.sim.compensation import Compensator, ControllerInputs
 from gimbal_friction.sim.config import SimConfig
 from gimbal_friction.sim.engine import BatchResult, Run, Traces, simulate
@@ -158,7 +159,7 @@ def live_study(inputs: Any, *, temperature_c: float = -40.0, profile: str = 'tra
 
     from domain_coordinator import domain_id
 
-    from gimbal_friction.runs.live_learning import LEARNING_CASE, live_learning
+    from gimbal_friction.runs.live_learning import LEARNING_CASE, RESUMED_CASE, live_learning
     from gimbal_friction.sim.study import LearnSetup
 
     cfg: SimConfig = inputs.sim
@@ -175,6 +176,7 @@ def live_study(inputs: Any, *, temperature_c: float = -40.0, profile: str = 'tra
     records: list[dict[str, Any]] = []
     runs: dict[str, tuple[BatchResult, dict[str, Any], dict[str, np.ndarray]]] = {}
     learning: dict[str, Any] | None = None
+    resumed_from: Correction | None = None
     try:
         with domain_id() as did:
             env = dict(os.environ, ROS_DOMAIN_ID=str(did), ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST',
@@ -207,7 +209,7 @@ def live_study(inputs: Any, *, temperature_c: float = -40.0, profile: str = 'tra
                         if code != 0:
                             msg = f'friction_feedforward exited with code {code}; see {work_dir / "logs"}'
                             raise GimbalFrictionError(msg)
-                    learning, more_runs = live_learning(
+                    learning, more_runs, resumed_from = live_learning(
                         sup=sup, watcher=watcher, node_args=args, work_dir=work_dir, inputs=inputs,
                         learn=learn if learn is not None else LearnSetup(), run_sim=run_sim,
                         wait_connected=lambda: _wait_connected(watcher, sup, connect_timeout_s), log=log,
@@ -239,7 +241,17 @@ def live_study(inputs: Any, *, temperature_c: float = -40.0, profile: str = 'tra
             out.update(lat)
     if learning is not None:
         rms = {r['case']: r['rate_error_rms_rad_s'] for r in records}
-        learning.update({f'rate_error_rms_rad_s_{c}': rms[c] for c in runs if c not in plain})
+        for c in (c for c in runs if c not in plain):
+            learning[f'rate_error_rms_rad_s_{c}'] = rms[c]
+            learning[f'feedforward_timed_out_ticks_{c}'] = runs[c][1]['latency'].get('feedforward_timed_out_ticks')
+        if resumed_from is not None and RESUMED_CASE in runs:
+            # what the resumed correction itself does, the live timing held equal: the run after the restart
+            # replayed offline with the live per-tick feedforward age, with the correction (frozen) and without
+            batch, _, extra = runs[RESUMED_CASE]
+            learning['offline_resumed_rate_error_rms_rad_s_with_correction'] = _offline_twin(
+                inputs, batch, 'feedforward', 0, extra['feedforward_age'], resumed_from)
+            learning['offline_resumed_rate_error_rms_rad_s_without_correction'] = _offline_twin(
+                inputs, batch, 'feedforward', 0, extra['feedforward_age'])
         out['learning'] = learning
     out['records'] = records
     out.setdefault('feedforward_latency_p50_s', math.nan)
@@ -302,16 +314,16 @@ def _run_sim(sup: Any, args: list[str], work_dir: Path, case: str, *, temperatur
 
 
 def _offline_twin(inputs: Any, live: BatchResult, case: str, latency_ticks: int,
-                  ages: np.ndarray | None = None) -> float:
-    """LOS rate error RMS [rad/s] of the same run offline: the feedforward ``latency_ticks`` old at every tick, or,
-    with ``ages``, exactly as old as the live run had it at each tick (its timing replayed, the controller's
-    ``feedforward_timeout_s`` included)."""
+                  ages: np.ndarray | None = None, correction: Correction | None = None) -> float:
+    """LOS rate error RMS [rad/s] of the same run offline: the feedforward (with ``correction``, frozen, if given)
+    ``latency_ticks`` old at every tick, or, with ``ages``, exactly as old as the live run had it at each tick (its
+    timing replayed, the controller's ``feedforward_timeout_s`` included)."""
     cfg = live.config.replace(feedforward_latency_s=latency_ticks * live.config.controller_period_s)
     ff: FeedforwardSetup = inputs.feedforward
     comps: dict[str, Compensator] = {}
     if case == 'feedforward':
-        comps['feedforward'] = ff.compensator(inputs.axis) if ages is None else _replayed(
-            ff.compensator(inputs.axis), ages, cfg)
+        comp = ff.compensator(inputs.axis, correction=correction)
+        comps['feedforward'] = comp if ages is None else _replayed(comp, ages, cfg)
     res = simulate(cfg, inputs.axis, live.profile, [Run(case, live.runs[0].temperature_c, live.runs[0].seed)],
                    comps)
     return float(batch_metrics(res)[0].rate_error_rms_rad_s)

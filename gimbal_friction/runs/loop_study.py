@@ -302,7 +302,18 @@ def _live_learning_lines(lr: dict[str, Any]) -> list[str]:
                f'difference {_fmt(lr["restart_max_value_difference_nm"], 1e3, 6)} N*mm); LOS rate RMS '
                f'{_fmt(rms["learning"], 1e3)} mrad/s learning from empty, {_fmt(rms["learning_resumed"], 1e3)} '
                f'after the restart ({lr["resumed_run_samples_last"]} samples at its end)')
-    return [head + ('ok' if lr['ok'] else f'FAILED: {lr["failure"]}'), topic, file, restart]
+    timing = (f'  feedforward timed out on {_int(lr.get("feedforward_timed_out_ticks_learning"))} / '
+              f'{_int(lr.get("feedforward_timed_out_ticks_learning_resumed"))} ticks of the two runs; the run after '
+              'the restart replayed offline with its live timing: '
+              f'{_fmt(lr.get("offline_resumed_rate_error_rms_rad_s_with_correction"), 1e3)} mrad/s with the resumed '
+              f'correction (frozen), {_fmt(lr.get("offline_resumed_rate_error_rms_rad_s_without_correction"), 1e3)} '
+              'without')
+    return [head + ('ok' if lr['ok'] else f'FAILED: {lr["failure"]}'), topic, file, restart, timing]
+
+
+def _int(x: Any) -> str:
+    return '-' if x is None or (isinstance(x, float) and not math.isfinite(x)) else f'{x:.0f}'
+
 
 
 # ---------------------------------------------------------------------------------------------- figures

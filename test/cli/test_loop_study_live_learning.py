@@ -129,7 +129,7 @@ def test_a_correction_message_is_read_per_joint():
 
 
 def test_the_command_fails_with_one_line_when_live_learning_did_nothing(monkeypatch, capsys):
-    import gimbal_friction.runs.loop_live as loop_live
+    from gimbal_friction.runs import loop_live
     report = {'failure': 'the correction did not change (0 -> 0 samples, 1 states)'}
     monkeypatch.setattr(loop_live, 'live_study', lambda *a, **k: {'profile': 'tracking', 'learning': report,
                                                                    'records': []})
