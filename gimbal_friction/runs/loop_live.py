@@ -252,6 +252,11 @@ def live_study(inputs: Any, *, temperature_c: float = -40.0, profile: str = 'tra
                 inputs, batch, 'feedforward', 0, extra['feedforward_age'], resumed_from)
             learning['offline_resumed_rate_error_rms_rad_s_without_correction'] = _offline_twin(
                 inputs, batch, 'feedforward', 0, extra['feedforward_age'])
+            # ... and with the nominal latency (the machine's load taken out)
+            learning['offline_resumed_nominal_latency_rate_error_rms_rad_s_with_correction'] = _offline_twin(
+                inputs, batch, 'feedforward', cfg.latency_ticks, correction=resumed_from)
+            learning['offline_resumed_nominal_latency_rate_error_rms_rad_s_without_correction'] = _offline_twin(
+                inputs, batch, 'feedforward', cfg.latency_ticks)
         out['learning'] = learning
     out['records'] = records
     out.setdefault('feedforward_latency_p50_s', math.nan)

@@ -307,6 +307,9 @@ def _live_learning_lines(lr: dict[str, Any]) -> list[str]:
               'the restart replayed offline with its live timing: '
               f'{_fmt(lr.get("offline_resumed_rate_error_rms_rad_s_with_correction"), 1e3)} mrad/s with the resumed '
               f'correction (frozen), {_fmt(lr.get("offline_resumed_rate_error_rms_rad_s_without_correction"), 1e3)} '
+              'without; with the nominal latency: '
+              f'{_fmt(lr.get("offline_resumed_nominal_latency_rate_error_rms_rad_s_with_correction"), 1e3)} with, '
+              f'{_fmt(lr.get("offline_resumed_nominal_latency_rate_error_rms_rad_s_without_correction"), 1e3)} '
               'without')
     return [head + ('ok' if lr['ok'] else f'FAILED: {lr["failure"]}'), topic, file, restart, timing]
 
