@@ -16,7 +16,7 @@ from pathlib import Path
 from typing import Any
 
 from gimbal_friction.cli._common import add_common, parse_temperature_spec, print_json, progress, refuse_existing
-from gimbal_friction.common.errors import ConfigError
+from gimbal_friction.common.errors import ConfigError, GimbalFrictionError
 
 CASE_CHOICES = ('none', 'constant', 'feedforward', 'refit', 'learned', 'bound', 'ideal', 'feedforward_measured',
                 'feedforward_reference')
@@ -82,7 +82,10 @@ def add_parser(sub: Any) -> None:
                         help='plateau of the live runs [degC] (default -40)')
     parser.add_argument('--live-profile', default='tracking', metavar='NAME', help='profile of the live runs')
     parser.add_argument('--live-cases', default='feedforward', metavar='LIST',
-                        help='cases of the live runs: feedforward and/or none (default feedforward)')
+                        help='cases of the live runs: feedforward, none and/or learning (friction_feedforward '
+                        'learning in service with the --learn-* settings into live/correction.yaml, saved, stopped, '
+                        'restarted on the file and run again; fails if it learned, saved or resumed nothing) '
+                        '(default feedforward)')
     parser.add_argument('--live-duration-s', type=float, metavar='S',
                         help="duration of a live run [s] (default the profile's, or the short one with --short)")
     parser.add_argument('--live-realtime-factor', type=float, default=1.0, metavar='X',
@@ -140,7 +143,7 @@ def run(args: argparse.Namespace) -> int:
     fit = _names(args.refit_fit, '--refit-fit', FIT_PARAMETERS) if args.refit_fit else list(DEFAULT_REFIT_FIT)
     if args.latency_s is not None and not (math.isfinite(args.latency_s) and 0.0 <= args.latency_s <= 1.0):
         raise ConfigError('--latency-s', 'must lie in [0, 1] [s]', args.latency_s)
-    live_cases = _names(args.live_cases, '--live-cases', ('feedforward', 'none')) if args.live else []
+    live_cases = _names(args.live_cases, '--live-cases', ('feedforward', 'none', 'learning')) if args.live else []
     if args.live and not (0.01 <= args.live_realtime_factor <= 100.0):
         raise ConfigError('--live-realtime-factor', 'must lie in [0.01, 100] [-]', args.live_realtime_factor)
     if args.live and not 1 <= args.live_publish_every <= 10000:
@@ -151,6 +154,9 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError('--out', 'must be a folder', str(args.out))
     if args.out is not None:
         refuse_existing(args.out / 'residuals', '--out', what='a log')
+        if 'learning' in live_cases:   # live learning starts from an empty correction
+            from gimbal_friction.runs.live_learning import CORRECTION_FILE
+            refuse_existing(args.out / 'live' / CORRECTION_FILE, '--out')
     inputs = load_study_inputs(args.config, args.axis, latency_s=args.latency_s, seed=args.seed,
                                truth_path=args.truth)
 
@@ -173,7 +179,7 @@ def run(args: argparse.Namespace) -> int:
                           cases=live_cases, short=args.short, duration_s=args.live_duration_s,
                           realtime_factor=args.live_realtime_factor, publish_every_ticks=args.live_publish_every,
                           work_dir=(args.out / 'live') if args.out is not None else None,
-                          log=lambda text: print(text, file=sys.stderr, flush=True))
+                          log=lambda text: print(text, file=sys.stderr, flush=True), learn=learn)
     doc = study_document(result, inputs, live=live, goals=goals, explained=explained)
     doc['wall_s']['total'] = round(time.perf_counter() - t0, 3)
     if args.out is not None:
@@ -184,4 +190,8 @@ def run(args: argparse.Namespace) -> int:
         print_json(doc)
     else:
         sys.stdout.write(table_text(doc))
+    failure = ((live or {}).get('learning') or {}).get('failure')
+    if failure:   # the report is out; the command still fails: the live learning did not do its job
+        msg = f'live learning: {failure}'
+        raise GimbalFrictionError(msg)
     return 0

@@ -97,7 +97,7 @@ from gimbal_friction.streams.measurement import MEASUREMENT_FIELDS, METHOD_NAMES
 
 REFERENCE_VELOCITY = topics.REFERENCE_VELOCITY
 #: the learned correction (diagnostic_msgs/DiagnosticArray): one status per joint and per cell with data
-CORRECTION = '/gimbal/friction/correction'
+CORRECTION = topics.CORRECTION
 #: subscription depth of the joint states: a burst of this many messages is buffered, not dropped
 JOINT_STATE_DEPTH = 1000
 NodeSettings = FeedforwardNodeSettings  # the node-level parameters (gimbal_friction.common.settings)

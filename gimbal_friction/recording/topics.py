@@ -20,6 +20,8 @@ MEASURED = '/gimbal/friction/measured'
 MEASURED_DETAIL = '/gimbal/friction/measured_detail'
 #: estimator: running statistics (diagnostic_msgs/DiagnosticArray)
 STATISTICS = '/gimbal/friction/statistics'
+#: friction_feedforward: the learned correction (diagnostic_msgs/DiagnosticArray), one status per joint and per cell
+CORRECTION = '/gimbal/friction/correction'
 DIAGNOSTICS = '/diagnostics'
 #: residual log only: one sensor_msgs/JointState per paired sample, effort = measured - predicted [N*m]
 RESIDUAL = '/gimbal/friction/residual'

@@ -32,6 +32,7 @@ import numpy as np
 
 from gimbal_friction.common.errors import GimbalFrictionError
 from gimbal_friction.common.files import write_bytes_atomic
+from gimbal_friction.feedforward.correction import Correction
 from gimbal_friction.sim.compensation import Compensator, ControllerInputs
 from gimbal_friction.sim.config import SimConfig
 from gimbal_friction.sim.engine import BatchResult, Run, Traces, simulate
@@ -140,11 +141,16 @@ def _wait_connected(watcher: Any, sup: Any, timeout_s: float) -> None:
 def live_study(inputs: Any, *, temperature_c: float = -40.0, profile: str = 'tracking',
                cases: Sequence[str] = ('feedforward',), short: bool = False, duration_s: float | None = None,
                realtime_factor: float = 1.0, publish_every_ticks: int = 2, work_dir: Path | None = None,
-               log: Callable[[str], None] = lambda text: None, connect_timeout_s: float = 60.0) -> dict[str, Any]:
-    """Run the live closed loop for each of ``cases`` (``feedforward``, ``none``) and compare with offline.
+               log: Callable[[str], None] = lambda text: None, connect_timeout_s: float = 60.0,
+               learn: Any = None) -> dict[str, Any]:
+    """Run the live closed loop for each of ``cases`` (``feedforward``, ``none``, ``learning``) and compare with
+    offline.
 
-    ``inputs`` is a :class:`gimbal_friction.runs.loop_study.StudyInputs`. Returns the ``live`` section of the study
-    document (with its ``records``: one per case, ``mode`` ``live``, with ``feedforward_latency_p50_s``).
+    ``inputs`` is a :class:`gimbal_friction.runs.loop_study.StudyInputs`. Case ``learning`` runs after the others:
+    the feedforward node learning in service, saved and restarted (:mod:`gimbal_friction.runs.live_learning`, with
+    ``learn``, a :class:`~gimbal_friction.sim.study.LearnSetup`, default the study's). Returns the ``live`` section
+    of the study document (with its ``records``: one per run, ``mode`` ``live``, with
+    ``feedforward_latency_p50_s``; with case ``learning`` its ``learning`` report).
 
     Raises:
         GimbalFrictionError: a node that does not start or connect, or a run that does not finish.
@@ -153,9 +159,13 @@ def live_study(inputs: Any, *, temperature_c: float = -40.0, profile: str = 'tra
 
     from domain_coordinator import domain_id
 
+    from gimbal_friction.runs.live_learning import LEARNING_CASE, RESUMED_CASE, live_learning
+    from gimbal_friction.sim.study import LearnSetup
+
     cfg: SimConfig = inputs.sim
     if duration_s is None:
         duration_s = SHORT_DURATIONS[profile] if short else cfg.profile_duration_s(profile)
+    plain = [c for c in cases if c != LEARNING_CASE]
     tmp = None
     if work_dir is None:
         tmp = tempfile.TemporaryDirectory(prefix='loop-live-')
@@ -165,6 +175,8 @@ def live_study(inputs: Any, *, temperature_c: float = -40.0, profile: str = 'tra
     param_files = _parameter_files(inputs, work_dir)
     records: list[dict[str, Any]] = []
     runs: dict[str, tuple[BatchResult, dict[str, Any], dict[str, np.ndarray]]] = {}
+    learning: dict[str, Any] | None = None
+    resumed_from: Correction | None = None
     try:
         with domain_id() as did:
             env = dict(os.environ, ROS_DOMAIN_ID=str(did), ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST',
@@ -173,37 +185,36 @@ def live_study(inputs: Any, *, temperature_c: float = -40.0, profile: str = 'tra
             watcher = None
             try:
                 args = ['--ros-args', *(a for f in param_files for a in ('--params-file', str(f)))]
-                log(f'loop-study --live: starting {", ".join(LIVE_NODES)} (domain {did}, loopback only)')
-                for name in LIVE_NODES:
+                names = LIVE_NODES if plain else LIVE_NODES[1:]
+                log(f'loop-study --live: starting {", ".join(names)} (domain {did}, loopback only)')
+                for name in names:
                     more = ['-p', f'output_dir:={work_dir / "residuals"}'] if name == 'residual_logger' else []
                     sup.start(name, [*args, *more])
                 watcher = _GraphProbe(did)
-                _wait_connected(watcher, sup, connect_timeout_s)
-                for case in cases:
-                    record = work_dir / f'run_{case}.npz'
-                    log(f'loop-study --live: gimbal_sim {case}, {profile} at {temperature_c:+g} degC for '
-                        f'{duration_s:g} s (real time x{realtime_factor:g})')
-                    use = 'true' if case == 'feedforward' else 'false'
-                    proc = sup.start_as(f'gimbal_sim_{case}', 'gimbal_sim', [
-                        *args, '-p', f'environment_temperature_c:={float(temperature_c)}', '-p', f'profile:={profile}',
-                        '-p', f'duration_s:={float(duration_s)}', '-p', 'exit_when_done:=true',
-                        '-p', f'use_feedforward:={use}', '-p', 'wait_for_subscribers:=3',
-                        '-p', f'wait_for_feedforward:={use}', '-p', f'realtime_factor:={float(realtime_factor)}',
-                        '-p', f'record_path:={record}', '-p', f'publish_every_ticks:={int(publish_every_ticks)}'])
-                    deadline = time.monotonic() + connect_timeout_s + 3.0 * duration_s / realtime_factor + 30.0
-                    while proc.poll() is None:
-                        sup.check_alive()
-                        if time.monotonic() > deadline:
-                            msg = f'gimbal_sim ({case}) did not finish in time; see {work_dir / "logs"}'
+
+                def run_sim(case: str, tick: Callable[[], None] | None = None
+                            ) -> tuple[BatchResult, dict[str, Any], dict[str, np.ndarray]]:
+                    return _run_sim(sup, args, work_dir, case, temperature_c=temperature_c, profile=profile,
+                                    duration_s=duration_s, realtime_factor=realtime_factor,
+                                    publish_every_ticks=publish_every_ticks, timeout_s=connect_timeout_s, log=log,
+                                    tick=tick)
+
+                if plain:
+                    _wait_connected(watcher, sup, connect_timeout_s)
+                for case in plain:
+                    runs[case] = run_sim(case)
+                if LEARNING_CASE in cases:
+                    if plain:
+                        code = sup.stop(LIVE_NODES[0])
+                        if code != 0:
+                            msg = f'friction_feedforward exited with code {code}; see {work_dir / "logs"}'
                             raise GimbalFrictionError(msg)
-                        with contextlib.suppress(subprocess.TimeoutExpired):
-                            proc.wait(0.2)
-                    if proc.returncode != 0 or not record.exists():
-                        tail = (work_dir / 'logs' / f'gimbal_sim_{case}.log').read_text(errors='replace')
-                        last = ' | '.join(tail.strip().splitlines()[-2:])
-                        msg = f'gimbal_sim ({case}) failed (code {proc.returncode}): {last}'
-                        raise GimbalFrictionError(msg)
-                    runs[case] = load_run(record)
+                    learning, more_runs, resumed_from = live_learning(
+                        sup=sup, watcher=watcher, node_args=args, work_dir=work_dir, inputs=inputs,
+                        learn=learn if learn is not None else LearnSetup(), run_sim=run_sim,
+                        wait_connected=lambda: _wait_connected(watcher, sup, connect_timeout_s), log=log,
+                        timeout_s=connect_timeout_s)
+                    runs.update(more_runs)
                 codes = sup.stop_all()
                 bad = {k: v for k, v in codes.items() if v not in (0, None) and not k.startswith('gimbal_sim')}
                 if bad:
@@ -226,9 +237,34 @@ def live_study(inputs: Any, *, temperature_c: float = -40.0, profile: str = 'tra
         lat = meta['latency']
         rec['feedforward_latency_p50_s'] = lat['feedforward_latency_p50_s']
         records.append(rec)
-        if case == 'feedforward':
+        if case == 'feedforward' or (case == LEARNING_CASE and 'feedforward' not in runs):
             out.update(lat)
-    compare = 'feedforward' if 'feedforward' in runs else next(iter(runs))
+    if learning is not None:
+        rms = {r['case']: r['rate_error_rms_rad_s'] for r in records}
+        for c in (c for c in runs if c not in plain):
+            learning[f'rate_error_rms_rad_s_{c}'] = rms[c]
+            learning[f'feedforward_timed_out_ticks_{c}'] = runs[c][1]['latency'].get('feedforward_timed_out_ticks')
+        if resumed_from is not None and RESUMED_CASE in runs:
+            # what the resumed correction itself does, the live timing held equal: the run after the restart
+            # replayed offline with the live per-tick feedforward age, with the correction (frozen) and without
+            batch, _, extra = runs[RESUMED_CASE]
+            learning['offline_resumed_rate_error_rms_rad_s_with_correction'] = _offline_twin(
+                inputs, batch, 'feedforward', 0, extra['feedforward_age'], resumed_from)
+            learning['offline_resumed_rate_error_rms_rad_s_without_correction'] = _offline_twin(
+                inputs, batch, 'feedforward', 0, extra['feedforward_age'])
+            # ... and with the nominal latency (the machine's load taken out)
+            learning['offline_resumed_nominal_latency_rate_error_rms_rad_s_with_correction'] = _offline_twin(
+                inputs, batch, 'feedforward', cfg.latency_ticks, correction=resumed_from)
+            learning['offline_resumed_nominal_latency_rate_error_rms_rad_s_without_correction'] = _offline_twin(
+                inputs, batch, 'feedforward', cfg.latency_ticks)
+        out['learning'] = learning
+    out['records'] = records
+    out.setdefault('feedforward_latency_p50_s', math.nan)
+    out.setdefault('feedforward_latency_p95_s', math.nan)
+    out.setdefault('feedforward_age_p50_ticks', math.nan)
+    if not plain:   # live vs offline: for the plain cases only (the learning runs change their feedforward)
+        return out
+    compare = 'feedforward' if 'feedforward' in runs else plain[0]
     batch, meta, extra = runs[compare]
     age = meta['latency'].get('feedforward_age_p50_ticks', math.nan)
     latency_ticks = int(round(age)) if math.isfinite(age) else 0
@@ -244,23 +280,55 @@ def live_study(inputs: Any, *, temperature_c: float = -40.0, profile: str = 'tra
                 'offline_fixed_latency_ticks': latency_ticks, 'offline_fixed_latency_rate_error_rms_rad_s': fixed,
                 'offline_nominal_latency_ticks': nominal_ticks,
                 'offline_nominal_latency_rate_error_rms_rad_s': nominal, 'records': records})
-    out.setdefault('feedforward_latency_p50_s', math.nan)
-    out.setdefault('feedforward_latency_p95_s', math.nan)
-    out.setdefault('feedforward_age_p50_ticks', math.nan)
     return out
 
 
+def _run_sim(sup: Any, args: list[str], work_dir: Path, case: str, *, temperature_c: float, profile: str,
+             duration_s: float, realtime_factor: float, publish_every_ticks: int, timeout_s: float,
+             log: Callable[[str], None], tick: Callable[[], None] | None = None
+             ) -> tuple[BatchResult, dict[str, Any], dict[str, np.ndarray]]:
+    """One ``gimbal_sim`` run of ``case`` (with the feedforward unless case ``none``), waited for (``tick`` called
+    while waiting, else 0.2 s waits); the loaded run (:func:`load_run`)."""
+    record = work_dir / f'run_{case}.npz'
+    log(f'loop-study --live: gimbal_sim {case}, {profile} at {temperature_c:+g} degC for '
+        f'{duration_s:g} s (real time x{realtime_factor:g})')
+    use = 'false' if case == 'none' else 'true'
+    proc = sup.start_as(f'gimbal_sim_{case}', 'gimbal_sim', [
+        *args, '-p', f'environment_temperature_c:={float(temperature_c)}', '-p', f'profile:={profile}',
+        '-p', f'duration_s:={float(duration_s)}', '-p', 'exit_when_done:=true',
+        '-p', f'use_feedforward:={use}', '-p', 'wait_for_subscribers:=3',
+        '-p', f'wait_for_feedforward:={use}', '-p', f'realtime_factor:={float(realtime_factor)}',
+        '-p', f'record_path:={record}', '-p', f'publish_every_ticks:={int(publish_every_ticks)}'])
+    deadline = time.monotonic() + timeout_s + 3.0 * duration_s / realtime_factor + 30.0
+    while proc.poll() is None:
+        sup.check_alive()
+        if time.monotonic() > deadline:
+            msg = f'gimbal_sim ({case}) did not finish in time; see {work_dir / "logs"}'
+            raise GimbalFrictionError(msg)
+        if tick is not None:
+            tick()
+        else:
+            with contextlib.suppress(subprocess.TimeoutExpired):
+                proc.wait(0.2)
+    if proc.returncode != 0 or not record.exists():
+        tail = (work_dir / 'logs' / f'gimbal_sim_{case}.log').read_text(errors='replace')
+        last = ' | '.join(tail.strip().splitlines()[-2:])
+        msg = f'gimbal_sim ({case}) failed (code {proc.returncode}): {last}'
+        raise GimbalFrictionError(msg)
+    return load_run(record)
+
+
 def _offline_twin(inputs: Any, live: BatchResult, case: str, latency_ticks: int,
-                  ages: np.ndarray | None = None) -> float:
-    """LOS rate error RMS [rad/s] of the same run offline: the feedforward ``latency_ticks`` old at every tick, or,
-    with ``ages``, exactly as old as the live run had it at each tick (its timing replayed, the controller's
-    ``feedforward_timeout_s`` included)."""
+                  ages: np.ndarray | None = None, correction: Correction | None = None) -> float:
+    """LOS rate error RMS [rad/s] of the same run offline: the feedforward (with ``correction``, frozen, if given)
+    ``latency_ticks`` old at every tick, or, with ``ages``, exactly as old as the live run had it at each tick (its
+    timing replayed, the controller's ``feedforward_timeout_s`` included)."""
     cfg = live.config.replace(feedforward_latency_s=latency_ticks * live.config.controller_period_s)
     ff: FeedforwardSetup = inputs.feedforward
     comps: dict[str, Compensator] = {}
     if case == 'feedforward':
-        comps['feedforward'] = ff.compensator(inputs.axis) if ages is None else _replayed(
-            ff.compensator(inputs.axis), ages, cfg)
+        comp = ff.compensator(inputs.axis, correction=correction)
+        comps['feedforward'] = comp if ages is None else _replayed(comp, ages, cfg)
     res = simulate(cfg, inputs.axis, live.profile, [Run(case, live.runs[0].temperature_c, live.runs[0].seed)],
                    comps)
     return float(batch_metrics(res)[0].rate_error_rms_rad_s)

@@ -262,20 +262,61 @@ def table_text(doc: dict[str, Any]) -> str:
         out.append(f'live runs ({live["profile"]}, {live["temperature_c"]:+g} degC, {live["duration_s"]:g} s, real '
                    f'nodes on loopback):')
         out.append(format_table(rows, ['case', 'rate RMS [mrad/s]', 'reversal [mrad]', 'ff latency p50 [ms]']))
-        out.append(f'live vs offline ({live["case"]}): {_fmt(live["live_rate_error_rms_rad_s"], 1e3)} mrad/s live, '
-                   f'{_fmt(live["offline_rate_error_rms_rad_s"], 1e3)} offline with the live timing replayed: '
-                   f'{live["relative_difference"]:+.1%} ({"agree" if live["agree"] else "DISAGREE"} within 10 %); '
-                   f'offline with a fixed {live["offline_fixed_latency_ticks"]} ticks (the live median age): '
-                   f'{_fmt(live["offline_fixed_latency_rate_error_rms_rad_s"], 1e3)}, with the nominal '
-                   f'{live["offline_nominal_latency_ticks"]} ticks: '
-                   f'{_fmt(live["offline_nominal_latency_rate_error_rms_rad_s"], 1e3)}')
+        if 'live_rate_error_rms_rad_s' in live:
+            out.append(_live_vs_offline(live))
         out.append(f'feedforward transport latency p50 {_fmt(live["feedforward_latency_p50_s"], 1e3, 2)} ms, p95 '
                    f'{_fmt(live["feedforward_latency_p95_s"], 1e3, 2)} ms, max '
-                   f'{_fmt(live["feedforward_latency_max_s"], 1e3, 2)} ms; age of the torque applied p50 '
-                   f'{live["feedforward_age_p50_ticks"]:g}, p95 {live["feedforward_age_p95_ticks"]:g} ticks')
+                   f'{_fmt(live.get("feedforward_latency_max_s"), 1e3, 2)} ms; age of the torque applied p50 '
+                   f'{live["feedforward_age_p50_ticks"]:g}, p95 {live.get("feedforward_age_p95_ticks", math.nan):g} '
+                   'ticks')
+        if live.get('learning'):
+            out.extend(_live_learning_lines(live['learning']))
     for n in doc.get('notes', []):
         out.append(f'note: {n}')
     return '\n'.join(out) + '\n'
+
+
+def _live_vs_offline(live: dict[str, Any]) -> str:
+    return (f'live vs offline ({live["case"]}): {_fmt(live["live_rate_error_rms_rad_s"], 1e3)} mrad/s live, '
+            f'{_fmt(live["offline_rate_error_rms_rad_s"], 1e3)} offline with the live timing replayed: '
+            f'{live["relative_difference"]:+.1%} ({"agree" if live["agree"] else "DISAGREE"} within 10 %); '
+            f'offline with a fixed {live["offline_fixed_latency_ticks"]} ticks (the live median age): '
+            f'{_fmt(live["offline_fixed_latency_rate_error_rms_rad_s"], 1e3)}, with the nominal '
+            f'{live["offline_nominal_latency_ticks"]} ticks: '
+            f'{_fmt(live["offline_nominal_latency_rate_error_rms_rad_s"], 1e3)}')
+
+
+def _live_learning_lines(lr: dict[str, Any]) -> list[str]:
+    """The live learning report (:func:`gimbal_friction.runs.live_learning.learning_report`) as text lines."""
+    rms = {c: lr.get(f'rate_error_rms_rad_s_{c}') for c in ('learning', 'learning_resumed')}
+    head = f'live learning (friction_feedforward learning in service into {lr["correction_file"]}): '
+    topic = (f'  correction topic: {lr["correction_messages"]} messages, {lr["distinct_states"]} distinct states, '
+             f'samples {lr["samples_first"]} -> {lr["samples_last"]} in {lr["cells_with_data_last"]} cells, largest '
+             f'applied correction {_fmt(lr["max_correction_nm"], 1e3, 4)} N*mm')
+    file = (f'  file: periodic save {"yes" if lr["file_saved_periodic"] else "NO"} ({lr["periodic_save_samples"]} '
+            f'samples), at shutdown {"yes" if lr["file_saved_at_shutdown"] else "NO"} '
+            f'({lr["shutdown_save_samples"]} samples, {lr["unsaved_samples_at_stop"]} learned after the last periodic '
+            f'save; exit code {lr["stop_exit_code"]})')
+    restart = (f'  restart on the file: {"resumed" if lr["restart_resumed"] else "NOT resumed"} '
+               f'({lr["restart_samples"]} samples in {lr["restart_cells_with_data"]} cells; largest applied-value '
+               f'difference {_fmt(lr["restart_max_value_difference_nm"], 1e3, 6)} N*mm); LOS rate RMS '
+               f'{_fmt(rms["learning"], 1e3)} mrad/s learning from empty, {_fmt(rms["learning_resumed"], 1e3)} '
+               f'after the restart ({lr["resumed_run_samples_last"]} samples at its end)')
+    timing = (f'  feedforward timed out on {_int(lr.get("feedforward_timed_out_ticks_learning"))} / '
+              f'{_int(lr.get("feedforward_timed_out_ticks_learning_resumed"))} ticks of the two runs; the run after '
+              'the restart replayed offline with its live timing: '
+              f'{_fmt(lr.get("offline_resumed_rate_error_rms_rad_s_with_correction"), 1e3)} mrad/s with the resumed '
+              f'correction (frozen), {_fmt(lr.get("offline_resumed_rate_error_rms_rad_s_without_correction"), 1e3)} '
+              'without; with the nominal latency: '
+              f'{_fmt(lr.get("offline_resumed_nominal_latency_rate_error_rms_rad_s_with_correction"), 1e3)} with, '
+              f'{_fmt(lr.get("offline_resumed_nominal_latency_rate_error_rms_rad_s_without_correction"), 1e3)} '
+              'without')
+    return [head + ('ok' if lr['ok'] else f'FAILED: {lr["failure"]}'), topic, file, restart, timing]
+
+
+def _int(x: Any) -> str:
+    return '-' if x is None or (isinstance(x, float) and not math.isfinite(x)) else f'{x:.0f}'
+
 
 
 # ---------------------------------------------------------------------------------------------- figures

@@ -57,23 +57,32 @@ class Supervisor:
                 msg = f'{name} exited early (code {proc.returncode}): ' + ' | '.join(tail)
                 raise RuntimeError(msg)
 
+    def stop(self, name: str) -> int | None:
+        """Stop process ``name`` (SIGINT, then SIGTERM, then SIGKILL) and forget it; its exit code."""
+        proc = self.procs.pop(name)
+        if proc.poll() is None:
+            proc.send_signal(signal.SIGINT)
+        return _wait_stopped(proc)
+
     def stop_all(self) -> dict[str, int | None]:
         for proc in self.procs.values():
             if proc.poll() is None:
                 proc.send_signal(signal.SIGINT)
-        codes: dict[str, int | None] = {}
-        for name, proc in self.procs.items():
-            try:
-                proc.wait(15)
-            except subprocess.TimeoutExpired:
-                proc.terminate()
-                try:
-                    proc.wait(5)
-                except subprocess.TimeoutExpired:
-                    proc.kill()
-                    proc.wait()
-            codes[name] = proc.returncode
-        return codes
+        return {name: _wait_stopped(proc) for name, proc in self.procs.items()}
+
+
+def _wait_stopped(proc: subprocess.Popen[bytes]) -> int | None:
+    """Wait for a process sent SIGINT (15 s), then SIGTERM (5 s), then SIGKILL; its exit code."""
+    try:
+        proc.wait(15)
+    except subprocess.TimeoutExpired:
+        proc.terminate()
+        try:
+            proc.wait(5)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+    return proc.returncode
 
 
 class Watcher:
