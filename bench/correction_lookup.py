@@ -31,10 +31,15 @@ from gimbal_friction.feedforward.correction import Correction, CorrectionSetting
 
 
 def learned(settings: CorrectionSettings) -> Correction:
-    """A correction with a value in every cell (so no lookup takes the empty shortcut)."""
+    """A correction with a value, a speed term and (with a position map) a ripple in every cell (so no lookup takes
+    a shortcut)."""
     c = Correction(settings, model_identity({'elevation': {}}))
-    for values in c.values_nm.values():
-        values[:] = 1e-5 * np.sin(np.arange(values.size))
+    for j in c.identity.joints:
+        c.values_nm[j][:] = 1e-5 * np.sin(np.arange(c.values_nm[j].size))
+        c.speed_nm[j][:] = 1e-6 * np.cos(np.arange(c.speed_nm[j].size))
+        c.speed_ref[j][:] = 1.0
+        if settings.position_bins:
+            c.ripple[j][:] = 0.05 * np.sin(np.arange(c.ripple[j].size))
     c.rebuild()
     return c
 
