@@ -212,8 +212,9 @@ def table_correction(correction: Correction, axis: str, source: str) -> TableCor
     s = correction.settings
     nt = s.n_temperature
     # what a NaN position looks up: the cells' values and speed terms (written at speed term 0)
-    speed = correction.speed_nm[axis].reshape(2, nt)
-    values = correction.values_nm[axis].reshape(2, nt) - speed * correction.speed_ref[axis].reshape(2, nt)
+    held_values, held_speed, held_ref, _ = correction.held(axis)   # as the lookup reads them
+    speed = held_speed.reshape(2, nt)
+    values = held_values.reshape(2, nt) - speed * held_ref.reshape(2, nt)
     error = np.zeros((2, nt))
     samples = np.zeros((2, nt), dtype=np.int64)
     for cell in correction.cells(axis):

@@ -33,8 +33,9 @@ Per node (direction × temperature bin × position bin) a cell keeps the sums le
 ``floor_nm`` (``saturated`` otherwise), ρ within ± ``max_relative``; the lookup bounds the whole correction by
 ``max_relative`` × the caller's ``|model|`` + ``floor_nm`` and counts the lookups it clipped
 (:attr:`Correction.lookup_saturations`). Lookup interpolates linearly in temperature between bin centres (clamped at
-the ends) and in position between position-bin centres (periodic): pure float math on lists precomputed whenever
-the values change (:meth:`Correction.along_nm`; on arrays :meth:`Correction.along_nm_array`, the same numbers).
+the ends; an empty bin next to a learned one holds its value, :meth:`Correction.held`, so the correction tapers to 0
+only one bin further) and in position between position-bin centres (periodic): pure float math on lists precomputed
+whenever the values change (:meth:`Correction.along_nm`; on arrays :meth:`Correction.along_nm_array`, the same numbers).
 
 File: :mod:`gimbal_friction.feedforward.correction_file` (YAML with units, the model's identity, per-cell values and
 sample counts; :meth:`Correction.save` is atomic, :meth:`Correction.load` refuses a bad file with one line).
@@ -297,6 +298,8 @@ class Correction:
         self.speed_ref = {j: np.zeros(nc) for j in joints}   #: reference speed term per cell [-]
         self.ripple = {j: np.zeros(nn) for j in joints}      #: relative ripple per node [-]
         self.lookup_saturations = 0  #: lookups whose value the bound clipped [-]
+        #: per joint, :meth:`held` of the applied values (what the lookups read)
+        self._held: dict[str, tuple[Array, Array, Array, Array]] = {}
         #: per joint, the lookup lists of its learned values (None: nothing learned, the correction is 0 there)
         self.lookups: dict[str, _Lookup | None] = {}
         pos = (np.arange(s.n_position) + 0.5) / s.n_position
@@ -309,9 +312,35 @@ class Correction:
 
     def rebuild(self) -> None:
         """Recompute the lookup lists after the values changed."""
-        self.lookups = {j: (_Lookup(self.settings, v, self.speed_nm[j], self.speed_ref[j], self.ripple[j])
+        self._held = {j: self.held(j) for j in self.values_nm}
+        self.lookups = {j: (_Lookup(self.settings, *self._held[j])
                             if np.any(v) or np.any(self.speed_nm[j]) or np.any(self.ripple[j]) else None)
                         for j, v in self.values_nm.items()}
+
+    def held(self, joint: str) -> tuple[Array, Array, Array, Array]:
+        """The applied values, speed coefficients, reference speed terms and ripple of ``joint`` as looked up: a
+        cell without samples next to one with samples (the temperature bin beside it, same direction) holds its
+        neighbour's (the mean of both neighbours when both have samples), so a temperature between a learned bin's
+        centre and an empty neighbour's reads the learned value; one bin further the correction tapers to 0 over a
+        bin. (A plateau 3 °C off a bin centre would otherwise read 60 % of its cell.)"""
+        s = self.settings
+        nt, npos = s.n_temperature, s.n_position
+        has = self.count[joint].reshape(2, nt, npos).sum(axis=2) > 0
+        out = [a.reshape(2, nt, -1).copy() for a in (self.values_nm[joint], self.speed_nm[joint],
+                                                    self.speed_ref[joint], self.ripple[joint])]
+        if has.any():
+            left = np.zeros((2, nt), dtype=bool)
+            right = np.zeros((2, nt), dtype=bool)
+            left[:, 1:], right[:, :-1] = has[:, :-1], has[:, 1:]
+            fill = ~has & (left | right)
+            weight_left = np.where(left & right, 0.5, np.where(left, 1.0, 0.0))[..., None]
+            for a in out:
+                from_left = np.zeros(a.shape)
+                from_right = np.zeros(a.shape)
+                from_left[:, 1:], from_right[:, :-1] = a[:, :-1], a[:, 1:]
+                a[fill] = (weight_left * from_left + (1.0 - weight_left) * from_right)[fill]
+        values, speed, ref, ripple = (a.ravel() for a in out)
+        return values, speed, ref, ripple
 
     # ------------------------------------------------------------------ lookup (the feedforward's hot path)
     def along_nm(self, joint: str, temperature_c: float, velocity_rad_s: float, position_rad: float,
@@ -380,17 +409,18 @@ class Correction:
         i = np.where(inside, np.trunc(np.where(inside, x, 0.0)), np.where(x > 0.0, lut.hi - 1, 0)).astype(np.int64)
         w = np.where(inside, x - i, np.where(x > 0.0, 1.0, 0.0))
         d = np.where(v >= 0.0, 0, 1)
-        vals = (self.values_nm[joint] - self.speed_nm[joint] * self.speed_ref[joint]).reshape(2, nt)
+        held_values, held_speed, held_ref, held_ripple = self._held[joint]
+        vals = (held_values - held_speed * held_ref).reshape(2, nt)
         a = vals[d, i]
         c = a + w * (vals[d, i + 1] - a)
         if lut.sl_cw is not None:
-            sl = self.speed_nm[joint].reshape(2, nt)
+            sl = held_speed.reshape(2, nt)
             a = sl[d, i]
             c = c + (a + w * (sl[d, i + 1] - a)) * speed_term(s, v, ARRAY)
         m = np.abs(m)
         if lut.rp_cw is not None:
             npos = lut.npos
-            rp = self.ripple[joint].reshape(2, nt, npos)
+            rp = held_ripple.reshape(2, nt, npos)
             with np.errstate(invalid='ignore'):
                 y = (p * lut.scale) % npos - 0.5
             mapped = ~np.isnan(y)

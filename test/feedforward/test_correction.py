@@ -280,6 +280,27 @@ def test_a_ripple_that_scales_with_friction_is_learned_relative_and_holds_at_ano
         assert np.abs(got - want).max() <= 0.1 * 0.12 * mm, (speed, np.abs(got - want).max() / (0.12 * mm))
 
 
+def test_a_cell_holds_its_value_over_an_empty_neighbour_and_tapers_beyond():
+    """Learned only at -40 degC: read at -43 or -37 degC (a sensor 3 degC off the plateau) the correction is the
+    cell's, not 60 % of it; 10 degC away it has tapered to 0 (no far extrapolation); the array lookup and the export
+    read the same."""
+    from gimbal_friction.export.table import correction_nm, table_correction
+    n = 2000
+    c, _ = Correction.from_residuals(CorrectionSettings(prior_samples=1.0), IDENT, {'elevation': (
+        np.full(n, -40.0), np.full(n, SPEED), np.zeros(n), np.full(n, 2e-4), np.full(n, 3e-3))})
+    value = 2e-4 * n / (n + 1.0)
+    for t in (-43.0, -40.0, -37.0, -35.0, -45.0):
+        assert c.along_nm('elevation', t, SPEED, 0.0, 3e-3) == pytest.approx(value, rel=1e-12), t
+    assert c.along_nm('elevation', -32.5, SPEED, 0.0, 3e-3) == pytest.approx(value / 2, rel=1e-12)   # tapering
+    assert c.along_nm('elevation', -30.0, SPEED, 0.0, 3e-3) == 0.0 == c.along_nm('elevation', -50.0, SPEED, 0.0, 3e-3)
+    assert c.along_nm('elevation', -40.0, -SPEED, 0.0, 3e-3) == 0.0   # the other direction learned nothing
+    t = np.array([-50.0, -43.0, -40.0, -37.0, -32.5, -30.0])
+    want = [c.along_nm('elevation', float(x), SPEED, math.nan, 3e-3) for x in t]
+    np.testing.assert_allclose(c.along_nm_array('elevation', t, SPEED, math.nan, 3e-3), want, rtol=0, atol=1e-18)
+    exported, _ = correction_nm(table_correction(c, 'elevation', 'test'), t, np.full(t.shape, SPEED), 3e-3)
+    np.testing.assert_allclose(exported, want, rtol=1e-14, atol=1e-18)
+
+
 def test_thin_cells_are_shrunk_towards_zero():
     c = Correction(CorrectionSettings(prior_samples=50.0), IDENT)
     c.add_residuals('elevation', [-40.0] * 5, [SPEED] * 5, [0.0] * 5, [1e-4] * 5, [3e-3] * 5)
