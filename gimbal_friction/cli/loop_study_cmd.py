@@ -61,7 +61,7 @@ def add_parser(sub: Any) -> None:
                         'direction_asymmetry_warm)')
     parser.add_argument('--learn-rate', type=float, default=None, metavar='NM_PER_MIN',
                         help='case learned: largest change of the applied correction per minute [N*m/min] '
-                        '(default 0.03: the study compresses service life into its learning window)')
+                        '(default 0.01: the study compresses service life into its learning window)')
     parser.add_argument('--learn-prior', type=float, default=None, metavar='N',
                         help='case learned: prior samples n0 of a cell (default 20)')
     parser.add_argument('--learn-position-bins', type=int, default=None, metavar='N',

@@ -645,8 +645,9 @@ class Learner:
     """Learns a :class:`Correction` online from accepted estimator samples (the in-service learning).
 
     ``correction`` (learned so far, e.g. :meth:`Correction.load`, or empty) is updated in place: its accumulators
-    at every :meth:`update`, its applied values every ``step_period_s`` (and at :meth:`step`), each node moving
-    towards its learned value by at most ``max_rate_nm_per_min`` per minute (the step's time is capped at
+    at every :meth:`update`, its applied values every ``step_period_s`` (and at :meth:`step`), a cell once its
+    temperature bin has samples in both directions, each node moving towards its learned value by at most
+    ``max_rate_nm_per_min`` per minute (the step's time is capped at
     ``step_period_s``, so a pause does not allow a jump). Lookups use ``learner.correction``.
     """
 
@@ -685,11 +686,18 @@ class Learner:
             return False
         c = self.correction
         limit = self.settings.max_rate_nm_per_min * min(now_s - last, self.settings.step_period_s) / 60.0
-        npos = c.settings.n_position
+        npos, nt = c.settings.n_position, c.settings.n_temperature
         changed = False
         for j, values in c.values_nm.items():
             f = c.fit(j)
             coef, ref, ripple = c.speed_nm[j], c.speed_ref[j], c.ripple[j]
+            # a cell moves once its temperature bin has samples in both directions: learned one direction at a time,
+            # a direction-independent torque (an unbalance, a cable) would be compensated in one direction only and
+            # kick the rate loop's integrator at every reversal
+            has = c.count[j].reshape(2, nt, npos).sum(axis=2) > 0
+            paired = np.tile(has[0] & has[1], 2)
+            f = f._replace(values_nm=np.where(paired, f.values_nm, values), speed_nm=np.where(paired, f.speed_nm, coef),
+                           ripple=np.where(np.repeat(paired, npos), f.ripple, ripple))
             # the applied values move to the new mean speed term with the applied correction unchanged, then all
             # move towards the learned ones: a value by at most ``limit``, the speed coefficient by at most ``limit``
             # per unit of the mean speed term and the relative ripple by at most ``limit`` per mean |model| (so the

@@ -368,11 +368,13 @@ def test_online_and_batch_learning_are_one_rule():
 
 # ------------------------------------------------------------------------------------------------ the learner
 def feed(learner, t0_s, t1_s, residual=1e-4, rate_hz=100.0):
-    """Samples at -40 degC, cw, of a constant residual [N*m] from t0_s to t1_s [s]; the applied value each second."""
+    """Samples at -40 degC, cw and ccw, of a constant residual along the motion [N*m] from t0_s to t1_s [s]; the
+    applied cw value each second."""
     applied = []
     for k in range(int((t1_s - t0_s) * rate_hz)):
         now = t0_s + k / rate_hz
-        learner.update('elevation', -40.0, SPEED, 0.0, residual, 3e-3, now_s=now)
+        learner.update('elevation', -40.0, -SPEED, 0.0, -residual, -3e-3, now_s=now)   # both directions: the
+        learner.update('elevation', -40.0, SPEED, 0.0, residual, 3e-3, now_s=now)      # cells move once paired
         if k % int(rate_hz) == 0:
             applied.append((now, learner.correction.along_nm('elevation', -40.0, SPEED, 0.0, 3e-3)))
     return applied
@@ -403,6 +405,22 @@ def test_the_applied_correction_changes_at_most_max_rate_per_minute():
     assert target == pytest.approx(1e-4, rel=1e-3)
 
 
+def test_a_cell_moves_once_its_temperature_bin_has_both_directions():
+    """Samples in one direction only are accumulated but not applied (a direction-independent torque learned one
+    direction at a time would kick the rate loop at every reversal); the first sample of the other direction
+    releases both."""
+    learner = Learner(Correction(CorrectionSettings(prior_samples=1.0), IDENT), LearningSettings(1e-3, 1.0))
+    for k in range(500):
+        learner.update('elevation', -40.0, SPEED, 0.0, 1e-4, 3e-3, now_s=k * 0.01)
+    learner.step(10.0)
+    assert learner.correction.summary()['samples'] == 500
+    assert learner.correction.along_nm('elevation', -40.0, SPEED, 0.0, 3e-3) == 0.0
+    learner.update('elevation', -40.0, -SPEED, 0.0, -1e-4, -3e-3, now_s=10.5)
+    learner.step(11.0)
+    assert learner.correction.along_nm('elevation', -40.0, SPEED, 0.0, 3e-3) > 0.0
+    assert learner.correction.along_nm('elevation', -40.0, -SPEED, 0.0, 3e-3) > 0.0
+
+
 def test_freeze_stops_learning_and_keeps_the_applied_correction():
     learner = Learner(Correction(CorrectionSettings(prior_samples=1.0), IDENT), LearningSettings(1e-3, 1.0))
     feed(learner, 0.0, 5.0)
@@ -410,13 +428,13 @@ def test_freeze_stops_learning_and_keeps_the_applied_correction():
     samples = learner.correction.summary()['samples']
     learner.freeze()
     assert learner.state == 'frozen' and applied > 0.0
-    assert [r['state'] for r in learner.cells('elevation')] == ['frozen']
+    assert [r['state'] for r in learner.cells('elevation')] == ['frozen'] * 2
     assert learner.update('elevation', -40.0, SPEED, 0.0, 5e-4, 3e-3, now_s=10.0) == 'frozen'
     assert learner.step(20.0) is False
     assert learner.correction.along_nm('elevation', -40.0, SPEED, 0.0, 3e-3) == applied
     assert learner.correction.summary()['samples'] == samples
     learner.freeze(False)
-    assert learner.state == 'active' and [r['state'] for r in learner.cells('elevation')] == ['active']
+    assert learner.state == 'active' and [r['state'] for r in learner.cells('elevation')] == ['active'] * 2
     assert learner.update('elevation', -40.0, SPEED, 0.0, 5e-4, 3e-3, now_s=30.0) is None
     assert learner.step(31.0) is True
     assert learner.correction.along_nm('elevation', -40.0, SPEED, 0.0, 3e-3) > applied

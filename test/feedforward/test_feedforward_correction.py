@@ -126,8 +126,9 @@ def test_a_learner_updating_the_correction_in_place_is_followed_at_once():
     ff.update_temperature(20.0, 0.0)
     before = ff.torque_nm('elevation', 0.03, 0.1)
     learner = Learner(c, LearningSettings(max_rate_nm_per_min=1.0, step_period_s=1.0))
-    for k in range(100):
+    for k in range(100):   # both directions (a cell moves once its temperature bin has both)
         learner.update('elevation', 20.0, 0.03, 0.0, 1e-4, 1e-3, now_s=k * 0.1)
+        learner.update('elevation', 20.0, -0.03, 0.0, -1e-4, -1e-3, now_s=k * 0.1)
     learner.step(100.0)
     assert ff.torque_nm('elevation', 0.03, 0.1) > before
     learner.reset()
