@@ -295,9 +295,11 @@ class Feedforward:
         self.tables = {name: FrictionTable(p, s.temperature_min_c, s.temperature_max_c, s.table_step_c)
                        for name, p in self.axes.items()}
         self.counters = FeedforwardCounters()
-        #: per (names, number of velocities) of a message: its index and (column, joint, entry) of each configured
-        #: joint in it, in configured order
-        self._index_cache: dict[tuple[tuple[str, ...], int], tuple[JointIndex, tuple[tuple[int, str, int], ...]]] = {}
+        #: per (names, number of velocities) of a message: its index, (column, joint, entry) of each configured
+        #: joint in it in configured order, and whether the index found anything to count (mismatch, unknown or
+        #: repeated names)
+        self._index_cache: dict[tuple[tuple[str, ...], int],
+                                tuple[JointIndex, tuple[tuple[int, str, int], ...], bool]] = {}
         #: per joint, the terms of the rule at the last temperature of a scalar call: (temperature [°C], the
         #: table's temperature terms, k_+ [-], k_- [-]) (the temperature changes at the sensor's rate, not the
         #: joints')
@@ -535,16 +537,16 @@ class Feedforward:
         if plan is None:  # the same names in every message: index them once
             idx = index_joints(names, (len(velocities),), self.order)
             plan = (idx, tuple((j, joint, idx.position[joint]) for j, joint in enumerate(self.order)
-                               if joint in idx.position))
+                               if joint in idx.position), idx.mismatch or idx.unknown > 0 or idx.duplicate > 0)
             if len(self._index_cache) < 64:
                 self._index_cache[key] = plan
-        idx, present = plan
+        idx, present, odd = plan
         c = self.counters
         bucket = c.joint_state_rejected
-        if idx.mismatch:
-            c.add(bucket, J_MISMATCH)
-            return None
-        if idx.unknown or idx.duplicate:
+        if odd:
+            if idx.mismatch:
+                c.add(bucket, J_MISMATCH)
+                return None
             c.add(bucket, J_UNKNOWN, idx.unknown)
             c.add(bucket, J_DUPLICATE, idx.duplicate)
         # (self.temperature(time_s), one call less)
