@@ -29,7 +29,7 @@ time of the temperature differ by at most ``temperature_timeout_s``; otherwise t
 never reach the output; the reason is counted (:attr:`Feedforward.counters`).
 
 Every rule is written once against the namespace ``xp`` (:mod:`gimbal_friction.common.xp`): on Python floats for a
-message or a controller tick (:meth:`Feedforward.torque_nm`, :meth:`Feedforward.message`, about 1 µs per joint) and
+message or a controller tick (:meth:`Feedforward.torque_nm`, :meth:`Feedforward.message`, under 1 µs per joint) and
 on numpy arrays for a whole bag (:meth:`Feedforward.bag_torques`).
 
 >>> ff = Feedforward({'elevation': AxisParams()}, FeedforwardSettings())
@@ -514,7 +514,7 @@ class Feedforward:
         """Feedforward torque [N·m] of ``joint`` for a velocity [rad/s] relative to the base at time ``time_s``
         [s], with the temperature rules; ``position_rad`` [rad] is where a learned correction's position map is
         looked up (pass the reference position with a reference velocity; NaN: no position map). The in-process
-        controller call (about 1 µs: what depends on temperature only is computed once per temperature, see
+        controller call (under 1 µs: what depends on temperature only is computed once per temperature, see
         :meth:`torque_at`).
 
         Raises:
