@@ -77,7 +77,9 @@ def _cbrt(x: float) -> float:
 
 
 class _Scalar:
-    """numpy's names on Python floats (``where`` and ``clip`` evaluate like numpy's, on one value)."""
+    """numpy's names on Python floats (``where`` and ``clip`` evaluate like numpy's, on one value); written with
+    conditional expressions, not ``min``/``max`` (a builtin ``min`` of two floats costs ~0.1 µs, a conditional
+    ~0.01 µs)."""
 
     tanh = staticmethod(math.tanh)
     log10 = staticmethod(math.log10)
@@ -94,21 +96,22 @@ class _Scalar:
 
     @staticmethod
     def clip(x: float, lo: float, hi: float, /) -> float:
-        return lo if x < lo else (min(x, hi))
+        """``lo`` below ``lo``, ``hi`` above ``hi``, else ``x`` (NaN stays NaN, as numpy's)."""
+        return lo if x < lo else (hi if hi < x else x)  # noqa: FURB136  # min() costs ~0.1 µs more
 
     @staticmethod
     def minimum(a: float, b: float, /) -> float:
-        return min(b, a)
+        return a if a < b else b  # noqa: FURB136  # (see the class notes)
 
     @staticmethod
     def maximum(a: float, b: float, /) -> float:
-        return max(b, a)
+        return a if a > b else b  # noqa: FURB136  # (see the class notes)
 
     @staticmethod
     def floor_index(x: float, hi: int, /) -> int:
         """``min(floor(x), hi)`` as an index, for ``x ≥ 0``."""
         i = int(x)
-        return min(i, hi)
+        return hi if hi < i else i  # noqa: FURB136  # (see the class notes)
 
     @staticmethod
     def take(values: Sequence[float] | FloatArray, index: float, /) -> float:
@@ -141,8 +144,12 @@ class _Array:
         return np.take(values, index)
 
 
-#: the namespace of a rule evaluated on Python floats (checked against :class:`Namespace` by the type checker)
-SCALAR: Namespace[float] = _Scalar()
+_SCALAR_CHECKED: Namespace[float] = _Scalar()  # the type checker checks _Scalar against Namespace here
+#: the namespace of a rule evaluated on Python floats: a class whose attributes are the plain functions of
+#: :class:`_Scalar` (the interpreter specialises ``SCALAR.tanh`` on a class to a dictionary hit, ~0.015 µs less per
+#: use than a static method of an instance, which a rule on floats pays a few times per call)
+SCALAR: Namespace[float] = cast('Namespace[float]', type('SCALAR', (), {
+    name: getattr(_Scalar, name) for name in vars(_Scalar) if not name.startswith('_')}))
 #: the namespace of a rule evaluated on numpy arrays. A cast: numpy's stubs type its ufuncs' results as ``Any``
 #: (and :meth:`_Array.floor_index` gives an int64 array where the protocol says the value type); numpy returns
 #: float64 arrays for float64 arrays, which the tests of every rule check against SCALAR.

@@ -29,7 +29,7 @@ time of the temperature differ by at most ``temperature_timeout_s``; otherwise t
 never reach the output; the reason is counted (:attr:`Feedforward.counters`).
 
 Every rule is written once against the namespace ``xp`` (:mod:`gimbal_friction.common.xp`): on Python floats for a
-message or a controller tick (:meth:`Feedforward.torque_nm`, :meth:`Feedforward.message`, about 1 µs per joint) and
+message or a controller tick (:meth:`Feedforward.torque_nm`, :meth:`Feedforward.message`, under 1 µs per joint) and
 on numpy arrays for a whole bag (:meth:`Feedforward.bag_torques`).
 
 >>> ff = Feedforward({'elevation': AxisParams()}, FeedforwardSettings())
@@ -44,7 +44,7 @@ True
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import NamedTuple
 
@@ -227,6 +227,9 @@ class MessageTorques(NamedTuple):
     source: int               #: SOURCE_* code
 
 
+_new_tuple = tuple.__new__  # MessageTorques from a tuple of its fields, without the NamedTuple's keyword handling
+
+
 class BagTorques(NamedTuple):
     """The feedforward of every joint-state message of a bag (what the node would have published)."""
 
@@ -292,7 +295,11 @@ class Feedforward:
         self.tables = {name: FrictionTable(p, s.temperature_min_c, s.temperature_max_c, s.table_step_c)
                        for name, p in self.axes.items()}
         self.counters = FeedforwardCounters()
-        self._index_cache: dict[tuple[tuple[str, ...], int], JointIndex] = {}
+        #: per (names, number of velocities) of a message: its index, (column, joint, entry) of each configured
+        #: joint in it in configured order, and whether the index found anything to count (mismatch, unknown or
+        #: repeated names)
+        self._index_cache: dict[tuple[tuple[str, ...], int],
+                                tuple[JointIndex, tuple[tuple[int, str, int], ...], bool]] = {}
         #: per joint, the terms of the rule at the last temperature of a scalar call: (temperature [°C], the
         #: table's temperature terms, k_+ [-], k_- [-]) (the temperature changes at the sensor's rate, not the
         #: joints')
@@ -406,10 +413,14 @@ class Feedforward:
         source = self._velocity_source
         if source == 'measured':
             return measured_rad_s
-        v, t = self._reference.get(joint, _NO_REFERENCE)
+        reference = self._reference.get(joint)
         # (floats in, a float out: the measured or the reference velocity, or 0.0)
-        used: float = velocity_used(source, measured_rad_s, v, is_fresh(time_s, t, self._reference_timeout_s, SCALAR),
-                                    SCALAR)
+        used: float
+        if reference is None:  # none yet: never fresh (is_fresh of a NaN time), without evaluating is_fresh
+            used = velocity_used(source, measured_rad_s, math.nan, False, SCALAR)
+        else:
+            used = velocity_used(source, measured_rad_s, reference[0],
+                                 is_fresh(time_s, reference[1], self._reference_timeout_s, SCALAR), SCALAR)
         return used
 
     def position(self, joint: str, measured_rad: float, time_s: float) -> float:
@@ -470,14 +481,11 @@ class Feedforward:
         """Feedforward torque [N·m] of ``joint`` at ``velocity_rad_s`` [rad/s], ``temperature_c`` [°C] (NaN:
         zero policy, 0 N·m) and position ``position_rad`` [rad] (the learned correction's position map; NaN: none).
         Non-finite velocity gives 0 N·m. Counts saturation."""
-        if not (math.isfinite(velocity_rad_s) and temperature_c == temperature_c):
+        if velocity_rad_s - velocity_rad_s != 0.0 or temperature_c != temperature_c:  # v not finite, or NaN °C
             return 0.0
         cached = self._scalar_terms.get(joint)
-        if cached is None or cached[0] != temperature_c:  # :meth:`rule`'s terms, once per temperature
-            table = self.tables[joint]
-            cached = (temperature_c, table.temperature_terms(temperature_c, SCALAR),
-                      *direction_factors(self.axes[joint], temperature_c, SCALAR))
-            self._scalar_terms[joint] = cached
+        if cached is None or cached[0] != temperature_c:
+            cached = self._terms_at(joint, temperature_c)
         _, terms, k_positive, k_negative = cached
         correction = self._correction
         torque: float
@@ -494,11 +502,19 @@ class Feedforward:
             self.counters.add(self.counters.saturated, joint)
         return torque
 
+    def _terms_at(self, joint: str, temperature_c: float) -> tuple[float, TemperatureTerms[float], float, float]:
+        """:meth:`rule`'s temperature terms of ``joint`` at ``temperature_c`` [°C] (finite), kept for the next scalar
+        calls at the same temperature: (temperature [°C], the table's terms, k_+ [-], k_- [-])."""
+        cached = (temperature_c, self.tables[joint].temperature_terms(temperature_c, SCALAR),
+                  *direction_factors(self.axes[joint], temperature_c, SCALAR))
+        self._scalar_terms[joint] = cached
+        return cached
+
     def torque_nm(self, joint: str, velocity_rad_s: float, time_s: float, position_rad: float = math.nan) -> float:
         """Feedforward torque [N·m] of ``joint`` for a velocity [rad/s] relative to the base at time ``time_s``
         [s], with the temperature rules; ``position_rad`` [rad] is where a learned correction's position map is
         looked up (pass the reference position with a reference velocity; NaN: no position map). The in-process
-        controller call (about 1 µs: what depends on temperature only is computed once per temperature, see
+        controller call (under 1 µs: what depends on temperature only is computed once per temperature, see
         :meth:`torque_at`).
 
         Raises:
@@ -509,48 +525,47 @@ class Feedforward:
         return self.torque_at(joint, velocity_rad_s, used[0], position_rad)
 
     # ------------------------------------------------------------------ one message (the node)
-    def message(self, names: list[str], velocities: list[float], time_s: float,
-                positions: list[float] | None = None) -> MessageTorques | None:
+    def message(self, names: Sequence[str], velocities: Sequence[float], time_s: float,
+                positions: Sequence[float] | None = None) -> MessageTorques | None:
         """The feedforward of one joint-state message (``names``, ``velocities`` [rad/s], optionally
         ``positions`` [rad], used by a learned correction and ignored unless as long as ``names``; see
         :meth:`position`) of time ``time_s`` [s] (stamp, or arrival if the stamp is zero). None (reason counted)
-        when the message is unusable."""
+        when the message is unusable. The sequences may be lists or ``array.array`` (a ROS message's fields as
+        they are)."""
+        key = (tuple(names), len(velocities))
+        plan = self._index_cache.get(key)
+        if plan is None:  # the same names in every message: index them once
+            idx = index_joints(names, (len(velocities),), self.order)
+            plan = (idx, tuple((j, joint, idx.position[joint]) for j, joint in enumerate(self.order)
+                               if joint in idx.position), idx.mismatch or idx.unknown > 0 or idx.duplicate > 0)
+            if len(self._index_cache) < 64:
+                self._index_cache[key] = plan
+        idx, present, odd = plan
         c = self.counters
         bucket = c.joint_state_rejected
-        key = (tuple(names), len(velocities))
-        idx = self._index_cache.get(key)
-        if idx is None:  # the same names in every message: index them once
-            idx = index_joints(names, (len(velocities),), self.order)
-            if len(self._index_cache) < 64:
-                self._index_cache[key] = idx
-        if idx.mismatch:
-            c.add(bucket, J_MISMATCH)
-            return None
-        if idx.unknown or idx.duplicate:
+        if odd:
+            if idx.mismatch:
+                c.add(bucket, J_MISMATCH)
+                return None
             c.add(bucket, J_UNKNOWN, idx.unknown)
             c.add(bucket, J_DUPLICATE, idx.duplicate)
-        temperature, source = self.temperature(time_s)
+        # (self.temperature(time_s), one call less)
+        temperature, source = self._used[is_fresh(time_s, self.last_temperature_time_s, self._timeout_s, SCALAR)]
         measured = self._velocity_source == 'measured'
-        position = idx.position
-        velocity, torque_at = self.velocity, self.torque_at
+        torque_at = self.torque_at
         # the correction's lookup lists per joint (None: no learned value, the model's torque and no position)
         luts = None if self._correction is None else self._correction.lookups
         if luts is not None and (positions is None or len(positions) != len(names)):
             positions = None
         out_names: list[str] = []
         torques: list[float] = []
-        commands: list[float] = []
-        for joint in self.order:
-            i = position.get(joint)
-            if i is None:
-                commands.append(0.0)
-                continue
+        commands = [0.0] * len(self.order)
+        for j, joint, i in present:  # configured joints in the message, in configured order
             v = float(velocities[i])
             if not measured:
-                v = velocity(joint, v, time_s)
+                v = self.velocity(joint, v, time_s)
             if v - v != 0.0:  # not finite (inf - inf and NaN - NaN are NaN)
                 c.add(bucket, NON_FINITE_VELOCITY)
-                commands.append(0.0)
                 continue
             if luts is not None and luts[joint] is not None:
                 p = math.nan if positions is None else float(positions[i])
@@ -559,12 +574,13 @@ class Feedforward:
                 torque = torque_at(joint, v, temperature)
             out_names.append(joint)
             torques.append(torque)
-            commands.append(torque)
+            commands[j] = torque
         if not out_names:
             c.add(bucket, J_NONE)
             return None
         c.published += 1
-        return MessageTorques(out_names, torques, commands, temperature, source)
+        # (tuple.__new__: the NamedTuple's own __new__ costs ~0.1 µs more, per message)
+        return _new_tuple(MessageTorques, (out_names, torques, commands, temperature, source))
 
     # ------------------------------------------------------------------ a whole bag (the offline replay)
     def bag_torques(self, arrays: ChamberArrays) -> BagTorques:

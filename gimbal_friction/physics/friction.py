@@ -160,7 +160,9 @@ def viscous_torque_from_coefficient(coefficient_nmm: X, nu0: X, n: X, xp: Namesp
     (magnitude used): ``coefficient · (ν0 n)^(2/3)`` if ``ν0 n ≥ 2000``, else ``coefficient · 160``, [N·mm].
 
     The split lets a caller whose temperature changes slowly (the feedforward, per controller tick) compute the
-    coefficient and the viscosity once per temperature."""
+    coefficient and the viscosity once per temperature. Only the product ``ν0 n`` must be in cSt·rpm and the result
+    has the unit of the coefficient: the tabulated model passes the coefficient in N·m, ``ν0`` × (rpm per rad/s)
+    and the speed in rad/s (:func:`~gimbal_friction.physics.table.magnitude_from_terms`)."""
     vn = nu0 * xp.abs(n)
     c = xp.cbrt(vn)  # (c * c is numpy's c ** 2, and cheaper on a float)
     return coefficient_nmm * xp.where(vn >= PALMGREN_THRESHOLD_CST_RPM, c * c, 160.0)

@@ -51,12 +51,16 @@ def interp_uniform(values: Sequence[float] | FloatArray, x: X, x0: float, step: 
 
 
 class TemperatureTerms(NamedTuple, Generic[X]):
-    """The temperature-dependent terms of the tabulated model (floats or arrays)."""
+    """The temperature-dependent terms of the tabulated model (floats or arrays): the model's quantities and the
+    products :func:`magnitude_from_terms` needs per speed, computed once per temperature."""
 
     m_contact_nmm: X     #: M_R + M_S of the axis, interpolated [N·mm]
     viscosity_cst: X     #: kinematic viscosity ν (Eq. 20/21) [mm²/s]
     pitch_mm: X          #: pitch diameter d_m at temperature (Eq. 11) [mm]
     viscous_nmm: X       #: the viscosity- and speed-free part of M_L of the axis, bearings × 1e-7 s0 d_m³ [N·mm]
+    contact_nm: X        #: ``m_contact_nmm`` in [N·m]
+    viscous_nm: X        #: ``viscous_nmm`` in [N·m]
+    nu_rpm_per_rad_s: X  #: ν × (rpm per rad/s): ν n of Eq. (9) [cSt·rpm] is this × |ω| [rad/s]
 
 
 def magnitude_from_terms(terms: TemperatureTerms[X], omega_rad_s: X, xp: Namespace[X]) -> X:
@@ -64,9 +68,11 @@ def magnitude_from_terms(terms: TemperatureTerms[X], omega_rad_s: X, xp: Namespa
     (:meth:`FrictionTable.temperature_terms`) and the angular velocity ``omega_rad_s`` [rad/s] (magnitude used):
     interpolated M_R + M_S plus the exact M_L of Eq. (9) of all bearings of the axis. (Eq. 10 with M_R + M_S
     tabulated as one term: the one sum left, written inline on this ~1 µs path; the model's sum is
-    :func:`~gimbal_friction.physics.friction.total_torque_Eq10`.)"""
-    m_l = viscous_torque_from_coefficient(terms.viscous_nmm, terms.viscosity_cst, omega_rad_s * RPM_PER_RAD_S, xp)
-    return (terms.m_contact_nmm + m_l) * NM_PER_NMM
+    :func:`~gimbal_friction.physics.friction.total_torque_Eq10`. Eq. 9 takes the coefficient in N·m and ν in
+    cSt·rpm per rad/s, so the speed enters in rad/s and M_L comes out in N·m: two products per temperature instead
+    of two per call.)"""
+    return terms.contact_nm + viscous_torque_from_coefficient(terms.viscous_nm, terms.nu_rpm_per_rad_s, omega_rad_s,
+                                                              xp)
 
 
 class FrictionTable:
@@ -147,7 +153,9 @@ class FrictionTable:
         nu = nu_Walther(t + p.kelvin_offset_k, p.walther_a, p.walther_b, p.viscosity_offset_cst, p.viscosity_model,
                         xp)
         d_m = thermal_expansion_Eq11(p.pitch_diameter_mm, p.steel_cte_per_c, t - p.reference_temperature_c, xp)
-        return TemperatureTerms(m_rs, nu, d_m, p.bearings_per_axis * palmgren_coefficient(p.palmgren_factor, d_m))
+        coefficient = p.bearings_per_axis * palmgren_coefficient(p.palmgren_factor, d_m)
+        return TemperatureTerms(m_rs, nu, d_m, coefficient, m_rs * NM_PER_NMM, coefficient * NM_PER_NMM,
+                                nu * RPM_PER_RAD_S)
 
     def magnitude_from_terms(self, terms: TemperatureTerms[X], omega_rad_s: X, xp: Namespace[X]) -> X:
         """:meth:`magnitude_nm` from :meth:`temperature_terms` and the angular velocity [rad/s], [N·m]

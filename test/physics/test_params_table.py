@@ -95,3 +95,26 @@ def test_table_is_exact_to_the_grid_at_the_loose_fit_kink():
     exact = friction_torque(P0, t, 1 / 3).m_total_nmm * 1e-3
     got = table.magnitude_nm(t, np.full(t.size, 2 * math.pi / 180), ARRAY)
     assert np.max(np.abs(got / exact - 1)) < 1e-6
+
+
+@pytest.mark.parametrize('t_c', [-40.0, 20.0, 60.0, 117.3])
+def test_table_terms_give_eq9_on_both_palmgren_branches_as_floats_and_arrays(t_c):
+    """The per-temperature products of the table's terms (N*m, nu x rpm per rad/s) give the tabulated M_R + M_S
+    plus Palmgren's Eq. (9) of every bearing on both sides of its switch nu n = 2000, floats and arrays alike."""
+    from gimbal_friction.common.units import RPM_PER_RAD_S
+    from gimbal_friction.physics.friction import viscous_torque_Palmgren_1959
+    table = FrictionTable(P0)
+    terms = table.temperature_terms(t_c, SCALAR)
+    switch_rad_s = 2000.0 / (terms.viscosity_cst * RPM_PER_RAD_S)
+    w = switch_rad_s * np.array([0.0, 0.3, 0.999, 1.001, 4.0, -0.999, -1.001, -4.0])
+    low = np.abs(w) < switch_rad_s
+    assert low.sum() == 4 and (~low).sum() == 4   # both branches, both directions
+    m_l = P0.bearings_per_axis * viscous_torque_Palmgren_1959(P0.palmgren_factor, terms.viscosity_cst,
+                                                               np.abs(w) * RPM_PER_RAD_S, terms.pitch_mm)
+    want = (terms.m_contact_nmm + m_l) * 1e-3
+    np.testing.assert_allclose(m_l[low], P0.bearings_per_axis * 1e-7 * P0.palmgren_factor * terms.pitch_mm ** 3
+                               * 160.0, rtol=1e-12)   # the low branch is the constant one
+    arr = table.magnitude_nm(np.full(w.shape, t_c), w, ARRAY)
+    one = [table.magnitude_nm(t_c, float(x), SCALAR) for x in w]
+    np.testing.assert_allclose(arr, want, rtol=1e-13)
+    np.testing.assert_allclose(one, want, rtol=1e-13)

@@ -24,14 +24,18 @@ ROOT = Path(__file__).resolve().parents[2]
 
 class Recorder:
     """Stands in for a publisher: keeps what would have been published (serialized and read back, as a
-    subscriber would get it: the nodes reuse their message objects)."""
+    subscriber would get it: the nodes reuse their message objects, or publish serialized bytes of ``msg_type``)."""
 
-    def __init__(self) -> None:
+    def __init__(self, msg_type: Any = None) -> None:
+        self.msg_type = msg_type
         self.messages: list[Any] = []
 
     def publish(self, msg: Any) -> None:
         from rclpy.serialization import deserialize_message, serialize_message
-        self.messages.append(deserialize_message(serialize_message(msg), type(msg)))
+        if isinstance(msg, bytes):
+            self.messages.append(deserialize_message(msg, self.msg_type))
+        else:
+            self.messages.append(deserialize_message(serialize_message(msg), type(msg)))
 
     def clear(self) -> None:
         self.messages.clear()
@@ -53,7 +57,7 @@ class InProcess:
         node = cls(context=self.context, parameter_overrides=overrides)
         for name in list(vars(node)):
             if name.startswith('pub_'):
-                setattr(node, name, Recorder())
+                setattr(node, name, Recorder(getattr(node, name).msg_type))
         self.nodes.append(node)
         return node
 

@@ -268,3 +268,25 @@ def test_chamber_replay_refuses_a_bag_without_the_contract_topics(spawn, tmp_pat
     node.proc.wait(30)
     rc, out = node.stop()
     assert rc == 1 and '/joint_states' in out and 'Traceback' not in out
+
+
+def test_output_bytes_deserialize_to_the_messages_the_node_publishes():
+    """The node publishes its outputs as CDR bytes packed into the encoder's templates: a subscriber reads the very
+    JointState / Float64MultiArray the message objects would have carried, for any stamp, frame_id and names (also
+    past the layouts it keeps)."""
+    from rclpy.serialization import deserialize_message
+    from std_msgs.msg import MultiArrayDimension
+
+    from gimbal_friction.nodes.feedforward import OutputBytes
+    out = OutputBytes(3)
+    out.MAX_LAYOUTS = 2
+    cases = [(['elevation'], [1.5e-3], 7, 250, ''), (['elevation', 'azimuth'], [-2e-3, 0.0], -3, 999_999_999, 'b'),
+             (['élévation'], [0.02], 2**31 - 1, 0, 'gimbal/ü'), (['elevation'], [-1e-3], 0, 1, '')]
+    for names, torques, sec, nanosec, frame_id in cases * 2:
+        want = JointState(name=names, effort=torques)
+        want.header.stamp = Time(sec=sec, nanosec=nanosec)
+        want.header.frame_id = frame_id
+        assert deserialize_message(out.feedforward(want.header, names, torques), JointState) == want
+    cmd = Float64MultiArray(data=[1e-3, 0.0, -2.5e-3])
+    cmd.layout.dim = [MultiArrayDimension(label='joints', size=3, stride=3)]
+    assert deserialize_message(out.commands([1e-3, 0.0, -2.5e-3]), Float64MultiArray) == cmd
