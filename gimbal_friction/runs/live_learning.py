@@ -102,12 +102,11 @@ def correction_state(msg: Any, joint: str) -> CorrectionState | None:
 def file_cells(c: Correction, joint: str) -> dict[tuple[str, str], tuple[int, float, float, float]]:
     """The cells of a correction named as in :attr:`CorrectionState.cells`: (samples, applied value [N*m], and the
     range [N*m] a learner resuming from it can have moved the value to: between the applied and the learned value
-    of each position node, averaged over the cell like the value)."""
-    s = c.settings
-    nt = s.n_temperature
-    v = c.values_nm[joint].reshape(2 * nt, s.n_position)
-    t = c.targets(joint)[0].reshape(2 * nt, s.n_position)
-    lo, hi = np.minimum(v, t).mean(axis=1), np.maximum(v, t).mean(axis=1)
+    of each cell)."""
+    nt = c.settings.n_temperature
+    v = c.values_nm[joint]
+    t = c.targets(joint)[0]
+    lo, hi = np.minimum(v, t), np.maximum(v, t)
     out = {}
     for rec in c.cells(joint):
         k = DIRECTIONS.index(rec['direction']) * nt + rec['bin']

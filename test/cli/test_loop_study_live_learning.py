@@ -27,6 +27,8 @@ def test_the_real_feedforward_learns_saves_and_resumes_after_a_restart(tmp_path,
     out = tmp_path / 'study'
     code = main(['loop-study', '--short', '--temperatures', '-40', '--profiles', 'tracking', '--cases', 'none',
                  '--live', '--live-cases', 'learning', '--live-duration-s', '3', '--format', 'json',
+                 # the scan reverses every second: the learner moves a cell once it has both directions
+                 '--live-profile', 'scan',
                  '--out', str(out)])
     captured = capsys.readouterr()
     assert code == 0, captured.err
