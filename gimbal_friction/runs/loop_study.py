@@ -243,8 +243,10 @@ def table_text(doc: dict[str, Any]) -> str:
         e = why.get((g['goal'], g['profile'], g['temperature_c']))
         reason = ''
         if e is not None:
-            reason = (f'; responsible: {e["responsible"]} (without it {e["value_without"][e["responsible"]]:.3f})'
-                      if e['responsible'] else '; no single truth term is responsible')
+            short = e['value_short']
+            reason = (f'; responsible: {e["responsible"]} ({short:.3f} -> '
+                      f'{e["value_without"][e["responsible"]]:.3f} without it, short runs)' if e['responsible'] else
+                      f'; no single truth term is responsible (short runs: {short:.3f}, no removal lowers it)')
         out.append(f'  missed {g["goal"]} ({g["profile"]}, {g["temperature_c"]:+g} degC): {g["value"]:.3f} '
                    f'(target {g["target"]:g}){reason}')
     refit = doc.get('refit')

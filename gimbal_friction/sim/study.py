@@ -770,11 +770,14 @@ def explain_misses(config: SimConfig, axis: AxisParams, goals: Sequence[dict[str
                    ) -> list[dict[str, Any]]:
     """For every missed learning goal (:data:`LEARNING_GOALS`), the truth term responsible: the cell (profile,
     plateau) is run again (``short`` durations, only the cases the goal needs) with each active truth term of
-    :data:`TRUTH_TERMS` switched off in turn (:func:`term_off`); the term whose removal brings the goal's value
-    down most is named. ``study``: further arguments of :func:`run_study` (feedforward, estimator, learn).
+    :data:`TRUTH_TERMS` switched off in turn (:func:`term_off`), and once with every term on (the reference at the
+    same short durations: the full run's value is not comparable); the term whose removal brings the goal's value
+    down most below that reference is named. ``study``: further arguments of :func:`run_study` (feedforward,
+    estimator, learn).
 
-    Returns one record per missed goal: ``goal``, ``profile``, ``temperature_c``, ``value``, ``responsible`` (the
-    term, or None if no removal helps), ``value_without`` (term -> the goal's value with that term off).
+    Returns one record per missed goal: ``goal``, ``profile``, ``temperature_c``, ``value`` (the full run's),
+    ``value_short`` (every term on, short durations), ``responsible`` (the term, or None if no removal helps),
+    ``value_without`` (term -> the goal's value with that term off, short durations).
     """
     missed = [g for g in goals if not g['met'] and g['goal'] in _GOAL_CASES]
     out = []
@@ -786,18 +789,20 @@ def explain_misses(config: SimConfig, axis: AxisParams, goals: Sequence[dict[str
     without: dict[tuple[str, str, float, str], float] = {}
     for p, temps in cells.items():
         cases = [c for c in REPORT_ORDER if c in needs[p]]
-        for term in TRUTH_TERMS:
-            cfg = term_off(config, axis, term)
+        for term in (None, *TRUTH_TERMS):   # None: every term on, the reference
+            cfg = config if term is None else term_off(config, axis, term)
             if cfg is None:
                 continue
             res = run_study(cfg, axis, temperatures=sorted(temps), profiles=[p], cases=cases, short=True, **study)
             for g in goal_checks(res.records):
-                without[(g['goal'], p, g['temperature_c'], term)] = g['value']
+                without[(g['goal'], p, g['temperature_c'], term or '')] = g['value']
     for g in missed:
         vals = {term: without[(g['goal'], g['profile'], g['temperature_c'], term)] for term in TRUTH_TERMS
                 if (g['goal'], g['profile'], g['temperature_c'], term) in without}
+        reference = without.get((g['goal'], g['profile'], g['temperature_c'], ''), g['value'])
         best = min(vals, key=lambda k: vals[k]) if vals else None
-        responsible = best if best is not None and vals[best] < g['value'] else None
+        responsible = best if best is not None and vals[best] < reference else None
         out.append({'goal': g['goal'], 'profile': g['profile'], 'temperature_c': g['temperature_c'],
-                    'value': g['value'], 'responsible': responsible, 'value_without': vals})
+                    'value': g['value'], 'value_short': reference, 'responsible': responsible,
+                    'value_without': vals})
     return out

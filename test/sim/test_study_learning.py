@@ -112,3 +112,4 @@ def test_explain_names_the_asymmetry_for_the_feedforward_losing_to_the_constant_
     (why,) = explain_misses(res.config, AxisParams(), goals, feedforward=ff)
     assert why['responsible'] == 'asymmetry' and why['value_without']['asymmetry'] < 1.0   # measured 0.83
     assert set(why['value_without']) == {'asymmetry', 'ripple', 'lubricant', 'breakaway', 'sensor'}
+    assert why['value_short'] == pytest.approx(miss['value'], rel=1e-9)   # the same short run, every term on
