@@ -18,6 +18,7 @@ from numpy.typing import NDArray
 from gimbal_friction.common.units import nm_from_nmm, rpm_from_rad_s
 from gimbal_friction.common.xp import ARRAY
 from gimbal_friction.export.table import PALMGREN_JUMP, ExportTable, Provenance, c_identifier, correction_nm
+from gimbal_friction.feedforward.correction import MAX_SPEED_RAD_S
 from gimbal_friction.physics.direction import direction_factor
 from gimbal_friction.physics.model import FrictionResult
 
@@ -104,8 +105,8 @@ def provenance_lines(table: ExportTable, prov: Provenance) -> list[str]:
         'degC, cw: v >= 0, ccw: v < 0).'),
         ('Feedforward: tau = clamp(tanh(v/velocity_threshold) * (k_dir * M(t, |v|) + c), +-max_torque) [N*m], with '
         'the correction c = c0 + c_speed * x along the motion,'),
-        (f'  x = (max(|v|, {c.settings.min_speed_rad_s!r}) / {c.settings.speed_reference_rad_s!r} rad/s)^(2/3) '
-         "(the speed shape of Palmgren's viscous torque),"),
+        (f'  x = (clip(|v|, {c.settings.min_speed_rad_s!r}, {MAX_SPEED_RAD_S!r}) / '
+         f"{c.settings.speed_reference_rad_s!r} rad/s)^(2/3) (the speed shape of Palmgren's viscous torque),"),
         ('  c0 and c_speed interpolated linearly between bin centres (held beyond the first and last), c clamped to '
         f'+-({c.max_relative!r} * k_dir * M + {c.floor_nm!r} N*m).'),
         'Its error bound per cell: standard error of the cell mean x n/(n + n0) (0: no data; unknown with one '
@@ -381,6 +382,7 @@ static const double gf_{a}_correction_{name}_samples[GF_{A}_CORRECTION_N] = {{
 #define GF_{A}_CORRECTION_FLOOR_NM {_fmt(c.floor_nm)}  /* [N*m] */
 #define GF_{A}_CORRECTION_MIN_SPEED_RAD_S {_fmt(c.settings.min_speed_rad_s)}  /* the speed term is held below [rad/s] */
 #define GF_{A}_CORRECTION_SPEED_REFERENCE_RAD_S {_fmt(c.settings.speed_reference_rad_s)}  /* x = 1 here [rad/s] */
+#define GF_{A}_CORRECTION_MAX_SPEED_RAD_S {_fmt(MAX_SPEED_RAD_S)}  /* the speed term is held above [rad/s] */
 
 {body}
 static inline double gf_{a}_correction_lerp(const double *c, double temperature_c)
@@ -400,11 +402,11 @@ static inline double gf_{a}_correction_lerp(const double *c, double temperature_
     return c[i] + w * (c[i + 1] - c[i]);
 }}
 
-/* the speed term x = (max(|v|, min speed) / reference speed)^(2/3) [-] (Palmgren's viscous torque, Eq. 9) */
+/* the speed term x = (clip(|v|, min, max speed) / reference speed)^(2/3) [-] (Palmgren's viscous torque, Eq. 9) */
 static inline double gf_{a}_correction_speed_term(double velocity_rad_s)
 {{
-    return pow(fmax(fabs(velocity_rad_s), GF_{A}_CORRECTION_MIN_SPEED_RAD_S) / GF_{A}_CORRECTION_SPEED_REFERENCE_RAD_S,
-               2.0 / 3.0);
+    double v = fmin(fmax(fabs(velocity_rad_s), GF_{A}_CORRECTION_MIN_SPEED_RAD_S), GF_{A}_CORRECTION_MAX_SPEED_RAD_S);
+    return pow(v / GF_{A}_CORRECTION_SPEED_REFERENCE_RAD_S, 2.0 / 3.0);
 }}
 
 static inline double gf_{a}_correction_nm(double temperature_c, double velocity_rad_s, double model_nm)

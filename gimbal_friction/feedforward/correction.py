@@ -81,6 +81,8 @@ DIRECTIONS = ('cw', 'ccw')
 #: reason of a refused sample, by gate code (0 = accepted)
 REASONS = ('', 'non-finite', 'stale temperature', 'near reversal', 'temperature outside the bins')
 R_FROZEN, R_UNKNOWN = 'frozen', 'unknown joint'
+#: the speed term is held above this speed [rad/s] (about 1000 rpm: beyond any gimbal; keeps it finite)
+MAX_SPEED_RAD_S = 100.0
 Array = NDArray[np.float64]
 
 
@@ -217,15 +219,16 @@ def cell_of(s: CorrectionSettings, t_c: Any, v: Any, p: Any, r: Any, m: Any, xp:
 
 
 def speed_term(s: CorrectionSettings, v: Any, xp: Any) -> Any:
-    """The speed term x = (max(|v|, ``min_speed_rad_s``) / ``speed_reference_rad_s``)^(2/3) [-] at velocity ``v``
-    [rad/s]: the shape of Palmgren's viscous torque in speed (Eq. 9, M_L ∝ (ν n)^(2/3)), held below the slowest
-    speed learned (the gate's ``min_speed_rad_s``) rather than extrapolated towards zero speed.
+    """The speed term x = (clip(|v|, ``min_speed_rad_s``, :data:`MAX_SPEED_RAD_S`) / ``speed_reference_rad_s``)^(2/3)
+    [-] at velocity ``v`` [rad/s]: the shape of Palmgren's viscous torque in speed (Eq. 9, M_L ∝ (ν n)^(2/3)), held
+    below the slowest speed learned (the gate's ``min_speed_rad_s``) rather than extrapolated towards zero speed, and
+    above :data:`MAX_SPEED_RAD_S` (so an absurd velocity gives a finite term; the bound then clips the correction).
 
     >>> s = CorrectionSettings()
     >>> round(speed_term(s, -8 * 0.0349066, SCALAR), 12), speed_term(s, 0.0, SCALAR) == speed_term(s, 0.005, SCALAR)
     (4.0, True)
     """
-    return (xp.maximum(xp.abs(v), s.min_speed_rad_s) / s.speed_reference_rad_s) ** (2.0 / 3.0)
+    return (xp.clip(xp.abs(v), s.min_speed_rad_s, MAX_SPEED_RAD_S) / s.speed_reference_rad_s) ** (2.0 / 3.0)
 
 
 class _Lookup:

@@ -169,10 +169,15 @@ class ChamberReplay(Node):
             delay = target - time.monotonic()
             if delay > 0.0:
                 time.sleep(delay)
-            self.pubs[raw.topic].publish(raw.data)
-            self.published += 1
-            if not rclpy.ok():
+            if not rclpy.ok():   # SIGINT while sleeping: stop cleanly
                 return
+            try:
+                self.pubs[raw.topic].publish(raw.data)
+            except Exception:   # (rclpy's RCLError) the context went down between the check and the publish
+                if rclpy.ok():
+                    raise
+                return
+            self.published += 1
 
 
 def main(args: Sequence[str] | None = None) -> None:
