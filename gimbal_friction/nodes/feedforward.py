@@ -109,6 +109,8 @@ NodeSettings = FeedforwardNodeSettings  # the node-level parameters (gimbal_fric
 _FF_FIELDS = field_names(FeedforwardSettings)
 _NODE_FIELDS = field_names(NodeSettings)
 _CORRECTION_PREFIX, _LEARNING_PREFIX = (prefix for prefix, _ in FEEDFORWARD_PREFIXED)
+#: what /gimbal/friction/correction says of each cell with data (besides std_error_nm)
+_CELL_KEYS = ('value_nm', 'speed_nm', 'speed_ref', 'samples', 'mean_nm', 'centre_c', 'state')
 _CORRECTION_FIELDS = frozenset(_CORRECTION_PREFIX + n for n in field_names(CorrectionSettings))
 _LEARNING_FIELDS = frozenset(_LEARNING_PREFIX + n for n in field_names(LearningSettings))
 #: columns of measured_detail the learning reads (the layout of gimbal_friction.streams.measurement; read by index:
@@ -567,7 +569,7 @@ class FrictionFeedforward(Node):
                 'file': k.loaded_from or self._save_path() or 'none'}))
             for rec in learner.cells(joint):
                 name = f'gimbal_friction/correction/{joint}/{rec["direction"]}/{rec["centre_c"]:g}'
-                values = {key: rec[key] for key in ('value_nm', 'samples', 'mean_nm', 'centre_c', 'state')}
+                values = {key: rec[key] for key in _CELL_KEYS}
                 values['std_error_nm'] = rec['std_error_nm'] if rec['std_error_nm'] is not None else 'none'
                 statuses.append(status(name, WARN if rec['saturated'] else OK, rec['state'], joint, values))
         self.pub_correction.publish(diagnostic_array(self, statuses))
