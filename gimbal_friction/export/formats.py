@@ -201,7 +201,9 @@ def render_c_header(table: ExportTable, prov: Provenance) -> str:
         f'double gf_{a}_direction_factor(double temperature_c, double velocity_rad_s): k_dir [-] (a function of',
         '  temperature so that it can become a table over temperature).',
         f"double gf_{a}_feedforward_nm(double temperature_c, double velocity_rad_s): the friction_feedforward node's",
-        '  torque [N*m], clamp(tanh(v/v_th) * k_dir * M, +-max_torque); 0 for a non-finite input (the node outputs 0',
+        ('  torque [N*m], clamp(tanh(v/v_th) * k_dir * M, +-max_torque)' if table.correction is None else
+         '  torque [N*m], clamp(tanh(v/v_th) * (k_dir * M + c), +-max_torque) with c the learned correction below')
+        + '; 0 for a non-finite input (the node outputs 0',
         '  for a non-finite velocity; it rejects a bad temperature and applies its stale policy: do that in your',
         '  code if you need it).',
         *([] if table.correction is None else [

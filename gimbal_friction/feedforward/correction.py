@@ -98,18 +98,18 @@ class CorrectionSettings:
     temperature_max_c: float = setting(122.5, 'degC', 'upper edge of the last temperature bin')
     temperature_bin_c: float = setting(5.0, 'degC', 'width of a temperature bin (default: centred on multiples of 5)')
     prior_samples: float = setting(50.0, '-', 'n0: a cell holds sum/(n + n0), shrunk towards 0 where data is thin')
-    max_relative: float = setting(0.5, '-', 'bound: |correction| <= this x |model| + floor_nm')
+    max_relative: float = setting(0.5, '-', 'bound: |correction| <= this x |model| + the absolute floor')
     floor_nm: float = setting(2e-5, 'N*m', 'absolute part of the bound')
     min_speed_rad_s: float = setting(0.005, 'rad/s', 'samples slower than this (near a reversal) are not learned')
-    position_bins: int = setting(0, '-', 'bins of the position map over position_period_rad (0: no map)')
+    position_bins: int = setting(0, '-', 'bins of the position map over its period (0: no map)')
     position_period_rad: float = setting(2.0 * math.pi, 'rad', 'period of the position map (ripple period)')
     harmonics: int = setting(4, '-', 'Fourier harmonics kept in the position map')
-    speed_term: bool = setting(True, '-', 'learn and apply, per cell, a term in (|v| / speed_reference_rad_s)^(2/3) '
+    speed_term: bool = setting(True, '-', 'learn and apply, per cell, a term in (|v| / the reference speed)^(2/3) '
                                "(the speed dependence of Palmgren's viscous torque, Eq. 9: a lubricant off its "
                                'datasheet); false: one value per cell')
     speed_reference_rad_s: float = setting(0.0349066, 'rad/s', 'speed where the speed term is 1 (default 1/3 rpm)')
-    speed_prior_spread: float = setting(0.2, '-', 'the speed term is shrunk towards 0 like prior_samples samples '
-                                        "whose speed term spreads by this fraction of the cell's mean one")
+    speed_prior_spread: float = setting(0.2, '-', 'the speed term is shrunk towards 0 like n0 prior samples whose '
+                                        "speed term spreads by this fraction of the cell's mean one")
 
     @property
     def n_temperature(self) -> int:
@@ -619,12 +619,14 @@ class Correction:
     # ------------------------------------------------------------------ file
     def check_identity(self, expected: ModelIdentity, source: str = 'correction') -> None:
         """Raise CorrectionError (one line) unless this correction was learned against ``expected``."""
+        fix = ('use the configuration it was learned with (the refitted parameters: --config / --params-file), '
+               'or relearn it')
         if self.identity.joints != expected.joints:
             raise CorrectionError(f'{source} is for joints {", ".join(self.identity.joints)}, the model has '
-                                  f'{", ".join(expected.joints)}: relearn it or delete the file')
+                                  f'{", ".join(expected.joints)}: {fix}')
         if self.identity.params_sha256 != expected.params_sha256:
             raise CorrectionError(f'{source} was learned against model parameters {self.identity.params_sha256[:12]}, '
-                                  f'the model is {expected.params_sha256[:12]}: relearn it or delete the file')
+                                  f'the model is {expected.params_sha256[:12]}: {fix}')
 
     def to_mapping(self) -> dict[str, Any]:
         """The file's content (plain Python values; :mod:`~gimbal_friction.feedforward.correction_file`)."""

@@ -7,11 +7,12 @@ Content: ``format: gimbal_friction/correction``, ``version: 2``, the units (``to
 ``settings`` (:class:`~gimbal_friction.feedforward.correction.CorrectionSettings`: bins, shrinkage ``prior_samples``,
 bound, gate), ``temperature_edges_c`` and, per joint, one record per cell with data: ``direction`` (cw/ccw), ``bin``,
 ``centre_c`` [°C], ``value_nm`` [N·m] (applied, at the speed term ``speed_ref``), ``speed_nm`` [N·m] (applied: the
-correction is ``value_nm + speed_nm · (x − speed_ref)`` with the speed term x = (max(|v|, min_speed_rad_s) /
-speed_reference_rad_s)^(2/3)), ``samples``, ``sum_nm``, ``mean_nm``, ``std_error_nm`` [N·m], ``saturated``, and the
-sums learning resumes from (``sum_sq_nm2``, ``sum_abs_model_nm``, ``sum_speed``, ``sum_speed_sq``,
-``sum_speed_residual_nm``). With a position map a cell also holds the applied relative ripple ``ripple_relative``
-[-] at the position-bin centres (the correction adds ripple(θ) × |model|), the same sums per position bin
+correction is ``value_nm + speed_nm · (x − speed_ref)`` with the speed term x = (clip(|v|, min_speed_rad_s,
+100 rad/s) / speed_reference_rad_s)^(2/3)), ``samples``, ``sum_nm``, ``mean_nm``, ``std_error_nm`` [N·m],
+``saturated``, and the sums learning resumes from (``sum_sq_nm2``, ``sum_abs_model_nm``, ``sum_speed``,
+``sum_speed_sq``, ``sum_speed_residual_nm``). With a position map a cell also holds the applied relative ripple
+``ripple_relative`` [-] at the position-bin centres (the correction adds ripple(θ) × |model|), the same sums per
+position bin
 (``position_samples``, ``position_sums_nm``, ``position_speed_sums``, ``position_speed_sq_sums``,
 ``position_speed_residual_sums_nm``, ``position_model_sums_nm``) and the ripple's harmonics ``harmonics_cos`` /
 ``harmonics_sin`` [-] (for reading: ripple(θ) ≈ Σ_k a_k cos(2πkθ/period) + b_k sin(2πkθ/period)). One field per
@@ -52,6 +53,15 @@ __all__ = ['FORMAT', 'UNITS', 'VERSION', 'load', 'save', 'to_mapping']
 
 FORMAT = 'gimbal_friction/correction'
 VERSION = 2
+#: the comment a saved file starts with: how to read it
+HEADER = """\
+# A learned friction correction (gimbal_friction). Per joint, per cell (direction cw: v >= 0 / ccw: v < 0, and a
+# 5 degC temperature bin by default), the correction added to the model friction along the motion [N*m] is
+#   c = value_nm + speed_nm * (x - speed_ref) + ripple(theta) * |model|,
+#   x = (clip(|v|, min_speed_rad_s, 100 rad/s) / speed_reference_rad_s)^(2/3)   [-], ripple [-] (position map only),
+# bounded by max_relative * |model| + floor_nm. samples = how much data a cell has; the sum_* fields are what
+# learning resumes from. Written by gimbal-friction refit/fleet --correction-out or friction_feedforward's learning.
+"""
 #: versions :func:`load` reads (1: before the slope on the model friction)
 READS = (1, 2)
 #: settings a version-1 file does not hold, and what it meant
@@ -87,7 +97,7 @@ def save(c: Correction, path: str | os.PathLike[str]) -> None:
     dumper: Any = type('Dumper', (getattr(yaml, 'CSafeDumper', yaml.SafeDumper),), {})
     dumper.add_representer(list, lambda d, x: d.represent_sequence(
         'tag:yaml.org,2002:seq', x, flow_style=not any(isinstance(v, dict) for v in x)))
-    text = yaml.dump(to_mapping(c), Dumper=dumper, sort_keys=False, width=1 << 16)
+    text = HEADER + yaml.dump(to_mapping(c), Dumper=dumper, sort_keys=False, width=1 << 16)
     out = Path(path)
     write_bytes_atomic(out, text.encode('utf-8'), fsync=True, what='correction file', error=CorrectionError)
 
@@ -111,8 +121,13 @@ def load(path: str | os.PathLike[str], expected: ModelIdentity | None = None) ->
     try:
         c = _from_mapping(doc)
     except (KeyError, TypeError, ValueError, IndexError, AttributeError, ConfigError) as err:
-        reason = err.args[0] if isinstance(err, (CorrectionError, ConfigError)) else \
-            f'{type(err).__name__} {" ".join(str(err).split())}'
+        if isinstance(err, (CorrectionError, ConfigError)):
+            reason = str(err.args[0])
+        elif isinstance(err, KeyError):
+            reason = f'field {err.args[0]!r} is missing (a file cut short or edited); restore it or relearn it'
+        else:
+            reason = (f'a field has a value of the wrong kind ({" ".join(str(err).split())}; a file cut short or '
+                      'edited); restore it or relearn it')
         raise CorrectionError(f'{name}: {reason}') from None
     if expected is not None:
         c.check_identity(expected, name)

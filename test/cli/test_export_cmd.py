@@ -197,5 +197,5 @@ def test_correction_option_carries_it_into_every_file_and_refuses_a_mismatched_o
     assert max(e['correction_cw_nm']) == pytest.approx(2e-4 * 9 / 10)
     # learned against other parameters (the packaged single axis): refused with one line, nothing written
     assert main(['export', '--out', str(tmp_path / 'refused'), '--correction', str(path), *FAST]) == 1
-    _one_line_error(capsys, 'relearn it or delete the file')
+    _one_line_error(capsys, 'use the configuration it was learned with')
     assert not (tmp_path / 'refused').exists()
