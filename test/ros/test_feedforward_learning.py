@@ -16,6 +16,7 @@ from rcl_interfaces.msg import ParameterType, ParameterValue
 from rcl_interfaces.srv import GetParameters, SetParameters
 from sensor_msgs.msg import JointState, Temperature
 from std_msgs.msg import Float64MultiArray, MultiArrayDimension
+from test_feedforward_node import request  # the node tests' one request (re-sent until answered)
 
 from gimbal_friction.feedforward.correction import Correction, CorrectionSettings, model_identity
 from gimbal_friction.feedforward.rule import FeedforwardSettings
@@ -42,17 +43,6 @@ def send_temperature(probe, t_c, sec):
     msg = Temperature(temperature=float(t_c))
     msg.header.stamp = Time(sec=sec)
     probe.pubs['/gimbal/temperature'].publish(msg)
-
-
-def request(probe, names, velocities, sec):
-    """Publish a joint state stamped ``sec`` and wait for the feedforward carrying that stamp."""
-    n0 = len(probe.received[FF])
-    msg = JointState(name=list(names), velocity=[float(v) for v in velocities], position=[0.0] * len(names))
-    msg.header.stamp = Time(sec=sec)
-    probe.pubs['/joint_states'].publish(msg)
-    probe.spin_until(lambda: any(m.header.stamp.sec == sec for m in probe.received[FF][n0:]),
-                     what=f'feedforward for stamp {sec}')
-    return [m for m in probe.received[FF][n0:] if m.header.stamp.sec == sec][-1]
 
 
 def detail(sec: int, velocity: float, friction_nm: float, temperature_c: float = T_C, fresh: bool = True,
