@@ -8,9 +8,9 @@ Used by ``gimbal-friction refit`` and by ``fleet`` (one unit per worker).
 from __future__ import annotations
 
 import sys
-from collections.abc import Sequence
+from collections.abc import Iterable, Iterator, Sequence, Sized
 from pathlib import Path
-from typing import Any, NamedTuple
+from typing import Any, NamedTuple, TypeVar
 
 import numpy as np
 
@@ -20,6 +20,8 @@ from gimbal_friction.feedforward.rule import Feedforward, FeedforwardSettings
 from gimbal_friction.physics.params import AxisParams
 from gimbal_friction.recording.residual_read import ReadReport, iter_residual_rows
 from gimbal_friction.refit.sufficient import SufficientStats, accumulate_rows
+
+_Chunk = TypeVar('_Chunk', bound=Sized)
 
 #: rows per chunk read from the logs (bounds the memory of a refit or a fleet worker)
 CHUNK_ROWS = 1 << 18
@@ -34,20 +36,26 @@ class AxisData(NamedTuple):
     skipped_standstill: int
 
 
-def read_stats(logs: Sequence[Path], *, joints: list[str] | None = None, direction: str = 'both',
-               report: ReadReport | None = None, label: str = 'refit: reading') -> dict[str, AxisData]:
-    """Per-joint sufficient statistics of the logs, streamed chunk by chunk with bounded memory
-    (:func:`~gimbal_friction.recording.residual_read.iter_residual_rows`; progress on a terminal's stderr)."""
-    stats: dict[str, SufficientStats] = {}
+def _with_progress(chunks: Iterable[_Chunk], label: str) -> Iterator[_Chunk]:
+    """``chunks`` as they come, with the running row count on a terminal's stderr (``<label>: <n> rows``)."""
     done = 0
-    for chunk in iter_residual_rows(list(logs), chunk_rows=CHUNK_ROWS, report=report):
-        accumulate_rows(chunk, stats, joints=joints, direction=direction)
+    for chunk in chunks:
+        yield chunk
         done += len(chunk)
         if sys.stderr.isatty():
             sys.stderr.write(f'\r{label}: {done} rows')
             sys.stderr.flush()
     if done and sys.stderr.isatty():
         sys.stderr.write('\n')
+
+
+def read_stats(logs: Sequence[Path], *, joints: list[str] | None = None, direction: str = 'both',
+               report: ReadReport | None = None, label: str = 'refit: reading') -> dict[str, AxisData]:
+    """Per-joint sufficient statistics of the logs, streamed chunk by chunk with bounded memory
+    (:func:`~gimbal_friction.recording.residual_read.iter_residual_rows`; progress on a terminal's stderr)."""
+    stats: dict[str, SufficientStats] = {}
+    for chunk in _with_progress(iter_residual_rows(list(logs), chunk_rows=CHUNK_ROWS, report=report), label):
+        accumulate_rows(chunk, stats, joints=joints, direction=direction)
     return {j: AxisData(s, s.tally.rows, s.tally.skipped_nonfinite, s.tally.skipped_standstill)
             for j, s in stats.items()}
 
@@ -77,8 +85,7 @@ def read_correction(logs: Sequence[Path], axes: dict[str, AxisParams], *,
     c = Correction(settings or CorrectionSettings(), model_identity(axes))
     rows = dict.fromkeys(axes, 0)
     refused: dict[str, dict[str, int]] = {j: {} for j in axes}
-    done = 0
-    for chunk in iter_residual_rows(list(logs), chunk_rows=CHUNK_ROWS):
+    for chunk in _with_progress(iter_residual_rows(list(logs), chunk_rows=CHUNK_ROWS), label):
         for joint in np.unique(chunk.joint).tolist():
             if joint not in axes:
                 continue
@@ -92,12 +99,6 @@ def read_correction(logs: Sequence[Path], axes: dict[str, AxisParams], *,
             for reason, n in c.add_residuals(joint, t, v, chunk.position_rad[k], residual, model).items():
                 refused[joint][reason] = refused[joint].get(reason, 0) + n
             rows[joint] += int(k.size)
-        done += len(chunk)
-        if sys.stderr.isatty():
-            sys.stderr.write(f'\r{label}: {done} rows')
-            sys.stderr.flush()
-    if done and sys.stderr.isatty():
-        sys.stderr.write('\n')
     c.settle()
     return LearnedCorrection(c, rows, refused)
 
