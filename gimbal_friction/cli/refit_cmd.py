@@ -14,7 +14,9 @@ I_0) is fitted as a nuisance when the logs hold both a cold (viscous-regime) and
 with its interval and the I_0 that would remove it, and a warning is printed (stderr) when it exceeds the
 calibration's uncertainty, read from the ``calibrate-kt`` output file (``--calibration FILE.yaml``: its
 ``gimbal_friction_calibration`` section, format version 1; a file from before it by its comment line
-``T_0 = ... +/- SE N*m``, with a note) or given as ``--calibration-se`` [N*m]. The offset is never written to the file.
+``T_0 = ... +/- SE N*m``, with a note) or given as ``--calibration-se`` [N*m]. The offset is never written as a
+parameter (the nodes must not add it); the file carries it as data in its ``gimbal_friction_refit`` section
+(:mod:`gimbal_friction.refit.records`), which ``report --compare`` adds to the refitted model as this table does.
 
 Output file: a layerable parameter file holding **only the refitted parameters**, always under
 ``axis.<name>.<parameter>`` (also for a single axis): an ``axis.*`` entry overrides ``model.*`` whatever the file
@@ -73,6 +75,7 @@ from gimbal_friction.physics.direction import ARRAY, direction_factor
 from gimbal_friction.physics.model import friction_torque
 from gimbal_friction.refit.fit import (
     ASYMMETRY_PARAMETERS,
+    DEFAULT_FIT,
     FIT_PARAMETERS,
     OFFSET_MODES,
     PALMGREN_THRESHOLD,
@@ -80,10 +83,9 @@ from gimbal_friction.refit.fit import (
     palmgren_threshold_temperature,
 )
 from gimbal_friction.refit.logs import LearnedCorrection, correction_table
-from gimbal_friction.refit.records import refit_record
+from gimbal_friction.refit.records import REFIT_SECTION, offset_values, refit_record, refit_section_text
 from gimbal_friction.refit.run import AxisRefit, refit_logs
 
-DEFAULT_FIT = 'walther_a'
 #: ``--fit`` shorthand for both anchors of the direction asymmetry
 FIT_ALIASES = {'direction_asymmetry': ASYMMETRY_PARAMETERS}
 
@@ -111,9 +113,9 @@ def add_parser(sub: Any) -> None:
     add_common(parser)
     parser.add_argument('--axis', action='append', metavar='NAME',
                         help='axis to refit (repeatable; default: every configured axis present in the logs)')
-    parser.add_argument('--fit', default=DEFAULT_FIT, metavar='NAMES',
+    parser.add_argument('--fit', default=','.join(DEFAULT_FIT), metavar='NAMES',
                         help=f'comma-separated parameters to fit, from {",".join(FIT_PARAMETERS)} '
-                        f'(default {DEFAULT_FIT})')
+                        f'(default {",".join(DEFAULT_FIT)})')
     parser.add_argument('--loss', choices=['linear', 'soft_l1'], default='linear',
                         help='least-squares loss on the weighted plateau means (soft_l1: robust to outlier bins)')
     parser.add_argument('--bin-width', type=float, default=5.0, metavar='DEGC',
@@ -186,7 +188,7 @@ def provenance_header(fits: list[AxisRefit], logs: list[Path], files: int, fit: 
         for vi in r.viscosity:
             lines.append(f'  viscosity at {vi.temperature_c:.1f} degC: {vi.before_cst:.6g} -> {vi.after_cst:.6g} cSt '
                          f'(95% [{vi.low_cst:.6g}, {vi.high_cst:.6g}])')
-        lines.append(f'  {offset_text(r)} (not written)')
+        lines.append(f'  {offset_text(r)} (no parameter: in the {REFIT_SECTION} section, for report --compare)')
     lines.append('layer with: gimbal-friction ... --config FILE, or ros2 run ... --ros-args --params-file FILE')
     return '\n'.join(lines)
 
@@ -343,6 +345,7 @@ def run(args: argparse.Namespace) -> int:
     text = render_parameter_file(axes_overrides={f.axis: f.result.refitted for f in fits},
                                  header=provenance_header(fits, list(args.logs), len(report.files), fit,
                                                           list(args.config)))
+    text += refit_section_text({f.axis: offset_values(f.result) for f in fits})   # the offsets, as data
     write_text_atomic(out, text)
     for f in fits:
         for warning in f.result.warnings:

@@ -108,7 +108,7 @@ from gimbal_friction.refit.identifiability import (
     _relative_se,
     _se_reason,
 )
-from gimbal_friction.refit.model import SampleModel
+from gimbal_friction.refit.model import SampleModel, measurement_model_nmm
 from gimbal_friction.refit.problem import (
     _covariance,
     _distinct_viscous_temperatures,
@@ -124,6 +124,7 @@ from gimbal_friction.refit.problem import (
 )
 from gimbal_friction.refit.results import (
     ASYMMETRY_PARAMETERS,
+    DEFAULT_FIT,
     FIT_PARAMETERS,
     GRID_STEP_C,
     LOSSES,
@@ -151,8 +152,8 @@ from gimbal_friction.refit.results import (
 from gimbal_friction.refit.sufficient import SufficientStats
 
 __all__ = [
-    'ASYMMETRY_PARAMETERS', 'FIT_PARAMETERS', 'GRID_STEP_C', 'LOSSES', 'MAX_ASYMMETRY_SE', 'MAX_CONDITION',
-    'MAX_RELATIVE_SE', 'MIN_BIN_SAMPLES', 'MIN_SAMPLES', 'NOT_CHECKED', 'OFFSET', 'OFFSET_MODES',
+    'ASYMMETRY_PARAMETERS', 'DEFAULT_FIT', 'FIT_PARAMETERS', 'GRID_STEP_C', 'LOSSES', 'MAX_ASYMMETRY_SE',
+    'MAX_CONDITION', 'MAX_RELATIVE_SE', 'MIN_BIN_SAMPLES', 'MIN_SAMPLES', 'NOT_CHECKED', 'OFFSET', 'OFFSET_MODES',
     'PALMGREN_THRESHOLD', 'SPEED_BIN_RATIO', 'VISCOSITY_PARAMETERS', 'WEIGHTS', 'Z95', 'BinStats',
     'Identifiability', 'OffsetConfounding', 'OffsetResult', 'RefitResult', 'SampleModel', 'ViscosityInterval',
     'palmgren_threshold_temperature', 'refit_model', 'refit_stats',
@@ -205,7 +206,7 @@ def _check_inputs(base: AxisParams, t: Array, n: Array, y: Array, d: Array) -> N
 
 
 def refit_model(base: AxisParams, temperature_c: ArrayLike, speed_rpm: ArrayLike, measured_abs_nm: ArrayLike,
-                direction: ArrayLike, *, fit: Sequence[str] = ('walther_a',), weights: str = 'bin_se',
+                direction: ArrayLike, *, fit: Sequence[str] = DEFAULT_FIT, weights: str = 'bin_se',
                 loss: str = 'linear', f_scale: float | None = None, bin_width_c: float = 5.0,
                 min_bin_samples: int = MIN_BIN_SAMPLES, se_floor_rel: float = 0.002,
                 max_nfev: int = 200, offset: str = 'auto', calibration_se_nm: float | None = None,
@@ -276,7 +277,7 @@ def refit_model(base: AxisParams, temperature_c: ArrayLike, speed_rpm: ArrayLike
                        calibration_se_nm=calibration_se_nm)
 
 
-def refit_stats(base: AxisParams, stats: SufficientStats, *, fit: Sequence[str] = ('walther_a',),
+def refit_stats(base: AxisParams, stats: SufficientStats, *, fit: Sequence[str] = DEFAULT_FIT,
                 weights: str = 'bin_se', loss: str = 'linear', f_scale: float | None = None,
                 bin_width_c: float = 5.0, min_bin_samples: int = MIN_BIN_SAMPLES, se_floor_rel: float = 0.002,
                 max_nfev: int = 200, offset: str = 'auto', calibration_se_nm: float | None = None) -> RefitResult:
@@ -418,8 +419,9 @@ def _result(base: AxisParams, stats: SufficientStats, problem: _Problem, groups:
     except ConfigError as err:
         msg = f'the refitted parameters are not valid: {err}'
         raise FitError(msg) from None
-    tau1 = model.torque_nmm(sol.values) * NM_PER_NMM
-    fric1 = model.torque_nmm(sol.values, offset=False) * NM_PER_NMM
+    # the refitted model of the measurement (and the friction alone): the one function report --compare averages too
+    tau1 = measurement_model_nmm(params, pts.t, pts.n, pts.d, sol.values[OFFSET]) * NM_PER_NMM
+    fric1 = measurement_model_nmm(params, pts.t, pts.n, pts.d) * NM_PER_NMM
     upper1 = model.upper_branch(sol.values)
     nu0 = model.viscosity_cst(v0)
     nu1 = model.viscosity_cst(sol.values)

@@ -127,3 +127,24 @@ class SampleModel:
             OFFSET: np.full(tau.shape, 1e3),
         }
         return tau, np.column_stack([cols[name] for name in names])
+
+
+def measurement_model_nmm(params: AxisParams, temperature_c: ArrayLike, speed_rpm: ArrayLike, direction: ArrayLike,
+                          offset_nm: float = 0.0) -> Array:
+    """What a refitted model says the measurement is at each sample (or fine bin), |τ| [N·mm]: the friction of
+    ``params`` along the motion, ``k_d(t) M(t, n)`` (:class:`SampleModel`), plus the calibration torque offset the
+    refit fitted beside it, ``offset_nm`` [N·m] (0: none).
+
+    One function for "the refit model at a plateau": the refit's table (``model after``, the mean over a group's
+    fine bins) and ``report --compare`` (``refit model``, the mean over a plateau's samples) both average it.
+    ``temperature_c`` [°C], ``speed_rpm`` [rpm] (magnitude), ``direction`` ±1 (positive: the paper's CW).
+
+    >>> from gimbal_friction.physics.params import AxisParams
+    >>> base = measurement_model_nmm(AxisParams(), [20.0], [1 / 3], [1])
+    >>> round(float(base[0]), 3)                                        # the model's 1.046 N*mm at 20 degC
+    1.046
+    >>> round(float(measurement_model_nmm(AxisParams(), [20.0], [1 / 3], [1], offset_nm=1e-4)[0] - base[0]), 9)
+    0.1
+    """
+    model = SampleModel(params, temperature_c, speed_rpm, direction)
+    return model.torque_nmm(model.values({OFFSET: offset_nm}))

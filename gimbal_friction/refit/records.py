@@ -1,10 +1,45 @@
-"""A refit result's records as JSON-ready mappings (torques in N*mm), shared by ``refit`` and ``fleet``: one form."""
+"""A refit result's records as JSON-ready mappings (torques in N*mm), shared by ``refit`` and ``fleet``: one form;
+and the refit's calibration offsets as data in its parameter file (:func:`refit_section_text`,
+:func:`read_refit_offsets`).
+
+The offset is no model parameter (the nodes must not add it: it is the measurement's error, not the friction's), so
+the refit's file carries it beside the parameters in a section ``gimbal_friction_refit: ros__parameters:
+{format_version: 1, axis: {<joint>: {torque_offset_nm, torque_offset_se_nm, torque_offset_estimated}}}``: to ROS
+the parameters of a node of that name, which does not exist, so the nodes, the config loader and ``--params-file``
+ignore it and the file stays layerable. ``report --compare`` reads it to draw the refit model of the measurement as
+the refit's own table shows it.
+
+>>> text = refit_section_text({'elevation': (-4.8e-06, 1.1e-05, True)})
+>>> print(text.strip())
+gimbal_friction_refit:
+  ros__parameters:
+    format_version: 1
+    axis:
+      elevation:
+        torque_offset_nm: -4.8e-06
+        torque_offset_se_nm: 1.1e-05
+        torque_offset_estimated: true
+>>> read_refit_offsets_text(text, 'refit.yaml')
+{'elevation': -4.8e-06}
+>>> read_refit_offsets_text('/**: {ros__parameters: {}}', 'mine.yaml')     # a file without the section: none
+{}
+"""
 
 from __future__ import annotations
 
+import math
+from collections.abc import Mapping
+from pathlib import Path
 from typing import Any
 
+import yaml
+
+from gimbal_friction.common.errors import ConfigFileError
 from gimbal_friction.refit.fit import RefitResult
+
+#: the section of refit's parameter file that carries the fitted calibration offsets as data, and its version
+REFIT_SECTION = 'gimbal_friction_refit'
+REFIT_FORMAT_VERSION = 1
 
 
 def offset_record(r: RefitResult) -> dict[str, Any]:
@@ -76,4 +111,81 @@ def fleet_record(r: RefitResult, viscosity_m40_cst: float, friction_nmm: dict[st
     out['viscosity_m40_cst'] = viscosity_m40_cst
     out['friction_nmm'] = friction_nmm
     out['offset']['se_nmm'] = out['offset']['standard_error_nmm']
+    return out
+
+
+# ------------------------------------------------------------------------------------------------------------
+# the offsets as data in the parameter file
+
+
+def offset_values(r: RefitResult) -> tuple[float, float, bool]:
+    """The calibration offset of a refit as the section holds it: value and 1-sigma [N*m] (0 and NaN when it was not
+    estimated: the model of the measurement is then the friction alone) and whether it was estimated."""
+    o = r.offset
+    if not o.estimated:
+        return 0.0, math.nan, False
+    return float(o.value_nm), float(o.standard_error_nm), True
+
+
+def refit_section_text(offsets: Mapping[str, tuple[float, float, bool]]) -> str:
+    """The ``gimbal_friction_refit`` section as YAML: per axis the offset, its 1-sigma [N*m] (left out when not
+    finite) and whether it was estimated (:func:`offset_values`); floats written with a decimal point or an
+    exponent, so that rcl reads them as doubles."""
+    axes: dict[str, dict[str, Any]] = {}
+    for axis, (value, se, estimated) in offsets.items():
+        rec: dict[str, Any] = {'torque_offset_nm': float(repr(float(value)))}
+        if math.isfinite(se):
+            rec['torque_offset_se_nm'] = float(repr(float(se)))
+        rec['torque_offset_estimated'] = bool(estimated)
+        axes[axis] = rec
+    body = {REFIT_SECTION: {'ros__parameters': {'format_version': REFIT_FORMAT_VERSION, 'axis': axes}}}
+    text: str = yaml.safe_dump(body, sort_keys=False, default_flow_style=False)
+    return text
+
+
+def read_refit_offsets(path: str | Path) -> dict[str, float]:
+    """:func:`read_refit_offsets_text` of a file.
+
+    Raises:
+        ConfigFileError: the file cannot be read, or its section is malformed or of another format version.
+    """
+    try:
+        text = Path(path).read_text(encoding='utf-8')
+    except (OSError, UnicodeDecodeError) as err:
+        raise ConfigFileError(str(path), f'cannot read: {getattr(err, "strerror", None) or err}') from None
+    return read_refit_offsets_text(text, str(path))
+
+
+def read_refit_offsets_text(text: str, source: str) -> dict[str, float]:
+    """The calibration torque offset [N*m] per axis that a refit wrote into its parameter file (0 for an axis whose
+    offset was not estimated); empty for a file without the ``gimbal_friction_refit`` section (not a refit's, or
+    written before the section: its offsets are unknown).
+
+    Raises:
+        ConfigFileError: a malformed section, an unknown format version or a value that is not a finite number.
+    """
+    try:
+        doc = yaml.safe_load(text)
+    except yaml.YAMLError:
+        return {}   # not YAML: the config loader refuses the file with its own reason
+    section = doc.get(REFIT_SECTION) if isinstance(doc, dict) else None
+    if section is None:
+        return {}
+    params = section.get('ros__parameters') if isinstance(section, dict) else None
+    if not isinstance(params, dict):
+        raise ConfigFileError(source, f'{REFIT_SECTION} must hold a ros__parameters mapping')
+    version = params.get('format_version')
+    if version != REFIT_FORMAT_VERSION:
+        raise ConfigFileError(source, f'{REFIT_SECTION} format_version {version!r} is not supported (this version '
+                              f'reads {REFIT_FORMAT_VERSION}); rerun refit or upgrade gimbal_friction')
+    axes = params.get('axis') or {}
+    if not isinstance(axes, dict):
+        raise ConfigFileError(source, f'{REFIT_SECTION}.axis must map joints to their offsets')
+    out: dict[str, float] = {}
+    for axis, rec in axes.items():
+        value = rec.get('torque_offset_nm') if isinstance(rec, dict) else None
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+            raise ConfigFileError(source, f'{REFIT_SECTION}.axis.{axis}.torque_offset_nm must be a finite torque '
+                                  f'[N*m], not {value!r}')
+        out[str(axis)] = float(value) if rec.get('torque_offset_estimated', True) is not False else 0.0
     return out

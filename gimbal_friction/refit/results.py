@@ -18,6 +18,9 @@ Array = NDArray[np.float64]
 FIT_PARAMETERS = ('walther_a', 'walther_b', 'viscosity_offset_cst', 'palmgren_factor',
                   'sliding_friction_coefficient', 'scale_positive', 'scale_negative', 'direction_asymmetry_cold',
                   'direction_asymmetry_warm')
+#: What a refit fits unless told otherwise (``refit``, ``fleet``, :func:`~gimbal_friction.refit.fit.refit_model`):
+#: the lubricant's viscosity level, with the calibration offset beside it where the data allow (``offset='auto'``).
+DEFAULT_FIT = ('walther_a',)
 #: The Walther constants of the lubricant (Eq. 20/21).
 VISCOSITY_PARAMETERS = ('walther_a', 'walther_b', 'viscosity_offset_cst')
 #: The temperature-dependent direction asymmetry (physics/direction.py).

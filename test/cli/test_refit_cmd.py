@@ -95,7 +95,11 @@ def test_refit_writes_a_loadable_file_with_the_truth_viscosity(log_dir, tmp_path
     # only the refitted parameter changed
     assert params.replace(walther_a=defaults.walther_a) == defaults
     doc = yaml.safe_load(out.read_text())
-    assert doc == {'/**': {'ros__parameters': {'axis': {'elevation': {'walther_a': params.walther_a}}}}}
+    assert doc['/**'] == {'ros__parameters': {'axis': {'elevation': {'walther_a': params.walther_a}}}}
+    # beside the parameters, as data the nodes ignore: the calibration offset fitted with them (report --compare)
+    section = doc.pop('gimbal_friction_refit')['ros__parameters']
+    assert set(doc) == {'/**'} and section['format_version'] == 1
+    assert set(section['axis']['elevation']) == {'torque_offset_nm', 'torque_offset_se_nm', 'torque_offset_estimated'}
     # the model with the refitted file reproduces the truth's viscosity where the data determine it
     nu_fit = friction_torque(params, [-40.0]).viscosity_cst[0]
     assert nu_fit == pytest.approx(float(viscosity_cst(truth, -40.0)), rel=0.03)
