@@ -28,10 +28,11 @@ from typing import Any, NamedTuple
 import numpy as np
 from numpy.typing import NDArray
 
+from gimbal_friction.chamber.summary import replay_summary
 from gimbal_friction.common.settings import settings_from_parameters
 from gimbal_friction.config.loader import all_axis_params, check_config_files, load_parameters
 from gimbal_friction.estimation.estimator import EstimatorCounters, EstimatorLogic, EstimatorSettings
-from gimbal_friction.estimation.residuals import match_predictions, plateau_summary
+from gimbal_friction.estimation.residuals import match_predictions
 from gimbal_friction.feedforward.correction import Correction, model_identity
 from gimbal_friction.feedforward.rule import (
     SOURCE_MEASURED,
@@ -69,7 +70,7 @@ class ReplayResult(NamedTuple):
     rows: ResidualRows                 #: what residual_logger would have logged
     feedforward_counters: FeedforwardCounters
     estimator_counters: EstimatorCounters
-    summary: list[dict[str, Any]]      #: per plateau and direction (:func:`plateau_summary`)
+    summary: list[dict[str, Any]]      #: per plateau and direction (replay_summary of chamber/summary.py)
     residual_dir: Path | None
     messages_in: int
     messages_out: int
@@ -174,9 +175,7 @@ def replay_bag(bag_path: str | Path, out_dir: str | Path | None, *, config_paths
         msg = f'bag {bag.path}: no friction sample was accepted, nothing written: {"; ".join(why)}'
         raise EmptyInputError(msg)
     report('summary', 0.0)
-    # the plateaus by the one rule (estimation/plateaus.py), judged on the samples' own temperatures
-    summary = plateau_summary(rows.temperature_c, rows.velocity_rad_s, rows.measured_nm, rows.predicted_nm,
-                              joint=rows.joint.tolist(), bin_c=est_settings.temperature_bin_c, stamp_s=rows.stamp_s)
+    summary = replay_summary(arrays, rows, est_settings)
     report('summary', 1.0)
     messages_out = 0
     residual_dir = None
@@ -215,7 +214,8 @@ def _findings(ff: BagTorques, measured: MeasurementArrays, est: EstimatorLogic,
                    f'(method, commanded_speed_rad_s, position window) must match the test')
     if len(measured) and not summary:
         out.append('samples were accepted but no temperature plateau qualified for the summary (the bearing '
-                   'temperature never held within 1 degC/min over 30 s while they were taken)')
+                   'temperature stream never held within 1 degC/min over the 30 s before them, or its stamps are '
+                   'on another clock than the joint states)')
     return out
 
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 from typing import Any, cast
 
@@ -110,27 +111,21 @@ def _fig13_data(args: argparse.Namespace, axis: str,
     Raises:
         GimbalFrictionError: the logs hold no samples of ``axis``, or no temperature plateau (named, with why).
     """
-    from gimbal_friction.config.loader import load_parameters
-    from gimbal_friction.estimation.residuals import plateau_summary
+    from gimbal_friction.chamber.summary import log_summary
     from gimbal_friction.physics.direction import SCALAR, direction_factor
-    from gimbal_friction.recording.residual_read import read_residual_rows
-    d, report = read_residual_rows(args.residuals)
-    print_read_note(report)
-    where = ', '.join(str(p) for p in args.residuals)
-    sel = d.joint == axis
-    if not sel.any():
-        present = sorted({str(j) for j in d.joint.tolist()})
-        why = (f'joints present: {", ".join(present)}; pass --axis with one of them or --config with those axes'
-               if present else f'no residual rows at all: {report.summary()}')
-        raise GimbalFrictionError(f'{where}: the residual logs hold no samples of axis {axis!r} ({why})')
-    # the plateaus by the one rule of replay and refit (estimation/plateaus.py), on the samples' own temperatures
-    summary = plateau_summary(d.temperature_c[sel], d.velocity_rad_s[sel], d.measured_nm[sel],
-                              d.predicted_nm[sel], joint=d.joint[sel], stamp_s=d.stamp_s[sel])
-    if not summary:
-        msg = (f'{where}: no temperature plateau of axis {axis!r} to compare with ({int(sel.sum())} rows; a '
-               'plateau needs 10 samples taken while the bearing temperature held within 1 degC/min over 30 s, '
-               'and 10 samples per direction)')
+    res = log_summary(args.residuals, axis, args.config)
+    print_read_note(res.read)
+    own = ("judged on the samples' own temperatures: the logs hold no temperature stream (replay --no-inputs?)"
+           if not res.stream_logged else '')
+    if not res.summary:
+        where = ', '.join(str(p) for p in args.residuals)
+        msg = (f'{where}: no temperature plateau of axis {axis!r} to compare with ({res.rows} rows; a plateau '
+               'needs 10 samples taken while the bearing temperature held within 1 degC/min over the 30 s before '
+               f'them, and 10 samples per direction{"; " + own if own else ""})')
         raise GimbalFrictionError(msg)
+    if own:
+        print(f'note: plateaus {own}', file=sys.stderr)
+    summary = res.summary
     models = {'configured': params}
     if args.compare is not None:
         compared = axis_params(load_parameters([*args.config, args.compare]), axis)
@@ -140,4 +135,4 @@ def _fig13_data(args: argparse.Namespace, axis: str,
             t_c = float(cast('float', r['temperature_c']))
             m = float(friction_torque(compared, t_c).m_total_nmm)
             r['compare_nmm'] = sign * direction_factor(compared, t_c, sign, SCALAR) * m
-    return summary, models, report.as_dict()
+    return summary, models, res.read.as_dict()

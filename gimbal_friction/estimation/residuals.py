@@ -16,7 +16,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from gimbal_friction.common.units import nmm_from_nm
-from gimbal_friction.estimation.plateaus import plateau_bins, plateau_of, usable_samples
+from gimbal_friction.estimation.plateaus import plateau_bins, plateau_of, steady_samples, usable_samples
 from gimbal_friction.estimation.statistics import GroupStatistics
 from gimbal_friction.streams.residual_row import ResidualRows
 
@@ -105,49 +105,21 @@ def temperature_bins(t_c: ArrayLike, bin_c: float) -> NDArray[np.float64]:
     return np.asarray(plateau_of(t_c, bin_c), dtype=np.float64)
 
 
-def steady_temperature(sample_time_s: ArrayLike, temperature_time_s: ArrayLike, temperature_c: ArrayLike, *,
-                       window_s: float = 30.0, max_rate_c_per_min: float = 1.0) -> NDArray[np.bool_]:
-    """True for each sample time [s] at which the bearing temperature stream (times [s], values [°C]) changed by
-    at most ``max_rate_c_per_min`` [°C/min] over the last ``window_s`` [s] (and covers that window): a temperature
-    plateau, not a ramp between the chamber's set points. Judged on the temperature stream itself, so a plateau
-    with a single short sweep each way (the paper's protocol) qualifies."""
-    ts = np.asarray(temperature_time_s, dtype=np.float64)
-    tv = np.asarray(temperature_c, dtype=np.float64)
-    ok = np.isfinite(ts) & np.isfinite(tv)
-    ts, tv = ts[ok], tv[ok]
-    st = np.asarray(sample_time_s, dtype=np.float64)
-    if ts.size < 2:
-        return np.zeros(st.shape, dtype=bool)
-    order = np.argsort(ts, kind='stable')
-    ts, tv = ts[order], tv[order]
-    now = np.interp(st, ts, tv)
-    back = st - window_s
-    earlier = np.interp(back, ts, tv)
-    # the largest excursion inside the window, approximated by the ends and the extremes of the samples in it
-    lo_i = np.searchsorted(ts, back, side='left')
-    hi_i = np.searchsorted(ts, st, side='right')
-    running_max = np.maximum(np.abs(now - earlier), 0.0)
-    for k in range(3):  # also look at a few interior points: a ramp that turned round inside the window
-        mid = np.interp(back + (k + 1) * window_s / 4.0, ts, tv)
-        running_max = np.maximum(running_max, np.abs(mid - earlier))
-    rate = running_max / window_s * 60.0
-    covered = (back >= ts[0]) & (st <= ts[-1]) & (hi_i - lo_i >= 2)
-    return covered & (rate <= max_rate_c_per_min)
-
-
 def plateau_summary(temperature_c: ArrayLike, velocity_rad_s: ArrayLike, measured_nm: ArrayLike,
                     predicted_nm: ArrayLike, *, bin_c: float = 5.0, min_samples: int = 10,
                     joint: Iterable[str] | None = None, steady: ArrayLike | None = None,
-                    stamp_s: ArrayLike | None = None) -> list[dict[str, Any]]:
+                    stamp_s: ArrayLike | None = None,
+                    temperature_stream: tuple[ArrayLike, ArrayLike] | None = None) -> list[dict[str, Any]]:
     """One record per temperature plateau and direction: the paper's per-temperature means (Fig. 13).
 
-    Samples are assigned to plateaus by the one rule of :mod:`gimbal_friction.estimation.plateaus` (the refit's): bins
-    of width ``bin_c`` [°C], every usable sample of a bin counted; a record needs ``min_samples`` per direction.
-    With ``steady`` (a mask, e.g. from :func:`steady_temperature`) only bins holding at least ``min_samples``
-    steady samples are plateaus, so the ramps between the chamber's set points do not make plateaus of their own
-    (the mask decides which bins are listed, not which samples they count). Without a mask but with the samples'
-    times ``stamp_s`` [s], the mask is :func:`steady_temperature` of each joint's samples' own temperatures (no
-    second time base to align: what ``replay`` and ``report`` use). Direction ``cw`` is positive motion
+    Samples are assigned to plateaus by the one rule of :mod:`gimbal_friction.estimation.plateaus` (the refit's and
+    the estimator's statistics'): bins of width ``bin_c`` [°C], every usable sample of a bin counted; a record needs
+    ``min_samples`` per direction. Only bins holding at least ``min_samples`` samples taken while the temperature
+    held are plateaus, so the ramps between the chamber's set points do not make plateaus of their own (this decides
+    which bins are listed, not which samples they count): with the samples' times ``stamp_s`` [s], judged by
+    :func:`~gimbal_friction.estimation.plateaus.steady_samples` on ``temperature_stream`` (times [s], temperatures
+    [°C]; what ``replay`` and ``report`` pass), or, without one, on each joint's samples' own temperatures; or
+    given as the mask ``steady``; with none of them every bin is a plateau. Direction ``cw`` is positive motion
     (the paper's clockwise), ``ccw`` negative; means are signed [N·mm]. A NaN prediction (no feedforward) leaves
     ``predicted_nmm`` and ``residual_nmm`` NaN for the samples that lack it.
     """
@@ -160,11 +132,9 @@ def plateau_summary(temperature_c: ArrayLike, velocity_rad_s: ArrayLike, measure
     bins = np.where(ok, plateau_of(t, bin_c), np.nan)
     mask = None if steady is None else np.asarray(steady, dtype=bool)
     if mask is None and stamp_s is not None:
-        stamps = np.asarray(stamp_s, dtype=float)
         mask = np.zeros(t.shape, dtype=bool)
-        for j in set(joints[ok].tolist()):
-            mine = ok & (joints == j)
-            mask[mine] = steady_temperature(stamps[mine], stamps[mine], t[mine])
+        mask[ok] = steady_samples(np.asarray(stamp_s, dtype=float)[ok], stream=temperature_stream,
+                                  temperature_c=t[ok], joint=joints[ok])
     out: list[dict[str, Any]] = []
     for j in sorted(set(joints[ok].tolist())):
         mine = ok & (joints == j)

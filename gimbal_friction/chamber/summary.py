@@ -1,0 +1,84 @@
+"""The per-plateau summary (the paper's Fig. 13 table) of a replayed bag or of residual logs: one rule for
+``replay`` (``summary.json``) and ``report``.
+
+Both judge the plateaus on the bearing-temperature stream (:mod:`gimbal_friction.estimation.plateaus`): the bag's
+``/gimbal/temperature`` in a replay, the same topic as logged among the residual log's inputs in a report (a log
+written without its inputs, ``replay --no-inputs``, falls back to the samples' own temperatures and says so). The
+bins and the valid temperature range are the estimator's settings (``temperature_bin_c``, ``temperature_min_c``,
+``temperature_max_c`` of ``friction_estimator`` in the parameter files), so a summary, the estimator's statistics
+and the refit's groups (same bin width) count the same samples on every plateau they show.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any, NamedTuple
+
+import numpy as np
+from numpy.typing import NDArray
+
+from gimbal_friction.common.errors import GimbalFrictionError
+from gimbal_friction.common.settings import settings_from_parameters
+from gimbal_friction.common.units import NS_PER_S
+from gimbal_friction.config.loader import load_parameters
+from gimbal_friction.estimation.gating import EstimatorSettings
+from gimbal_friction.estimation.plateaus import temperature_stream
+from gimbal_friction.estimation.residuals import plateau_summary
+from gimbal_friction.recording.residual_read import ReadReport, read_residual_rows, read_temperature_stream
+from gimbal_friction.streams.arrays import ChamberArrays
+from gimbal_friction.streams.inputs import effective_time
+from gimbal_friction.streams.residual_row import ResidualRows
+
+__all__ = ['LogSummary', 'log_summary', 'replay_summary']
+
+
+def _summary(rows: ResidualRows, est: EstimatorSettings, stream: tuple[NDArray[np.float64], NDArray[np.float64]]
+             ) -> list[dict[str, Any]]:
+    """:func:`plateau_summary` of ``rows`` with the estimator's bins, judged on the (valid part of the) stream."""
+    valid = temperature_stream(stream[0], stream[1], est.temperature_min_c, est.temperature_max_c)
+    return plateau_summary(rows.temperature_c, rows.velocity_rad_s, rows.measured_nm, rows.predicted_nm,
+                           joint=rows.joint.tolist(), bin_c=est.temperature_bin_c, stamp_s=rows.stamp_s,
+                           temperature_stream=valid)
+
+
+def replay_summary(arrays: ChamberArrays, rows: ResidualRows, est: EstimatorSettings) -> list[dict[str, Any]]:
+    """The per-plateau summary of a replay: the residual ``rows``, the plateaus judged on the bag's temperature
+    stream (``arrays.temperature``, at its stamps, or log times where a stamp is zero: the samples' time rule)."""
+    t = arrays.temperature
+    t_time = effective_time(np.asarray(t.stamp_ns, dtype=np.int64), np.asarray(t.log_time_ns, dtype=np.int64))
+    return _summary(rows, est, (t_time / NS_PER_S, np.asarray(t.temperature_c, dtype=np.float64)))
+
+
+class LogSummary(NamedTuple):
+    """:func:`log_summary`'s result."""
+
+    summary: list[dict[str, Any]]      #: per plateau and direction (:func:`plateau_summary`)
+    rows: int                          #: residual rows of the axis
+    read: ReadReport                   #: what the read of the logs skipped
+    stream_logged: bool                #: the logs hold the temperature stream (else: the samples' own temperatures)
+
+
+def log_summary(logs: Sequence[Path], axis: str, config_paths: Sequence[Path] = ()) -> LogSummary:
+    """The per-plateau summary of ``axis`` in residual logs (what ``report`` tabulates and draws as Fig. 13).
+
+    Raises:
+        RecordingError: the logs cannot be read.
+        ConfigError: a bad parameter file.
+        GimbalFrictionError: the logs hold no samples of ``axis`` (the joints present, and what to pass).
+    """
+    data, report = read_residual_rows(list(logs))
+    where = ', '.join(str(p) for p in logs)
+    sel = data.joint == axis
+    if not sel.any():
+        present = sorted({str(j) for j in data.joint.tolist()})
+        why = (f'joints present: {", ".join(present)}; pass --axis with one of them or --config with those axes'
+               if present else f'no residual rows at all: {report.summary()}')
+        msg = f'{where}: the residual logs hold no samples of axis {axis!r} ({why})'
+        raise GimbalFrictionError(msg)
+    rows = data.select(np.flatnonzero(sel))
+    est = settings_from_parameters(EstimatorSettings, load_parameters(list(config_paths),
+                                                                      node_name='friction_estimator'))
+    stream = read_temperature_stream(list(logs))
+    summary = _summary(rows, est, stream)
+    return LogSummary(summary, int(sel.sum()), report, stream[0].size >= 2)
