@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
-from typing import Any, cast
+from typing import Any
 
 from gimbal_friction.cli._common import (
     add_common,
@@ -17,8 +17,10 @@ from gimbal_friction.cli._common import (
     refuse_existing,
 )
 from gimbal_friction.common.errors import GimbalFrictionError
-from gimbal_friction.config.loader import axis_params, load_parameters
+from gimbal_friction.common.units import nmm_from_nm
+from gimbal_friction.config.loader import load_parameters
 from gimbal_friction.physics.model import friction_torque
+from gimbal_friction.refit.records import read_refit_offsets
 
 
 def add_parser(sub: Any) -> None:
@@ -36,7 +38,8 @@ def add_parser(sub: Any) -> None:
                         'direction, and its table')
     parser.add_argument('--compare', type=Path, metavar='FILE.yaml',
                         help='a parameter file (e.g. from refit) layered over --config: drawn as a second model '
-                        'curve in Fig. 13')
+                        'curve in Fig. 13 and tabulated as the refit model, with the torque offset refit wrote into '
+                        "it (as in refit's own table)")
     parser.add_argument('--force', action='store_true',
                         help='replace figures of an earlier report in --out (refused otherwise)')
     parser.set_defaults(func=run)
@@ -52,27 +55,31 @@ def run(args: argparse.Namespace) -> int:
 def _run(args: argparse.Namespace) -> int:
     from gimbal_friction.plots.figures import FIG13_FILE, MODEL_FIGURE_FILES, model_figures, plot_model_vs_measured
     axis, params, _ = load_axis(args)
-    if args.compare is not None:  # refuse a bad --compare file before drawing anything
+    if args.compare is not None:  # refuse a bad --compare file (or refit section) before drawing anything
         load_parameters([*args.config, args.compare])
+        read_refit_offsets(args.compare)
     names = [*MODEL_FIGURE_FILES, *([FIG13_FILE] if args.residuals else [])]
     for name in names:  # one rule for every command's outputs: nothing existing is overwritten without --force
         refuse_existing(args.out / name, '--out', force=args.force)
     summary = None
     read: dict[str, Any] = {}
+    offsets: dict[str, float] = {}
     if args.residuals:  # read (and refuse empty logs) before drawing anything
-        summary, models, read = _fig13_data(args, axis, params)
+        summary, models, offsets, read = _fig13_data(args, axis, params)
     files = model_figures(params, args.out)
     temps = [-40.0, -20.0, 0.0, 20.0, 40.0, 60.0]
     res = friction_torque(params, temps)
     rows = res.records()
     if summary is not None:
-        files.append(plot_model_vs_measured(summary, models, args.out / FIG13_FILE,
+        files.append(plot_model_vs_measured(summary, models, args.out / FIG13_FILE, offsets_nmm=offsets,
                                             title=f'{axis}: model vs measured by direction (paper Fig. 13)'))
     if args.format == 'json':
         doc: dict[str, Any] = {'axis': axis, 'figures': [str(f) for f in files], 'fig11': rows}
         if summary is not None:
             doc['fig13'] = summary
             doc['read'] = read
+            if args.compare is not None:
+                doc['compare'] = {'file': str(args.compare), 'torque_offset_nmm': next(iter(offsets.values()))}
         print_json(doc)
         return 0
     print(f'axis {axis}: figures written to {args.out}/')
@@ -105,15 +112,14 @@ def summary_table(summary: list[dict[str, Any]]) -> str:
 
 
 def _fig13_data(args: argparse.Namespace, axis: str,
-                params: Any) -> tuple[list[dict[str, Any]], dict[str, Any], dict[str, Any]]:
-    """Fig. 13's plateau summary of the residual logs, the models to draw, and what the read skipped.
+                params: Any) -> tuple[list[dict[str, Any]], dict[str, Any], dict[str, float], dict[str, Any]]:
+    """Fig. 13's plateau summary of the residual logs, the models to draw and their offsets [N*mm], what was read.
 
     Raises:
         GimbalFrictionError: the logs hold no samples of ``axis``, or no temperature plateau (named, with why).
     """
     from gimbal_friction.chamber.summary import log_summary
-    from gimbal_friction.physics.direction import SCALAR, direction_factor
-    res = log_summary(args.residuals, axis, args.config)
+    res = log_summary(args.residuals, axis, args.config, compare=args.compare)
     print_read_note(res.read)
     own = ("judged on the samples' own temperatures: the logs hold no temperature stream (replay --no-inputs?)"
            if not res.stream_logged else '')
@@ -125,14 +131,10 @@ def _fig13_data(args: argparse.Namespace, axis: str,
         raise GimbalFrictionError(msg)
     if own:
         print(f'note: plateaus {own}', file=sys.stderr)
-    summary = res.summary
-    models = {'configured': params}
-    if args.compare is not None:
-        compared = axis_params(load_parameters([*args.config, args.compare]), axis)
-        models[f'with {args.compare.name}'] = compared
-        for r in summary:  # the compared model at each plateau, signed like the measurement, at the model speed
-            sign = float(cast('float', r['sign']))
-            t_c = float(cast('float', r['temperature_c']))
-            m = float(friction_torque(compared, t_c).m_total_nmm)
-            r['compare_nmm'] = sign * direction_factor(compared, t_c, sign, SCALAR) * m
-    return summary, models, res.read.as_dict()
+    models: dict[str, Any] = {'configured': params}
+    offsets: dict[str, float] = {}
+    if res.compared is not None:
+        label = f'with {args.compare.name}'
+        models[label] = res.compared
+        offsets[label] = nmm_from_nm(res.compare_offset_nm)
+    return res.summary, models, offsets, res.read.as_dict()

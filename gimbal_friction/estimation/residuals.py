@@ -9,7 +9,7 @@ and ``gimbal-friction replay`` (offline, a whole bag) call the same functions. A
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from typing import Any
 
 import numpy as np
@@ -109,7 +109,9 @@ def plateau_summary(temperature_c: ArrayLike, velocity_rad_s: ArrayLike, measure
                     predicted_nm: ArrayLike, *, bin_c: float = 5.0, min_samples: int = 10,
                     joint: Iterable[str] | None = None, steady: ArrayLike | None = None,
                     stamp_s: ArrayLike | None = None,
-                    temperature_stream: tuple[ArrayLike, ArrayLike] | None = None) -> list[dict[str, Any]]:
+                    temperature_stream: tuple[ArrayLike, ArrayLike] | None = None,
+                    compare: Callable[[NDArray[np.float64], NDArray[np.float64]], NDArray[np.float64]] | None = None
+                    ) -> list[dict[str, Any]]:
     """One record per temperature plateau and direction: the paper's per-temperature means (Fig. 13).
 
     Samples are assigned to plateaus by the one rule of :mod:`gimbal_friction.estimation.plateaus` (the refit's and
@@ -121,7 +123,9 @@ def plateau_summary(temperature_c: ArrayLike, velocity_rad_s: ArrayLike, measure
     [°C]; what ``replay`` and ``report`` pass), or, without one, on each joint's samples' own temperatures; or
     given as the mask ``steady``; with none of them every bin is a plateau. Direction ``cw`` is positive motion
     (the paper's clockwise), ``ccw`` negative; means are signed [N·mm]. A NaN prediction (no feedforward) leaves
-    ``predicted_nmm`` and ``residual_nmm`` NaN for the samples that lack it.
+    ``predicted_nmm`` and ``residual_nmm`` NaN for the samples that lack it. With ``compare`` (a function of a
+    record's samples' temperatures [°C] and velocities [rad/s] giving a signed torque [N·mm] per sample, e.g. a
+    refitted model) each record also has ``compare_nmm``, its mean over the same samples.
     """
     t = np.asarray(temperature_c, dtype=float)
     v = np.asarray(velocity_rad_s, dtype=float)
@@ -152,4 +156,6 @@ def plateau_summary(temperature_c: ArrayLike, velocity_rad_s: ArrayLike, measure
                             'measured_std_nmm': nmm_from_nm(float(meas[sel].std(ddof=1))) if n > 1 else 0.0,
                             'predicted_nmm': p_mean, 'residual_nmm': m_mean - p_mean, 'samples': n,
                             'plateau_c': float(b)})
+                if compare is not None:
+                    out[-1]['compare_nmm'] = float(np.mean(compare(t[sel], v[sel])))
     return out

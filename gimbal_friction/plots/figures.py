@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -122,11 +122,13 @@ def model_figures(params: AxisParams, out_dir: Path, t_min: float = -40.0, t_max
 
 
 def plot_model_vs_measured(summary: Sequence[dict[str, Any]], models: dict[str, AxisParams], path: Path, *,
-                           title: str = '') -> Path:
+                           title: str = '', offsets_nmm: Mapping[str, float] | None = None) -> Path:
     """Fig. 13: measured mean friction per plateau by direction (|CCW| shown positive) and model curves.
 
     ``summary`` holds records of :func:`gimbal_friction.estimation.residuals.plateau_summary` (signed means [N·mm]);
-    ``models`` maps a label to the parameters of a model curve (e.g. before and after a refit).
+    ``models`` maps a label to the parameters of a model curve (e.g. before and after a refit); ``offsets_nmm`` a
+    label to the calibration torque offset [N·mm] a refit fitted beside its parameters, added to that curve's
+    magnitude (the refit model of the measurement, as the refit's table shows it).
     """
     plt = pyplot()
     fig, ax = plt.subplots(figsize=(7.5, 4.8))
@@ -134,7 +136,10 @@ def plot_model_vs_measured(summary: Sequence[dict[str, Any]], models: dict[str, 
     t = np.linspace(min(*temps, -40.0), max(*temps, 60.0), 301)
     for (label, params), style in zip(models.items(), ('-', '--', ':', '-.')):
         m = friction_torque(params, t).m_total_nmm
-        cw, ccw = (direction_factor(params, t, np.full(t.shape, d), ARRAY) * m for d in (1.0, -1.0))
+        shift = float((offsets_nmm or {}).get(label, 0.0))
+        cw, ccw = (direction_factor(params, t, np.full(t.shape, d), ARRAY) * m + shift for d in (1.0, -1.0))
+        if shift:
+            label = f'{label}, offset {shift:+.3g} N·mm'
         if np.allclose(cw, ccw):
             ax.plot(t, cw, style, lw=2, label=f'model: {label}')
         else:  # a per-direction term: both curves

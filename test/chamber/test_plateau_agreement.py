@@ -93,3 +93,4 @@ def test_summary_report_refit_and_statistics_agree_on_every_plateau(short_sweeps
         assert by_bin[key]['samples'] == by_stat[key]['count'] == r['samples']
         assert r['sign'] * by_bin[key]['measured_mean_nmm'] == pytest.approx(r['measured_mean_nmm'], rel=1e-12)
         assert 1e3 * by_stat[key]['mean_nm'] == pytest.approx(r['measured_mean_nmm'], rel=1e-12)
+        assert r['compare_nmm'] == pytest.approx(r['sign'] * by_bin[key]['model_after_nmm'], abs=1e-4)

@@ -215,6 +215,30 @@ def test_summary_counts_equal_the_refit_counts_on_every_plateau(sample_replay, t
         assert r['samples'] > 700  # every sample of the bin, not only those of the steady stretch
 
 
+def test_report_compare_shows_the_refit_model_as_refit_does(sample_replay, tmp_path, capsys):
+    """Issue 12: report --compare's refit model is refit's own 'model after' at every plateau: the refitted friction
+    plus the calibration torque offset refit fitted beside it (written as data into its file), averaged over the
+    plateau's samples. Was: the friction alone at the plateau's mean temperature (1.080 against 1.0756 N*mm, CW at
+    +60 degC, with an offset of -0.0048 N*mm)."""
+    refit = tmp_path / 'refit.yaml'
+    capsys.readouterr()
+    assert main(['refit', str(sample_replay / 'residuals'), '--out', str(refit), '--format', 'json']) == 0
+    axis = json.loads(capsys.readouterr().out)['axes']['elevation']
+    assert axis['offset']['estimated']
+    assert main(['report', '--residuals', str(sample_replay / 'residuals'), '--compare', str(refit), '--out',
+                 str(tmp_path / 'figures'), '--format', 'json']) == 0
+    doc = json.loads(capsys.readouterr().out)
+    after = {(b['temperature_bin_c'], b['sign']): b['model_after_nmm'] for b in axis['bins']}
+    assert len(doc['fig13']) == 12
+    for r in doc['fig13']:
+        assert r['compare_nmm'] == pytest.approx(r['sign'] * after[(r['plateau_c'], r['sign'])], abs=1e-4), r
+    assert doc['compare']['torque_offset_nmm'] == pytest.approx(axis['offset']['value_nmm'], rel=1e-12)
+    # the table's 'refit model' column prints it as refit's table rounds 'model after'
+    from gimbal_friction.cli.report_cmd import summary_table
+    warm = next(line for line in summary_table(doc['fig13']).splitlines() if ' 59.' in line and ' cw ' in line)
+    assert f'{after[(60.0, 1)]:+.3f}' in warm.split()
+
+
 # ------------------------------------------------------------------------ empty input, missing topics, non-CDR bags
 
 
