@@ -43,14 +43,17 @@ from gimbal_friction.physics.model import friction_torque, viscosity_cst
 from gimbal_friction.physics.params import AxisParams
 from gimbal_friction.recording.residual_read import ReadReport
 from gimbal_friction.recording.topics import RESIDUAL_DETAIL, TEMPERATURE
-from gimbal_friction.refit.fit import RefitResult, refit_stats
+from gimbal_friction.refit.fit import DEFAULT_FIT, RefitResult, refit_stats
+from gimbal_friction.refit.records import offset_values, refit_section_text
 from gimbal_friction.refit.sufficient import SufficientStats, accumulate_rows
 from gimbal_friction.streams.residual_row import residual_rows
 
 #: Messages of a chamber bag decoded at once on a worker (about 1 kB each while processed) [-].
 BAG_WINDOW_MESSAGES = 100_000
-#: Default parameters of a fleet refit: the lubricant and the contact friction (preload).
-DEFAULT_FLEET_FIT = ('walther_a', 'sliding_friction_coefficient')
+#: Default parameters of a fleet refit: refit's (the lubricant, with the calibration offset beside it). The contact
+#: friction (preload) is ``--fit walther_a,sliding_friction_coefficient --offset off``: beside the offset the sliding
+#: coefficient is not determined by a test like the shipped sample (it runs to its bound).
+DEFAULT_FLEET_FIT = DEFAULT_FIT
 #: Modified z-score beyond which a unit is outside the population [-].
 Z_MAX = 3.5
 #: MAD -> standard deviation of a normal population [-].
@@ -246,6 +249,7 @@ def process_unit(unit: UnitSpec, settings: FitSettings) -> dict[str, Any]:
                                    'standstill': stats[a].tally.skipped_standstill} for a in axes}
         rec['cells'] = {a: len(stats[a]) for a in axes}
         refitted: dict[str, dict[str, float]] = {}
+        offsets: dict[str, tuple[float, float, bool]] = {}
         for axis in axes:
             base = settings.axes[axis]
             try:
@@ -257,8 +261,9 @@ def process_unit(unit: UnitSpec, settings: FitSettings) -> dict[str, Any]:
                 continue
             rec['axes'][axis] = _axis_record(result, base)
             refitted[axis] = result.refitted
+            offsets[axis] = offset_values(result)
         if settings.correction_dir is not None:
-            rec['correction'] = unit_correction(unit, settings, refitted)
+            rec['correction'] = unit_correction(unit, settings, refitted, offsets)
     except GimbalFrictionError as err:
         rec['error'] = str(err)
     except Exception as err:  # one unit's failure must not stop the fleet: it is its record
@@ -273,10 +278,12 @@ def correction_paths(folder: str | Path, unit: str) -> tuple[Path, Path]:
     return Path(folder) / f'{unit}.refit.yaml', Path(folder) / f'{unit}.correction.yaml'
 
 
-def unit_correction(unit: UnitSpec, settings: FitSettings, refitted: dict[str, dict[str, float]]) -> dict[str, Any]:
-    """Write the unit's refitted parameters (``<unit>.refit.yaml``, layerable as ``refit --out``) and the correction
-    learned from its residual log against that model (``<unit>.correction.yaml``, a second streamed pass); the
-    record of both (``error`` instead for a bag unit: replay it first)."""
+def unit_correction(unit: UnitSpec, settings: FitSettings, refitted: dict[str, dict[str, float]],
+                    offsets: Mapping[str, tuple[float, float, bool]] | None = None) -> dict[str, Any]:
+    """Write the unit's refitted parameters (``<unit>.refit.yaml``, layerable as ``refit --out``, with the fitted
+    calibration offsets as refit writes them: :func:`~gimbal_friction.refit.records.refit_section_text`) and the
+    correction learned from its residual log against that model (``<unit>.correction.yaml``, a second streamed
+    pass); the record of both (``error`` instead for a bag unit: replay it first)."""
     from gimbal_friction.chamber.learned import correction_record, learn_correction
     from gimbal_friction.common.files import write_text_atomic
     from gimbal_friction.config.loader import render_parameter_file
@@ -287,7 +294,8 @@ def unit_correction(unit: UnitSpec, settings: FitSettings, refitted: dict[str, d
     params_path, path = correction_paths(settings.correction_dir, unit.name)
     header = (f'gimbal-friction fleet: unit {unit.name} ({unit.path}): refitted parameters (layer over '
               + ' + '.join(['packaged defaults', *settings.config_paths]) + f'); learned correction: {path.name}')
-    write_text_atomic(params_path, render_parameter_file(axes_overrides=refitted, header=header))
+    write_text_atomic(params_path, render_parameter_file(axes_overrides=refitted, header=header)
+                      + refit_section_text(offsets or {}))
     learned = learn_correction([Path(unit.path)], [*map(Path, settings.config_paths), params_path],
                                label='fleet: correction')
     learned.correction.save(path)
@@ -459,7 +467,13 @@ def run_fleet(units: Sequence[UnitSpec], settings: FitSettings, *, scheduler: st
 def progress_line(done: int, total: int, rec: Mapping[str, Any], stream: Any = None) -> None:
     """One line per finished unit on stderr."""
     out = stream if stream is not None else sys.stderr
-    status = f'error: {rec["error"]}' if rec.get('error') else 'ok'
+    failed = {axis: a['error'] for axis, a in (rec.get('axes') or {}).items() if 'error' in a}
+    if rec.get('error'):
+        status = f'error: {rec["error"]}'
+    elif failed and len(failed) == len(rec['axes']):   # every axis refused: the unit failed, not 'ok'
+        status = 'error: ' + '; '.join(f'{axis}: {why}' for axis, why in failed.items())
+    else:
+        status = 'ok' + ''.join(f'; {axis} failed: {why}' for axis, why in failed.items())
     read = rec.get('read') or {}
     if read.get('skipped'):  # every command that skips data says how much
         status += f'; skipped: {read["summary"]}'

@@ -73,8 +73,9 @@ def add_parser(sub: Any) -> None:
     parser.add_argument('--memory-limit', default='auto', metavar='SIZE',
                         help="memory limit per local worker, e.g. 2GiB (default 'auto': the machine's shared)")
     parser.add_argument('--fit', default=','.join(DEFAULT_FLEET_FIT), metavar='NAMES',
-                        help=f'parameters refitted per unit (default {",".join(DEFAULT_FLEET_FIT)}: lubricant and '
-                        'contact friction/preload)')
+                        help=f'parameters refitted per unit (default {",".join(DEFAULT_FLEET_FIT)}, as refit: the '
+                        'lubricant, with the calibration offset beside it; the contact friction/preload as well: '
+                        'walther_a,sliding_friction_coefficient with --offset off)')
     parser.add_argument('--offset', choices=OFFSET_MODES, default='auto',
                         help='calibration torque offset as a nuisance (see refit; default auto)')
     parser.add_argument('--calibration-se', type=float, metavar='N*M',
@@ -129,6 +130,22 @@ def table_rows(run: FleetRun) -> tuple[list[dict[str, Any]], list[str]]:
             row['reason'] = '; '.join(reasons)
             rows.append(row)
     return rows, fields
+
+
+def instead_hint(fit: tuple[str, ...], offset: str) -> str:
+    """What to run instead when no unit could be refitted with ``fit`` (empty for the default fit: its refusals
+    name their own reason).
+
+    >>> print(instead_hint(('walther_a', 'sliding_friction_coefficient'), 'auto'))
+    ; run the default fit (leave out --fit), or add --offset off to fit sliding_friction_coefficient without the \
+calibration offset
+    """
+    if tuple(fit) == tuple(DEFAULT_FLEET_FIT):
+        return ''
+    hint = '; run the default fit (leave out --fit)'
+    if 'sliding_friction_coefficient' in fit and offset != 'off':
+        hint += ', or add --offset off to fit sliding_friction_coefficient without the calibration offset'
+    return hint
 
 
 def run(args: argparse.Namespace) -> int:
@@ -186,7 +203,7 @@ def run(args: argparse.Namespace) -> int:
     if not ok:
         errors = '; '.join(f'{r["unit"]}: {r["error"] or next(iter(r["axes"].values()))["error"]}'
                            for r in result.records)
-        msg = f'no unit could be refitted ({errors})'
+        msg = f'no unit could be refitted ({errors}){instead_hint(fit, args.offset)}'
         raise GimbalFrictionError(msg)
     if args.format == 'json':
         print_json(doc)

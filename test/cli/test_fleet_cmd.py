@@ -275,9 +275,8 @@ def test_correction_out_writes_each_units_refit_and_correction_as_refit_does(fle
         assert c['out'] == str((corr / f'{rec["unit"]}.correction.yaml').resolve())
         assert c['params'] == str((corr / f'{rec["unit"]}.refit.yaml').resolve())
         assert c['samples'] == 960 and len(c['cells']) == 12
-    # the same as refit --correction-out of the unit's log with the fleet's fit
-    assert main(['refit', str(units[1]), '--out', str(tmp_path / 'r.yaml'), '--fit',
-                 'walther_a,sliding_friction_coefficient', '--correction-out',
+    # the same as refit --correction-out of the unit's log with the fleet's fit (both default: walther_a)
+    assert main(['refit', str(units[1]), '--out', str(tmp_path / 'r.yaml'), '--correction-out',
                  str(tmp_path / 'r.correction.yaml')]) == 0
     capsys.readouterr()
     mine, theirs = Correction.load(corr / 'seeker_04.correction.yaml'), Correction.load(tmp_path / 'r.correction.yaml')
@@ -292,3 +291,53 @@ def test_correction_out_writes_each_units_refit_and_correction_as_refit_does(fle
                  str(corr)]) == 1
     assert 'already exists' in capsys.readouterr().err
     assert (corr / 'seeker_00.correction.yaml').read_bytes() == before
+
+
+SAMPLE = Path(__file__).resolve().parents[2] / 'bags' / 'chamber_sample'
+
+
+def test_the_default_fit_refits_the_shipped_sample(tmp_path, capsys):
+    """Issue 11: a new user's first fleet run (the shipped sample, default options) succeeds. Was: exit 1, the
+    sliding coefficient (then in the default fit, beside the calibration offset) ran to its bound."""
+    out = tmp_path / 'fleet'
+    assert main(['fleet', str(SAMPLE), '--out', str(out), '--threads', '--format', 'json']) == 0
+    doc = json.loads(capsys.readouterr().out)
+    (unit,) = doc['units']
+    axis = unit['axes']['elevation']
+    assert unit['error'] is None and doc['fit'] == ['walther_a'] and axis['identifiable'] == {'walther_a': True}
+    assert axis['offset']['estimated']             # as refit's default: the lubricant, the offset beside it
+    lo, hi = axis['ci95']['walther_a']
+    assert lo < axis['fitted']['walther_a'] < hi and abs(axis['fitted']['walther_a'] - 8.6345) < 0.03
+
+
+@pytest.mark.slow
+def test_the_old_default_fit_says_what_to_run_instead_and_stays_available(tmp_path, capsys):
+    """The former default (the lubricant and the contact friction, beside the offset) fails on the sample with one
+    line naming what to run instead; with --offset off it is still there."""
+    old = ['--fit', 'walther_a,sliding_friction_coefficient']
+    assert main(['fleet', str(SAMPLE), '--out', str(tmp_path / 'a'), '--threads', *old]) == 1
+    captured = capsys.readouterr()
+    err = captured.err.strip().splitlines()
+    assert 'fleet: 1/1 chamber_sample' in captured.err and ') ok' not in captured.err   # not 'ok' when it failed
+    assert err[-1].startswith('gimbal-friction fleet: error: no unit could be refitted (chamber_sample: ')
+    assert 'sliding_friction_coefficient ran to the edge' in err[-1]
+    assert err[-1].endswith('run the default fit (leave out --fit), or add --offset off to fit '
+                            'sliding_friction_coefficient without the calibration offset')
+    assert main(['fleet', str(SAMPLE), '--out', str(tmp_path / 'b'), '--threads', *old, '--offset', 'off',
+                 '--format', 'json']) == 0
+    axis = json.loads(capsys.readouterr().out)['units'][0]['axes']['elevation']
+    assert axis['identifiable'] == {'walther_a': True, 'sliding_friction_coefficient': True}
+
+
+def test_a_unit_whose_every_axis_failed_is_no_ok_in_its_progress_line():
+    import io
+
+    from gimbal_friction.chamber.fleet import progress_line
+    line = io.StringIO()
+    rec = {'unit': 'u', 'error': None, 'seconds': 0.5, 'axes': {'elevation': {'error': 'the fit diverged'}}}
+    progress_line(1, 1, rec, stream=line)
+    assert line.getvalue() == 'fleet: 1/1 u (0.5 s) error: elevation: the fit diverged\n'
+    rec['axes']['azimuth'] = {'samples': 10}
+    line = io.StringIO()
+    progress_line(1, 1, rec, stream=line)
+    assert line.getvalue() == 'fleet: 1/1 u (0.5 s) ok; elevation failed: the fit diverged\n'
