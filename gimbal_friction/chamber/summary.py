@@ -4,10 +4,11 @@
 
 Both judge the plateaus on the bearing-temperature stream (:mod:`gimbal_friction.estimation.plateaus`): the bag's
 ``/gimbal/temperature`` in a replay, the same topic as logged among the residual log's inputs in a report (a log
-written without its inputs, ``replay --no-inputs``, falls back to the samples' own temperatures and says so). The
-bins and the valid temperature range are the estimator's settings (``temperature_bin_c``, ``temperature_min_c``,
-``temperature_max_c`` of ``friction_estimator`` in the parameter files), so a summary, the estimator's statistics
-and the refit's groups (same bin width) count the same samples on every plateau they show.
+written without its inputs, ``replay --no-inputs`` or ``residual_logger`` with ``log_inputs`` false, falls back to
+the samples' own temperatures and says so). The bins and the valid temperature range are the estimator's settings
+(``temperature_bin_c``, ``temperature_min_c``, ``temperature_max_c`` of ``friction_estimator`` in the parameter
+files), so a summary, the estimator's statistics and the refit's groups (same bin width) count the same samples on
+every plateau they show.
 
 The refit model of a plateau (:func:`log_summary` with ``compare``) is the mean over the plateau's samples of
 :func:`~gimbal_friction.refit.model.measurement_model_nmm`: the compared parameters plus the calibration torque

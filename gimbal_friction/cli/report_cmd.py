@@ -121,8 +121,8 @@ def _fig13_data(args: argparse.Namespace, axis: str,
     from gimbal_friction.chamber.summary import log_summary
     res = log_summary(args.residuals, axis, args.config, compare=args.compare)
     print_read_note(res.read)
-    own = ("judged on the samples' own temperatures: the logs hold no temperature stream (replay --no-inputs?)"
-           if not res.stream_logged else '')
+    own = ("judged on the samples' own temperatures: the logs hold no temperature stream (replay --no-inputs, "
+           'or residual_logger with log_inputs false)' if not res.stream_logged else '')
     if not res.summary:
         where = ', '.join(str(p) for p in args.residuals)
         msg = (f'{where}: no temperature plateau of axis {axis!r} to compare with ({res.rows} rows; a plateau '
