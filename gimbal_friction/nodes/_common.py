@@ -11,13 +11,16 @@ is refused with the core's reason and the old value stays.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import inspect
+import os
 import re
 import signal
 import sys
+import tempfile
 import threading
-from collections.abc import Callable, Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from typing import Any, TypeVar
 
 import numpy as np
@@ -547,13 +550,62 @@ def print_help_if_asked(exe: str, argv: Sequence[str], doc: str | None) -> bool:
     return True
 
 
+
+@contextlib.contextmanager
+def _stderr_held() -> Iterator[list[bytes]]:
+    """Hold back what is written to file descriptor 2 (where rcl's own logging writes) inside the block: the list
+    yielded receives it. The caller writes it out or drops it."""
+    sys.stderr.flush()
+    saved = os.dup(2)
+    held: list[bytes] = []
+    with tempfile.TemporaryFile() as tmp:
+        os.dup2(tmp.fileno(), 2)
+        try:
+            yield held
+        finally:
+            sys.stderr.flush()
+            os.dup2(saved, 2)
+            os.close(saved)
+            tmp.seek(0)
+            held.append(tmp.read())
+
+
+def init_rclpy(exe: str, argv: Sequence[str], **kwargs: Any) -> bool:
+    """``rclpy.init(args=argv, **kwargs)`` for executable ``exe``, with exactly one line on stderr when it fails.
+
+    The command line's parameter files and ``-p`` rules are read first the way rcl reads them
+    (:func:`~gimbal_friction.config.rcl.command_line_parameters`), so a file that cannot be read or parsed is named in
+    the node's own words (``parameter file /x.yaml: cannot read: No such file or directory``). What rcl itself
+    would print while refusing its arguments (``[ERROR] [rcl]: Failed to parse global arguments``, then the
+    exception) is held back: the reason of the exception is the one line. Returns False (the line printed) when
+    the node must not start.
+    """
+    try:
+        command_line_parameters(argv, exe)
+    except GimbalFrictionError as err:
+        print(f'{exe}: error: {err}', file=sys.stderr)
+        return False
+    try:
+        with _stderr_held() as held:
+            rclpy.init(args=list(argv), **kwargs)
+    except Exception as err:  # rclpy raises RCLError/RuntimeError on arguments rcl refuses
+        first = str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__
+        print(f'{exe}: error: cannot start: {first}', file=sys.stderr)
+        return False
+    if held and held[0]:  # what rcl printed while starting fine (a warning) is shown as it was
+        sys.stderr.flush()
+        os.write(2, held[0])
+    return True
+
+
 def run_node(exe: str, factory: Callable[..., Node], args: Sequence[str] | None = None, *,
              suite_node: str | None = None) -> int:
     """Standard ``main``: init, build the node, spin with the EventsExecutor, clean exit on SIGINT/SIGTERM.
 
     SIGINT and SIGTERM only *request* shutdown (a flag checked between callbacks): a signal never raises inside
     a callback, so a file being written (the residual log) is never left half-written. A bad parameter file or
-    value ends the process with exit code 1 and one line on stderr.
+    value ends the process with exit code 1 and one line on stderr (the command line is checked before rcl reads
+    it, :func:`init_rclpy`).
 
     ``suite_node`` (the node's name in :data:`gimbal_friction.config.SUITE_NODES`) also checks the command line
     before the node starts (:func:`startup_overrides`): a parameter name no node of the suite declares is refused,
@@ -568,20 +620,22 @@ def run_node(exe: str, factory: Callable[..., Node], args: Sequence[str] | None 
     def request_stop(signum: int, frame: Any) -> None:
         stop.set()
 
-    previous = {sig: signal.signal(sig, request_stop) for sig in (signal.SIGINT, signal.SIGTERM)}
+    overrides: list[Parameter[Any]] = []
+    sources: dict[str, str] = {}
     try:
-        rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
-    except Exception as err:  # rclpy raises RCLError/RuntimeError on an unreadable or invalid params file
-        first = str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__
-        print(f'{exe}: error: cannot start: {first}', file=sys.stderr)
+        if suite_node is not None:
+            overrides, sources = startup_overrides(argv, suite_node)
+    except GimbalFrictionError as err:
+        print(f'{exe}: error: {err}', file=sys.stderr)
+        return 1
+    previous = {sig: signal.signal(sig, request_stop) for sig in (signal.SIGINT, signal.SIGTERM)}
+    if not init_rclpy(exe, argv, signal_handler_options=SignalHandlerOptions.NO):
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
         return 1
     node = None
     code = 0
-    sources: dict[str, str] = {}
     try:
-        overrides: list[Parameter[Any]] = []
-        if suite_node is not None:
-            overrides, sources = startup_overrides(argv, suite_node)
         node = factory(parameter_overrides=overrides) if overrides else factory()
         from rclpy.experimental.events_executor import EventsExecutor
         executor = EventsExecutor()

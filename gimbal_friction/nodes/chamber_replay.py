@@ -36,7 +36,12 @@ from rclpy.qos import QoSProfile
 
 from gimbal_friction.common.errors import ConfigError, GimbalFrictionError
 from gimbal_friction.config.loader import CHAMBER_REPLAY_SPECS
-from gimbal_friction.nodes._common import name_undeclared_parameters, print_help_if_asked, startup_overrides
+from gimbal_friction.nodes._common import (
+    init_rclpy,
+    name_undeclared_parameters,
+    print_help_if_asked,
+    startup_overrides,
+)
 from gimbal_friction.recording import topics
 from gimbal_friction.recording.bag import open_chamber_bag
 
@@ -186,15 +191,16 @@ def main(args: Sequence[str] | None = None) -> None:
     if print_help_if_asked('chamber_replay', argv, __doc__):
         sys.exit(0)
     try:
-        rclpy.init(args=argv)
-    except Exception as err:  # invalid --ros-args / params file
-        print(f'chamber_replay: error: cannot start: {str(err).splitlines()[0]}', file=sys.stderr)
+        # the suite's start-up check: a misspelt name is refused, a -p value rcl would drop is applied
+        overrides, _ = startup_overrides(argv, 'chamber_replay')
+    except GimbalFrictionError as err:
+        print(f'chamber_replay: error: {err}', file=sys.stderr)
+        sys.exit(1)
+    if not init_rclpy('chamber_replay', argv):  # invalid --ros-args: one line said why
         sys.exit(1)
     node = None
     code = 0
     try:
-        # the suite's start-up check: a misspelt name is refused, a -p value rcl would drop is applied
-        overrides, _ = startup_overrides(argv, 'chamber_replay')
         node = ChamberReplay(parameter_overrides=overrides) if overrides else ChamberReplay()
         from rclpy.executors import SingleThreadedExecutor
         executor = SingleThreadedExecutor()
