@@ -39,6 +39,7 @@ from gimbal_friction.config.loader import AXES_DESCRIPTION, axis_names, check_pa
 from gimbal_friction.config.rcl import command_line_parameters
 from gimbal_friction.physics.params import AxisParams, parameter_specs
 from gimbal_friction.physics.table import FrictionTable
+from gimbal_friction.streams.delivery import InputCounter as InputCounter  # noqa: PLC0414 - re-exported (mypy)
 
 T = TypeVar('T')
 OK, WARN, ERROR = DiagnosticStatus.OK, DiagnosticStatus.WARN, DiagnosticStatus.ERROR
@@ -301,69 +302,6 @@ def startup_model_error(node: Node, err: GimbalFrictionError, defaults: Mapping[
 def settings_defaults(*classes: type) -> dict[str, Any]:
     """Parameter name -> default of every field of the settings dataclasses."""
     return {f.name: f.default for cls in classes for f in dataclasses.fields(cls)}
-
-
-class InputCounter:
-    """Messages received per topic and messages lost on the way (gaps in each publisher's sequence numbers).
-
-    DDS numbers the messages of each publisher (``publication_sequence_number`` of the message info, 1, 2, ...):
-    a jump from n to n + k means k - 1 messages that the publisher sent never reached the callback (queue full,
-    overwritten in a keep-last history, lost on the network), wherever they were lost. Fast DDS does not report
-    those as a QoS "message lost" event, so this is how they are counted. Messages sent before this node matched
-    the publisher are not counted. An rmw that gives no sequence numbers makes losses unknowable: the topic is then
-    listed in :attr:`unknown`.
-    """
-
-    MAX_PUBLISHERS = 1024
-
-    def __init__(self) -> None:
-        self.received: dict[str, int] = {}
-        self.lost: dict[str, int] = {}
-        self.unknown: set[str] = set()
-        self._last: dict[tuple[str, bytes], int] = {}
-        self._reported: dict[str, int] = {}
-
-    def count(self, topic: str, info: Mapping[str, Any] | None) -> bool:
-        """One message received on ``topic`` with its message info. Returns False for a message already received
-        (the same publisher's sequence number again: two subscriptions of one topic overlap while the logger
-        changes its QoS), which is not counted and must not be handled twice."""
-        seq = info.get('publication_sequence_number') if info else None
-        gid = info.get('publisher_gid') if info else None
-        if not isinstance(seq, int) or not isinstance(gid, Mapping) or 'data' not in gid:
-            self.received[topic] = self.received.get(topic, 0) + 1
-            self.unknown.add(topic)
-            return True
-        key = (topic, bytes(gid['data']))
-        last = self._last.get(key)
-        if last is not None and seq <= last:
-            return False
-        self.received[topic] = self.received.get(topic, 0) + 1
-        if last is None:
-            if len(self._last) >= self.MAX_PUBLISHERS:  # publishers come and go: forget the oldest
-                self._last.pop(next(iter(self._last)))
-        elif seq > last + 1:
-            self.lost[topic] = self.lost.get(topic, 0) + seq - last - 1
-        self._last[key] = seq
-        return True
-
-    def total_lost(self) -> int:
-        """Messages lost on every topic so far [-]."""
-        return sum(self.lost.values())
-
-    def new_losses(self) -> dict[str, int]:
-        """Messages lost per topic since the previous call (for a diagnostics period)."""
-        out = {t: n - self._reported.get(t, 0) for t, n in self.lost.items() if n > self._reported.get(t, 0)}
-        self._reported = dict(self.lost)
-        return out
-
-    def values(self) -> dict[str, Any]:
-        """``/diagnostics`` values: ``received: <topic>``, ``lost: <topic>`` (``unknown`` without sequence
-        numbers)."""
-        out: dict[str, Any] = {}
-        for topic in sorted(self.received):
-            out[f'received: {topic}'] = self.received[topic]
-            out[f'lost: {topic}'] = 'unknown' if topic in self.unknown else self.lost.get(topic, 0)
-        return out
 
 
 #: the signature rclpy reads as a "callback with message info" (message, MessageInfo)
