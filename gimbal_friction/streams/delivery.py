@@ -27,6 +27,8 @@ PUBLISHER_STATUS = 'gimbal_friction/chamber_replay'
 STATE_FINISHED = 'finished'
 #: ``state`` while it plays (the counts so far)
 STATE_PLAYING = 'playing'
+#: the largest count of sent messages believed (a publisher's DDS sequence numbers are 64-bit) [-]
+MAX_SENT = 2**63 - 1
 
 
 def received_key(topic: str) -> str:
@@ -78,7 +80,8 @@ def publisher_values(state: str, sent: Iterable[Sent]) -> dict[str, Any]:
 
 def read_publisher_values(values: Mapping[str, str]) -> tuple[str, list[Sent]]:
     """``state`` and the counts of a :data:`PUBLISHER_STATUS` status's values (key -> text, as they arrive).
-    Untrusted input: a count that is not a whole number >= 0 is left out, and so is a gid that is not hex.
+    Untrusted input: a count that is not a whole number in [0, :data:`MAX_SENT`] is left out; a gid that is not hex
+    is unknown (None).
 
     >>> read_publisher_values({'state': 'finished', 'published: /t': '7', 'publisher_gid: /t': '010f',
     ...                        'published: /u': '-1'})
@@ -94,7 +97,7 @@ def read_publisher_values(values: Mapping[str, str]) -> tuple[str, list[Sent]]:
             n = int(text)
         except (TypeError, ValueError):
             continue
-        if n < 0:
+        if not 0 <= n <= MAX_SENT:
             continue
         try:
             gid: bytes | None = bytes.fromhex(values.get(publisher_gid_key(topic), ''))
