@@ -5,7 +5,11 @@
 1. starts ``friction_feedforward``, ``friction_estimator`` and ``residual_logger`` as processes (the packaged
    parameter file) on a free ROS_DOMAIN_ID, loopback only (``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST``);
 2. waits until every node is connected, then ``chamber_replay`` plays the bag at ``--rate`` × recorded speed;
-3. waits for the last measurements, stops the nodes with SIGINT (the logger closes its MCAP files);
+3. waits for the last measurements and for the nodes' counts on ``/diagnostics`` to settle, stops the nodes with
+   SIGINT (the logger closes its MCAP files) and prints what each live node counted (messages received and lost
+   against what ``chamber_replay`` sent, feedforwards published, samples accepted, inputs refused, rows logged with
+   and without a feedforward, reports without a fresh temperature) and whether the live run degraded
+   (:mod:`gimbal_friction.runs.live_counts`): a busy machine can make the live feedforward differ from ``replay``;
 4. ``gimbal-friction refit`` on the residual log and ``gimbal-friction report`` (figures incl. Fig. 13);
 5. prints where the residual log, the refitted parameter file and the figures are, and model vs measured by
    temperature and direction.
@@ -24,6 +28,7 @@ import time
 from collections.abc import Sequence
 from pathlib import Path
 
+from gimbal_friction.runs.live_counts import degradations, describe, summarize, verdict
 from gimbal_friction.runs.supervisor import NODES, Supervisor, Watcher, packaged_params_file
 
 #: The refit of the main job: the lubricant (``walther_a``) with the calibration offset fitted as a nuisance
@@ -35,6 +40,8 @@ from gimbal_friction.runs.supervisor import NODES, Supervisor, Watcher, packaged
 #: directions, --fit walther_a,direction_asymmetry.
 REFIT_ARGS = ('--direction', 'cw', '--fit', 'walther_a')
 ROOT = Path(__file__).resolve().parents[2]
+#: after the last measurement, wait at most this long for the nodes' counts to settle [s] (two reports alike)
+SETTLE_TIMEOUT_S = 20.0
 
 
 def _bar(frac: float, label: str) -> None:
@@ -85,11 +92,18 @@ def run(bag: Path, out: Path, rate: float, domain: int) -> int:
                 raise RuntimeError(f'chamber_replay failed (code {replay.returncode}); see {logs}')
             while time.monotonic() - watcher.last_measured < 2.0:  # let the last messages through
                 watcher.spin(0.1)
+            watcher.wait_settled(SETTLE_TIMEOUT_S)
+            live = summarize(watcher.reports)
         codes = sup.stop_all()
         bad = {k: v for k, v in codes.items() if v not in (0, None)}
         if bad:
             raise RuntimeError(f'nodes exited with errors: {bad}; see {logs}')
-        print(f'      {watcher.measured} measurements published live; nodes stopped cleanly', flush=True)
+        measured = live.get('friction_estimator', {}).get('accepted', watcher.measured)
+        print(f'      {measured} measurements published live; nodes stopped cleanly', flush=True)
+        print("      what the live nodes counted (each node's own /diagnostics at the end of the run):")
+        for line in describe(live):
+            print(f'        {line}')
+        print(f'      {verdict(live)}', flush=True)
     finally:
         sup.stop_all()
         if watcher is not None:
@@ -111,7 +125,8 @@ def run(bag: Path, out: Path, rate: float, domain: int) -> int:
     print(f'figures:               {out / "figures"}/')
     print(f'node logs:             {logs}/')
     (out / 'demo.json').write_text(json.dumps({'bag': str(bag), 'rate': rate, 'residuals': str(residuals),
-                                               'refit': str(refit), 'figures': str(out / 'figures')}, indent=1))
+                                               'refit': str(refit), 'figures': str(out / 'figures'),
+                                               'live': live, 'live_degraded': degradations(live)}, indent=1))
     return 0
 
 

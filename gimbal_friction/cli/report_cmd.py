@@ -3,9 +3,10 @@
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 from gimbal_friction.cli._common import (
     add_common,
@@ -92,23 +93,55 @@ def _run(args: argparse.Namespace) -> int:
     if summary is not None:
         print()
         print(summary_table(summary))
+        note = model_mismatch_note(summary)
+        if note is not None:
+            print(note)
     return 0
 
 
+#: the published feedforward and the model at a plateau's temperature differ notably beyond this fraction [-]
+MODEL_MISMATCH = 0.01
+
+
 def summary_table(summary: list[dict[str, Any]]) -> str:
-    """Model vs measured by temperature plateau and direction, N*mm (with the compared model when present)."""
+    """Model vs measured by temperature plateau and direction, N*mm (with the model at the plateau's temperature
+    and the compared model when present), after a legend line saying what each model column is."""
+    at_t = any('model_at_t_nmm' in r for r in summary)
     extra = any('compare_nmm' in r for r in summary)
     header = ['joint', 't [degC]', 'dir', 'measured [N*mm]', 'model [N*mm]', 'residual [N*mm]', 'samples']
+    legend = [('model:       the feedforward paired with each sample in the residual log, mean per plateau '
+               '(live: as friction_feedforward published it; replay: its rule over the bag)')]
     if extra:
         header[5:5] = ['refit model [N*mm]']
+        legend.append("refit model: the compared parameters with the torque offset refit wrote, over the plateau's "
+                      "samples (refit's own 'model after')")
+    if at_t:
+        header[5:5] = ['model at t [N*mm]']
+        legend.insert(1, "model at t:  the configured model at the plateau's temperature")
     rows = []
     for r in summary:
         row = [str(r['joint']), f'{r["temperature_c"]:.1f}', str(r['direction']), f'{r["measured_mean_nmm"]:+.3f}',
                f'{r["predicted_nmm"]:+.3f}', f'{r["residual_nmm"]:+.3f}', str(r['samples'])]
         if extra:
             row[5:5] = [f'{r["compare_nmm"]:+.3f}']
+        if at_t:
+            row[5:5] = [f'{r["model_at_t_nmm"]:+.3f}']
         rows.append(row)
-    return format_table(rows, header)
+    return '\n'.join([*legend, format_table(rows, header)])
+
+
+def model_mismatch_note(summary: list[dict[str, Any]]) -> str | None:
+    """A line naming the plateaus where the feedforward as published differs from the model at the plateau's
+    temperature by more than :data:`MODEL_MISMATCH` (None: nowhere)."""
+    off = [r for r in summary if 'model_at_t_nmm' in r and math.isfinite(r['predicted_nmm'])
+           and abs(r['predicted_nmm'] - r['model_at_t_nmm']) > MODEL_MISMATCH * abs(r['model_at_t_nmm'])]
+    if not off:
+        return None
+    where = ', '.join(f'{r["temperature_c"]:.1f} degC {r["direction"]} ({r["predicted_nmm"]:+.3f} vs '
+                      f'{r["model_at_t_nmm"]:+.3f})' for r in off)
+    return ("note: the feedforward as published differs from the model at the plateau's temperature by more than "
+            f'{100 * MODEL_MISMATCH:g} % at {where}: the feedforward used other temperatures than the samples (a '
+            'stale one: see what the live nodes counted) or a learned correction')
 
 
 def _fig13_data(args: argparse.Namespace, axis: str,
@@ -131,10 +164,21 @@ def _fig13_data(args: argparse.Namespace, axis: str,
         raise GimbalFrictionError(msg)
     if own:
         print(f'note: plateaus {own}', file=sys.stderr)
+    from gimbal_friction.physics.direction import SCALAR, direction_factor
+
+    def model_at(p: Any, r: dict[str, Any]) -> float:
+        """The model of ``p`` at a plateau's temperature, signed like the measurement, at the model speed [N*mm]."""
+        sign = float(cast('float', r['sign']))
+        t_c = float(cast('float', r['temperature_c']))
+        return sign * direction_factor(p, t_c, sign, SCALAR) * float(friction_torque(p, t_c).m_total_nmm)
+
+    summary = res.summary
+    for r in summary:
+        r['model_at_t_nmm'] = model_at(params, r)
     models: dict[str, Any] = {'configured': params}
     offsets: dict[str, float] = {}
     if res.compared is not None:
         label = f'with {args.compare.name}'
         models[label] = res.compared
         offsets[label] = nmm_from_nm(res.compare_offset_nm)
-    return res.summary, models, offsets, res.read.as_dict()
+    return summary, models, offsets, res.read.as_dict()

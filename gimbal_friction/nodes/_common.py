@@ -11,13 +11,16 @@ is refused with the core's reason and the old value stays.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import inspect
+import os
 import re
 import signal
 import sys
+import tempfile
 import threading
-from collections.abc import Callable, Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from typing import Any, TypeVar
 
 import numpy as np
@@ -36,6 +39,7 @@ from gimbal_friction.config.loader import AXES_DESCRIPTION, axis_names, check_pa
 from gimbal_friction.config.rcl import command_line_parameters
 from gimbal_friction.physics.params import AxisParams, parameter_specs
 from gimbal_friction.physics.table import FrictionTable
+from gimbal_friction.streams.delivery import InputCounter as InputCounter  # noqa: PLC0414 - re-exported (mypy)
 
 T = TypeVar('T')
 OK, WARN, ERROR = DiagnosticStatus.OK, DiagnosticStatus.WARN, DiagnosticStatus.ERROR
@@ -300,69 +304,6 @@ def settings_defaults(*classes: type) -> dict[str, Any]:
     return {f.name: f.default for cls in classes for f in dataclasses.fields(cls)}
 
 
-class InputCounter:
-    """Messages received per topic and messages lost on the way (gaps in each publisher's sequence numbers).
-
-    DDS numbers the messages of each publisher (``publication_sequence_number`` of the message info, 1, 2, ...):
-    a jump from n to n + k means k - 1 messages that the publisher sent never reached the callback (queue full,
-    overwritten in a keep-last history, lost on the network), wherever they were lost. Fast DDS does not report
-    those as a QoS "message lost" event, so this is how they are counted. Messages sent before this node matched
-    the publisher are not counted. An rmw that gives no sequence numbers makes losses unknowable: the topic is then
-    listed in :attr:`unknown`.
-    """
-
-    MAX_PUBLISHERS = 1024
-
-    def __init__(self) -> None:
-        self.received: dict[str, int] = {}
-        self.lost: dict[str, int] = {}
-        self.unknown: set[str] = set()
-        self._last: dict[tuple[str, bytes], int] = {}
-        self._reported: dict[str, int] = {}
-
-    def count(self, topic: str, info: Mapping[str, Any] | None) -> bool:
-        """One message received on ``topic`` with its message info. Returns False for a message already received
-        (the same publisher's sequence number again: two subscriptions of one topic overlap while the logger
-        changes its QoS), which is not counted and must not be handled twice."""
-        seq = info.get('publication_sequence_number') if info else None
-        gid = info.get('publisher_gid') if info else None
-        if not isinstance(seq, int) or not isinstance(gid, Mapping) or 'data' not in gid:
-            self.received[topic] = self.received.get(topic, 0) + 1
-            self.unknown.add(topic)
-            return True
-        key = (topic, bytes(gid['data']))
-        last = self._last.get(key)
-        if last is not None and seq <= last:
-            return False
-        self.received[topic] = self.received.get(topic, 0) + 1
-        if last is None:
-            if len(self._last) >= self.MAX_PUBLISHERS:  # publishers come and go: forget the oldest
-                self._last.pop(next(iter(self._last)))
-        elif seq > last + 1:
-            self.lost[topic] = self.lost.get(topic, 0) + seq - last - 1
-        self._last[key] = seq
-        return True
-
-    def total_lost(self) -> int:
-        """Messages lost on every topic so far [-]."""
-        return sum(self.lost.values())
-
-    def new_losses(self) -> dict[str, int]:
-        """Messages lost per topic since the previous call (for a diagnostics period)."""
-        out = {t: n - self._reported.get(t, 0) for t, n in self.lost.items() if n > self._reported.get(t, 0)}
-        self._reported = dict(self.lost)
-        return out
-
-    def values(self) -> dict[str, Any]:
-        """``/diagnostics`` values: ``received: <topic>``, ``lost: <topic>`` (``unknown`` without sequence
-        numbers)."""
-        out: dict[str, Any] = {}
-        for topic in sorted(self.received):
-            out[f'received: {topic}'] = self.received[topic]
-            out[f'lost: {topic}'] = 'unknown' if topic in self.unknown else self.lost.get(topic, 0)
-        return out
-
-
 #: the signature rclpy reads as a "callback with message info" (message, MessageInfo)
 _MESSAGE_WITH_INFO = inspect.Signature([inspect.Parameter('msg', inspect.Parameter.POSITIONAL_ONLY),
                                         inspect.Parameter('info', inspect.Parameter.POSITIONAL_ONLY)])
@@ -547,13 +488,62 @@ def print_help_if_asked(exe: str, argv: Sequence[str], doc: str | None) -> bool:
     return True
 
 
+
+@contextlib.contextmanager
+def _stderr_held() -> Iterator[list[bytes]]:
+    """Hold back what is written to file descriptor 2 (where rcl's own logging writes) inside the block: the list
+    yielded receives it. The caller writes it out or drops it."""
+    sys.stderr.flush()
+    saved = os.dup(2)
+    held: list[bytes] = []
+    with tempfile.TemporaryFile() as tmp:
+        os.dup2(tmp.fileno(), 2)
+        try:
+            yield held
+        finally:
+            sys.stderr.flush()
+            os.dup2(saved, 2)
+            os.close(saved)
+            tmp.seek(0)
+            held.append(tmp.read())
+
+
+def init_rclpy(exe: str, argv: Sequence[str], **kwargs: Any) -> bool:
+    """``rclpy.init(args=argv, **kwargs)`` for executable ``exe``, with exactly one line on stderr when it fails.
+
+    The command line's parameter files and ``-p`` rules are read first the way rcl reads them
+    (:func:`~gimbal_friction.config.rcl.command_line_parameters`), so a file that cannot be read or parsed is named in
+    the node's own words (``parameter file /x.yaml: cannot read: No such file or directory``). What rcl itself
+    would print while refusing its arguments (``[ERROR] [rcl]: Failed to parse global arguments``, then the
+    exception) is held back: the reason of the exception is the one line. Returns False (the line printed) when
+    the node must not start.
+    """
+    try:
+        command_line_parameters(argv, exe)
+    except GimbalFrictionError as err:
+        print(f'{exe}: error: {err}', file=sys.stderr)
+        return False
+    try:
+        with _stderr_held() as held:
+            rclpy.init(args=list(argv), **kwargs)
+    except Exception as err:  # rclpy raises RCLError/RuntimeError on arguments rcl refuses
+        first = str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__
+        print(f'{exe}: error: cannot start: {first}', file=sys.stderr)
+        return False
+    if held and held[0]:  # what rcl printed while starting fine (a warning) is shown as it was
+        sys.stderr.flush()
+        os.write(2, held[0])
+    return True
+
+
 def run_node(exe: str, factory: Callable[..., Node], args: Sequence[str] | None = None, *,
              suite_node: str | None = None) -> int:
     """Standard ``main``: init, build the node, spin with the EventsExecutor, clean exit on SIGINT/SIGTERM.
 
     SIGINT and SIGTERM only *request* shutdown (a flag checked between callbacks): a signal never raises inside
     a callback, so a file being written (the residual log) is never left half-written. A bad parameter file or
-    value ends the process with exit code 1 and one line on stderr.
+    value ends the process with exit code 1 and one line on stderr (the command line is checked before rcl reads
+    it, :func:`init_rclpy`).
 
     ``suite_node`` (the node's name in :data:`gimbal_friction.config.SUITE_NODES`) also checks the command line
     before the node starts (:func:`startup_overrides`): a parameter name no node of the suite declares is refused,
@@ -568,20 +558,22 @@ def run_node(exe: str, factory: Callable[..., Node], args: Sequence[str] | None 
     def request_stop(signum: int, frame: Any) -> None:
         stop.set()
 
-    previous = {sig: signal.signal(sig, request_stop) for sig in (signal.SIGINT, signal.SIGTERM)}
+    overrides: list[Parameter[Any]] = []
+    sources: dict[str, str] = {}
     try:
-        rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
-    except Exception as err:  # rclpy raises RCLError/RuntimeError on an unreadable or invalid params file
-        first = str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__
-        print(f'{exe}: error: cannot start: {first}', file=sys.stderr)
+        if suite_node is not None:
+            overrides, sources = startup_overrides(argv, suite_node)
+    except GimbalFrictionError as err:
+        print(f'{exe}: error: {err}', file=sys.stderr)
+        return 1
+    previous = {sig: signal.signal(sig, request_stop) for sig in (signal.SIGINT, signal.SIGTERM)}
+    if not init_rclpy(exe, argv, signal_handler_options=SignalHandlerOptions.NO):
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
         return 1
     node = None
     code = 0
-    sources: dict[str, str] = {}
     try:
-        overrides: list[Parameter[Any]] = []
-        if suite_node is not None:
-            overrides, sources = startup_overrides(argv, suite_node)
         node = factory(parameter_overrides=overrides) if overrides else factory()
         from rclpy.experimental.events_executor import EventsExecutor
         executor = EventsExecutor()

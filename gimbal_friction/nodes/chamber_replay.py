@@ -17,6 +17,13 @@ Parameters: ``bag`` (path, required), ``rate`` (playback rate factor, default 1.
 ``wait_for_subscribers`` (wait until ``/joint_states`` has this many subscribers before playing, default 0) and
 ``wait_timeout_s``. Exits 0 at the end of the bag (unless looping), 1 with a one-line reason on a bad bag or
 parameter (a bag cut short names ``gimbal-friction recover``).
+
+What it sent, on ``/diagnostics`` (status ``gimbal_friction/chamber_replay``, every second while playing and once
+more when the bag has been played, ``state: finished``): per topic ``published: <topic>`` (messages sent) and
+``publisher_gid: <topic>`` (the DDS gid of its publisher, hex). A subscriber compares them with what arrived:
+``residual_logger`` counts what it did not receive of them as lost (:mod:`gimbal_friction.streams.delivery`).
+Before exiting it waits (at most ``ACK_TIMEOUT_S``) for the subscribers of ``/diagnostics`` to acknowledge that
+last status.
 """
 
 from __future__ import annotations
@@ -29,21 +36,36 @@ from collections.abc import Sequence
 from typing import Any
 
 import rclpy
+from diagnostic_msgs.msg import DiagnosticArray
 from rcl_interfaces.msg import ParameterDescriptor
+from rclpy.duration import Duration
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import QoSProfile
 
 from gimbal_friction.common.errors import ConfigError, GimbalFrictionError
 from gimbal_friction.config.loader import CHAMBER_REPLAY_SPECS
-from gimbal_friction.nodes._common import name_undeclared_parameters, print_help_if_asked, startup_overrides
+from gimbal_friction.nodes._common import (
+    OK,
+    diagnostic_array,
+    init_rclpy,
+    name_undeclared_parameters,
+    print_help_if_asked,
+    startup_overrides,
+    status,
+)
 from gimbal_friction.recording import topics
 from gimbal_friction.recording.bag import open_chamber_bag
+from gimbal_friction.streams.delivery import PUBLISHER_STATUS, STATE_FINISHED, STATE_PLAYING, Sent, publisher_values
 
 #: ``topics`` entry meaning every topic of the bag whose message type is installed
 ALL_TOPICS = '*'
 _SPECS = {spec['name']: spec for spec in CHAMBER_REPLAY_SPECS}
 _KINDS = {float: 'number', int: 'integer', bool: 'boolean (true or false)', str: 'string', list: 'list of strings'}
+#: what was sent is said on /diagnostics this often while playing [s]
+STATUS_PERIOD_S = 1.0
+#: at the end, wait at most this long for the subscribers of /diagnostics to acknowledge the last status [s]
+ACK_TIMEOUT_S = 5.0
 
 
 def message_class(msgtype: str) -> Any:
@@ -132,6 +154,33 @@ class ChamberReplay(Node):
         for topic in self.topics:
             self.pubs[topic] = self.create_publisher(message_class(available[topic]), topic, QoSProfile(depth=100))
         self.published = 0
+        #: messages sent per topic [-]
+        self.sent = dict.fromkeys(self.topics, 0)
+        self.gids = {topic: self._own_gid(topic) for topic in self.topics}
+        self.pub_diag = self.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, QoSProfile(depth=10))
+        self._last_status = -math.inf
+
+    def _own_gid(self, topic: str) -> bytes | None:
+        """The DDS gid of this node's publisher of ``topic`` (None if the graph shows none, or several publishers
+        of a node of this name and namespace: then which one is ours cannot be told)."""
+        mine = [bytes(info.endpoint_gid) for info in self.get_publishers_info_by_topic(topic)
+                if info.node_name == self.get_name() and info.node_namespace == self.get_namespace()]
+        return mine[0] if len(mine) == 1 else None
+
+    def publish_status(self, state: str) -> None:
+        """``/diagnostics``: what was sent so far, per topic, and by which publisher (``state``: playing,
+        finished)."""
+        values = publisher_values(state, [Sent(t, self.gids[t], n) for t, n in self.sent.items()])
+        values.update({'bag': self.bag_path, 'rate': self.rate, 'loop': self.loop})
+        self.pub_diag.publish(diagnostic_array(self, [status(PUBLISHER_STATUS, OK, f'{state}: {self.published} '
+                                                             'messages sent', 'chamber_replay', values)]))
+        self._last_status = time.monotonic()
+
+    def finish(self) -> None:
+        """Say what was sent in all (``state: finished``) and wait for the subscribers of ``/diagnostics`` to
+        acknowledge it (at most :data:`ACK_TIMEOUT_S`)."""
+        self.publish_status(STATE_FINISHED)
+        self.pub_diag.wait_for_all_acked(Duration(seconds=ACK_TIMEOUT_S))
 
     def _param(self, name: str) -> Any:
         """Declare a parameter of :data:`~gimbal_friction.config.CHAMBER_REPLAY_SPECS`; a value of the wrong type
@@ -173,11 +222,14 @@ class ChamberReplay(Node):
                 return
             try:
                 self.pubs[raw.topic].publish(raw.data)
+                self.published += 1
+                self.sent[raw.topic] += 1
+                if time.monotonic() - self._last_status >= STATUS_PERIOD_S:
+                    self.publish_status(STATE_PLAYING)
             except Exception:   # (rclpy's RCLError) the context went down between the check and the publish
                 if rclpy.ok():
                     raise
                 return
-            self.published += 1
 
 
 def main(args: Sequence[str] | None = None) -> None:
@@ -186,15 +238,16 @@ def main(args: Sequence[str] | None = None) -> None:
     if print_help_if_asked('chamber_replay', argv, __doc__):
         sys.exit(0)
     try:
-        rclpy.init(args=argv)
-    except Exception as err:  # invalid --ros-args / params file
-        print(f'chamber_replay: error: cannot start: {str(err).splitlines()[0]}', file=sys.stderr)
+        # the suite's start-up check: a misspelt name is refused, a -p value rcl would drop is applied
+        overrides, _ = startup_overrides(argv, 'chamber_replay')
+    except GimbalFrictionError as err:
+        print(f'chamber_replay: error: {err}', file=sys.stderr)
+        sys.exit(1)
+    if not init_rclpy('chamber_replay', argv):  # invalid --ros-args: one line said why
         sys.exit(1)
     node = None
     code = 0
     try:
-        # the suite's start-up check: a misspelt name is refused, a -p value rcl would drop is applied
-        overrides, _ = startup_overrides(argv, 'chamber_replay')
         node = ChamberReplay(parameter_overrides=overrides) if overrides else ChamberReplay()
         from rclpy.executors import SingleThreadedExecutor
         executor = SingleThreadedExecutor()
@@ -212,6 +265,8 @@ def main(args: Sequence[str] | None = None) -> None:
             node.play_once()
             if not node.loop:
                 break
+        if rclpy.ok():
+            node.finish()
         node.get_logger().info(f'played {node.published} messages in {time.monotonic() - t_start:.1f} s')
     except (KeyboardInterrupt, ExternalShutdownException):
         pass

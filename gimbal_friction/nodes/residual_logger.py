@@ -28,7 +28,11 @@ file and the residual RMS per axis and temperature bin.
 Inputs: reliable, depth 1000; the temperature follows its publishers (reliable, keep-all while every publisher is
 reliable: a full queue holds the publisher back instead of losing messages; best-effort, depth 1000 as soon as one
 is not, which a reliable subscription would not hear; ``temperature_qos`` on ``/diagnostics``). What is lost on the
-way is counted per topic from the publishers' sequence numbers (``lost: <topic>``, a WARN naming it).
+way is counted per topic from the publishers' sequence numbers (``lost: <topic>``, a WARN naming it), and, for a
+publisher that says how many messages it sent (``chamber_replay``'s ``finished`` status on ``/diagnostics``), as
+sent − arrived: also the messages lost before the first or after the last one that arrived, which no sequence gap
+shows (``sent: <topic>``; :mod:`gimbal_friction.streams.delivery`). Such a count is taken one diagnostics period
+after it arrived, so that the messages still queued have been received.
 """
 
 from __future__ import annotations
@@ -77,6 +81,7 @@ from gimbal_friction.recording import topics
 from gimbal_friction.recording.cdr import float64_multi_array_cdr_rows, joint_state_cdr_rows, split_rows
 from gimbal_friction.recording.residual_log import ResidualLogWriter
 from gimbal_friction.recording.residual_read import residual_log_files
+from gimbal_friction.streams.delivery import PUBLISHER_STATUS, STATE_FINISHED, Sent, read_publisher_values
 from gimbal_friction.streams.inputs import effective_time
 from gimbal_friction.streams.measurement import MEASUREMENT_FIELDS, MeasurementArrays, from_detail
 from gimbal_friction.streams.residual_row import ResidualRows, residual_rows
@@ -87,6 +92,11 @@ DEPTH = 1000
 QOS_CHECK_PERIOD_S = 0.2
 #: feedforward entries kept for pairing [-] (several seconds at 1 kHz with two joints)
 FEEDFORWARD_HORIZON = 16384
+#: the topics the logger subscribes (a publisher's count of what it sent is taken for these only)
+SUBSCRIBED = frozenset((topics.TEMPERATURE, topics.JOINT_STATES, topics.MOTOR_CURRENT, topics.MEASURED,
+                        topics.FEEDFORWARD, topics.MEASURED_DETAIL))
+#: publishers' counts waiting to be taken (a bound: they are untrusted input) [-]
+MAX_PENDING_COUNTS = 1024
 
 
 _SETTINGS = field_names(LoggerSettings)
@@ -171,6 +181,9 @@ class ResidualLogger(Node):
         subscribe(self, self.inputs, JointState, topics.FEEDFORWARD, self.on_feedforward, qos, raw=True)
         subscribe(self, self.inputs, Float64MultiArray, topics.MEASURED_DETAIL, self.on_measured_detail, qos,
                   raw=True)
+        # what publishers say they sent (chamber_replay): counted against what arrived
+        self._sent_counts: list[tuple[float, Sent]] = []
+        subscribe(self, self.inputs, DiagnosticArray, topics.DIAGNOSTICS, self.on_diagnostics, QoSProfile(depth=100))
         self._pair_timer = self.create_timer(0.05, self.on_pair_timer)
         self._flush_timer = self.create_timer(self.settings.flush_period_s, self.on_flush_timer)
         self._diag_timer = self.create_timer(self.settings.diagnostics_period_s, self.publish_diagnostics)
@@ -328,6 +341,36 @@ class ResidualLogger(Node):
             return
         self._waiting.append((time.monotonic(), m))
 
+    def on_diagnostics(self, msg: DiagnosticArray) -> None:
+        """Keep what a publisher says it sent in all (``chamber_replay``'s ``finished`` status) on the topics
+        logged here; :meth:`take_sent_counts` counts it against what arrived."""
+        for st in msg.status:
+            if st.name != PUBLISHER_STATUS:
+                continue
+            state, sent = read_publisher_values({kv.key: kv.value for kv in st.values})
+            if state != STATE_FINISHED:
+                continue
+            usable = [s for s in sent if s.topic in SUBSCRIBED and s.gid is not None]
+            if not usable:
+                self._refuse('publisher status without a usable count of what it sent')
+            for s in usable:
+                if len(self._sent_counts) >= MAX_PENDING_COUNTS:
+                    self._refuse('publisher counts beyond the pending limit')
+                    break
+                self._sent_counts.append((time.monotonic(), s))
+
+    def take_sent_counts(self) -> None:
+        """Count the publishers' counts received at least one diagnostics period ago (the messages they sent that
+        were still queued here have been received by then) against what arrived: the rest is lost."""
+        due = time.monotonic() - self.settings.diagnostics_period_s
+        keep = []
+        for since, s in self._sent_counts:
+            if since <= due and s.gid is not None:
+                self.inputs.publisher_sent(s.topic, s.gid, s.sent)
+            else:
+                keep.append((since, s))
+        self._sent_counts = keep
+
     def on_pair_timer(self) -> None:
         self.pair()
 
@@ -407,6 +450,7 @@ class ResidualLogger(Node):
         stats = w.stats if w is not None else None
         level = OK
         message = 'logging'
+        self.take_sent_counts()
         new_refused = {r: n - self._reported.get(r, 0) for r, n in self.refused.items() if n > self._reported.get(r, 0)}
         self._reported = dict(self.refused)
         new_lost = self.inputs.new_losses()

@@ -18,6 +18,7 @@ from pathlib import Path
 from typing import Any
 
 from gimbal_friction.recording import topics
+from gimbal_friction.runs.live_counts import Reports
 
 #: the nodes of the main job, in start order
 NODES = ('friction_feedforward', 'friction_estimator', 'residual_logger')
@@ -86,10 +87,13 @@ def _wait_stopped(proc: subprocess.Popen[bytes]) -> int | None:
 
 
 class Watcher:
-    """A probe node in this process: waits for the graph to connect and counts measurements."""
+    """A probe node in this process: waits for the graph to connect, counts the measurements it sees (for progress
+    only: a busy machine makes it miss some) and keeps what the nodes report on ``/diagnostics``
+    (:attr:`reports`, :mod:`gimbal_friction.runs.live_counts`)."""
 
     def __init__(self, domain: int) -> None:
         import rclpy
+        from diagnostic_msgs.msg import DiagnosticArray
         from rclpy.executors import SingleThreadedExecutor
         from rclpy.node import Node
         from sensor_msgs.msg import JointState
@@ -102,10 +106,25 @@ class Watcher:
         self.measured = 0
         self.last_measured = time.monotonic()
         self.node.create_subscription(JointState, topics.MEASURED, self._on_measured, 100)
+        self.reports = Reports()
+        self.node.create_subscription(DiagnosticArray, topics.DIAGNOSTICS, self._on_diagnostics, 100)
 
     def _on_measured(self, _msg: Any) -> None:
         self.measured += 1
         self.last_measured = time.monotonic()
+
+    def _on_diagnostics(self, msg: Any) -> None:
+        for st in msg.status:
+            self.reports.add(st.name, {kv.key: kv.value for kv in st.values})
+
+    def wait_settled(self, timeout_s: float) -> bool:
+        """Spin until the nodes' counts have settled (:meth:`Reports.settled`) or ``timeout_s`` [s] passed."""
+        deadline = time.monotonic() + timeout_s
+        while not self.reports.settled():
+            if time.monotonic() > deadline:
+                return False
+            self.spin(0.1)
+        return True
 
     def spin(self, seconds: float) -> None:
         end = time.monotonic() + seconds

@@ -143,3 +143,54 @@ def test_report_refuses_to_overwrite_figures_unless_force(tmp_path, capsys):
     assert 'already exists; nothing written' in err and '--force' in err
     assert (tmp_path / 'fig11_components.png').stat().st_mtime_ns == before
     assert main(['report', '--out', str(tmp_path), '--force']) == 0
+
+
+def _plateau_log(folder, plateaus):
+    """A residual log with, per (temperature [degC], predicted torque per direction [N*m]), 60 s of samples at
+    that temperature (1 Hz, alternating direction), measured = the prediction."""
+    import numpy as np
+
+    from gimbal_friction.recording.bag_write import make_float64_multi_array
+    from gimbal_friction.recording.residual_log import ResidualLogWriter
+    from gimbal_friction.recording.topics import FLOAT64_MULTI_ARRAY_TYPE, RESIDUAL_DETAIL
+    from gimbal_friction.streams.residual_row import RESIDUAL_FIELDS
+    t = 1_700_000_000.0
+    with ResidualLogWriter(folder) as writer:
+        for temperature, predicted_nm in plateaus:
+            for i in range(60):
+                sign = 1.0 if i % 2 == 0 else -1.0
+                row = dict.fromkeys(RESIDUAL_FIELDS, 0.0)
+                row.update(stamp_s=t, temperature_c=temperature, velocity_rad_s=sign * 0.0349066,
+                           measured_nm=sign * predicted_nm, predicted_nm=sign * predicted_nm, current_a=0.05,
+                           torque_constant_nm_per_a=0.05)
+                writer.write(RESIDUAL_DETAIL, FLOAT64_MULTI_ARRAY_TYPE, int(t * 1e9),
+                             make_float64_multi_array(np.array([row[f] for f in RESIDUAL_FIELDS]), 'elevation'))
+                t += 1.0
+            t += 600.0
+
+
+@pytest.mark.slow
+def test_report_table_says_what_its_model_columns_are_and_where_the_feedforward_was_off(tmp_path, capsys):
+    """The Fig. 13 table says what 'model' is (the feedforward as published and logged) beside the model at the
+    plateau's temperature, and names the plateaus where the two differ: a live feedforward that used a stale
+    temperature (here: at -40 degC the torque of +20 degC, what the fallback gives). It used to print one 'model'
+    column and nothing else, so a degraded live run looked like a different model."""
+    from gimbal_friction.config.loader import axis_params, load_parameters
+    from gimbal_friction.physics.model import friction_torque
+    params = axis_params(load_parameters(), 'elevation')
+    at_20 = float(friction_torque(params, 20.0).m_total_nmm) * 1e-3   # [N*m], the direction factor is 1 here
+    log = tmp_path / 'log'
+    _plateau_log(log, [(-40.0, at_20), (20.0, at_20)])
+    assert main(['report', '--residuals', str(log), '--out', str(tmp_path / 'rep'), '--format', 'json']) == 0
+    fig13 = {(r['temperature_c'], r['direction']): r for r in json.loads(capsys.readouterr().out)['fig13']}
+    m40 = fig13[(-40.0, 'cw')]
+    assert m40['predicted_nmm'] == pytest.approx(at_20 * 1e3)
+    assert m40['model_at_t_nmm'] == pytest.approx(float(friction_torque(params, -40.0).m_total_nmm), rel=0.2)
+    assert fig13[(20.0, 'ccw')]['model_at_t_nmm'] == pytest.approx(-at_20 * 1e3, rel=1e-6)
+    assert main(['report', '--residuals', str(log), '--out', str(tmp_path / 'rep'), '--force']) == 0
+    lines = capsys.readouterr().out.splitlines()
+    header = next(k for k, line in enumerate(lines) if 'model at t [N*mm]' in line)  # the table's header
+    assert lines[header - 2].startswith('model:       the feedforward paired with each sample in the residual log')
+    assert lines[header - 1] == "model at t:  the configured model at the plateau's temperature"
+    note = next(line for line in lines if line.startswith('note: the feedforward as published differs'))
+    assert '-40.0 degC cw' in note and '-40.0 degC ccw' in note and '20.0 degC' not in note

@@ -282,3 +282,36 @@ def test_logger_closes_a_readable_log_whatever_it_was_fed(in_process: Any, tmp_p
     rows, log = read_residual_rows(tmp_path / 'log')
     assert len(rows) == 2 and rows.predicted_nm[0] == 0.002 and np.isnan(rows.predicted_nm[1])
     assert not log.truncated_files
+
+
+@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(statuses_in=st.lists(st.tuples(
+    st.sampled_from(['gimbal_friction/chamber_replay', 'gimbal_friction/residual_logger', '']),
+    st.dictionaries(st.sampled_from(['state', 'published: /joint_states', 'publisher_gid: /joint_states',
+                                     'published: /gimbal/temperature', 'published: /elsewhere', 'published: ']),
+                    st.one_of(st.sampled_from(['finished', 'playing', '0a0b', 'zz', '-1', '1e400', '9' * 30, '']),
+                              st.integers(-5, 10**6).map(str), st.text(max_size=8)), max_size=5)),
+    min_size=1, max_size=20))
+def test_logger_survives_hostile_publisher_counts(logger, statuses_in):
+    """What a publisher says it sent (/diagnostics) is untrusted: any status, any value, no exception; an unusable
+    'finished' status is refused and counted; the counts waiting to be taken stay bounded."""
+    from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+
+    from gimbal_friction.nodes.residual_logger import MAX_PENDING_COUNTS
+    before = dict(logger.refused)
+    msg = DiagnosticArray(status=[DiagnosticStatus(name=name, values=[KeyValue(key=k, value=v) for k, v in kv.items()])
+                                  for name, kv in statuses_in])
+    logger.on_diagnostics(msg)
+    logger.take_sent_counts()
+    assert len(logger._sent_counts) <= MAX_PENDING_COUNTS
+    reason = 'publisher status without a usable count of what it sent'
+    assert logger.refused.get(reason, 0) >= before.get(reason, 0)
+    unusable = DiagnosticStatus(name='gimbal_friction/chamber_replay', values=[
+        KeyValue(key='state', value='finished'), KeyValue(key='published: /elsewhere', value='5'),
+        KeyValue(key='published: /joint_states', value='7'), KeyValue(key='publisher_gid: /joint_states', value='zz')])
+    counted = logger.refused.get(reason, 0)
+    logger.on_diagnostics(DiagnosticArray(status=[unusable]))  # not a topic logged here; a gid that is not hex
+    assert logger.refused[reason] == counted + 1
+    for value in logger.inputs.values().values():
+        assert value == 'unknown' or int(value) >= 0
+    assert not getattr(logger, 'callback_errors', {})

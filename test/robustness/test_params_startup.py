@@ -410,3 +410,31 @@ def test_help_of_the_installed_executable(tmp_path):
     from importlib.metadata import version as installed
     assert version.returncode == 0 and version.stdout.strip() == f'gimbal-friction {installed("gimbal_friction")}'
     assert installed('gimbal_friction') in (ROOT / 'package.xml').read_text()
+
+
+# ------------------------------------------------------------------------------------------------ bad command lines
+@pytest.mark.parametrize('exe', sorted(EXECUTABLES))
+def test_a_bad_params_file_prints_exactly_one_line(exe, tmp_path, domain):
+    """The documented promise: a parameter file that cannot be read, or is not YAML, ends every executable with
+    exit code 1 and exactly one line on stderr naming the file (rcl used to print its own "Failed to parse global
+    arguments" line before the node's). Arguments only rcl refuses (a malformed remap, a trailing --params-file)
+    give one line too. The real executables, stderr apart from stdout."""
+    import subprocess
+    import sys
+
+    bad_yaml = tmp_path / 'bad.yaml'
+    bad_yaml.write_text('a: [1, 2\nb: 3\n')
+    env = dict(os.environ, ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST',
+               ROS_LOG_DIR=str(tmp_path / 'roslog'))
+    path = Path(sys.executable).parent / exe  # the executables of this environment
+    cmd = [str(path)] if path.exists() else [sys.executable, '-m', f'gimbal_friction.nodes.{exe}']
+    cases = [(['--params-file', '/nonexistent.yaml'], 'parameter file /nonexistent.yaml: cannot read'),
+             (['--params-file', str(bad_yaml)], f'parameter file {bad_yaml}: not valid YAML'),
+             (['--params-file', str(tmp_path)], 'cannot read'),
+             (['-r', 'foo'], "cannot start: failed to initialize rcl: Couldn't parse remap rule"),
+             (['--params-file'], 'cannot start: failed to initialize rcl')]
+    for args, said in cases:
+        run = subprocess.run([*cmd, '--ros-args', *args], env=env, capture_output=True, text=True, timeout=60)
+        lines = run.stderr.splitlines()
+        assert run.returncode == 1 and len(lines) == 1, (args, run.returncode, run.stderr)
+        assert lines[0].startswith(f'{exe}: error: ') and said in lines[0], (args, lines[0])

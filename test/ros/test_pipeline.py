@@ -19,14 +19,18 @@ pytestmark = [pytest.mark.ros, pytest.mark.slow]
 
 
 @pytest.fixture(scope='module')
-def pipeline(tmp_path_factory):
-    root = tmp_path_factory.mktemp('pipeline')
-    bag = root / 'bag'
+def short_bag(tmp_path_factory):
+    bag = tmp_path_factory.mktemp('bag') / 'bag'
     assert main(['synth-bag', '--out', str(bag), '--plateaus=-40,20', '--hold-s', '30', '--joint-rate-hz', '25',
                  '--seed', '7', '--format', 'json']) == 0
-    out = root / 'demo'
-    assert demo.main(['--bag', str(bag), '--rate', '20', '--out', str(out)]) == 0
-    return bag, out
+    return bag
+
+
+@pytest.fixture(scope='module')
+def pipeline(tmp_path_factory, short_bag):
+    out = tmp_path_factory.mktemp('pipeline') / 'demo'
+    assert demo.main(['--bag', str(short_bag), '--rate', '20', '--out', str(out)]) == 0
+    return short_bag, out
 
 
 def test_main_job_outputs_and_refit_moves_toward_truth(pipeline, capsys):
@@ -65,3 +69,57 @@ def test_offline_replay_gives_the_live_numbers(pipeline, tmp_path):
     both = np.isfinite(live.predicted_nm[li])
     assert both.mean() > 0.9
     np.testing.assert_allclose(live.predicted_nm[li][both], offline.predicted_nm[oi][both], rtol=1e-12, atol=0.0)
+
+
+def test_the_main_job_says_what_the_live_nodes_counted(pipeline):
+    """demo.json (and the printed account) hold what each live node counted, from its own /diagnostics once the
+    counts settled: what chamber_replay sent is the bag; each node's received + lost is what was sent (the logger
+    counts what never arrived against the replay's count); the rows the logger says it logged are the log's."""
+    import json
+
+    from gimbal_friction.recording import topics
+    from gimbal_friction.recording.bag import open_chamber_bag
+    bag, out = pipeline
+    live = json.loads((out / 'demo.json').read_text())['live']
+    assert live['settled']
+    in_bag = {t: open_chamber_bag(bag).topics[t].messages for t in topics.CHAMBER_TOPICS}
+    assert live['chamber_replay'] == {'state': 'finished', 'sent': in_bag}
+    logger = live['residual_logger']
+    for topic, n in in_bag.items():
+        got = logger['transport'][topic]
+        assert got['received'] + got['lost'] == n == logger['sent'][topic], topic
+    rows, _ = read_residual_rows([out / 'residuals'])
+    assert logger['residuals_logged'] == len(rows)
+    assert logger['paired_with_feedforward'] == int(np.isfinite(rows.predicted_nm).sum())
+    assert live['friction_estimator']['accepted'] >= logger['residuals_logged'] > 0
+    assert live['friction_feedforward']['published'] > 0 and live['friction_feedforward']['reports'] > 0
+
+
+def test_a_stale_temperature_at_the_feedforward_is_named_by_the_main_job_and_its_report(short_bag, tmp_path,
+                                                                                       monkeypatch, capsys):
+    """What a busy machine does to the live feedforward (its joint states late, its temperature stale: the
+    fallback temperature is used), made certain here by a feedforward whose temperature is fresh for 1 ms only:
+    the main job says the live run degraded and why, from the feedforward's own reports, and the report's table
+    names the plateau where the feedforward as published is not the model at the plateau's temperature. The
+    main job used to print the same lines as for a clean run."""
+    import contextlib
+
+    from gimbal_friction.runs.supervisor import packaged_params_file
+
+    @contextlib.contextmanager
+    def stale_feedforward():
+        with packaged_params_file() as packaged:
+            params = tmp_path / 'params.yaml'
+            params.write_text(packaged.read_text() + '\nfriction_feedforward:\n  ros__parameters:\n'
+                              '    temperature_timeout_s: 0.001\n')
+            yield params
+
+    monkeypatch.setattr(demo, 'packaged_params_file', stale_feedforward)
+    capsys.readouterr()
+    assert demo.main(['--bag', str(short_bag), '--rate', '20', '--out', str(tmp_path / 'demo')]) == 0
+    out = capsys.readouterr().out
+    verdict = next(line for line in out.splitlines() if 'the live run' in line).strip()
+    assert verdict.startswith('the live run degraded: friction_feedforward') and 'had no fresh temperature' in verdict
+    assert 'fallback_temperature' in verdict
+    note = next(line for line in out.splitlines() if line.startswith('note: the feedforward as published differs'))
+    assert 'degC cw' in note

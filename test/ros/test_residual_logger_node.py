@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from builtin_interfaces.msg import Time
-from diagnostic_msgs.msg import DiagnosticArray
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rosbags.highlevel import AnyReader
 from sensor_msgs.msg import JointState, Temperature
 from std_msgs.msg import Float64MultiArray, MultiArrayDimension
@@ -342,3 +342,70 @@ def test_open_own_folder_moves_beside_a_folder_taken_under_its_feet(tmp_path):
 
     with pytest.raises(GimbalFrictionError, match='permission denied'):
         open_own_folder(tmp_path / 'other', unwritable)
+
+
+# ------------------------------------------------------------------------------------------------ sent against arrived
+def _logger_counts(probe) -> dict[str, str]:
+    """The values of the logger's latest status (key -> text)."""
+    for arr in reversed(probe.received['/diagnostics']):
+        for st in arr.status:
+            if st.name == 'gimbal_friction/residual_logger':
+                return {kv.key: kv.value for kv in st.values}
+    return {}
+
+
+def test_what_a_publisher_said_it_sent_and_never_arrived_counts_as_lost(spawn, probe, tmp_path):
+    """A publisher that says how many messages it sent (chamber_replay's ``finished`` status) is counted against
+    what arrived: the messages it sent before the logger was there, which no sequence gap shows, count as lost
+    (received + lost = sent). Main counted 0 lost of the 30 that never arrived."""
+    _setup(probe)
+    joint_states = probe.pubs[topics.JOINT_STATES]
+    probe.publisher(DiagnosticArray, '/diagnostics')
+    for i in range(30):  # nobody listens yet: these never arrive
+        joint_states.publish(_js(1 + i, 0, 0.0))
+    node = _start(spawn, tmp_path / 'res')
+    _wait_ready(probe)
+    probe.wait_matched('/diagnostics')
+    for i in range(30, 50):
+        joint_states.publish(_js(1 + i, 0, 0.0))
+    probe.spin_until(lambda: _logger_counts(probe).get('received: /joint_states') == '20', what='20 joint states')
+    assert _logger_counts(probe)['lost: /joint_states'] == '0'  # no gap: sequence numbers alone see nothing
+    gid = next(bytes(i.endpoint_gid) for i in probe.node.get_publishers_info_by_topic(topics.JOINT_STATES)
+               if i.node_name == 'probe')
+    finished = DiagnosticArray()  # the documented status (docs/ros.md, chamber_replay)
+    finished.status = [DiagnosticStatus(name='gimbal_friction/chamber_replay', values=[
+        KeyValue(key='state', value='finished'), KeyValue(key='published: /joint_states', value='50'),
+        KeyValue(key='publisher_gid: /joint_states', value=gid.hex())])]
+    probe.pubs['/diagnostics'].publish(finished)
+    probe.spin_until(lambda: _logger_counts(probe).get('lost: /joint_states') == '30', what='30 counted lost')
+    counts = _logger_counts(probe)
+    assert (counts['received: /joint_states'], counts['sent: /joint_states']) == ('20', '50')
+    rc, out = node.stop()
+    assert rc == 0, out
+
+
+@pytest.mark.slow
+def test_at_a_2000x_replay_every_message_sent_is_received_or_counted_lost(spawn, probe, tmp_path):
+    """chamber_replay at 2000x into the logger: DDS loses many messages (the replay's keep-last history of 100
+    overflows), some before the first or after the last one that arrived (0-2975 joint states a run were neither
+    received nor counted before). Now received + lost = what the replay says it sent = the bag's count, per
+    topic."""
+    from gimbal_friction.recording.bag import open_chamber_bag
+
+    bag = Path(__file__).resolve().parents[2] / 'bags' / 'chamber_sample'
+    in_bag = {t: open_chamber_bag(bag).topics[t].messages for t in topics.CHAMBER_TOPICS}
+    probe.subscribe(DiagnosticArray, '/diagnostics', qos=100)
+    logger = _start(spawn, tmp_path / 'res')
+    probe.spin_until(lambda: bool(_logger_counts(probe)), what='the logger up')
+    player = spawn('chamber_replay', '--ros-args', '-p', f'bag:={bag}', '-p', 'rate:=2000.0',
+                   '-p', 'wait_for_subscribers:=1')
+    probe.spin_until(lambda: player.proc.poll() is not None, timeout=120.0, what='the replay played')
+    assert player.wait()[0] == 0
+
+    def accounted() -> bool:
+        c = _logger_counts(probe)
+        return all(c.get(f'sent: {t}') == str(n) and int(c.get(f'received: {t}', 0)) + int(c[f'lost: {t}']) == n
+                   for t, n in in_bag.items())
+    probe.spin_until(accounted, what=f'received + lost = sent = {in_bag}')
+    rc, out = logger.stop()
+    assert rc == 0, out
