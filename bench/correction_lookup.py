@@ -1,9 +1,10 @@
-"""Per-call cost of the learned correction's scalar lookup (``Correction.along_nm``) in the caller's process.
+"""Per-call cost of the learned correction's scalar lookup (``Correction.split_nm``) in the caller's process.
 
-What a feedforward pays per joint and tick on top of the model: the correction at a temperature, direction and
-reference position, bounded by the model torque — without a position map and with one (64 bins) — against two
-baselines measured in the same run: an empty Python call with the same arguments (the call overhead) and one scalar
-``numpy.interp`` on a 1801-point table. Aim: ≤ 0.3 µs per lookup without a map.
+What a feedforward pays per joint and tick on top of the model: the correction's parts along the motion and
+independent of it at a temperature, speed and reference position, bounded by the model torque — a speed profile
+alone, and with the position terms (ripple at two periods, trend) — against two baselines measured in the same run:
+an empty Python call with the same arguments (the call overhead) and one scalar ``numpy.interp`` on a 1801-point
+table. Aim: ≤ 0.3 µs per lookup at a held temperature (a controller's calls between two temperature samples).
 
 A benchmark, not a test: the machine is shared, so only the ratios measured in one run compare. Median of
 ``--repeat`` rounds of ``--calls`` calls each.
@@ -15,7 +16,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import sys
 from collections.abc import Callable
 from pathlib import Path
@@ -25,23 +25,15 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from inprocess_call import interleaved_medians  # noqa: E402  # the same timing loop as the feedforward bench
+from inprocess_call import interleaved_medians, learned_correction  # noqa: E402  # the feedforward bench's loop
 
-from gimbal_friction.feedforward.correction import Correction, CorrectionSettings, model_identity  # noqa: E402
+from gimbal_friction.feedforward.correction import Correction, model_identity  # noqa: E402
 
 
-def learned(settings: CorrectionSettings) -> Correction:
-    """A correction with a value, a speed term and (with a position map) a ripple in every cell (so no lookup takes
-    a shortcut)."""
-    c = Correction(settings, model_identity({'elevation': {}}))
-    for j in c.identity.joints:
-        c.values_nm[j][:] = 1e-5 * np.sin(np.arange(c.values_nm[j].size))
-        c.speed_nm[j][:] = 1e-6 * np.cos(np.arange(c.speed_nm[j].size))
-        c.speed_ref[j][:] = 1.0
-        if settings.position_bins:
-            c.ripple[j][:] = 0.05 * np.sin(np.arange(c.ripple[j].size))
-    c.rebuild()
-    return c
+def learned(positions: bool) -> Correction:
+    """The in-process bench's learned correction of one joint (speed profiles; with ``positions`` a ripple at two
+    periods and a trend)."""
+    return learned_correction(model_identity({'elevation': {}}), ['elevation'], positions)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -51,11 +43,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument('--json', action='store_true')
     args = ap.parse_args(argv)
 
-    flat = learned(CorrectionSettings())
-    ripple = learned(CorrectionSettings(position_bins=64, position_period_rad=math.radians(3.4)))
+    flat = learned(positions=False)
+    ripple = learned(positions=True)
     grid = np.linspace(-60.0, 120.0, 1801)
     values = np.sin(grid / 30.0)
-    temps = (-40.0 + 0.7 * (np.arange(1000) % 100)).tolist()
+    temps = [-40.0] * 1000                      # a held temperature (calls between two temperature samples)
     vels = (0.035 * np.sin(np.arange(1000) / 7.0)).tolist()
     pos = (0.2 * np.sin(np.arange(1000) / 11.0)).tolist()
 
@@ -65,9 +57,9 @@ def main(argv: list[str] | None = None) -> int:
     workloads: dict[str, Callable[[int], object]] = {
         'empty call (baseline)': lambda i: empty('elevation', temps[i % 1000], vels[i % 1000], pos[i % 1000], 3e-3),
         'numpy.interp scalar (baseline)': lambda i: np.interp(temps[i % 1000], grid, values),
-        'along_nm, no position map': lambda i: flat.along_nm('elevation', temps[i % 1000], vels[i % 1000],
-                                                             pos[i % 1000], 3e-3),
-        'along_nm, 64-bin position map': lambda i: ripple.along_nm('elevation', temps[i % 1000], vels[i % 1000],
+        'split_nm, speed profile': lambda i: flat.split_nm('elevation', temps[i % 1000], vels[i % 1000],
+                                                           pos[i % 1000], 3e-3),
+        'split_nm, with position terms': lambda i: ripple.split_nm('elevation', temps[i % 1000], vels[i % 1000],
                                                                    pos[i % 1000], 3e-3),
     }
     med = interleaved_medians(workloads, args.repeat, args.calls)

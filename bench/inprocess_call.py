@@ -22,7 +22,7 @@ import json
 import statistics
 import sys
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 import numpy as np
@@ -32,24 +32,28 @@ sys.path.insert(0, str(ROOT))
 
 from gimbal_friction.config.loader import render_parameter_file  # noqa: E402
 from gimbal_friction.controller import load_feedforward  # noqa: E402
-from gimbal_friction.feedforward.correction import Correction, CorrectionSettings  # noqa: E402
-from gimbal_friction.feedforward.rule import Feedforward  # noqa: E402
+from gimbal_friction.feedforward.correction import Correction, CorrectionSettings, ModelIdentity  # noqa: E402
 
 TARGET_US = 1.0          #: one axis, per call [µs] (and below numpy.interp)
 TARGET_MESSAGE_US = 3.0  #: a two-axis message [µs]
 TARGET_EMPTY_EXTRA_US = 0.1  #: an empty correction adds at most this per scalar call [µs]
 
 
-def learned_correction(ff: Feedforward, position_bins: int) -> Correction:
-    """A correction of ``ff``'s joints with a value in every temperature bin and both directions [N·m]."""
-    c = Correction(CorrectionSettings(prior_samples=1.0, position_bins=position_bins, harmonics=3), ff.model_identity())
+def learned_correction(identity: ModelIdentity, joints: Sequence[str], positions: bool) -> Correction:
+    """A correction of ``joints`` (model ``identity``) learned from residuals at every temperature, both directions
+    and speeds from 0.01 to 0.5 rad/s: a speed profile in every cell and, with ``positions``, a ripple at two periods
+    and a trend (the guard off: every term applied). Also used by ``bench/correction_lookup.py``."""
+    c = Correction(CorrectionSettings(guard_min_samples=0, guard_z=0.0, trend=positions,
+                                      ripple_periods_max=4 if positions else 0), identity)
     rng = np.random.default_rng(0)
-    n = 50_000
+    n = 60_000
     t = rng.uniform(-62.0, 122.0, n)
-    v = rng.choice([-1.0, 1.0], n) * rng.uniform(0.01, 0.1, n)
-    p = rng.uniform(0.0, 2 * np.pi, n)
-    for joint in ff.order:
-        c.add_residuals(joint, t, v, p, 1e-4 * np.sign(v) * (1.0 + np.sin(3 * p)), np.full(n, 2e-3))
+    v = rng.choice([-1.0, 1.0], n) * np.exp(rng.uniform(np.log(0.01), np.log(0.5), n))
+    p = rng.uniform(-0.3, 0.3, n)
+    ripple = 0.08 * np.sin(2 * np.pi * p / np.radians(3.4)) + 0.04 * np.sin(2 * np.pi * p / np.radians(1.1))
+    for joint in joints:
+        c.learn_residuals(joint, t, v, p, np.sign(v) * 2e-3 * (0.2 + ripple) + 5e-4 * np.sin(p) * positions,
+                          np.full(n, 2e-3))
     c.settle()
     return c
 
@@ -89,8 +93,8 @@ def main(argv: list[str] | None = None) -> int:
         two.unlink()
     ff_empty, ff_learned, ff_map = (load_feedforward() for _ in range(3))
     ff_empty.set_correction(Correction(CorrectionSettings(), ff.model_identity()))
-    ff_learned.set_correction(learned_correction(ff, 0))
-    ff_map.set_correction(learned_correction(ff, 16))
+    ff_learned.set_correction(learned_correction(ff.model_identity(), ff.order, positions=False))
+    ff_map.set_correction(learned_correction(ff.model_identity(), ff.order, positions=True))
     ff2_empty.set_correction(Correction(CorrectionSettings(), ff2.model_identity()))
     for f in (ff, ff2, ff_empty, ff_learned, ff_map, ff2_empty):
         f.update_temperature(-35.0, 0.0)
@@ -110,7 +114,7 @@ def main(argv: list[str] | None = None) -> int:
                                                                      poss[i % 1000]),
         'torque_nm, learned correction': lambda i: ff_learned.torque_nm('elevation', vels[i % 1000],
                                                                          1e-3 * (i % 1000), poss[i % 1000]),
-        'torque_nm, learned with map': lambda i: ff_map.torque_nm('elevation', vels[i % 1000], 1e-3 * (i % 1000),
+        'torque_nm, learned, position terms': lambda i: ff_map.torque_nm('elevation', vels[i % 1000], 1e-3 * (i % 1000),
                                                                    poss[i % 1000]),
         'message, two axes, empty corr.': lambda i: ff2_empty.message(names, [vels[i % 1000], -vels[i % 1000]],
                                                                         1e-3 * (i % 1000),

@@ -39,6 +39,7 @@ from pathlib import Path
 from gimbal_friction.common.settings import settings_from_parameters
 from gimbal_friction.config.loader import all_axis_params, check_config_files, load_parameters
 from gimbal_friction.feedforward.correction import Correction, CorrectionError, model_identity
+from gimbal_friction.feedforward.correction import load as load_correction
 from gimbal_friction.feedforward.rule import Feedforward, FeedforwardSettings
 from gimbal_friction.streams.inputs import unconfigured_joints
 
@@ -85,5 +86,5 @@ def load_feedforward(*param_files: str | Path, node_name: str = 'friction_feedfo
     settings = settings_from_parameters(FeedforwardSettings, load_parameters(paths, node_name=node_name))
     ff = Feedforward(configured, settings)
     if correction is not None:
-        ff.set_correction(Correction.load(correction, expected=whole), expected=whole)
+        ff.set_correction(load_correction(correction, expected=whole), expected=whole)
     return ff

@@ -287,6 +287,7 @@ def unit_correction(unit: UnitSpec, settings: FitSettings, refitted: dict[str, d
     from gimbal_friction.chamber.learned import correction_record, learn_correction
     from gimbal_friction.common.files import write_text_atomic
     from gimbal_friction.config.loader import render_parameter_file
+    from gimbal_friction.feedforward.correction import save as save_correction
 
     if unit.kind != 'log' or settings.correction_dir is None:
         return {'error': 'a chamber bag: replay it (gimbal-friction replay) and pass its residual log to learn a '
@@ -298,7 +299,7 @@ def unit_correction(unit: UnitSpec, settings: FitSettings, refitted: dict[str, d
                       + refit_section_text(offsets or {}))
     learned = learn_correction([Path(unit.path)], [*map(Path, settings.config_paths), params_path],
                                label='fleet: correction')
-    learned.correction.save(path)
+    save_correction(learned.correction, path)
     return {'params': str(params_path), **correction_record(learned, path)}
 
 

@@ -34,6 +34,7 @@ from gimbal_friction.config.loader import all_axis_params, check_config_files, l
 from gimbal_friction.estimation.estimator import EstimatorCounters, EstimatorLogic, EstimatorSettings
 from gimbal_friction.estimation.residuals import match_predictions
 from gimbal_friction.feedforward.correction import Correction, model_identity
+from gimbal_friction.feedforward.correction import load as load_correction
 from gimbal_friction.feedforward.rule import (
     SOURCE_MEASURED,
     BagTorques,
@@ -107,7 +108,7 @@ def replay_correction(axes: Mapping[str, AxisParams], config_paths: Sequence[Pat
         if not named or params.get('use_correction', True) is False or not Path(named).exists():
             return None, None
         correction_path = named
-    return Correction.load(correction_path, expected=model_identity(axes)), str(correction_path)
+    return load_correction(correction_path, expected=model_identity(axes)), str(correction_path)
 
 
 def replay_arrays(arrays: ChamberArrays, axes: dict[str, AxisParams], ff_settings: FeedforwardSettings,

@@ -13,9 +13,12 @@ settings come from the packaged defaults layered with ``--config`` (as for the n
 ``friction_feedforward``), so a refit's parameter file in gives the refitted table out.
 
 With ``--correction FILE`` (a learned correction, ``refit --correction-out``; learned against the same
-configuration, else refused with one line) every file also carries the correction of its axis per temperature bin
-and direction with its error bound (the cells' standard errors), and the C feedforward and the lookup rule add it
-as the node does (:class:`~gimbal_friction.export.table.TableCorrection`).
+configuration, else refused with one line) every file also carries the correction of its axis as the feedforward
+looks it up without a joint position: its part along the motion and its part independent of the direction per
+temperature bin and speed octave, with each cell's samples and error bound (its standard error), and the C
+feedforward adds it as the node does, ``clamp(tanh(v/v_th) (k_dir M + odd) + even, ±τ_max)``
+(:class:`~gimbal_friction.export.table.TableCorrection`). Its terms in the joint angle (a ripple, a trend) are not
+exported; the files say so.
 
 The files are written into a temporary directory next to ``DIR`` and renamed into place when all are complete, so a
 failed run leaves nothing half-written. An existing non-empty ``DIR`` is refused unless ``--force``, and even then
@@ -34,6 +37,8 @@ from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from gimbal_friction import __version__
 from gimbal_friction.cli._common import add_common, format_table, print_json
 from gimbal_friction.common.errors import ConfigError, ConfigFileError, GimbalFrictionError
@@ -47,11 +52,12 @@ from gimbal_friction.export.table import (
     ExportOptions,
     ExportTable,
     Provenance,
+    TableCorrection,
     build_table,
     c_identifier,
     table_correction,
 )
-from gimbal_friction.feedforward.correction import Correction, model_identity
+from gimbal_friction.feedforward.correction import load_file, model_identity
 from gimbal_friction.feedforward.rule import FeedforwardSettings
 
 #: files an export directory may hold (what --force may replace)
@@ -90,9 +96,10 @@ def add_parser(sub: Any) -> None:
     parser.add_argument('--seed', type=int, default=_DEFAULTS.seed, metavar='N',
                         help='seed of the random check points (default %(default)d)')
     parser.add_argument('--correction', type=Path, metavar='FILE',
-                        help='learned correction file (refit --correction-out) to carry in every table (values and '
-                        'error bounds per temperature bin and direction; the C feedforward adds it); refused if '
-                        'corrupt or learned against other parameters')
+                        help='learned correction file (refit --correction-out) to carry in every table (its speed '
+                        'profile per temperature bin, split into the parts along and independent of the motion, with '
+                        'error bounds; the C feedforward adds it; position terms are left out); refused if corrupt or '
+                        'learned against other parameters')
     add_common(parser)
     parser.set_defaults(func=run)
 
@@ -194,11 +201,20 @@ def _summary(out: Path, table: ExportTable) -> dict[str, Any]:
                         'scale_positive': table.params.scale_positive,
                         'scale_negative': table.params.scale_negative},
         'report': table.report.as_dict(),
-        'correction': None if table.correction is None else {
-            'source': table.correction.source, 'samples': int(table.correction.samples.sum()),
-            'cells': int((table.correction.samples > 0).sum()),
-            'max_abs_nm': float(abs(table.correction.values_nm).max())},
+        'correction': None if table.correction is None else _correction_summary(table.correction),
     }
+
+
+def _correction_summary(c: TableCorrection) -> dict[str, Any]:
+    """The JSON summary of an exported correction: source, samples, cells (with data, applied), the layout, the
+    largest |odd|, |even| and |odd ± even| (along the motion, before the bound) [N*m], the position terms left out."""
+    return {'source': c.source, 'samples': int(c.samples.sum()), 'cells': int((c.samples > 0).sum()),
+            'cells_applied': int(c.applied.sum()), 'temperature_bins': int(c.centres_c.shape[0]),
+            'speed_octaves': c.octaves, 'min_speed_rad_s': c.min_speed_rad_s,
+            'max_abs_odd_nm': float(np.abs(c.odd_nm).max()), 'max_abs_even_nm': float(np.abs(c.even_nm).max()),
+            'max_abs_nm': float((np.abs(c.odd_nm) + np.abs(c.even_nm)).max()),
+            'left_out': {'ripple_periods_rad': list(c.ripple_periods_rad), 'ripple_max_relative': c.ripple_max_relative,
+                         'trend_max_nm': c.trend_max_nm}}
 
 
 def run(args: argparse.Namespace) -> int:
@@ -211,9 +227,10 @@ def run(args: argparse.Namespace) -> int:
     names = select_axes(list(axes), args.axis)
     correction = None
     if args.correction is not None:   # refused (one line) before anything is built
-        correction = Correction.load(args.correction, expected=model_identity(axes))
+        loaded = load_file(args.correction, expected=model_identity(axes))
+        correction = loaded.correction
         digest = hashlib.sha256(Path(args.correction).read_bytes()).hexdigest()
-        correction_source = f'{args.correction} (SHA-256 {digest})'
+        correction_source = f'{args.correction} (SHA-256 {digest})' + (f'; {loaded.note}' if loaded.note else '')
     replace = _check_out(args.out, args.force)
     prov = Provenance(f'gimbal-friction export {__version__}',
                       datetime.now(timezone.utc).isoformat(timespec='seconds'), sources(config))

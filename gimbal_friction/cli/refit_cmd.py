@@ -34,7 +34,7 @@ Learned correction (``--correction-out FILE.yaml``): after the refit, a second p
 correction of the feedforward (:mod:`gimbal_friction.feedforward.correction`) from each row's residual against the
 *refitted* model (measured friction − the model of the configuration with the refitted file layered over it, both
 signed like the motion; :func:`~gimbal_friction.refit.logs.read_correction`), per temperature bin × direction (and
-position map if ``correction_position_bins`` is configured), with the layout and shrinkage of the
+ripple at the periods found in the residuals and a trend), with the layout and shrinkage of the
 ``correction_*`` parameters of ``friction_feedforward`` (defaults otherwise). It is written atomically next to the
 parameter file, refused if it exists unless ``--force``; the learned cells are printed (and in the JSON
 ``correction`` record). Load both: ``--config refit.yaml`` + ``correction_file`` (node), ``load_feedforward(...,
@@ -71,6 +71,7 @@ from gimbal_friction.cli._common import (
 )
 from gimbal_friction.common.errors import ConfigError, GimbalFrictionError
 from gimbal_friction.config.loader import axis_names, axis_params, load_parameters, render_parameter_file
+from gimbal_friction.feedforward.correction import save as save_correction
 from gimbal_friction.physics.direction import ARRAY, direction_factor
 from gimbal_friction.physics.model import friction_torque
 from gimbal_friction.refit.fit import (
@@ -308,7 +309,7 @@ def print_correction(learned: LearnedCorrection, path: Path) -> None:
           f'{len(table)} cells):')
     if table:
         print(format_table(table, ['joint', 't bin [degC]', 'dir', 'value [N*mm]', 'std. error', 'samples',
-                                   'saturated']))
+                                   'applied (the guard: scored out of sample)', 'saturated']))
     for joint, reasons in learned.refused.items():
         if reasons:
             print(f'  {joint}: samples not learned: ' + ', '.join(f'{k} {v}' for k, v in sorted(reasons.items())))
@@ -353,7 +354,7 @@ def run(args: argparse.Namespace) -> int:
     learned = None
     if correction_out is not None:   # against the model the feedforward will run: the configuration + the refit
         learned = learn_correction(list(args.logs), [*args.config, out], label='refit: correction')
-        learned.correction.save(correction_out)
+        save_correction(learned.correction, correction_out)
 
     if args.format == 'json':
         print_json({'logs': [str(p) for p in args.logs], 'files': [str(p) for p in report.files],

@@ -57,6 +57,7 @@ class Namespace(Protocol[_T]):
 
     def tanh(self, x: _T | float, /) -> _T: ...
     def log10(self, x: _T | float, /) -> _T: ...
+    def log2(self, x: _T | float, /) -> _T: ...
     def sqrt(self, x: _T | float, /) -> _T: ...
     def exp(self, x: _T | float, /) -> _T: ...
     def abs(self, x: _T | float, /) -> _T: ...
@@ -83,6 +84,7 @@ class _Scalar:
 
     tanh = staticmethod(math.tanh)
     log10 = staticmethod(math.log10)
+    log2 = staticmethod(math.log2)
     sqrt = staticmethod(math.sqrt)
     exp = staticmethod(math.exp)
     abs = staticmethod(abs)
@@ -123,6 +125,7 @@ class _Array:
 
     tanh = staticmethod(np.tanh)
     log10 = staticmethod(np.log10)
+    log2 = staticmethod(np.log2)
     sqrt = staticmethod(np.sqrt)
     exp = staticmethod(np.exp)
     abs = staticmethod(np.abs)

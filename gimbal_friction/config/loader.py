@@ -273,6 +273,8 @@ def node_parameter_specs(node: str) -> list[dict[str, Any]]:
     """
     from gimbal_friction.config.node_settings import (
         FEEDFORWARD_PREFIXED,
+        RETIRED_DEFAULTS,
+        RETIRED_PARAMETERS,
         EstimatorNodeSettings,
         FeedforwardNodeSettings,
         LoggerSettings,
@@ -296,7 +298,9 @@ def node_parameter_specs(node: str) -> list[dict[str, Any]]:
         prefixed = [{'name': prefix + f.name, 'default': flat.get(prefix + f.name, f.default),
                      'unit': f.metadata.get('unit', ''), 'description': f.metadata.get('description', '')}
                     for prefix, cls in FEEDFORWARD_PREFIXED for f in dataclasses.fields(cls)]
-        return axes + model + fields(FeedforwardSettings, FeedforwardNodeSettings) + prefixed
+        retired = [{'name': name, 'default': RETIRED_DEFAULTS[name], 'unit': '-', 'retired': True,
+                    'description': f'retired, no effect: {why}'} for name, why in RETIRED_PARAMETERS.items()]
+        return axes + model + fields(FeedforwardSettings, FeedforwardNodeSettings) + prefixed + retired
     if node == 'friction_estimator':
         return axes + model + fields(EstimatorSettings, EstimatorNodeSettings)
     if node == 'residual_logger':

@@ -11,7 +11,7 @@ from dataclasses import dataclass
 
 from gimbal_friction.common.errors import ConfigError, check_rules
 from gimbal_friction.common.settings import setting
-from gimbal_friction.feedforward.correction import CorrectionSettings, LearningSettings
+from gimbal_friction.feedforward.correction import LAYOUT, RETIRED, CorrectionSettings, LearningSettings
 
 #: prefixes of the learned correction's settings and of the in-service learner's among friction_feedforward's
 #: parameters (``correction_max_relative``, ``learning_max_rate_nm_per_min``, ...): (prefix, settings class)
@@ -19,8 +19,14 @@ FEEDFORWARD_PREFIXED: tuple[tuple[str, type], ...] = (('correction_', Correction
                                                       ('learning_', LearningSettings))
 #: fields of CorrectionSettings that lay out the cells: a learned correction keeps them (a file with other values is
 #: refused; they cannot change while the node runs)
-CORRECTION_LAYOUT = ('temperature_min_c', 'temperature_max_c', 'temperature_bin_c', 'position_bins',
-                     'position_period_rad', 'harmonics')
+CORRECTION_LAYOUT = LAYOUT
+#: parameters of earlier versions that no longer exist (``correction_position_bins``, ...), and why: a parameter file
+#: that names one still loads (the node says once that it has no effect)
+RETIRED_PARAMETERS = {f'correction_{name}': why for name, why in RETIRED.items()}
+#: their defaults when they had an effect (the node declares them with these; another value is warned about)
+RETIRED_DEFAULTS = {'correction_position_bins': 0, 'correction_position_period_rad': 6.283185307179586,
+                    'correction_harmonics': 4, 'correction_speed_reference_rad_s': 0.0349066,
+                    'correction_speed_prior_spread': 0.2}
 
 
 # ---------------------------------------------------------------------------------------------------- node settings

@@ -10,8 +10,11 @@ makes the result the same however the messages are batched (tested), so live and
 
 with the armature current ``I`` [A], the torque constant ``K_T`` [N·m/A], the no-load current ``I_0`` [A] and, for
 the observer, the axis inertia ``J`` [kg·m²] (``inertia_kg_m2`` of the axis) and the filtered acceleration
-``α̂`` [rad/s²]. ``T_f`` is signed like the motion (docs/ros.md); a value of the opposite sign is not physical and
-is refused (``'friction opposes motion'``).
+``α̂`` [rad/s²]. ``T_f`` is signed like the motion (docs/ros.md). Friction alone never has the opposite sign, but a
+torque that does not depend on the direction of motion (an unbalance under gravity, a cable) can outweigh it in one
+direction: such a sample is kept while it opposes the motion by at most ``max_opposing_torque_nm`` (it is what the
+motor must supply, and a learned correction needs both directions to tell that torque from friction); beyond, it is
+refused (``'friction opposes motion'``; 0 refuses every one).
 
 Two methods (``method`` setting: ``steady_state``, ``observer`` or ``both``):
 
@@ -567,7 +570,8 @@ class EstimatorLogic:
         inertia = np.where(use_obs, state.inertia, 0.0)
         friction = base - inertia * alpha
         take = (use_steady | use_obs)
-        opposes = take & ~(friction * direction > 0.0)
+        opposing = s.max_opposing_torque_nm
+        opposes = take & ~((friction * direction > 0.0) if opposing <= 0.0 else (friction * direction >= -opposing))
         counters.reject(name, R_OPPOSES, int(np.count_nonzero(opposes)))
         take &= ~opposes
         k = np.flatnonzero(take)

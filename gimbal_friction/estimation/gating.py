@@ -77,6 +77,10 @@ class EstimatorSettings:
     pairing_tolerance_s: float = setting(0.005, 's', 'a current pairs with the joint state nearest its own stamp '
                                          'within this')
     max_current_a: float = setting(2.0, 'A', 'motor current rating; larger |current| is rejected as bad input')
+    max_opposing_torque_nm: float = setting(0.01, 'N*m', 'a sample whose torque opposes the motion (a torque '
+                                            'independent of the direction, an unbalance, larger than the friction) '
+                                            'is kept up to this; beyond it refused as "friction opposes motion" '
+                                            '(0: none kept)')
     temperature_bin_c: float = setting(5.0, 'degC', 'width of the temperature plateau bins of the statistics '
                                        '(plateau = round(t/bin)*bin)')
     temperature_timeout_s: float = setting(5.0, 's', "a temperature whose stamp differs from the sample's by more "
@@ -113,6 +117,7 @@ class EstimatorSettings:
             ('max_accel_rad_s2', 0.0 < self.max_accel_rad_s2 <= 1e6, 'must lie in (0, 1e6] [rad/s^2]'),
             ('pairing_tolerance_s', 0.0 <= self.pairing_tolerance_s <= 10.0, 'must lie in [0, 10] [s]'),
             ('max_current_a', 0.0 < self.max_current_a <= 1e4, 'must lie in (0, 1e4] [A]'),
+            ('max_opposing_torque_nm', 0.0 <= self.max_opposing_torque_nm <= 100.0, 'must lie in [0, 100] [N*m]'),
             ('temperature_bin_c', 0.001 <= self.temperature_bin_c <= 1000.0, 'must lie in [0.001, 1000] [degC]'),
             ('temperature_timeout_s', 0.0 < self.temperature_timeout_s <= 86400.0, 'must lie in (0, 86400] [s]'),
             ('temperature_min_c', self.temperature_min_c >= MODEL_T_MIN_C, f'must be >= {MODEL_T_MIN_C:g} [degC]'),

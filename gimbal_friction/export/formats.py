@@ -17,8 +17,14 @@ from numpy.typing import NDArray
 
 from gimbal_friction.common.units import nm_from_nmm, rpm_from_rad_s
 from gimbal_friction.common.xp import ARRAY
-from gimbal_friction.export.table import PALMGREN_JUMP, ExportTable, Provenance, c_identifier, correction_nm
-from gimbal_friction.feedforward.correction import MAX_SPEED_RAD_S
+from gimbal_friction.export.table import (
+    PALMGREN_JUMP,
+    ExportTable,
+    Provenance,
+    TableCorrection,
+    c_identifier,
+    correction_along_nm,
+)
 from gimbal_friction.physics.direction import direction_factor
 from gimbal_friction.physics.model import FrictionResult
 
@@ -29,8 +35,9 @@ Array = NDArray[np.float64]
 #: CSV columns, in order (units in the names)
 CSV_FIELDS = ('temperature_c', 'speed_rpm', 'speed_rad_s', 'eta', 'm_total_nmm', 'm_total_nm', 'm_rolling_nmm',
               'm_sliding_nmm', 'm_viscous_nmm', 'viscosity_cst', 'switch_speed_rad_s')
-#: CSV columns added with a learned correction: what the feedforward adds along the motion at the row's temperature
-#: and speed, per direction, and its error bound [N*m]
+#: CSV columns added with a learned correction: what the feedforward adds to the model friction along the motion
+#: (odd + sign(v) even, away from zero speed) at the row's temperature and speed, per direction, and its error bound
+#: [N*m]
 CSV_CORRECTION_FIELDS = ('correction_cw_nm', 'correction_cw_error_nm', 'correction_ccw_nm', 'correction_ccw_error_nm')
 
 #: the lookup rule, as written into every file
@@ -98,23 +105,49 @@ def provenance_lines(table: ExportTable, prov: Provenance) -> list[str]:
     c = table.correction
     if c is None:
         lines.append('Feedforward: tau = clamp(tanh(v/velocity_threshold) * k_dir * M(t, |v|), +-max_torque) [N*m].')
-        return [_clean(line) for line in lines]
-    lines += [
-        (f'Learned correction: {c.source}; {int(c.samples.sum())} samples in {int((c.samples > 0).sum())} cells '
-        f'(temperature bins of {1.0 / c.inv_bin_per_c:g} degC centred {c.centres_c[0]:g} .. {c.centres_c[-1]:g} '
-        'degC, cw: v >= 0, ccw: v < 0).'),
-        ('Feedforward: tau = clamp(tanh(v/velocity_threshold) * (k_dir * M(t, |v|) + c), +-max_torque) [N*m], with '
-        'the correction c = c0 + c_speed * x along the motion,'),
-        (f'  x = (clip(|v|, {c.settings.min_speed_rad_s!r}, {MAX_SPEED_RAD_S!r}) / '
-         f"{c.settings.speed_reference_rad_s!r} rad/s)^(2/3) (the speed shape of Palmgren's viscous torque),"),
-        ('  c0 and c_speed interpolated linearly between bin centres (held beyond the first and last), c clamped to '
-        f'+-({c.max_relative!r} * k_dir * M + {c.floor_nm!r} N*m).'),
-        'Its error bound per cell: standard error of the cell mean x n/(n + n0) (0: no data; unknown with one '
-        'sample: nan, -1 in C and ROS).'
-        + (f" The file's position map ({c.position_bins} bins, a relative ripple) is not exported." if
-           c.position_bins else ''),
-    ]
+    else:
+        lines += correction_lines(c)
     return [_clean(line) for line in lines]
+
+
+def correction_lines(c: TableCorrection) -> list[str]:
+    """The comment lines of a learned correction: where from, what it holds, how it is looked up and added, its
+    error bound and what is left out."""
+    bins, k = c.centres_c.shape[0], c.octaves
+    speeds = c.octave_speeds_rad_s
+    lines = [
+        (f'Learned correction: {c.source}; {int(c.samples.sum())} samples in {int((c.samples > 0).sum())} cells '
+         f'({int(c.applied.sum())} applied, the others held back to the model); {bins} temperature bins of '
+         f'{1.0 / c.inv_bin_per_c:g} degC centred {c.centres_c[0]:g} .. {c.centres_c[-1]:g} degC x {k} speed '
+         f'octaves from {c.min_speed_rad_s!r} rad/s (nodes at {speeds[0]:.6g} .. {speeds[-1]:.6g} rad/s); '
+         'cw: v >= 0, ccw: v < 0.'),
+        ('Feedforward: tau = clamp(tanh(v/velocity_threshold) * (k_dir * M(t, |v|) + odd) + even, +-max_torque) '
+         '[N*m]; odd = (S_cw + S_ccw)/2 is the part along the motion and even = (S_cw - S_ccw)/2 the part '
+         'independent of the direction of the learned speed profiles S_cw, S_ccw (per bin centre and octave centre; '
+         "a bin without samples next to one with samples holds its neighbour's, the mean of both when both have)."),
+        ('Correction lookup (t0 = the first bin centre, inv_bin = 1 / bin width): x = (t - t0) * inv_bin; inside '
+         '0 < x < bins - 1: i = floor(x), w = x - i; else the first (x <= 0 or NaN: i = 0, w = 0) or last '
+         '(i = bins - 2, w = 1) bin; '
+         'row(k) = (1 - w) * table[i][k] + w * table[i+1][k];'),
+        ('  y = log2(|v| / min_speed) - 0.5 (y = -1 if |v| <= min_speed); y <= 0: row(0); y >= octaves - 1: '
+         'row(octaves - 1); else k = floor(y), f = y - k, row(k) + f * (row(k+1) - row(k));'),
+        ('  below min_speed odd *= |v| / min_speed (the part along the motion fades to 0 at zero speed: through a '
+         "reversal the feedforward is the model's);"),
+        (f'  odd clamped to +-B, B = {c.max_relative!r} * |k_dir M| + {c.floor_nm!r} N*m; even clamped to '
+         f'+-max(B, {c.max_independent_nm!r} N*m).'),
+        ('Error bound per cell (direction x bin): standard error of the cell mean x n/(n + n0) (0: no data; unknown '
+         "with one sample: nan, -1 in C and ROS); a bin holding its neighbour's profile holds its error."),
+    ]
+    if c.position_terms:
+        left = []
+        if c.ripple_periods_rad:
+            left.append('a ripple at periods ' + ', '.join(f'{x:.6g}' for x in c.ripple_periods_rad) + ' rad (up to '
+                        f'{100.0 * c.ripple_max_relative:.3g} % of the model friction)')
+        if c.trend_max_nm > 0.0:
+            left.append(f'a trend with the joint angle (coefficients up to {c.trend_max_nm:.3g} N*m)')
+        lines.append(f'Not exported: the correction\'s position terms ({" and ".join(left)}); these tables are its '
+                     'lookup without a joint position, as the node without one (its profile over speed only).')
+    return lines
 
 
 def csv_rows(table: ExportTable) -> list[dict[str, float]]:
@@ -144,9 +177,9 @@ def csv_rows(table: ExportTable) -> list[dict[str, float]]:
         speed = np.array([r['speed_rad_s'] for r in out])
         for sign, name in ((1.0, 'cw'), (-1.0, 'ccw')):
             model = direction_factor(table.params, t, sign, ARRAY) * m
-            # at the row's speed (the speed term is held below min_speed_rad_s; the sign picks the direction)
-            v = sign * np.maximum(speed, table.correction.settings.min_speed_rad_s)
-            value, error = correction_nm(table.correction, t, v, model)
+            # at the row's speed (the profile is held below min_speed_rad_s, so the sign can pick the direction)
+            v = sign * np.maximum(speed, table.correction.min_speed_rad_s)
+            value, error = correction_along_nm(table.correction, t, v, model)
             for r, cv, ce in zip(out, value.tolist(), error.tolist(), strict=True):
                 r[f'correction_{name}_nm'], r[f'correction_{name}_error_nm'] = cv, ce
     return out
@@ -168,8 +201,9 @@ def render_csv(table: ExportTable, prov: Provenance) -> str:
         'Columns: torques of the whole axis in N*mm (paper) and N*m (SI); speed in rpm and rad/s; viscosity in cSt.',
     ]
     if table.correction is not None:
-        head.append("Correction columns: what the feedforward adds along the motion at the row's temperature and "
-                    'speed, cw and ccw, and its error bound [N*m].')
+        head.append("Correction columns: what the feedforward adds to k_dir * M along the motion (odd + even cw, odd "
+                    "- even ccw, away from zero speed) at the row's temperature and speed, cw and ccw, and its error "
+                    'bound [N*m].')
     fields = csv_fields(table)
     lines = [f'# {line}' for line in head]
     lines.append(','.join(fields))
@@ -202,14 +236,18 @@ def render_c_header(table: ExportTable, prov: Provenance) -> str:
         '  temperature so that it can become a table over temperature).',
         f"double gf_{a}_feedforward_nm(double temperature_c, double velocity_rad_s): the friction_feedforward node's",
         ('  torque [N*m], clamp(tanh(v/v_th) * k_dir * M, +-max_torque)' if table.correction is None else
-         '  torque [N*m], clamp(tanh(v/v_th) * (k_dir * M + c), +-max_torque) with c the learned correction below')
+         '  torque [N*m], clamp(tanh(v/v_th) * (k_dir * M + odd) + even, +-max_torque) with the learned correction')
         + '; 0 for a non-finite input (the node outputs 0',
         '  for a non-finite velocity; it rejects a bad temperature and applies its stale policy: do that in your',
         '  code if you need it).',
         *([] if table.correction is None else [
-            f'double gf_{a}_correction_nm(double temperature_c, double velocity_rad_s, double model_nm): the learned',
-            '  correction [N*m] along the motion for the model friction model_nm = k_dir * M [N*m]; its error bound:',
-            f'  gf_{a}_correction_error_nm(temperature_c, velocity_rad_s) [N*m] (negative: unknown).']),
+            f'void gf_{a}_correction_split_nm(double temperature_c, double velocity_rad_s, double model_nm, double',
+            '  *odd_nm, double *even_nm): the learned correction [N*m] for the model friction model_nm = k_dir * M',
+            '  [N*m], its part along the motion and its part independent of the direction, each bounded;',
+            f'double gf_{a}_correction_nm(double temperature_c, double velocity_rad_s, double model_nm): what it adds',
+            '  along the motion away from zero speed, odd + even (v >= 0) or odd - even (v < 0) [N*m];',
+            f'double gf_{a}_correction_error_nm(double temperature_c, double velocity_rad_s): its error bound in the',
+            '  direction of velocity_rad_s [N*m] (negative: unknown).']),
         'C99, only <math.h>; link with -lm.',
     ])
     upper_rows = ',\n'.join(f'    {{{_fmt(g.upper_nm[i, 0])}, {_fmt(g.upper_nm[i, 1])}}}' for i in range(k))
@@ -332,16 +370,22 @@ def _c_torque(table: ExportTable) -> str:
     """The feedforward's torque statement of the C header (with the learned correction if the table has one)."""
     a = c_identifier(table.axis)
     A = a.upper()
-    if table.correction is None:
+    if table.correction is None or table.correction.empty:   # (exactly the model, as the node)
         return f"""    tau = tanh(velocity_rad_s / GF_{A}_VELOCITY_THRESHOLD_RAD_S)
           * gf_{a}_direction_factor(temperature_c, velocity_rad_s)
           * gf_{a}_friction_nm(temperature_c, velocity_rad_s);"""
     return f"""    {{
         double model = gf_{a}_direction_factor(temperature_c, velocity_rad_s)
                        * gf_{a}_friction_nm(temperature_c, velocity_rad_s);
-        tau = tanh(velocity_rad_s / GF_{A}_VELOCITY_THRESHOLD_RAD_S)
-              * (model + gf_{a}_correction_nm(temperature_c, velocity_rad_s, model));
+        double odd, even;
+        gf_{a}_correction_split_nm(temperature_c, velocity_rad_s, model, &odd, &even);
+        tau = tanh(velocity_rad_s / GF_{A}_VELOCITY_THRESHOLD_RAD_S) * (model + odd) + even;
     }}"""
+
+
+def _c_rows(table: Array) -> str:
+    """A (rows, columns) array as the initialiser rows of a C 2-D array."""
+    return ',\n'.join(f'    {{\n{_c_array(row, indent="        ")}\n    }}' for row in table)
 
 
 def _c_correction(table: ExportTable) -> str:
@@ -353,89 +397,127 @@ def _c_correction(table: ExportTable) -> str:
     a = c_identifier(table.axis)
     A = a.upper()
     err = np.where(np.isnan(c.error_nm), -1.0, c.error_nm)
-    arrays = []
+    cells = []
     for d, name in ((0, 'cw'), (1, 'ccw')):
         sense = 'v >= 0' if d == 0 else 'v < 0'
-        arrays.append(f"""/* learned correction along the motion, {name} ({sense}), per bin, at speed term 0 [N*m] */
-static const double gf_{a}_correction_{name}_nm[GF_{A}_CORRECTION_N] = {{
-{_c_array(c.values_nm[d])}
-}};
-
-/* its coefficient of the speed term x per bin [N*m] (gf_{a}_correction_speed_term) */
-static const double gf_{a}_correction_{name}_speed_nm[GF_{A}_CORRECTION_N] = {{
-{_c_array(c.speed_nm[d])}
-}};
-
-/* its error bound per bin [N*m] (-1: unknown, one sample) */
+        cells.append(f"""/* error bound of the {name} cells ({sense}) per bin [N*m] (-1: unknown, one sample) */
 static const double gf_{a}_correction_{name}_error_nm[GF_{A}_CORRECTION_N] = {{
 {_c_array(err[d])}
 }};
 
-/* samples per bin [-] */
+/* samples of the {name} cells per bin [-] */
 static const double gf_{a}_correction_{name}_samples[GF_{A}_CORRECTION_N] = {{
 {_c_array(c.samples[d].astype(float))}
 }};
 """)
-    body = '\n'.join(arrays)
+    body = '\n'.join(cells)
     return f"""#define GF_{A}_CORRECTION_N {c.centres_c.shape[0]}  /* temperature bins of the learned correction */
+#define GF_{A}_CORRECTION_OCTAVES {c.octaves}  /* speed octaves of its profile */
 #define GF_{A}_CORRECTION_T0_C {_fmt(c.centres_c[0])}  /* centre of the first bin [degC] */
 #define GF_{A}_CORRECTION_INV_BIN_PER_C {_fmt(c.inv_bin_per_c)}  /* 1 / bin width [1/degC] */
-#define GF_{A}_CORRECTION_MAX_RELATIVE {_fmt(c.max_relative)}  /* |c| <= this * |k_dir M| + floor [-] */
+#define GF_{A}_CORRECTION_MIN_SPEED_RAD_S {_fmt(c.min_speed_rad_s)}  /* octave k centre: this * 2^(k+0.5) [rad/s] */
+#define GF_{A}_CORRECTION_MAX_RELATIVE {_fmt(c.max_relative)}  /* |odd| <= this * |k_dir M| + floor [-] */
 #define GF_{A}_CORRECTION_FLOOR_NM {_fmt(c.floor_nm)}  /* [N*m] */
-#define GF_{A}_CORRECTION_MIN_SPEED_RAD_S {_fmt(c.settings.min_speed_rad_s)}  /* the speed term is held below [rad/s] */
-#define GF_{A}_CORRECTION_SPEED_REFERENCE_RAD_S {_fmt(c.settings.speed_reference_rad_s)}  /* x = 1 here [rad/s] */
-#define GF_{A}_CORRECTION_MAX_SPEED_RAD_S {_fmt(MAX_SPEED_RAD_S)}  /* the speed term is held above [rad/s] */
+#define GF_{A}_CORRECTION_MAX_INDEPENDENT_NM {_fmt(c.max_independent_nm)}  /* |even| <= max(that, this) [N*m] */
+
+/* learned correction along the motion, odd = (S_cw + S_ccw)/2, per bin centre and octave centre [N*m] */
+static const double gf_{a}_correction_odd_nm[GF_{A}_CORRECTION_N][GF_{A}_CORRECTION_OCTAVES] = {{
+{_c_rows(c.odd_nm)}
+}};
+
+/* learned correction independent of the direction of motion, even = (S_cw - S_ccw)/2, per bin and octave [N*m] */
+static const double gf_{a}_correction_even_nm[GF_{A}_CORRECTION_N][GF_{A}_CORRECTION_OCTAVES] = {{
+{_c_rows(c.even_nm)}
+}};
 
 {body}
-static inline double gf_{a}_correction_lerp(const double *c, double temperature_c)
+/* temperature bin i and weight w: linear between bin centres, held beyond the first and last (NaN: the first) */
+static inline int gf_{a}_correction_bin(double temperature_c, double *w)
 {{
-    double x = (temperature_c - GF_{A}_CORRECTION_T0_C) * GF_{A}_CORRECTION_INV_BIN_PER_C, w;
+    double x = (temperature_c - GF_{A}_CORRECTION_T0_C) * GF_{A}_CORRECTION_INV_BIN_PER_C;
     int i;
     if (x > 0.0 && x < GF_{A}_CORRECTION_N - 1) {{
         i = (int)x;
-        w = x - i;
+        *w = x - i;
     }} else if (x > 0.0) {{
         i = GF_{A}_CORRECTION_N - 2;
-        w = 1.0;
-    }} else {{  /* also NaN */
+        *w = 1.0;
+    }} else {{
         i = 0;
-        w = 0.0;
+        *w = 0.0;
     }}
-    return c[i] + w * (c[i + 1] - c[i]);
+    return i;
 }}
 
-/* the speed term x = (clip(|v|, min, max speed) / reference speed)^(2/3) [-] (Palmgren's viscous torque, Eq. 9) */
-static inline double gf_{a}_correction_speed_term(double velocity_rad_s)
+static inline void gf_{a}_correction_split_nm(double temperature_c, double velocity_rad_s, double model_nm,
+                                              double *odd_nm, double *even_nm)
 {{
-    double v = fmin(fmax(fabs(velocity_rad_s), GF_{A}_CORRECTION_MIN_SPEED_RAD_S), GF_{A}_CORRECTION_MAX_SPEED_RAD_S);
-    return pow(v / GF_{A}_CORRECTION_SPEED_REFERENCE_RAD_S, 2.0 / 3.0);
+    const double (*O)[GF_{A}_CORRECTION_OCTAVES] = gf_{a}_correction_odd_nm;
+    const double (*E)[GF_{A}_CORRECTION_OCTAVES] = gf_{a}_correction_even_nm;
+    double w, s = fabs(velocity_rad_s), y, f = 0.0, odd, even, m = fabs(model_nm), bound;
+    int i = gf_{a}_correction_bin(temperature_c, &w), k = 0, hi = GF_{A}_CORRECTION_OCTAVES - 1;
+    /* speed: y = log2(|v| / min speed) - 0.5, linear between octave centres, held beyond the first and last */
+    y = s > GF_{A}_CORRECTION_MIN_SPEED_RAD_S ? log2(s / GF_{A}_CORRECTION_MIN_SPEED_RAD_S) - 0.5 : -1.0;
+    if (y >= hi) {{
+        k = hi;
+    }} else if (y > 0.0) {{
+        k = (int)y;
+        f = y - k;
+    }}
+    odd = (1.0 - w) * O[i][k] + w * O[i + 1][k];
+    even = (1.0 - w) * E[i][k] + w * E[i + 1][k];
+    if (f > 0.0) {{
+        double o1 = (1.0 - w) * O[i][k + 1] + w * O[i + 1][k + 1];
+        double e1 = (1.0 - w) * E[i][k + 1] + w * E[i + 1][k + 1];
+        odd = odd + f * (o1 - odd);
+        even = even + f * (e1 - even);
+    }}
+    if (s < GF_{A}_CORRECTION_MIN_SPEED_RAD_S) {{  /* below the slowest speed learned: fades to 0 at zero speed */
+        odd *= s / GF_{A}_CORRECTION_MIN_SPEED_RAD_S;
+    }}
+    if (!(m - m == 0.0)) {{  /* an infinite model (an absurd speed): no correction */
+        *odd_nm = 0.0;
+        *even_nm = 0.0;
+        return;
+    }}
+    bound = GF_{A}_CORRECTION_MAX_RELATIVE * m + GF_{A}_CORRECTION_FLOOR_NM;
+    if (!(-bound <= odd && odd <= bound)) {{
+        odd = odd > 0.0 ? bound : -bound;
+    }}
+    if (bound < GF_{A}_CORRECTION_MAX_INDEPENDENT_NM) {{
+        bound = GF_{A}_CORRECTION_MAX_INDEPENDENT_NM;
+    }}
+    if (!(-bound <= even && even <= bound)) {{
+        even = even > 0.0 ? bound : -bound;
+    }}
+    *odd_nm = odd;
+    *even_nm = even;
 }}
 
 static inline double gf_{a}_correction_nm(double temperature_c, double velocity_rad_s, double model_nm)
 {{
-    int cw = velocity_rad_s >= 0.0;
-    double c = gf_{a}_correction_lerp(cw ? gf_{a}_correction_cw_nm : gf_{a}_correction_ccw_nm, temperature_c)
-               + gf_{a}_correction_lerp(cw ? gf_{a}_correction_cw_speed_nm : gf_{a}_correction_ccw_speed_nm,
-                                        temperature_c) * gf_{a}_correction_speed_term(velocity_rad_s);
-    double bound = GF_{A}_CORRECTION_MAX_RELATIVE * fabs(model_nm) + GF_{A}_CORRECTION_FLOOR_NM;
-    if (c > bound) {{
-        return bound;
-    }}
-    if (c < -bound) {{
-        return -bound;
-    }}
-    return c;
+    double odd, even;
+    gf_{a}_correction_split_nm(temperature_c, velocity_rad_s, model_nm, &odd, &even);
+    return velocity_rad_s >= 0.0 ? odd + even : odd - even;
 }}
 
 static inline double gf_{a}_correction_error_nm(double temperature_c, double velocity_rad_s)
 {{
     const double *e = velocity_rad_s >= 0.0 ? gf_{a}_correction_cw_error_nm : gf_{a}_correction_ccw_error_nm;
-    double x = (temperature_c - GF_{A}_CORRECTION_T0_C) * GF_{A}_CORRECTION_INV_BIN_PER_C;
-    int i = x > 0.0 ? (x < GF_{A}_CORRECTION_N - 1 ? (int)x : GF_{A}_CORRECTION_N - 2) : 0;
+    double w;
+    int i = gf_{a}_correction_bin(temperature_c, &w);
     if (e[i] < 0.0 || e[i + 1] < 0.0) {{
         return -1.0;
     }}
-    return gf_{a}_correction_lerp(e, temperature_c);
+    return e[i] + w * (e[i + 1] - e[i]);
+}}
+
+/* samples of the cell of velocity_rad_s's direction nearest to temperature_c [-] */
+static inline double gf_{a}_correction_samples(double temperature_c, double velocity_rad_s)
+{{
+    double w;
+    int i = gf_{a}_correction_bin(temperature_c, &w);
+    return (velocity_rad_s >= 0.0 ? gf_{a}_correction_cw_samples : gf_{a}_correction_ccw_samples)[w < 0.5 ? i : i + 1];
 }}
 
 """
@@ -479,18 +561,21 @@ def _ros_correction(table: ExportTable) -> dict[str, object]:
     err = np.where(np.isnan(c.error_nm), -1.0, c.error_nm)
     return {
         'correction_temperatures_c': [float(x) for x in c.centres_c],
-        'correction_cw_nm': [float(x) for x in c.values_nm[0]],
-        'correction_ccw_nm': [float(x) for x in c.values_nm[1]],
-        'correction_cw_speed_nm': [float(x) for x in c.speed_nm[0]],
-        'correction_ccw_speed_nm': [float(x) for x in c.speed_nm[1]],
-        'correction_min_speed_rad_s': float(c.settings.min_speed_rad_s),
-        'correction_speed_reference_rad_s': float(c.settings.speed_reference_rad_s),
+        'correction_inv_bin_per_c': float(c.inv_bin_per_c),
+        'correction_min_speed_rad_s': float(c.min_speed_rad_s),
+        'correction_speeds_rad_s': [float(x) for x in c.octave_speeds_rad_s],
+        'correction_shape': [int(c.odd_nm.shape[0]), int(c.odd_nm.shape[1])],
+        'correction_odd_nm': [float(x) for x in c.odd_nm.ravel()],
+        'correction_even_nm': [float(x) for x in c.even_nm.ravel()],
+        'correction_max_relative': float(c.max_relative),
+        'correction_floor_nm': float(c.floor_nm),
+        'correction_max_independent_nm': float(c.max_independent_nm),
         'correction_cw_error_nm': [float(x) for x in err[0]],
         'correction_ccw_error_nm': [float(x) for x in err[1]],
         'correction_cw_samples': [int(x) for x in c.samples[0]],
         'correction_ccw_samples': [int(x) for x in c.samples[1]],
-        'correction_max_relative': float(c.max_relative),
-        'correction_floor_nm': float(c.floor_nm),
+        'correction_cw_applied': [bool(x) for x in c.applied[0]],
+        'correction_ccw_applied': [bool(x) for x in c.applied[1]],
     }
 
 
@@ -504,9 +589,10 @@ def render_ros_yaml(table: ExportTable, prov: Provenance) -> str:
         'of temperatures_c); eta_breakpoints [-]; the feedforward settings and direction factors.',
         *LOOKUP_RULE,
         *([] if table.correction is None else [
-            ('correction_*: the learned correction per temperature bin centre (correction_temperatures_c [degC]), cw '
-            'and ccw [N*m], its error bound [N*m] (-1: unknown) and samples; bounded by correction_max_relative * '
-            '|k_dir M| + correction_floor_nm.')]),
+            'correction_*: the learned correction, correction_odd_nm and correction_even_nm [N*m] row-major with shape',
+            'correction_shape = [temperature bins, speed octaves] at the bin centres correction_temperatures_c [degC]',
+            'and the octave centres correction_speeds_rad_s [rad/s] (see the correction lookup above); per cell (cw,',
+            'ccw per bin) its error bound [N*m] (-1: unknown), samples and whether the guard applies it.']),
     ]
     doc = {ROS_NODE: {'ros__parameters': {c_identifier(table.axis): ros_parameters(table)}}}
     body: str = yaml.safe_dump(doc, sort_keys=False, default_flow_style=None, width=116)

@@ -51,11 +51,15 @@ step squared); an interval holding a random point above the bound is split too. 
 range), |v| ≤ 10 rad/s (573 °/s, above the slew rates of seeker gimbals; faster is clamped), bound 1e-4.
 
 **Learned correction.** With a correction file (``export --correction``; :class:`TableCorrection`), every table also
-carries the correction of its axis per temperature bin and direction (the cells' means over position: a position
-map is not exported) with each cell's error bound (the standard error of its mean, shrunk like its value), and the
-feedforward adds it exactly as the node does: ``c = clamp(lerp over bin centres, ±(max_relative k_dir M +
-floor))``, ``τ = clamp(tanh(v/v_th) (k_dir M + c), ±τ_max)`` (:func:`correction_nm`, the C function
-``gf_<axis>_correction_nm``).
+carries the correction of its axis as the feedforward looks it up without a joint position: per temperature bin
+centre and speed octave, its part along the motion ``odd = ½(S_cw + S_ccw)`` and its part independent of the
+direction ``even = ½(S_cw − S_ccw)`` of the learned speed profiles S_d (after the lookup's hold rule), linear in
+temperature between bin centres and in ``u = log2(|v|/min_speed)`` between octave centres, held beyond. The
+feedforward adds it exactly as the node does: ``odd`` clamped to ±(max_relative |k_dir M| + floor), ``even`` to
+±max(that, max_independent), ``τ = clamp(tanh(v/v_th) (k_dir M + odd) + even, ±τ_max)`` (:func:`correction_nm`, the
+C function ``gf_<axis>_correction_split_nm``). Each cell (direction × bin) carries its samples and its error bound
+(the standard error of its mean, shrunk like its value). The correction's terms in the joint angle (a ripple, a
+trend) are not exported, and the files say so.
 
 **Switch band.** The table decides the Palmgren branch with the interpolated switch speed, the model with the exact
 one; they differ by at most ``switch_band`` (relative, ≤ half the bound by construction). Inside that band, i.e.
@@ -83,8 +87,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from gimbal_friction.common.errors import GimbalFrictionError, ModelDomainError, check_rules
 from gimbal_friction.common.units import nm_from_nmm, rad_s_from_rpm, rpm_from_rad_s
-from gimbal_friction.common.xp import ARRAY
-from gimbal_friction.feedforward.correction import Correction, CorrectionSettings, speed_term
+from gimbal_friction.feedforward.correction import Correction, CorrectionSettings
 from gimbal_friction.feedforward.rule import FeedforwardSettings
 from gimbal_friction.physics.friction import PALMGREN_THRESHOLD_CST_RPM
 from gimbal_friction.physics.model import FrictionResult, friction_torque, palmgren_threshold_temperature, viscosity_cst
@@ -191,65 +194,164 @@ class TableGrid(NamedTuple):
 
 
 class TableCorrection(NamedTuple):
-    """The learned correction of one axis as exported: per temperature bin and direction, along the motion."""
+    """The learned correction of one axis as exported: its lookup without a position, split as the feedforward
+    applies it (odd: along the motion, even: independent of the direction), per temperature bin and speed octave."""
 
     source: str                 #: the correction file and the SHA-256 of its bytes
     centres_c: Array            #: temperature bin centres [°C], (B,)
     inv_bin_per_c: float        #: 1 / bin width [1/°C] (the lookup's x = (t − centres_c[0]) · inv_bin_per_c)
-    values_nm: Array            #: applied value per (direction cw/ccw, bin) at speed term 0 [N·m], (2, B)
-    speed_nm: Array             #: coefficient of the speed term x per (direction, bin) [N·m], (2, B)
-    error_nm: Array             #: its error bound: std. error of the cell mean × n/(n + n0); 0 without data, NaN
-    #: with one sample (unknown) [N·m], (2, B)
+    min_speed_rad_s: float      #: the octaves start here: u = log2(|v| / min_speed_rad_s) [rad/s]
+    odd_nm: Array               #: part along the motion ½(S_cw + S_ccw) per (bin, octave) [N·m], (B, K)
+    even_nm: Array              #: part independent of the direction ½(S_cw − S_ccw) per (bin, octave) [N·m], (B, K)
+    error_nm: Array             #: error bound per (direction cw/ccw, bin): std. error of the cell mean × n/(n + n0);
+    #: 0 without data, NaN with one sample (unknown); a bin holding its neighbour's profile holds its error [N·m],
+    #: (2, B)
     samples: NDArray[np.int64]  #: samples per (direction, bin) [-], (2, B)
-    max_relative: float         #: bound: |c| <= max_relative × |k_dir M| + floor_nm [-]
+    applied: NDArray[np.bool_]  #: cells the guard applies (with samples; the others are held back to 0) (2, B)
+    max_relative: float         #: bound: |odd| <= max_relative × |k_dir M| + floor_nm [-]
     floor_nm: float             #: [N·m]
-    position_bins: int          #: bins of the file's position map (0: none; not exported) [-]
-    settings: CorrectionSettings  #: the file's layout (the speed term's speeds: speed_term)
+    max_independent_nm: float   #: |even| <= max(max_relative × |k_dir M| + floor_nm, this) [N·m]
+    ripple_periods_rad: tuple[float, ...]   #: periods of the applied ripple, left out of the export [rad]
+    ripple_max_relative: float  #: its largest amplitude per period, relative to the model friction (0: none) [-]
+    trend_max_nm: float         #: largest |coefficient| of the applied trend with the angle, left out (0: none) [N·m]
+    settings: CorrectionSettings  #: the file's settings
+
+    @property
+    def octaves(self) -> int:
+        """Speed octaves K of the profile [-] (node k at u = k + ½; 1: no speed dependence)."""
+        return int(self.odd_nm.shape[1])
+
+    @property
+    def octave_speeds_rad_s(self) -> Array:
+        """Speeds of the profile's nodes, the centres of the octaves: min_speed · 2^(k + ½) [rad/s], (K,)."""
+        return np.asarray(self.min_speed_rad_s * 2.0 ** (np.arange(self.octaves) + 0.5), dtype=float)
+
+    @property
+    def empty(self) -> bool:
+        """Nothing is added without a position (the correction applies nothing to this axis): exactly the model."""
+        return not (np.any(self.odd_nm) or np.any(self.even_nm))
+
+    @property
+    def position_terms(self) -> bool:
+        """The correction has terms in the joint angle the export leaves out (a ripple, a trend)."""
+        return bool(self.ripple_periods_rad) or self.trend_max_nm > 0.0
+
+
+def _held_error(error: Array, has: NDArray[np.bool_]) -> Array:
+    """``error`` (bins,) with every bin without samples next to one with samples holding its neighbour's error (the
+    mean of both neighbours' when both have samples): the hold rule of the lookup's profiles."""
+    out = error.copy()
+    n = error.shape[0]
+    for b in range(n):
+        if has[b]:
+            continue
+        left = b > 0 and bool(has[b - 1])
+        right = b + 1 < n and bool(has[b + 1])
+        if left and right:
+            out[b] = 0.5 * (error[b - 1] + error[b + 1])
+        elif left:
+            out[b] = error[b - 1]
+        elif right:
+            out[b] = error[b + 1]
+    return out
 
 
 def table_correction(correction: Correction, axis: str, source: str) -> TableCorrection:
-    """The exported form of ``correction``'s values of ``axis`` (see :class:`TableCorrection`)."""
+    """The exported form of ``correction``'s terms of ``axis`` (see :class:`TableCorrection`): the tables its lookup
+    reads (after the hold rule; zeros where nothing is applied), its constants and per cell the samples and the error
+    bound. The position terms (ripple, trend) are left out: the export is the lookup without a position."""
     s = correction.settings
-    nt = s.n_temperature
-    # what a NaN position looks up: the cells' values and speed terms (written at speed term 0)
-    held_values, held_speed, held_ref, _ = correction.held(axis)   # as the lookup reads them
-    speed = held_speed.reshape(2, nt)
-    values = held_values.reshape(2, nt) - speed * held_ref.reshape(2, nt)
+    nt, ns = s.n_temperature, s.n_speed
+    lut = correction.lookups[axis]
+    if lut is None:   # nothing applied: exactly the model
+        odd, even = np.zeros((nt, ns)), np.zeros((nt, ns))
+        t0, inv_bin, vmin = s.temperature_min_c + 0.5 * s.temperature_bin_c, 1.0 / s.temperature_bin_c, \
+            s.min_speed_rad_s
+        rel, floor, independent = s.max_relative, s.floor_nm, s.max_independent_nm
+    else:
+        odd, even = np.array(lut.odd, dtype=float), np.array(lut.even, dtype=float)
+        t0, inv_bin, vmin = lut.t0, lut.inv_bin, lut.vmin
+        rel, floor, independent = lut.rel, lut.floor, lut.independent
     error = np.zeros((2, nt))
     samples = np.zeros((2, nt), dtype=np.int64)
+    applied = np.zeros((2, nt), dtype=bool)
     for cell in correction.cells(axis):
         d = 0 if cell['direction'] == 'cw' else 1
-        n = cell['samples']
-        samples[d, cell['bin']] = n
+        b, n = int(cell['bin']), int(cell['samples'])
+        samples[d, b] = n
+        applied[d, b] = bool(cell['applied'])
         se = cell['std_error_nm']
-        error[d, cell['bin']] = math.nan if se is None else se * n / (n + s.prior_samples)
+        error[d, b] = math.nan if se is None else se * n / (n + s.prior_samples)
+    error = np.stack([_held_error(error[d], samples[d] > 0) for d in range(2)])
     centres = np.asarray(s.temperature_min_c + (np.arange(nt) + 0.5) * s.temperature_bin_c, dtype=np.float64)
-    centres[0] = s.temperature_min_c + 0.5 * s.temperature_bin_c   # (as the lookup computes its origin)
-    return TableCorrection(source, centres, 1.0 / s.temperature_bin_c, values, speed.copy(), error, samples,
-                           s.max_relative, s.floor_nm, s.position_bins, s)
+    centres[0] = t0   # (the lookup's origin, to the bit)
+    p = correction.applied(axis)
+    amplitude = np.hypot(p.ripple[..., 0], p.ripple[..., 1])        # (bins, periods)
+    rippling = np.any(amplitude > 0.0, axis=0)
+    periods = tuple(float(x) for x in p.periods_rad[rippling])
+    return TableCorrection(source, centres, float(inv_bin), float(vmin), odd, even, error, samples, applied,
+                           float(rel), float(floor), float(independent), periods,
+                           float(amplitude.max()) if amplitude.size else 0.0,
+                           float(np.abs(p.trend_nm).max()) if p.trend_nm.size else 0.0, s)
 
 
 def correction_nm(tc: TableCorrection, temperature_c: ArrayLike, velocity_rad_s: ArrayLike,
-                  model_nm: ArrayLike) -> tuple[Array, Array]:
-    """The exported correction [N·m] along the motion at temperatures [°C] and velocities [rad/s] (``>= 0``: cw)
-    for the model friction ``model_nm`` = k_dir M [N·m], and its error bound [N·m] (the cells' bounds interpolated
-    the same way; NaN where a cell's is unknown): the rule of
-    :meth:`~gimbal_friction.feedforward.correction.Correction.along_nm` without a position, and of the C function."""
-    t, v, m = np.broadcast_arrays(*(np.asarray(a, dtype=float) for a in (temperature_c, velocity_rad_s, model_nm)))
-    nt = tc.centres_c.shape[0]
+                  model_nm: ArrayLike) -> tuple[Array, Array, Array]:
+    """The exported correction at temperatures [°C] and velocities [rad/s] (``>= 0``: cw) for the model friction
+    ``model_nm`` = k_dir M [N·m]: its part along the motion (odd) and its part independent of the direction (even),
+    each bounded [N·m], applied as ``τ = clamp(tanh(v/v_th) (model + odd) + even, ±τ_max)``; and the error bound
+    [N·m] of the direction of ``velocity_rad_s`` (its cells' bounds interpolated over temperature; NaN where one is
+    unknown). The rule and the operations of the correction's lookup without a position
+    (:meth:`~gimbal_friction.feedforward.correction.Correction.split_nm_array` with NaN positions) and of the C
+    function ``gf_<axis>_correction_split_nm``."""
+    t, v, m = (np.asarray(a, dtype=float) for a in np.broadcast_arrays(
+        *(np.asarray(a, dtype=float) for a in (temperature_c, velocity_rad_s, model_nm))))
+    nt, hi = tc.centres_c.shape[0], tc.octaves - 1
+    # temperature: bin i and weight w, held at the ends (NaN: the first bin)
     x = (t - float(tc.centres_c[0])) * tc.inv_bin_per_c
     inside = (x > 0.0) & (x < nt - 1)
     i = np.where(inside, np.trunc(np.where(inside, x, 0.0)), np.where(x > 0.0, nt - 2, 0)).astype(np.int64)
     w = np.where(inside, x - i, np.where(x > 0.0, 1.0, 0.0))
-    d = np.where(v >= 0.0, 0, 1)
-    a = tc.values_nm[d, i]
-    c = a + w * (tc.values_nm[d, i + 1] - a)
-    a = tc.speed_nm[d, i]
-    c = c + (a + w * (tc.speed_nm[d, i + 1] - a)) * speed_term(tc.settings, v, ARRAY)
+    w0 = 1.0 - w
+    # speed: octave coordinate u − ½ = log2(|v| / min speed) − ½, node k and weight f, held beyond the end nodes
+    a = np.abs(v)
+    faster = a > tc.min_speed_rad_s
+    with np.errstate(divide='ignore', invalid='ignore'):
+        xs = np.where(faster, np.log2(np.where(faster, a, 1.0) / tc.min_speed_rad_s) - 0.5, -1.0)
+    low, high = ~(xs > 0.0), xs >= hi
+    inner = ~low & ~high
+    k = np.where(inner, np.trunc(np.where(inner, xs, 0.0)), np.where(high, hi, 0)).astype(np.int64)
+    f = np.where(inner, xs - k, 0.0)
+    k1 = np.minimum(k + 1, hi)
+    parts = []
+    for table in (tc.odd_nm, tc.even_nm):
+        r0 = w0 * table[i, k] + w * table[i + 1, k]
+        r1 = w0 * table[i, k1] + w * table[i + 1, k1]
+        parts.append(np.where(inner, r0 + f * (r1 - r0), r0))
+    odd, even = parts
+    # below the slowest speed learned the part along the motion fades linearly to 0 at zero speed
+    odd = np.where(a < tc.min_speed_rad_s, odd * (a / tc.min_speed_rad_s), odd)
     bound = tc.max_relative * np.abs(m) + tc.floor_nm
-    c = np.where(c > bound, bound, np.where(c < -bound, -bound, c))
+    clipped = ~((-bound <= odd) & (odd <= bound))
+    odd = np.where(clipped, np.where(odd > 0.0, bound, -bound), odd)
+    bound = np.maximum(bound, tc.max_independent_nm)
+    clipped = ~((-bound <= even) & (even <= bound))
+    even = np.where(clipped, np.where(even > 0.0, bound, -bound), even)
+    finite = np.isfinite(m)   # an infinite model (an absurd speed): no correction
+    odd, even = np.where(finite, odd, 0.0), np.where(finite, even, 0.0)
+    d = np.where(v >= 0.0, 0, 1)
     e = tc.error_nm[d, i] + w * (tc.error_nm[d, i + 1] - tc.error_nm[d, i])
-    return np.asarray(c, dtype=float), np.asarray(e, dtype=float)
+    return np.asarray(odd, dtype=float), np.asarray(even, dtype=float), np.asarray(e, dtype=float)
+
+
+def correction_along_nm(tc: TableCorrection, temperature_c: ArrayLike, velocity_rad_s: ArrayLike,
+                        model_nm: ArrayLike) -> tuple[Array, Array]:
+    """What the exported correction adds to the model friction along the motion away from zero speed,
+    odd + sign(v) even [N·m] (:meth:`~gimbal_friction.feedforward.correction.Correction.along_nm_array` without a
+    position; the C function ``gf_<axis>_correction_nm``), and its error bound [N·m] (see :func:`correction_nm`)."""
+    odd, even, error = correction_nm(tc, temperature_c, velocity_rad_s, model_nm)
+    v = np.broadcast_to(np.asarray(velocity_rad_s, dtype=float), odd.shape)
+    return np.asarray(np.where(v >= 0.0, odd + even, odd - even), dtype=float), error
 
 
 class ExportTable(NamedTuple):

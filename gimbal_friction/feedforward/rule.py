@@ -10,14 +10,16 @@ joint at that temperature (:func:`~gimbal_friction.physics.direction.direction_f
 ``scale_negative`` and the temperature-dependent CW/CCW asymmetry), clamped to ``max_torque_nm``
 (:func:`feedforward_torque_nm`):
 
-.. math:: \tau = \operatorname{clamp}\left(\tanh(v / v_{th})\; \big(k_{dir}\; M(t, |v|) + c\big),\ \pm\tau_{max}\right)
+.. math:: \tau = \operatorname{clamp}\left(\tanh(v / v_{th})\; \big(k_{dir}\; M(t, |v|) + c_{odd}\big)
+          + c_{even},\ \pm\tau_{max}\right)
 
-``tanh`` reaches 0.995 at |v| = 3 v_th, so the output does not chatter around zero speed. ``c`` [N·m] is the
-optional learned correction along the motion (:class:`~gimbal_friction.feedforward.correction.Correction`,
-:meth:`Feedforward.set_correction`), looked up at the temperature used, the velocity used, the joint position and
-the model friction ``k_dir M``; the position is the reference position when the velocity used is the reference's
-and the reference message carried a finite one, else the joint state's (NaN: the position map is skipped). Without
-a correction, or for a joint the correction has no value for, the torque is exactly the model's (the same
+``tanh`` reaches 0.995 at |v| = 3 v_th, so the output does not chatter around zero speed. ``c_odd`` and ``c_even``
+[N·m] are the optional learned correction (:class:`~gimbal_friction.feedforward.correction.Correction`,
+:meth:`Feedforward.set_correction`): its part along the motion and its part independent of the direction of motion
+(an unbalance: not switched off at a reversal), looked up at the temperature used, the velocity used, the joint
+position and the model friction ``k_dir M``; the position is the reference position when the velocity used is the
+reference's and the reference message carried a finite one, else the joint state's (NaN: no position terms).
+Without a correction, or for a joint the correction has no value for, the torque is exactly the model's (the same
 floating-point operations as without the correction).
 
 Temperature (the rules of :mod:`gimbal_friction.streams.inputs`): the latest valid temperature received is used
@@ -153,12 +155,13 @@ def model_friction_nm(terms: TemperatureTerms[X], k_positive: X, k_negative: X, 
                                                                                                xp)
 
 
-def corrected_torque_nm(model_nm: X, correction_nm: X, velocity_rad_s: X, v_th: float, max_torque_nm: float,
+def corrected_torque_nm(model_nm: X, odd_nm: X, even_nm: X, velocity_rad_s: X, v_th: float, max_torque_nm: float,
                         xp: Namespace[X]) -> X:
-    """``clamp(tanh(v/v_th) · (k_dir M + c), ±τ_max)`` [N·m]: the feedforward torque with a learned correction
-    ``correction_nm`` = c [N·m] along the motion added to the model friction ``model_nm`` = k_dir M [N·m]
-    (:func:`model_friction_nm`) at velocity ``velocity_rad_s`` [rad/s]."""
-    return xp.clip(xp.tanh(velocity_rad_s / v_th) * (model_nm + correction_nm), -max_torque_nm, max_torque_nm)
+    """``clamp(tanh(v/v_th) · (k_dir M + c_odd) + c_even, ±τ_max)`` [N·m]: the feedforward torque with a learned
+    correction's part along the motion ``odd_nm`` [N·m] added to the model friction ``model_nm`` = k_dir M [N·m]
+    (:func:`model_friction_nm`) and its part independent of the direction ``even_nm`` [N·m], at velocity
+    ``velocity_rad_s`` [rad/s]."""
+    return xp.clip(xp.tanh(velocity_rad_s / v_th) * (model_nm + odd_nm) + even_nm, -max_torque_nm, max_torque_nm)
 
 
 def velocity_used(source: str, measured_rad_s: X, reference_rad_s: X, reference_fresh: BoolOrArray,
@@ -462,10 +465,10 @@ class Feedforward:
                                          self._max_torque_nm, xp)
         model_nm = model_friction_nm(terms, k_positive, k_negative, velocity_rad_s, xp)
         # SCALAR's rule takes floats, ARRAY's arrays: xp is SCALAR exactly when X is float
-        along: Callable[[str, X, X, X | float, X], X] = (
-            correction.along_nm if xp is SCALAR else correction.along_nm_array)  # type: ignore[assignment]  # see above
-        correction_nm = along(joint, temperature_c, velocity_rad_s, position_rad, model_nm)
-        return corrected_torque_nm(model_nm, correction_nm, velocity_rad_s, self._v_th, self._max_torque_nm, xp)
+        split: Callable[[str, X, X, X | float, X], tuple[X, X]] = (
+            correction.split_nm if xp is SCALAR else correction.split_nm_array)  # type: ignore[assignment]  # see above
+        odd_nm, even_nm = split(joint, temperature_c, velocity_rad_s, position_rad, model_nm)
+        return corrected_torque_nm(model_nm, odd_nm, even_nm, velocity_rad_s, self._v_th, self._max_torque_nm, xp)
 
     def model_nm(self, joint: str, velocity_rad_s: X, temperature_c: X, xp: Namespace[X]) -> X:
         """``k_dir · M``: the model friction of ``joint`` along the motion [N·m] (>= 0) at velocities [rad/s] and
@@ -495,9 +498,9 @@ class Feedforward:
                                            self._max_torque_nm, SCALAR)
         else:
             model_nm = model_friction_nm(terms, k_positive, k_negative, velocity_rad_s, SCALAR)
-            torque = corrected_torque_nm(model_nm, correction.along_nm(joint, temperature_c, velocity_rad_s,
-                                                                       position_rad, model_nm),
-                                         velocity_rad_s, self._v_th, self._max_torque_nm, SCALAR)
+            odd_nm, even_nm = correction.split_nm(joint, temperature_c, velocity_rad_s, position_rad, model_nm)
+            torque = corrected_torque_nm(model_nm, odd_nm, even_nm, velocity_rad_s, self._v_th, self._max_torque_nm,
+                                         SCALAR)
         if abs(torque) >= self._max_torque_nm:
             self.counters.add(self.counters.saturated, joint)
         return torque

@@ -18,13 +18,16 @@ Publishes, for each joint-state message (optionally rate-limited by ``max_rate_h
 - ``/gimbal/friction/correction`` (diagnostic_msgs/DiagnosticArray, every ``correction_publish_period_s``): the
   learned correction, one status per joint and one per (joint, direction, temperature bin) with data.
 
-Learning in service (:class:`CorrectionKeeper`): the learned correction
-(:class:`gimbal_friction.feedforward.correction.Correction`, loaded from ``correction_file``) is added to the model.
+Learning in service (:class:`~gimbal_friction.feedforward.correction.keeper.CorrectionKeeper`, the library's: the
+node only feeds it): the learned correction (:class:`gimbal_friction.feedforward.correction.Correction`, loaded
+from ``correction_file``) is added to the model.
 With ``learning_enabled`` it is learned from ``/gimbal/friction/measured_detail`` (the samples the estimator
 accepted), in that callback, never in the joint-state path: residual = measured friction − the model along the
 motion (the feedforward's own table and direction factors at the sample's speed and the node's temperature, which
-must be fresh at the sample's stamp). The :class:`~gimbal_friction.feedforward.correction.Learner` gates, bounds and
-rate-limits it; the file is saved atomically every ``learning_save_period_s`` and at shutdown.
+must be fresh at the sample's stamp). The :class:`~gimbal_friction.feedforward.correction.Learner` gates, scores
+each sample before it learns it (the guard: a cell or term that does not cut the residual out of sample holds back
+to the model), bounds and rate-limits it; the file is saved atomically every ``learning_save_period_s`` and at
+shutdown.
 
 The logic is :class:`gimbal_friction.feedforward.rule.Feedforward`, the very object a controller can use in its own
 process and the offline replay runs over a whole bag; the node only converts messages. Times are message stamps
@@ -36,7 +39,6 @@ from __future__ import annotations
 import math
 import struct
 import sys
-import threading
 import time
 from collections.abc import Sequence
 from pathlib import Path
@@ -44,6 +46,7 @@ from typing import Any
 
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray
+from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import QoSProfile, qos_profile_sensor_data
@@ -54,14 +57,17 @@ from gimbal_friction.common.errors import ConfigError, ModelDomainError
 from gimbal_friction.common.settings import settings_from
 from gimbal_friction.common.units import NS_PER_S
 from gimbal_friction.common.xp import SCALAR
-from gimbal_friction.config.node_settings import CORRECTION_LAYOUT, FEEDFORWARD_PREFIXED, FeedforwardNodeSettings
+from gimbal_friction.config.node_settings import (
+    CORRECTION_LAYOUT,
+    FEEDFORWARD_PREFIXED,
+    RETIRED_DEFAULTS,
+    RETIRED_PARAMETERS,
+    FeedforwardNodeSettings,
+)
 from gimbal_friction.feedforward.correction import (
-    Correction,
-    CorrectionError,
+    CorrectionKeeper,
     CorrectionSettings,
-    Learner,
     LearningSettings,
-    ModelIdentity,
     model_identity,
 )
 from gimbal_friction.feedforward.rule import (
@@ -110,7 +116,8 @@ _FF_FIELDS = field_names(FeedforwardSettings)
 _NODE_FIELDS = field_names(NodeSettings)
 _CORRECTION_PREFIX, _LEARNING_PREFIX = (prefix for prefix, _ in FEEDFORWARD_PREFIXED)
 #: what /gimbal/friction/correction says of each cell with data (besides std_error_nm)
-_CELL_KEYS = ('value_nm', 'speed_nm', 'speed_ref', 'samples', 'mean_nm', 'centre_c', 'state')
+_CELL_KEYS = ('value_nm', 'samples', 'mean_nm', 'centre_c', 'state', 'held_back', 'scored', 'rms_model_nm',
+              'rms_with_nm')
 _CORRECTION_FIELDS = frozenset(_CORRECTION_PREFIX + n for n in field_names(CorrectionSettings))
 _LEARNING_FIELDS = frozenset(_LEARNING_PREFIX + n for n in field_names(LearningSettings))
 #: columns of measured_detail the learning reads (the layout of gimbal_friction.streams.measurement; read by index:
@@ -137,130 +144,6 @@ def model_along_nm(ff: Feedforward, joint: str, velocity_rad_s: float, temperatu
     along: float = model_friction_nm(terms, *direction_factors(ff.axes[joint], temperature_c, SCALAR),
                                      velocity_rad_s, SCALAR)
     return along if velocity_rad_s >= 0.0 else -along
-
-
-class CorrectionKeeper:
-    """The node's learned correction: loaded, learned, saved (no rclpy: the node calls it).
-
-    ``identity`` is the model the correction belongs to, ``settings`` the correction's parameters (a file keeps its
-    cells but takes the parameters' bound, prior and gate; a file with another cell layout is refused).
-    :attr:`load_error` holds the one-line reason a file was refused (the node then runs on an empty correction =
-    the pure model, and never overwrites that file while it exists).
-    """
-
-    def __init__(self, identity: ModelIdentity, settings: CorrectionSettings, learning: LearningSettings) -> None:
-        self.identity, self.settings = identity, settings
-        self.learner = Learner(Correction(settings, identity), learning)
-        self.load_error: str | None = None
-        self.loaded_from: str | None = None
-        self._refused_path: str | None = None
-        self.dirty = False                         #: changed since the last save
-        self.saves = 0                             #: files written [-]
-        self.last_save_time: float | None = None   #: wall-clock time of the last save [s since the epoch]
-        self.last_save_path = ''
-        self.last_save_error: str | None = None
-        self._writer: threading.Thread | None = None
-
-    @property
-    def correction(self) -> Correction:
-        return self.learner.correction
-
-    def read(self, path: str) -> Correction:
-        """The correction in ``path`` for this model and cell layout, with this keeper's settings.
-
-        Raises:
-            CorrectionError: one line naming the file, the cause and the fix.
-        """
-        c = Correction.load(path, expected=self.identity)
-        for name in CORRECTION_LAYOUT:
-            have, want = getattr(c.settings, name), getattr(self.settings, name)
-            if have != want:
-                raise CorrectionError(f'correction file {path}: {name} is {have!r}, the parameter '
-                                      f'{_CORRECTION_PREFIX}{name} is {want!r}: set the parameter to match or '
-                                      'delete the file')
-        return self.adopt(c)
-
-    def adopt(self, c: Correction) -> Correction:
-        """``c`` with this keeper's settings (its sums and applied values kept)."""
-        if c.settings == self.settings:
-            return c
-        out = Correction(self.settings, c.identity)
-        for name in Correction.STATE:
-            setattr(out, name, getattr(c, name))
-        out.rebuild()
-        return out
-
-    def start(self, path: str) -> None:
-        """At start-up: load ``path`` if it exists ('' or absent: an empty correction). A refused file leaves the
-        correction empty with :attr:`load_error` set; nothing raises."""
-        if not path or not Path(path).exists():
-            return
-        try:
-            self.replace(self.read(path))
-            self.loaded_from = path
-        except CorrectionError as err:
-            self.load_error, self._refused_path = str(err), path
-
-    def replace(self, c: Correction) -> None:
-        """Learn on from ``c`` (learner state and counters kept)."""
-        self.learner.correction = c
-        self.load_error = self._refused_path = None
-
-    def set_settings(self, settings: CorrectionSettings) -> None:
-        """New bound, prior or gate (same layout): the learned sums are kept, the targets follow."""
-        self.settings = settings
-        self.learner.correction = self.adopt(self.correction)
-
-    def set_identity(self, identity: ModelIdentity) -> bool:
-        """The model changed: a correction learned against the old one does not apply; start empty. True if it
-        held something."""
-        if identity == self.identity:
-            return False
-        had = bool(self.correction.summary()['samples']) or self.load_error is not None
-        self.identity = identity
-        self.learner.correction = Correction(self.settings, identity)
-        self.load_error = self._refused_path = self.loaded_from = None
-        self.dirty = True
-        return had
-
-    def save(self, path: str, background: bool = False) -> bool:
-        """Save atomically to ``path`` if something changed; True if a save was made (or, with ``background``,
-        started: a copy is written by a thread, so the disk's fsync never delays the feedforward; a save still
-        running is not started twice). A failure (or a file refused at load, never overwritten while it exists) is
-        kept in :attr:`last_save_error`."""
-        if not path or not self.dirty:
-            return False
-        if self._refused_path is not None and Path(path).resolve() == Path(self._refused_path).resolve() \
-                and Path(path).exists():
-            self.last_save_error = (f'not saved: {path} was refused at load and is not overwritten; delete it or '
-                                    'set another file')
-            return False
-        if self._writer is not None and self._writer.is_alive():
-            if background:
-                return False
-            self._writer.join()
-        self.dirty = False
-        if not background:
-            return self._write(self.correction, path)
-        self._writer = threading.Thread(target=self._write, args=(self.learner.snapshot(), path),
-                                        name='correction_save', daemon=True)
-        self._writer.start()
-        return True
-
-    def _write(self, c: Correction, path: str) -> bool:
-        try:
-            c.save(path)
-        except CorrectionError as err:
-            self.last_save_error, self.dirty = str(err), True
-            return False
-        self.saves, self.last_save_error = self.saves + 1, None
-        self.last_save_time, self.last_save_path = time.time(), path
-        return True
-
-    def wait(self) -> None:
-        """Wait for a background save to finish."""
-        if self._writer is not None:
-            self._writer.join()
 
 
 class OutputBytes:
@@ -329,6 +212,11 @@ class FrictionFeedforward(Node):
         self.settings = declare_settings(self, NodeSettings)
         correction_settings = declare_settings(self, CorrectionSettings, _CORRECTION_PREFIX)
         learning_settings = declare_settings(self, LearningSettings, _LEARNING_PREFIX)
+        for name, why in RETIRED_PARAMETERS.items():   # (an old parameter file still loads; its value does nothing)
+            value: Any = self.declare_parameter(name, RETIRED_DEFAULTS[name], ParameterDescriptor(
+                name=name, description=f'retired, no effect: {why}', read_only=True, dynamic_typing=True)).value
+            if value != RETIRED_DEFAULTS[name]:
+                self.get_logger().warning(f'parameter {name} = {value!r} is retired and has no effect: {why}')
         axes = self.model.current()
         self.ff = self._build(axes, ff_settings, startup=True)
         self.keeper = CorrectionKeeper(model_identity(axes), correction_settings, learning_settings)
@@ -375,8 +263,13 @@ class FrictionFeedforward(Node):
             summary = k.correction.summary()
             self.get_logger().info(f'correction loaded from {k.loaded_from}: {summary["cells_with_data"]} cells, '
                                    f'{summary["samples"]} samples')
-        if self.settings.learning_enabled:   # (the file module and YAML imported now, not by the first save)
-            import gimbal_friction.feedforward.correction_file  # noqa: F401
+        if k.load_note is not None:
+            self.get_logger().warning(f'correction file {k.loaded_from}: {k.load_note}')
+        if k.removed_temporaries:
+            self.get_logger().info(f'removed {len(k.removed_temporaries)} stale temporary file(s) of an interrupted '
+                                   f'save: {", ".join(k.removed_temporaries)}')
+        if self.settings.learning_enabled:   # (YAML imported now, not by the first save)
+            import yaml  # noqa: F401
         if self.settings.learning_enabled and not self._save_path():
             self.get_logger().warning('learning_enabled without correction_file or learning_output_file: what is '
                                       'learned is lost at shutdown')
@@ -466,7 +359,7 @@ class FrictionFeedforward(Node):
         """Give the feedforward the learned correction (use_correction) or none (the pure model)."""
         use = self.settings.use_correction
         self.ff.set_correction(self.keeper.correction if use else None)
-        self._positions = use and self.keeper.settings.position_bins > 0
+        self._positions = use
 
     def _save_path(self) -> str:
         return self.settings.correction_file or self.settings.learning_output_file
@@ -562,15 +455,23 @@ class FrictionFeedforward(Node):
         summary = learner.correction.summary()
         statuses = []
         for joint in k.identity.joints:
-            js = summary['joints'][joint]
+            js = dict(summary['joints'][joint])
+            periods = js.pop('periods')
             level = WARN if js['saturated_cells'] else OK
-            statuses.append(status(f'gimbal_friction/correction/{joint}', level, state, joint, {
-                'state': state, 'in_use': self.settings.use_correction, **js,
-                'file': k.loaded_from or self._save_path() or 'none'}))
+            values = {'state': state, 'in_use': self.settings.use_correction, **js,
+                      'ripple_periods': len(periods), 'file': k.loaded_from or self._save_path() or 'none'}
+            for i, q in enumerate(periods, 1):   # the ripple periods found and their evidence
+                values |= {f'period_{i}_deg': q['period_deg'], f'period_{i}_amplitude': q['amplitude'],
+                           f'period_{i}_z': q['z']}
+            statuses.append(status(f'gimbal_friction/correction/{joint}', level, state, joint, values))
             for rec in learner.cells(joint):
                 name = f'gimbal_friction/correction/{joint}/{rec["direction"]}/{rec["centre_c"]:g}'
                 values = {key: rec[key] for key in _CELL_KEYS}
+                values['held_back'] = rec['held_back'] or 'no'
+                values['terms'] = ','.join(rec['terms']) or 'none'
                 values['std_error_nm'] = rec['std_error_nm'] if rec['std_error_nm'] is not None else 'none'
+                values['speed_profile_nm'] = ' '.join(f'{x:.4g}' for x in rec['speed_nm'])
+                values |= {f'z_{t}': z for t, z in rec['z'].items()}
                 statuses.append(status(name, WARN if rec['saturated'] else OK, rec['state'], joint, values))
         self.pub_correction.publish(diagnostic_array(self, statuses))
 
@@ -704,6 +605,9 @@ class FrictionFeedforward(Node):
         if k.load_error is not None:
             level = WARN
             problems.append(k.load_error)
+        if k.load_note is not None:
+            level = WARN
+            problems.append(f'correction file {k.loaded_from}: {k.load_note}')
         if k.last_save_error is not None:
             level = WARN
             problems.append(k.last_save_error)
@@ -718,7 +622,9 @@ class FrictionFeedforward(Node):
             **{f'refused: {r}': n for r, n in sorted(refused.items())},
             'cells_with_data': summary['cells_with_data'], 'samples_in_correction': summary['samples'],
             'saturated_cells': summary['saturated_cells'], 'max_abs_correction_nm': summary['max_abs_correction_nm'],
-            'lookup_saturations': summary['lookup_saturations'],
+            'cells_applied': summary['cells_applied'], 'cells_held_back': summary['cells_held_back'],
+            'max_abs_unbalance_nm': summary['max_abs_unbalance_nm'], 'samples_pending': learner.pending,
+            'lookup_saturations': summary['lookup_saturations'], 'load_note': k.load_note or 'none',
             'correction_file': self.settings.correction_file or 'none',
             'loaded_from': k.loaded_from or 'none', 'load_error': k.load_error or 'none',
             'save_file': self._save_path() or 'none (not saved)', 'saves': k.saves,

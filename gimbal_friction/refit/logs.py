@@ -20,11 +20,16 @@ from gimbal_friction.feedforward.rule import Feedforward, FeedforwardSettings
 from gimbal_friction.physics.params import AxisParams
 from gimbal_friction.recording.residual_read import ReadReport, iter_residual_rows
 from gimbal_friction.refit.sufficient import SufficientStats, accumulate_rows
+from gimbal_friction.streams.residual_row import ResidualRows
 
 _Chunk = TypeVar('_Chunk', bound=Sized)
 
 #: rows per chunk read from the logs (bounds the memory of a refit or a fleet worker)
 CHUNK_ROWS = 1 << 18
+#: rows of a joint scored by the candidate before they are learned and the candidate refitted (test, then train):
+#: at least this many, and a twentieth of what the joint holds already (so the candidate is refitted about twenty
+#: times per doubling of the data, whatever the log's length)
+LEARN_ROWS = 250
 
 
 class AxisData(NamedTuple):
@@ -68,6 +73,39 @@ class LearnedCorrection(NamedTuple):
     refused: dict[str, dict[str, int]]    #: samples refused per joint and reason [-]
 
 
+def learn_rows(c: Correction, ff: Feedforward, rows: ResidualRows, refused: dict[str, dict[str, int]]) -> int:
+    """Learn residual rows (in time order) into ``c``: test, then train, a block of a joint's rows at a time
+    (:data:`LEARN_ROWS`; each block scored by the candidate fitted before it, then kept, then the candidate
+    refitted), as the node's learner does between two steps. Each row's residual is its measured friction minus
+    the model friction of ``ff`` at its temperature and velocity, both signed like the motion [N·m]
+    (:meth:`Feedforward.model_nm`); refusals are
+    added to ``refused`` (joint → reason → count); rows of joints not in ``c`` are ignored. Returns the rows of
+    ``c``'s joints read."""
+    n = 0
+    for joint in np.unique(rows.joint).tolist():
+        if joint not in c.identity.joints:
+            continue
+        k = np.flatnonzero(rows.joint == joint)
+        t, v = rows.temperature_c[k], rows.velocity_rad_s[k]
+        usable = np.isfinite(t) & np.isfinite(v)
+        with np.errstate(invalid='ignore', over='ignore'):
+            model = np.where(usable, np.sign(v) * ff.model_nm(joint, np.where(usable, v, 0.0),
+                                                              np.where(usable, t, 20.0), ARRAY), np.nan)
+            residual = rows.measured_nm[k] - model
+        p = rows.position_rad[k]
+        mine = refused.setdefault(joint, {})
+        k0 = 0
+        while k0 < k.size:
+            step = max(LEARN_ROWS, c.stats(joint).samples() // 20)
+            sl = slice(k0, k0 + step)
+            for reason, m in c.learn_residuals(joint, t[sl], v[sl], p[sl], residual[sl], model[sl]).items():
+                mine[reason] = mine.get(reason, 0) + m
+            c.refit(joint)
+            k0 += step
+        n += int(k.size)
+    return n
+
+
 def read_correction(logs: Sequence[Path], axes: dict[str, AxisParams], *,
                     settings: CorrectionSettings | None = None,
                     feedforward_settings: FeedforwardSettings | None = None,
@@ -75,11 +113,9 @@ def read_correction(logs: Sequence[Path], axes: dict[str, AxisParams], *,
     """The learned correction of the residual logs against the model of ``axes`` (every configured joint, the
     refitted parameters layered in: the model the feedforward will run), streamed chunk by chunk.
 
-    Each row's residual is its measured friction minus the model friction of ``axes`` at its temperature and
-    velocity, both signed like the motion [N·m] (the model as the feedforward evaluates it,
-    :meth:`~gimbal_friction.feedforward.rule.Feedforward.model_nm`, on its table of ``feedforward_settings``),
-    learned per cell by :meth:`~gimbal_friction.feedforward.correction.Correction.add_residuals` at the row's
-    measured position; rows of joints not in ``axes`` are ignored. The values are settled (applied at once).
+    The rows are learned in the order the logs hold them (:func:`learn_rows`: each block scored out of sample
+    before it is learned, the guard of the node's learner), then settled: every cell and term that earned its
+    place on data it was not learned from is applied at once, the others hold back to the model.
     """
     ff = Feedforward(axes, feedforward_settings or FeedforwardSettings())
     c = Correction(settings or CorrectionSettings(), model_identity(axes))
@@ -87,25 +123,17 @@ def read_correction(logs: Sequence[Path], axes: dict[str, AxisParams], *,
     refused: dict[str, dict[str, int]] = {j: {} for j in axes}
     for chunk in _with_progress(iter_residual_rows(list(logs), chunk_rows=CHUNK_ROWS), label):
         for joint in np.unique(chunk.joint).tolist():
-            if joint not in axes:
-                continue
-            k = np.flatnonzero(chunk.joint == joint)
-            t, v = chunk.temperature_c[k], chunk.velocity_rad_s[k]
-            usable = np.isfinite(t) & np.isfinite(v)
-            with np.errstate(invalid='ignore', over='ignore'):
-                model = np.where(usable, np.sign(v) * ff.model_nm(joint, np.where(usable, v, 0.0),
-                                                                  np.where(usable, t, 20.0), ARRAY), np.nan)
-                residual = chunk.measured_nm[k] - model
-            for reason, n in c.add_residuals(joint, t, v, chunk.position_rad[k], residual, model).items():
-                refused[joint][reason] = refused[joint].get(reason, 0) + n
-            rows[joint] += int(k.size)
+            if joint in axes:
+                rows[joint] += int(np.count_nonzero(chunk.joint == joint))
+        learn_rows(c, ff, chunk, refused)
     c.settle()
     return LearnedCorrection(c, rows, refused)
 
 
 def correction_table(c: Correction) -> tuple[list[list[str]], list[dict[str, Any]]]:
     """The learned cells of ``c`` as table rows (joint, temperature bin [degC], direction, value [N*mm], std. error
-    [N*mm], samples, saturated) and as JSON records (values in N*mm and N*m)."""
+    [N*mm], samples, applied or why held back by the guard, saturated) and as JSON records (values in N*mm and
+    N*m)."""
     table: list[list[str]] = []
     records: list[dict[str, Any]] = []
     s = c.settings
@@ -115,9 +143,11 @@ def correction_table(c: Correction) -> tuple[list[list[str]], list[dict[str, Any
             se = cell['std_error_nm']
             table.append([joint, f'{lo:g}..{hi:g}', cell['direction'], f'{1e3 * cell["value_nm"]:+.4f}',
                           '-' if se is None else f'{1e3 * se:.4f}', str(cell['samples']),
+                          'yes' if cell['applied'] else f'held back: {cell["held_back"]}',
                           'yes' if cell['saturated'] else ''])
             records.append({'joint': joint, 'temperature_c': cell['centre_c'], 'temperature_bin_c': [lo, hi],
                             'direction': cell['direction'], 'value_nmm': 1e3 * cell['value_nm'],
                             'std_error_nmm': None if se is None else 1e3 * se, 'samples': cell['samples'],
+                            'applied': cell['applied'], 'held_back': cell['held_back'], 'terms': cell['terms'],
                             'saturated': cell['saturated']})
     return table, records

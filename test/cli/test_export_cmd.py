@@ -174,28 +174,50 @@ def main_exit(argv):
 
 def test_correction_option_carries_it_into_every_file_and_refuses_a_mismatched_one(tmp_path, two_axes, capsys):
     from gimbal_friction.config.loader import all_axis_params
-    from gimbal_friction.feedforward.correction import Correction, CorrectionSettings, model_identity
+    from gimbal_friction.feedforward.correction import Correction, CorrectionSettings, load, model_identity, save
 
     axes = all_axis_params(load_parameters([two_axes]))
-    c = Correction(CorrectionSettings(prior_samples=1.0), model_identity(axes))
-    c.add_residuals('azimuth', [-40.0] * 9, [0.03] * 9, [0.0] * 9, [2e-4] * 9, [3e-3] * 9)
+    c = Correction(CorrectionSettings(prior_samples=1.0, guard_min_samples=0, guard_z=0.0), model_identity(axes))
+    for v in (0.03, -0.03):   # 0.2 N*mm more friction than the model, both ways
+        c.learn_residuals('azimuth', [-40.0] * 9, [v] * 9, [0.0] * 9, [2e-4 * (1 if v > 0 else -1)] * 9,
+                          [3e-3 * (1 if v > 0 else -1)] * 9)
     c.settle()
     path = tmp_path / 'unit.correction.yaml'
-    c.save(path)
+    save(c, path)
     out = tmp_path / 'table'
     assert main(['export', '--out', str(out), '--config', str(two_axes), '--correction', str(path),
                  '--format', 'json', *FAST]) == 0
     doc = json.loads(capsys.readouterr().out)
     digest = hashlib.sha256(path.read_bytes()).hexdigest()
     by_axis = {a['axis']: a['correction'] for a in doc['axes']}
-    assert by_axis['azimuth']['samples'] == 9 and by_axis['azimuth']['cells'] == 1
-    assert by_axis['elevation']['samples'] == 0 and digest in by_axis['azimuth']['source']
+    az = by_axis['azimuth']
+    assert az['samples'] == 18 and az['cells'] == 2 and az['cells_applied'] == 2 and digest in az['source']
+    assert az['speed_octaves'] == 12 and az['temperature_bins'] == 37 and az['min_speed_rad_s'] == 0.005
+    assert 1e-4 < az['max_abs_nm'] < 2e-4 and az['left_out']['ripple_periods_rad'] == []
+    left_out = az['left_out']['trend_max_nm'] > 0.0   # (a trend fitted over the one angle seen: the files say so)
+    assert by_axis['elevation']['samples'] == 0 and by_axis['elevation']['max_abs_nm'] == 0.0
     for ext in ('csv', 'h', 'yaml'):
-        assert digest in (out / f'gimbal_friction_azimuth.{ext}').read_text()
-    assert 'gf_azimuth_correction_nm' in (out / 'gimbal_friction_azimuth.h').read_text()
+        text = (out / f'gimbal_friction_azimuth.{ext}').read_text()
+        assert digest in text and 'Learned correction:' in text and ('Not exported' in text) == left_out
+    header = (out / 'gimbal_friction_azimuth.h').read_text()
+    assert 'gf_azimuth_correction_split_nm' in header and '* (model + odd) + even;' in header
+    # the ROS tables are the lookup's of the correction read back from the file (no position)
+    lut = load(path, expected=model_identity(axes)).lookups['azimuth']
     e = load_parameters([out / 'gimbal_friction_azimuth.yaml'], node_name=ROS_NODE)['azimuth']
-    assert max(e['correction_cw_nm']) == pytest.approx(2e-4 * 9 / 10)
+    assert e['correction_odd_nm'] == lut.odd.ravel().tolist() and e['correction_even_nm'] == lut.even.ravel().tolist()
+    assert e['correction_shape'] == [37, 12] and sum(e['correction_cw_samples']) == 9
+    row = (-40.0 - e['correction_temperatures_c'][0]) * e['correction_inv_bin_per_c']
+    assert max(e['correction_odd_nm'][int(round(row)) * 12:][:12]) == pytest.approx(2e-4 * 9 / 10, rel=0.2)
+    # an axis the correction applies nothing to: its feedforward is the model's
+    assert '* (model + odd) + even;' not in (out / 'gimbal_friction_elevation.h').read_text()
     # learned against other parameters (the packaged single axis): refused with one line, nothing written
     assert main(['export', '--out', str(tmp_path / 'refused'), '--correction', str(path), *FAST]) == 1
     _one_line_error(capsys, 'use the configuration it was learned with')
+    assert not (tmp_path / 'refused').exists()
+    # a damaged file: refused with one line, nothing written
+    damaged = tmp_path / 'damaged.correction.yaml'
+    damaged.write_text(path.read_text().replace('samples_total', 'samples_t0tal'))
+    assert main(['export', '--out', str(tmp_path / 'refused'), '--config', str(two_axes), '--correction',
+                 str(damaged), *FAST]) == 1
+    _one_line_error(capsys, f'correction file {damaged}')
     assert not (tmp_path / 'refused').exists()

@@ -262,7 +262,7 @@ def test_correction_out_writes_each_units_refit_and_correction_as_refit_does(fle
     correction refit --correction-out learns from that unit's log with the same fit; named in fleet.json; loadable
     together; refused on a second run unless --force."""
     from gimbal_friction.controller import load_feedforward
-    from gimbal_friction.feedforward.correction import Correction
+    from gimbal_friction.feedforward.correction import load
 
     units = [fleet_dir / 'seeker_00', fleet_dir / 'seeker_04']
     out, corr = tmp_path / 'fleet', tmp_path / 'corrections'
@@ -279,7 +279,7 @@ def test_correction_out_writes_each_units_refit_and_correction_as_refit_does(fle
     assert main(['refit', str(units[1]), '--out', str(tmp_path / 'r.yaml'), '--correction-out',
                  str(tmp_path / 'r.correction.yaml')]) == 0
     capsys.readouterr()
-    mine, theirs = Correction.load(corr / 'seeker_04.correction.yaml'), Correction.load(tmp_path / 'r.correction.yaml')
+    mine, theirs = load(corr / 'seeker_04.correction.yaml'), load(tmp_path / 'r.correction.yaml')
     assert mine.identity == theirs.identity
     for a, b in zip(mine.cells('elevation'), theirs.cells('elevation'), strict=True):
         assert a['samples'] == b['samples'] and a['value_nm'] == pytest.approx(b['value_nm'], rel=1e-9, abs=1e-15)

@@ -552,9 +552,10 @@ def test_the_offset_warning_advises_the_calibration_not_palmgren_factor(sample_w
 def test_correction_out_learns_the_residual_against_the_refitted_model(tmp_path, capsys):
     """A truth the refit of walther_a cannot reach (CCW 10 % below CW): the correction holds, per temperature bin
     and direction, the shrunk mean of measured - refitted model along the motion; the file loads with the refitted
-    parameters; an existing file is refused unless --force."""
+    parameters; an existing file is refused unless --force. With the guard's defaults 120 samples a cell are too
+    few to be scored out of sample: every cell holds back, and says so (the guard is set off for the rest)."""
     from gimbal_friction.controller import load_feedforward
-    from gimbal_friction.feedforward.correction import Correction, CorrectionSettings
+    from gimbal_friction.feedforward.correction import CorrectionSettings, load
     from gimbal_friction.feedforward.rule import Feedforward, FeedforwardSettings
 
     rows, stamps = detail_rows(truth_params())
@@ -566,9 +567,21 @@ def test_correction_out_learns_the_residual_against_the_refitted_model(tmp_path,
         for row, stamp in zip(rows, stamps, strict=True):
             writer.write(RESIDUAL_DETAIL, FLOAT64_MULTI_ARRAY_TYPE, stamp, make_float64_multi_array(row, 'elevation'))
     out, corr = tmp_path / 'refit.yaml', tmp_path / 'refit.correction.yaml'
-    assert main(['refit', str(log), '--out', str(out), '--correction-out', str(corr), '--format', 'json']) == 0
+    guarded = tmp_path / 'guarded.correction.yaml'
+    assert main(['refit', str(log), '--out', str(tmp_path / 'g.yaml'), '--correction-out', str(guarded),
+                 '--format', 'json']) == 0
+    capsys.readouterr()
+    held = load(guarded).cells('elevation')
+    assert len(held) == 12 and not any(r['applied'] for r in held)
+    assert all('scored by' in r['held_back'] for r in held)
+    guard_off = tmp_path / 'guard_off.yaml'
+    guard_off.write_text('friction_feedforward:\n  ros__parameters:\n    correction_guard_min_samples: 0\n'
+                         '    correction_guard_z: 0.0\n    correction_trend: false\n'
+                         '    correction_ripple_periods_max: 0\n')   # (one level per cell)
+    assert main(['refit', str(log), '--config', str(guard_off), '--out', str(out), '--correction-out', str(corr),
+                 '--format', 'json']) == 0
     doc = json.loads(capsys.readouterr().out)
-    c = Correction.load(corr)
+    c = load(corr)
     refitted = Feedforward({'elevation': axis_params(load_parameters([out]), 'elevation')}, FeedforwardSettings())
     a = np.asarray(rows)
     t, v, measured = a[:, 1], a[:, 3], a[:, 5]
@@ -581,7 +594,10 @@ def test_correction_out_learns_the_residual_against_the_refitted_model(tmp_path,
             k = (np.sign(v) == sign) & (np.abs(t - plateau) < 1.0)
             cell = cells[(direction, plateau)]
             assert cell['samples'] == int(k.sum()) == 120
-            assert cell['value_nm'] == pytest.approx(residual_along[k].sum() / (k.sum() + n0), rel=1e-9, abs=1e-15)
+            # the part along the motion and the part independent of it are each shrunk like n0 samples: with
+            # as many samples each way, a direction's level is its sum over n + n0 / 2
+            assert cell['value_nm'] == pytest.approx(residual_along[k].sum() / (k.sum() + n0 / 2), rel=1e-3,
+                                                     abs=1e-8)
             assert cell['std_error_nm'] == pytest.approx(residual_along[k].std(ddof=1) / math.sqrt(120), rel=1e-6)
     # CCW measured 10 % low: the correction's CCW cells lie below its CW cells at every plateau
     assert all(cells[('cw', p)]['value_nm'] > cells[('ccw', p)]['value_nm'] for p in PLATEAUS)
@@ -599,7 +615,8 @@ def test_correction_out_learns_the_residual_against_the_refitted_model(tmp_path,
     assert main(['refit', str(log), '--out', str(tmp_path / 'again.yaml'), '--correction-out', str(corr)]) == 1
     assert 'already exists' in capsys.readouterr().err and corr.read_bytes() == before
     assert not (tmp_path / 'again.yaml').exists()
-    assert main(['refit', str(log), '--out', str(out), '--correction-out', str(corr), '--force']) == 0
+    assert main(['refit', str(log), '--config', str(guard_off), '--out', str(out), '--correction-out', str(corr),
+                 '--force']) == 0
     shown = capsys.readouterr().out
     assert 'learned correction' in shown and '-42.5..-37.5' in shown and f'wrote {corr}' in shown
-    assert Correction.load(corr).cells('elevation') == c.cells('elevation')
+    assert load(corr).cells('elevation') == c.cells('elevation')

@@ -317,17 +317,18 @@ def test_a_bag_not_in_cdr_is_unsupported_for_replay_and_for_recover(tmp_path, ca
     assert not (tmp_path / 'out').exists() and not (tmp_path / 'fixed').exists()
 
 
-def _learned_correction(axes, bins: int = 16):
+def _learned_correction(axes, positions: bool = True):
+    """A correction (the guard off) with a speed profile and, with ``positions``, a ripple found at 2 deg."""
     from gimbal_friction.feedforward.correction import Correction, CorrectionSettings, model_identity
     rng = np.random.default_rng(3)
     n = 20_000
     t = rng.uniform(-60.0, 60.0, n)
     v = rng.choice([-1.0, 1.0], n) * rng.uniform(0.01, 0.1, n)
-    p = rng.uniform(-4.0, 4.0, n)
-    along = 3e-4 * (1.0 + 0.5 * (v > 0) + 0.5 * np.sin(3 * p))
-    c, _ = Correction.from_residuals(CorrectionSettings(prior_samples=1.0, position_bins=bins, harmonics=3),
-                                     model_identity(axes), {'elevation': (t, v, p, np.where(v > 0, along, -along),
-                                                                          np.full(n, 2e-3))})
+    p = rng.uniform(-0.2, 0.3, n)
+    along = 3e-4 * (1.0 + 0.5 * (v > 0) + positions * 0.5 * np.sin(2 * np.pi * p / np.radians(2.0)))
+    s = CorrectionSettings(prior_samples=1.0, guard_min_samples=0, guard_z=0.0)
+    c, _ = Correction.from_residuals(s, model_identity(axes), {'elevation': (t, v, p, np.where(v > 0, along, -along),
+                                                                            np.full(n, 2e-3))})
     return c
 
 
@@ -349,9 +350,10 @@ def test_replay_with_a_correction_equals_the_node_message_by_message_with_refere
                          make_joint_state(t, ['elevation'], [1.0 - 0.03 * i], [v])))
     bag = write_chamber_bag(tmp_path / 'bag', msgs)
     axes, ff_settings, _ = node_settings([])
+    from gimbal_friction.feedforward.correction import save
     c = _learned_correction(axes)
     path = tmp_path / 'unit.correction.yaml'
-    c.save(path)
+    save(c, path)
     res = replay_bag(bag, None, config_paths=[], correction_path=path)
     plain = replay_bag(bag, None, config_paths=[])
     assert res.correction == str(path) and plain.correction is None
@@ -403,7 +405,8 @@ def test_replay_takes_the_nodes_correction_file_unless_told_otherwise(tmp_path):
 
     axes, _, _ = node_settings([])
     path = tmp_path / 'unit.correction.yaml'
-    _learned_correction(axes, bins=0).save(path)
+    from gimbal_friction.feedforward.correction import save
+    save(_learned_correction(axes, positions=False), path)
     cfg = tmp_path / 'node.yaml'
     cfg.write_text(f'friction_feedforward:\n  ros__parameters:\n    correction_file: {path}\n')
     c, source = replay_correction(axes, [cfg])

@@ -99,8 +99,8 @@ def test_eq23_sign_both_directions(direction):
     assert logic.counters.accepted[EL] == 1
 
 
-def test_friction_against_the_motion_is_refused():
-    logic = make()
+def test_friction_against_the_motion_is_refused_beyond_max_opposing_torque():
+    logic = make(max_opposing_torque_nm=0.0)      # none kept: friction alone
     t = warm(logic)
     logic.on_current(t, [EL], [-0.05])            # pushes against the motion: not friction
     assert logic.on_joint_state(t + DT, [EL], [0.1], [V]) == []
@@ -108,6 +108,16 @@ def test_friction_against_the_motion_is_refused():
     logic.on_current(t + DT, [EL], [0.005])       # below I_0: K_T (I - I_0) < 0
     assert logic.on_joint_state(t + 2 * DT, [EL], [0.1], [V]) == []
     assert rejected(logic, 'friction opposes motion') == 2
+    # the default keeps a torque against the motion up to 10 mN*m (an unbalance outweighing the friction): the motor
+    # must supply it, and learning needs both directions to tell it from friction
+    logic = make()
+    t = warm(logic)
+    logic.on_current(t, [EL], [-0.05])            # 0.05 * (-0.05 - 0.01) = -3 mN*m
+    (m,) = logic.on_joint_state(t + DT, [EL], [0.1], [V])
+    assert m.friction_nm == pytest.approx(-0.003)
+    logic.on_current(t + DT, [EL], [-1.0])        # -50 mN*m: beyond any unbalance, refused
+    assert logic.on_joint_state(t + 2 * DT, [EL], [0.1], [V]) == []
+    assert rejected(logic, 'friction opposes motion') == 1
 
 
 # ------------------------------------------------------------------------------------------------ pairing

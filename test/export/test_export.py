@@ -409,25 +409,34 @@ def test_c_edges_and_non_finite_inputs(table, tmp_path):
 
 
 # ---------------------------------------------------------------------------------------------- learned correction
-def _learned_correction(bins: int = 16):
+POSITION = math.nan   # the export is the correction's lookup without a joint position
+
+
+def _learned_correction(settings=None):
+    """A correction of 'elevation' learned against the default parameters with every term the fit knows: a level
+    falling with temperature, a CW/CCW asymmetry, a speed profile over the octaves, a torque independent of the
+    direction (an unbalance) and a position ripple; plus one cell with a single sample (its error is unknown)."""
     from gimbal_friction.feedforward.correction import Correction, CorrectionSettings, model_identity
+    s = settings or CorrectionSettings(prior_samples=20.0, max_relative=0.2, guard_min_samples=0, guard_z=0.0)
     rng = np.random.default_rng(5)
     n = 30_000
     t = rng.uniform(-55.0, 70.0, n)
-    v = rng.choice([-1.0, 1.0], n) * rng.uniform(0.01, 0.1, n)
-    p = rng.uniform(0.0, 6.3, n)
-    along = 4e-4 * (-t / 50.0 + 0.5 * (v > 0) + 0.3 * np.sin(2 * p) + 0.5 * np.abs(v / 0.0349066) ** (2 / 3)) \
-        + rng.normal(0.0, 1e-4, n)   # with a speed term
-    c, _ = Correction.from_residuals(CorrectionSettings(prior_samples=20.0, position_bins=bins, harmonics=3,
-                                                        max_relative=0.2),
-                                     model_identity({'elevation': AxisParams()}),
-                                     {'elevation': (t, v, p, np.where(v > 0, along, -along), np.full(n, 2e-3))})
-    one = Correction(c.settings, c.identity)   # a cell with one sample: its error is unknown
-    one.add_residuals('elevation', [100.0] * 1, [0.05], [0.0], [1e-4], [2e-3])
-    for name in Correction.STATE[:7]:   # the sums
-        getattr(c, name)['elevation'] += getattr(one, name)['elevation']
-    c.settle()
+    v = rng.choice([-1.0, 1.0], n) * 10.0 ** rng.uniform(-2.2, 0.3, n)
+    p = rng.uniform(0.0, 0.5, n)
+    m = np.full(n, 2e-3)
+    along = 4e-4 * (-t / 50.0 + 0.5 * (v > 0) + 0.8 * np.abs(v) ** (2 / 3)) \
+        + 0.1 * m * np.sin(2 * np.pi * p / 0.05)        # a ripple, relative to the model friction
+    r = np.sign(v) * along + 3e-4 + rng.normal(0.0, 1e-4, n)   # + an unbalance the motor must supply both ways
+    one = (100.0, 0.05, 0.0, 1e-4, 2e-3)     # a cell with one sample
+    cols = [np.append(a, x) for a, x in zip((t, v, p, r, np.sign(v) * m), one, strict=True)]
+    c, refused = Correction.from_residuals(s, model_identity({'elevation': AxisParams()}), {'elevation': tuple(cols)})
+    assert refused == {'elevation': {}}
     return c
+
+
+@pytest.fixture(scope='module')
+def learned():
+    return _learned_correction()
 
 
 CORRECTION_DRIVER = r"""
@@ -435,76 +444,221 @@ CORRECTION_DRIVER = r"""
 #include "gimbal_friction_elevation.h"
 int main(void)
 {
-    double t, v, m;
+    double t, v, m, odd, even;
     while (scanf("%lf %lf %lf", &t, &v, &m) == 3) {
-        printf("%.17g %.17g %.17g %.17g\n", gf_elevation_correction_nm(t, v, m),
+        gf_elevation_correction_split_nm(t, v, m, &odd, &even);
+        printf("%.17g %.17g %.17g %.17g %.17g %.17g %.17g\n", odd, even, gf_elevation_correction_nm(t, v, m),
                gf_elevation_correction_error_nm(t, v), gf_elevation_feedforward_nm(t, v),
-               gf_elevation_friction_nm(t, v));
+               gf_elevation_friction_nm(t, v), gf_elevation_correction_samples(t, v));
     }
     return 0;
 }
 """
 
 
-def test_a_correction_is_carried_in_every_format_and_the_c_feedforward_adds_it(table, tmp_path):
-    """export with a learned correction: the C header (compiled standalone, -pedantic -Werror) looks it up as the
-    feedforward does (the correction's own lookup at a NaN position: the cells' means) and adds it; its error bound
-    is the cells' (shrunk) standard errors; the CSV columns and the ROS arrays hold the same numbers."""
+def _run_correction_c(tmp_path, header, t, v, m):
+    (tmp_path / 'gimbal_friction_elevation.h').write_text(header)
+    for args in (['-x', 'c', '-c'], ['-x', 'c', '-O2', '-c']):
+        done = subprocess.run([_gcc(), *CFLAGS, *args, 'gimbal_friction_elevation.h', '-o', 'x.o'], cwd=tmp_path,
+                              capture_output=True, text=True, check=False)
+        assert done.returncode == 0, done.stderr        # standalone, -pedantic -Werror
+    (tmp_path / 'driver.c').write_text(CORRECTION_DRIVER)
+    done = subprocess.run([_gcc(), *CFLAGS, '-O2', 'driver.c', '-o', 'driver', '-lm'], capture_output=True,
+                          text=True, cwd=tmp_path, check=False)
+    assert done.returncode == 0, done.stderr
+    text = ''.join(f'{float(a)!r} {float(b)!r} {float(x)!r}\n' for a, b, x in zip(t, v, m, strict=True))
+    out = subprocess.run([str(tmp_path / 'driver')], input=text, capture_output=True, text=True, check=True,
+                         timeout=60)
+    return np.array(out.stdout.split(), dtype=float).reshape(-1, 7)
+
+
+def _correction_points(n, seed=9):
+    """Temperatures beyond the bins and at their centres and edges, speeds over and beyond the octaves (both
+    signs, zero), model frictions from 0 up (the bound bites)."""
+    rng = np.random.default_rng(seed)
+    t = np.concatenate([rng.uniform(-80.0, 140.0, n - 8), [-62.5, 122.5, -60.0, 100.0, -40.0, 20.0, 20.0, 20.0]])
+    v = np.concatenate([rng.choice([-1.0, 1.0], n // 2) * 10.0 ** rng.uniform(-4.0, 2.0, n // 2),
+                        rng.uniform(-0.2, 0.2, n - 8 - n // 2), [0.03, -0.03, -0.03, 0.05, 0.03, 0.0, -0.0, 1e3]])
+    m = rng.uniform(0.0, 4e-3, n)
+    return t, v, m
+
+
+def test_a_correction_is_exported_as_its_lookup_without_a_position(learned):
+    """table_correction holds the tables the lookup reads (after the hold rule), its constants, and per cell the
+    samples and the error bound; correction_nm gives the numbers of Correction.split_nm_array at NaN positions."""
+    from gimbal_friction.export.table import correction_along_nm, correction_nm, table_correction
+
+    c = learned
+    lut = c.lookups['elevation']
+    tc = table_correction(c, 'elevation', 'unit')
+    assert np.array_equal(tc.odd_nm, lut.odd) and np.array_equal(tc.even_nm, lut.even)
+    assert tc.odd_nm.shape == (37, 12) and tc.octaves == 12 and np.abs(tc.even_nm).max() > 2e-4
+    assert tc.centres_c[0] == lut.t0 and tc.inv_bin_per_c == lut.inv_bin and tc.min_speed_rad_s == lut.vmin
+    assert (tc.max_relative, tc.floor_nm, tc.max_independent_nm) == (lut.rel, lut.floor, lut.independent)
+    assert tc.octave_speeds_rad_s[0] == pytest.approx(0.005 * math.sqrt(2.0), rel=1e-15)
+    assert len(tc.ripple_periods_rad) >= 1 and tc.ripple_periods_rad[0] == pytest.approx(0.05, rel=0.01)
+    assert tc.ripple_max_relative == pytest.approx(0.1, rel=0.2)      # the 10 % ripple learned
+    assert tc.position_terms
+    t, v, m = _correction_points(20_000)
+    odd, even, error = correction_nm(tc, t, v, m)
+    want_odd, want_even = c.split_nm_array('elevation', t, v, np.full(t.size, POSITION), m)
+    np.testing.assert_allclose(odd, want_odd, rtol=1e-12, atol=1e-19)
+    np.testing.assert_allclose(even, want_even, rtol=1e-12, atol=1e-19)
+    bound = 0.2 * m + c.settings.floor_nm
+    assert np.count_nonzero(np.abs(odd) == bound) > 100                        # the bound bites, as in the node
+    assert np.count_nonzero(np.abs(even) == np.maximum(bound, c.settings.max_independent_nm)) == 0
+    along, error2 = correction_along_nm(tc, t, v, m)
+    np.testing.assert_allclose(along, c.along_nm_array('elevation', t, v, np.full(t.size, POSITION), m),
+                               rtol=1e-12, atol=1e-19)
+    assert np.array_equal(error, error2, equal_nan=True)
+    # the scalar lookup too (the node's hot path)
+    for k in range(0, t.size, 97):
+        o, e = c.split_nm('elevation', float(t[k]), float(v[k]), POSITION, float(m[k]))
+        assert (odd[k], even[k]) == pytest.approx((o, e), rel=1e-12, abs=1e-19)
+    # the error bound of a cell: its standard error of the mean, shrunk like its value; unknown with one sample
+    cell = next(r for r in c.cells('elevation') if r['direction'] == 'cw' and r['centre_c'] == -40.0)
+    k = int(round((-40.0 - tc.centres_c[0]) * tc.inv_bin_per_c))
+    assert tc.error_nm[0, k] == pytest.approx(cell['std_error_nm'] * cell['samples'] / (cell['samples'] + 20.0))
+    assert tc.samples[0, k] == cell['samples'] and tc.applied[0, k]
+    hot = int(round((100.0 - tc.centres_c[0]) * tc.inv_bin_per_c))
+    assert tc.samples[0, hot] == 1 and math.isnan(tc.error_nm[0, hot])
+    assert tc.samples[1, hot] == 0 and tc.error_nm[1, hot] == 0.0
+    # a bin without samples next to one with samples holds its neighbour's profile (the lookup's tables), and its
+    # error
+    assert np.any(tc.odd_nm[hot + 1]) and math.isnan(tc.error_nm[0, hot + 1]) and math.isnan(tc.error_nm[0, hot - 1])
+    assert tc.error_nm[0, hot + 2] == 0.0 and not np.any(tc.odd_nm[hot + 2])
+
+
+def test_a_correction_is_carried_in_every_format_and_the_c_feedforward_adds_it(table, learned, tmp_path):
+    """The C header (compiled standalone, -pedantic -Werror) looks the correction up as the feedforward does at a
+    NaN position and adds it, tanh(v/v_th) (k_dir M + odd) + even, clamped; the CSV columns and the ROS arrays hold
+    the same numbers; the files say the position terms are left out."""
     from gimbal_friction.export.formats import CSV_CORRECTION_FIELDS
     from gimbal_friction.export.table import correction_nm, table_correction
 
-    c = _learned_correction()
+    c = learned
     tc = table_correction(c, 'elevation', 'unit.correction.yaml (SHA-256 ' + 'a' * 64 + ')')
     ct = table._replace(correction=tc)
     assert render_c_header(table, PROV) == render_c_header(table._replace(correction=None), PROV)   # unchanged
-    (tmp_path / 'gimbal_friction_elevation.h').write_text(render_c_header(ct, PROV))
-    src = tmp_path / 'driver.c'
-    src.write_text(CORRECTION_DRIVER)
-    exe = tmp_path / 'driver'
-    subprocess.run([_gcc(), *CFLAGS, '-O2', str(src), '-o', str(exe), '-lm'], check=True, capture_output=True,
-                   text=True, cwd=tmp_path)
-    rng = np.random.default_rng(9)
-    n = 3000
-    t = np.concatenate([rng.uniform(-80.0, 140.0, n - 4), [-62.5, 122.5, -60.0, 100.0]])
-    v = np.concatenate([rng.uniform(-0.2, 0.2, n - 4), [0.03, -0.03, -0.03, 0.05]])
-    m = rng.uniform(0.0, 4e-3, n)
-    text = ''.join(f'{float(a)!r} {float(b)!r} {float(x)!r}\n' for a, b, x in zip(t, v, m, strict=True))
-    out = subprocess.run([str(exe)], input=text, capture_output=True, text=True, check=True, timeout=60)
-    res = np.array(out.stdout.split(), dtype=float).reshape(-1, 4)
-    want = c.along_nm_array('elevation', t, v, np.full(n, np.nan), m)
-    np.testing.assert_allclose(res[:, 0], want, rtol=1e-14, atol=1e-19)
-    assert np.count_nonzero(want) > n // 2 and np.count_nonzero(np.abs(want) == 0.2 * m + c.settings.floor_nm) > 10
-    value, error = correction_nm(tc, t, v, m)
-    np.testing.assert_allclose(value, want, rtol=1e-14, atol=1e-19)
-    np.testing.assert_allclose(res[:, 1], np.where(np.isnan(error), -1.0, error), rtol=1e-12, atol=1e-19)
-    assert res[-1, 1] == -1.0   # next to the one-sample cell: unknown
-    # the error bound of a cell: its standard error of the mean, shrunk like its value
-    cell = next(r for r in c.cells('elevation') if r['direction'] == 'cw' and r['centre_c'] == -40.0)
-    k = int((-40.0 - tc.centres_c[0]) * tc.inv_bin_per_c + 0.5)
-    assert tc.error_nm[0, k] == pytest.approx(cell['std_error_nm'] * cell['samples'] / (cell['samples'] + 20.0))
-    assert tc.samples[0, k] == cell['samples']
-    # the C feedforward: clamp(tanh(v/v_th) (k_dir M + c), +-tau_max) with M from the table
-    k_dir = direction_factor(AxisParams(), t, v, ARRAY)
-    model = k_dir * res[:, 3]
-    tau = np.clip(np.tanh(v / V_TH) * (model + c.along_nm_array('elevation', t, v, np.full(n, np.nan), model)),
-                  -0.02, 0.02)
-    np.testing.assert_allclose(res[:, 2], tau, rtol=1e-12, atol=1e-18)
-    # CSV columns and ROS arrays
+    t, v, m = _correction_points(3000)
+    res = _run_correction_c(tmp_path, render_c_header(ct, PROV), t, v, m)
+    nan = np.full(t.size, POSITION)
+    want_odd, want_even = c.split_nm_array('elevation', t, v, nan, m)
+    np.testing.assert_allclose(res[:, 0], want_odd, rtol=1e-12, atol=1e-19)
+    np.testing.assert_allclose(res[:, 1], want_even, rtol=1e-12, atol=1e-19)
+    np.testing.assert_allclose(res[:, 2], c.along_nm_array('elevation', t, v, nan, m), rtol=1e-12, atol=1e-19)
+    assert np.count_nonzero(want_odd) > t.size // 2 and np.count_nonzero(want_even) > t.size // 2
+    _, _, error = correction_nm(tc, t, v, m)
+    np.testing.assert_allclose(res[:, 3], np.where(np.isnan(error), -1.0, error), rtol=1e-12, atol=1e-19)
+    assert res[-5, 3] == -1.0 and res[-5, 6] == 1.0   # 100 degC cw: the one-sample cell, its error unknown
+    assert res[-4, 6] == tc.samples[0, int(round((-40.0 - tc.centres_c[0]) * tc.inv_bin_per_c))] > 100
+    # the C feedforward: clamp(tanh(v/v_th) (k_dir M + odd) + even, +-tau_max), M from the table
+    model = direction_factor(AxisParams(), t, v, ARRAY) * res[:, 5]
+    odd, even = c.split_nm_array('elevation', t, v, nan, model)
+    tau = np.clip(np.tanh(v / V_TH) * (model + odd) + even, -0.02, 0.02)
+    ff = res[:, 4]
+    finite = np.isfinite(v)
+    np.testing.assert_allclose(ff[finite], tau[finite], rtol=1e-12, atol=1e-18)
+    assert ff[-3] == ff[-2] == pytest.approx(even[-3], rel=1e-12) and ff[-3] != 0.0   # at v = 0: the even part
+    # ... which is the node's rule (Feedforward with the correction, no position) up to the tables' error
+    node = Feedforward({'elevation': AxisParams()}, FeedforwardSettings(), correction=c)
+    sel = np.flatnonzero((t > -60.0) & (t < 120.0) & (np.abs(v) < 10.0))[:400]
+    want = np.array([node.torque_at('elevation', float(v[k]), float(t[k])) for k in sel])
+    np.testing.assert_allclose(ff[sel], want, rtol=2e-3, atol=1e-8)
+    # the CSV columns: what the feedforward adds along the motion at the row's temperature and speed
     csv_text = render_csv(ct, PROV)
-    assert 'Learned correction: unit.correction.yaml' in csv_text and \
-        'position map (16 bins, a relative ripple) is not exported' in csv_text
-    assert np.abs(c.speed_nm['elevation']).max() > 1e-4   # the speed term is carried
     rows = list(csv.DictReader(io.StringIO('\n'.join(line for line in csv_text.splitlines()
                                                      if not line.startswith('#')))))
     assert list(rows[0]) == [*CSV_FIELDS, *CSV_CORRECTION_FIELDS]
     for r in rows[::7]:
         tt, mm, speed = float(r['temperature_c']), float(r['m_total_nm']), float(r['speed_rad_s'])
-        for sign, name in ((1.0, 'cw'), (-1.0, 'ccw')):   # at the row's speed (0: held at the gate's speed)
+        for sign, name in ((1.0, 'cw'), (-1.0, 'ccw')):   # at the row's speed (0: held below min_speed_rad_s)
             kd = float(direction_factor(AxisParams(), tt, sign, SCALAR))
-            want = c.along_nm('elevation', tt, sign * max(speed, c.settings.min_speed_rad_s), math.nan, kd * mm)
-            assert float(r[f'correction_{name}_nm']) == pytest.approx(want, rel=1e-14, abs=1e-19)
-    e = yaml.safe_load(render_ros_yaml(ct, PROV))[ROS_NODE]['ros__parameters']['elevation']
-    assert e['correction_cw_nm'] == tc.values_nm[0].tolist() and e['correction_ccw_samples'] == tc.samples[1].tolist()
+            want = c.along_nm('elevation', tt, sign * max(speed, c.settings.min_speed_rad_s), POSITION, kd * mm)
+            assert float(r[f'correction_{name}_nm']) == pytest.approx(want, rel=1e-12, abs=1e-19)
+    assert any(float(r['correction_cw_nm']) != float(r['correction_ccw_nm']) for r in rows)
+    # the ROS arrays, and a controller engineer's lookup from them alone
+    yaml_text = render_ros_yaml(ct, PROV)
+    e = yaml.safe_load(yaml_text)[ROS_NODE]['ros__parameters']['elevation']
+    assert e['correction_shape'] == [37, 12] and e['correction_odd_nm'] == tc.odd_nm.ravel().tolist()
+    assert e['correction_even_nm'] == tc.even_nm.ravel().tolist()
     assert e['correction_max_relative'] == 0.2 and len(e['correction_temperatures_c']) == 37
-    assert e['correction_cw_speed_nm'] == tc.speed_nm[0].tolist() and e['correction_min_speed_rad_s'] == 0.005
-    assert -1.0 in e['correction_cw_error_nm']
+    assert e['correction_min_speed_rad_s'] == 0.005 and e['correction_max_independent_nm'] == 0.005
+    assert e['correction_ccw_samples'] == tc.samples[1].tolist() and -1.0 in e['correction_cw_error_nm']
+    assert e['correction_cw_applied'] == tc.applied[0].tolist()
+    for k in range(0, t.size, 37):
+        o, ev = _correction_from_ros_parameters(e, float(t[k]), float(v[k]), float(m[k]))
+        assert (o, ev) == pytest.approx((float(want_odd[k]), float(want_even[k])), rel=1e-12, abs=1e-19)
+    # every file names the source and says the position terms are left out
+    header = render_c_header(ct, PROV)
+    for text in (csv_text, header, yaml_text):
+        assert 'Learned correction: unit.correction.yaml' in text
+        assert "Not exported: the correction's position terms (a ripple at periods 0.05" in text
+        assert ('and a trend with the joint angle (coefficients up to' in text) == (tc.trend_max_nm > 0.0)
+
+
+def _correction_from_ros_parameters(e, t, v, m):
+    """The correction lookup rule written in the files, implemented from the ROS arrays alone: (odd, even)."""
+    nb, no = e['correction_shape']
+    odd = np.array(e['correction_odd_nm']).reshape(nb, no)
+    even = np.array(e['correction_even_nm']).reshape(nb, no)
+    x = (t - e['correction_temperatures_c'][0]) * e['correction_inv_bin_per_c']
+    if 0.0 < x < nb - 1:
+        i = int(x)
+        w = x - i
+    elif x > 0.0:
+        i, w = nb - 2, 1.0
+    else:
+        i, w = 0, 0.0
+    s = abs(v)
+    vmin = e['correction_min_speed_rad_s']
+    y = math.log2(s / vmin) - 0.5 if s > vmin else -1.0
+    out = []
+    for table in (odd, even):
+        row = (1.0 - w) * table[i] + w * table[i + 1]
+        if y <= 0.0:
+            out.append(row[0])
+        elif y >= no - 1:
+            out.append(row[no - 1])
+        else:
+            k = int(y)
+            out.append(row[k] + (y - k) * (row[k + 1] - row[k]))
+    if s < vmin:   # the part along the motion fades to 0 at zero speed
+        out[0] *= s / vmin
+    b = e['correction_max_relative'] * abs(m) + e['correction_floor_nm']
+    o = min(max(out[0], -b), b)
+    b = max(b, e['correction_max_independent_nm'])
+    return o, min(max(out[1], -b), b)
+
+
+def test_a_correction_without_speed_or_position_terms_and_an_axis_without_one(table, tmp_path):
+    """One value per cell (speed_term false: one octave) and no position terms: exported and added the same way, and
+    the files say nothing is left out; an axis the correction applies nothing to exports zeros (the model)."""
+    from gimbal_friction.export.table import correction_nm, table_correction
+    from gimbal_friction.feedforward.correction import Correction, CorrectionSettings, model_identity
+
+    s = CorrectionSettings(speed_term=False, trend=False, ripple_periods_max=0, guard_min_samples=0, guard_z=0.0)
+    c = Correction(s, model_identity({'elevation': AxisParams()}))
+    n = 400
+    for sign in (1.0, -1.0):
+        c.learn_residuals('elevation', [-40.0] * n, [sign * 0.03] * n, [0.0] * n, [sign * 2e-4 + 5e-5] * n,
+                          [sign * 3e-3] * n)
+    c.settle()
+    tc = table_correction(c, 'elevation', 'flat')
+    assert tc.octaves == 1 and not tc.position_terms and np.abs(tc.odd_nm).max() > 1e-4
+    t, v, m = _correction_points(1000, seed=4)
+    res = _run_correction_c(tmp_path, render_c_header(table._replace(correction=tc), PROV), t, v, m)
+    want_odd, want_even = c.split_nm_array('elevation', t, v, np.full(t.size, POSITION), m)
+    np.testing.assert_allclose(res[:, 0], want_odd, rtol=1e-12, atol=1e-19)
+    np.testing.assert_allclose(res[:, 1], want_even, rtol=1e-12, atol=1e-19)
+    assert np.count_nonzero(want_even) > 50       # (the bins around -40 degC)
+    assert 'Not exported' not in render_csv(table._replace(correction=tc), PROV)
+    # nothing applied: zeros, and the C feedforward is the model's to the bit
+    empty = table_correction(Correction(s, c.identity), 'elevation', 'empty')
+    assert not np.any(empty.odd_nm) and not np.any(empty.even_nm) and empty.samples.sum() == 0
+    odd, even, error = correction_nm(empty, t, v, m)
+    assert not np.any(odd) and not np.any(even) and not np.any(error)
+    with_empty = _run_correction_c(tmp_path, render_c_header(table._replace(correction=empty), PROV), t, v, m)
+    _, plain = _run_c(tmp_path, [table], t, v, 'elevation')
+    finite = np.isfinite(v)
+    assert np.array_equal(with_empty[finite, 4], plain[finite])

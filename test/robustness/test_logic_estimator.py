@@ -10,6 +10,7 @@ batch invariance is tested in test/estimation/test_estimator.py).
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import pytest
@@ -61,7 +62,8 @@ def check(samples: list, logic: EstimatorLogic) -> None:
         assert m.joint in AXES
         for x in (m.friction_nm, m.position_rad, m.velocity_rad_s, m.current_a, m.acceleration_rad_s2):
             assert math.isfinite(x)
-        assert m.friction_nm * m.velocity_rad_s > 0.0                      # signed like the motion
+        # signed like the motion, or opposing it by at most the allowance (an unbalance)
+        assert m.friction_nm * math.copysign(1.0, m.velocity_rad_s) >= -s.max_opposing_torque_nm
         assert abs(m.current_a) <= s.max_current_a
         assert math.isnan(m.temperature_c) or s.temperature_min_c <= m.temperature_c <= s.temperature_max_c
 
@@ -157,18 +159,23 @@ def test_a_replayed_loop_restarts_each_time():
     assert logic.counters.rejected[EL][R_RESET] == 2
 
 
-def test_current_against_the_motion_is_refused_not_published_with_the_wrong_sign():
-    logic = EstimatorLogic(AXES, EstimatorSettings(min_dwell_s=0.05))
+@pytest.mark.parametrize(('opposing_a', 'allowed_nm'), [(-0.06, 0.0), (-0.4, None)])
+def test_current_against_the_motion_is_refused_not_published_with_the_wrong_sign(opposing_a, allowed_nm):
+    """Every third current says friction pulls the other way: by 3.5 mN*m with no opposing torque allowed, by
+    20 mN*m with the default allowance (``max_opposing_torque_nm``, 10 mN*m, kept for an unbalance)."""
+    settings = EstimatorSettings(min_dwell_s=0.05)
+    if allowed_nm is not None:
+        settings = dataclasses.replace(settings, max_opposing_torque_nm=allowed_nm)
+    logic = EstimatorLogic(AXES, settings)
     t = T0
-    good = bad = 0
+    good = 0
     for k in range(60):
         t += 10 * MS
-        current = -0.06 if k % 3 == 0 else 0.06      # every third current says friction pulls the other way
+        current = opposing_a if k % 3 == 0 else 0.06
         out = run(logic, t, 1.0, current)
         for m in out:
             assert m.friction_nm > 0.0
         good += len(out)
-        bad += k % 3 == 0
     assert good > 0
     assert logic.counters.rejected[EL][R_OPPOSES] > 0
 

@@ -177,7 +177,9 @@ def test_feedforward_process_under_a_hostile_stream(spawn, probe):
 # ------------------------------------------------------------------------------------------------ estimator
 @pytest.mark.slow
 def test_estimator_process_under_a_hostile_stream(spawn, probe):
-    node = start(spawn, 'friction_estimator', '-p', 'min_dwell_s:=0.05', '-p', 'method:=both')
+    # (no opposing torque allowed: the wrong-sign currents below are refused, not kept as an unbalance)
+    node = start(spawn, 'friction_estimator', '-p', 'min_dwell_s:=0.05', '-p', 'method:=both',
+                 '-p', 'max_opposing_torque_nm:=0.0')
     link = Link(probe, {JS: JointState, CUR: JointState, TEMP: Temperature},
                 {MEAS: JointState, '/diagnostics': DiagnosticArray})
     link.wait_ready(node, [MEAS, '/diagnostics'])

@@ -1,0 +1,158 @@
+"""The keeping of a learned correction in service: loaded, learned, saved in the background (no rclpy, no topics).
+
+One job in one module: :class:`CorrectionKeeper`, what ``friction_feedforward`` (or a controller's own process)
+needs around a :class:`~gimbal_friction.feedforward.correction.learner.Learner`: a file read at start (stale
+temporaries of an interrupted save removed first; a refused file leaves the pure model and is never overwritten
+while it exists), settings of the same layout changed while running, a model change that empties it, and saves
+that never delay the caller (a snapshot written by a thread, atomically).
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from pathlib import Path
+
+from gimbal_friction.feedforward.correction.core import Correction
+from gimbal_friction.feedforward.correction.file import load_file, remove_stale_temporaries, save
+from gimbal_friction.feedforward.correction.learner import Learner
+from gimbal_friction.feedforward.correction.settings import (
+    LAYOUT,
+    CorrectionError,
+    CorrectionSettings,
+    LearningSettings,
+    ModelIdentity,
+)
+
+__all__ = ['CorrectionKeeper']
+
+
+class CorrectionKeeper:
+    """A learned correction loaded, learned and saved (see the module notes).
+
+    ``identity`` is the model the correction belongs to, ``settings`` the correction's parameters (a file keeps its
+    rows but takes the parameters' bound, prior, gate and guard; a file with another layout is refused).
+    :attr:`load_error` holds the one-line reason a file was refused (the correction is then empty = the pure model,
+    and that file is never overwritten while it exists); :attr:`load_note` what a reader should know of a file that
+    was accepted (a deliberate hand edit, an older version converted).
+    """
+
+    def __init__(self, identity: ModelIdentity, settings: CorrectionSettings, learning: LearningSettings) -> None:
+        self.identity, self.settings = identity, settings
+        self.learner = Learner(Correction(settings, identity), learning)
+        self.load_error: str | None = None
+        self.load_note: str | None = None
+        self.loaded_from: str | None = None
+        self.removed_temporaries: list[str] = []   #: stale temporaries removed at start
+        self._refused_path: str | None = None
+        self.dirty = False                         #: changed since the last save
+        self.saves = 0                             #: files written [-]
+        self.last_save_time: float | None = None   #: wall-clock time of the last save [s since the epoch]
+        self.last_save_path = ''
+        self.last_save_error: str | None = None
+        self._writer: threading.Thread | None = None
+
+    @property
+    def correction(self) -> Correction:
+        """The correction learned and applied."""
+        return self.learner.correction
+
+    def read(self, path: str) -> Correction:
+        """The correction in ``path`` for this model and layout, with this keeper's settings (:attr:`load_note`
+        set).
+
+        Raises:
+            CorrectionError: one line naming the file, the cause and the fix.
+        """
+        loaded = load_file(path, expected=self.identity)
+        c = loaded.correction
+        for name in LAYOUT:
+            have, want = getattr(c.settings, name), getattr(self.settings, name)
+            if have != want:
+                raise CorrectionError(f'correction file {path}: {name} is {have!r}, the parameter correction_{name} '
+                                      f'is {want!r}: set the parameter to match or delete the file')
+        self.load_note = loaded.note
+        return self.adopt(c)
+
+    def adopt(self, c: Correction) -> Correction:
+        """``c`` with this keeper's settings (its rows, scores and applied terms kept)."""
+        return c if c.settings == self.settings else c.with_settings(self.settings)
+
+    def start(self, path: str) -> None:
+        """At start-up: remove the stale temporaries of an interrupted save of ``path``, then load it if it exists
+        ('' or absent: an empty correction). A refused file leaves the correction empty with :attr:`load_error`
+        set; nothing raises."""
+        if not path:
+            return
+        self.removed_temporaries = [str(p) for p in remove_stale_temporaries(path)]
+        if not Path(path).exists():
+            return
+        try:
+            self.replace(self.read(path))
+            self.loaded_from = path
+        except CorrectionError as err:
+            self.load_error, self._refused_path = str(err), path
+
+    def replace(self, c: Correction) -> None:
+        """Learn on from ``c`` (learner state and counters kept)."""
+        self.learner.correction = c
+        self.learner._pending = {j: [] for j in c.identity.joints}  # a new correction, new buffers
+        self.load_error = self._refused_path = None
+
+    def set_settings(self, settings: CorrectionSettings) -> None:
+        """New bound, prior, gate or guard (same layout): the rows are kept, the targets follow."""
+        self.learner.flush()
+        self.settings = settings
+        self.learner.correction = self.adopt(self.correction)
+
+    def set_identity(self, identity: ModelIdentity) -> bool:
+        """The model changed: a correction learned against the old one does not apply; start empty. True if it
+        held something."""
+        if identity == self.identity:
+            return False
+        had = bool(self.correction.summary()['samples']) or self.learner.pending > 0 or self.load_error is not None
+        self.identity = identity
+        self.replace(Correction(self.settings, identity))
+        self.loaded_from = self.load_note = None
+        self.dirty = True
+        return had
+
+    def save(self, path: str, background: bool = False) -> bool:
+        """Save atomically to ``path`` if something changed; True if a save was made (or, with ``background``,
+        started: a snapshot is written by a thread, so the disk's fsync never delays the caller; a save still running
+        is not started twice). A failure (or a file refused at load, never overwritten while it exists) is kept in
+        :attr:`last_save_error`."""
+        if not path or not (self.dirty or self.learner.pending):
+            return False
+        if self._refused_path is not None and Path(path).resolve() == Path(self._refused_path).resolve() \
+                and Path(path).exists():
+            self.last_save_error = (f'not saved: {path} was refused at load and is not overwritten; delete it or '
+                                    'set another file')
+            return False
+        if self._writer is not None and self._writer.is_alive():
+            if background:
+                return False
+            self._writer.join()
+        self.dirty = False
+        snapshot = self.learner.snapshot()
+        if not background:
+            return self._write(snapshot, path)
+        self._writer = threading.Thread(target=self._write, args=(snapshot, path), name='correction_save',
+                                        daemon=True)
+        self._writer.start()
+        return True
+
+    def _write(self, c: Correction, path: str) -> bool:
+        try:
+            save(c, path)
+        except CorrectionError as err:
+            self.last_save_error, self.dirty = str(err), True
+            return False
+        self.saves, self.last_save_error = self.saves + 1, None
+        self.last_save_time, self.last_save_path = time.time(), path
+        return True
+
+    def wait(self) -> None:
+        """Wait for a background save to finish."""
+        if self._writer is not None:
+            self._writer.join()

@@ -1,0 +1,354 @@
+r"""The correction as the feedforward reads it: per call, its part along the motion and its direction-independent
+part (pure numpy / floats; the feedforward's hot path).
+
+One job in one module: :class:`Lookup` (the terms of one joint prepared for fast reading, on floats and on arrays:
+the same numbers).
+
+The terms of a cell (:mod:`~gimbal_friction.feedforward.correction.fit`) are per direction along the motion. The
+feedforward applies them split into the part that follows the sign of the motion (**odd**) and the part that does
+not (**even**),
+
+.. math:: c_{odd} = \tfrac12(S_{cw} + S_{ccw}) + m\,\rho(\theta) + h(\theta),\qquad
+          c_{even} = \tfrac12(S_{cw} - S_{ccw}) + g(\theta)
+
+.. math:: \tau = \operatorname{clamp}\big(\tanh(v/v_{th})\,(k_d M + c_{odd}) + c_{even},\ \pm\tau_{max}\big)
+
+(:func:`~gimbal_friction.feedforward.rule.corrected_torque_nm`). Away from zero speed this is exactly the learned
+value of the direction of motion (cw: :math:`S_{cw} + …`; ccw: :math:`S_{ccw} + …` along the motion); through a
+reversal the even part stays, so a torque that does not depend on the direction (an unbalance) is not switched off
+and on at every reversal. Each part is bounded by ``max_relative`` × |model| + ``floor_nm`` (clipped lookups are
+counted), the even part by ``max_independent_nm`` where that is larger (an unbalance may exceed the friction).
+
+Below the slowest speed learned (``min_speed_rad_s``, where samples near a reversal are refused) the part along the
+motion fades linearly to 0 at zero speed: through a reversal the feedforward is the model's (a friction learned at
+speed, a Stribeck rise above all, is not what the bristles carry while the motion turns).
+
+Temperature: linear between bin centres, held at the ends; a bin without samples next to one with samples holds its
+neighbour's terms (the mean of both neighbours when both have samples), so the correction tapers to 0 one bin
+further. Speed: linear in the octave coordinate between octave centres, held beyond. Position: the ripple and the
+trend on a grid over the positions seen (half a position bin apart, linear between grid points); the ripple fades to
+0 over one longest period beyond them, the trend holds its edge values.
+
+What depends on the temperature only is prepared once per temperature (a controller's calls between two
+temperature samples cost a few float operations each).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from gimbal_friction.feedforward.correction.fit import Params
+from gimbal_friction.feedforward.correction.settings import CorrectionSettings
+
+__all__ = ['Lookup', 'held_params']
+
+Array = NDArray[np.float64]
+
+
+def held_params(p: Params, has: NDArray[np.bool_]) -> Params:
+    """``p`` with every bin without samples next to one with samples holding its neighbour's terms (the mean of both
+    neighbours when both have samples): the speed profile per direction (``has`` (2, bins)), the ripple and the trend
+    per bin (either direction)."""
+    speed = p.speed_nm.copy()
+    ripple, trend = p.ripple.copy(), p.trend_nm.copy()
+    for d in range(2):
+        _hold(speed[d], has[d])
+    any_bin = has[0] | has[1]
+    _hold(ripple, any_bin)
+    _hold(trend, any_bin)
+    return Params(speed, p.periods_rad, ripple, trend)
+
+
+def _hold(a: Array, has: NDArray[np.bool_]) -> None:
+    """In place along axis 0 (the temperature bins)."""
+    nt = has.size
+    left = np.zeros(nt, dtype=bool)
+    right = np.zeros(nt, dtype=bool)
+    left[1:], right[:-1] = has[:-1], has[1:]
+    fill = ~has & (left | right)
+    if not fill.any():
+        return
+    wl = np.where(left & right, 0.5, np.where(left, 1.0, 0.0))
+    from_left = np.zeros(a.shape)
+    from_right = np.zeros(a.shape)
+    from_left[1:], from_right[:-1] = a[:-1], a[1:]
+    shape = (nt,) + (1,) * (a.ndim - 1)
+    w = wl.reshape(shape)
+    a[fill] = (w * from_left + (1.0 - w) * from_right)[fill]
+
+
+class _AtTemperature:
+    """What one temperature's lookups read: lists for floats, the same values as arrays for arrays."""
+
+    __slots__ = ('arrays', 'even', 'odd', 'rip', 'teven', 'todd')
+
+    def __init__(self, odd: list[float], even: list[float], rip: list[float] | None, todd: list[float] | None,
+                 teven: list[float] | None) -> None:
+        self.odd, self.even, self.rip, self.todd, self.teven = odd, even, rip, todd, teven
+        self.arrays: tuple[Array, Array, Array | None, Array | None, Array | None] | None = None
+
+    def as_arrays(self) -> tuple[Array, Array, Array | None, Array | None, Array | None]:
+        """The lists as float64 arrays (made once)."""
+        if self.arrays is None:
+            def conv(x: list[float] | None) -> Array | None:
+                return None if x is None else np.asarray(x, dtype=float)
+            self.arrays = (np.asarray(self.odd, dtype=float), np.asarray(self.even, dtype=float), conv(self.rip),
+                           conv(self.todd), conv(self.teven))
+        return self.arrays
+
+
+#: temperatures whose lists a lookup keeps (a batch of runs at a few plateaus; a bag's samples one after another)
+CACHED_TEMPERATURES = 256
+
+
+class Lookup:
+    """The terms of one joint prepared for the feedforward (see the module notes).
+
+    Parameters
+    ----------
+    settings : CorrectionSettings
+        Layout and bound.
+    params : Params
+        The applied terms.
+    has : bool array (2, temperature bins)
+        Cells with samples (the hold rule).
+    angle_range_rad : (float, float) or None
+        Positions seen [rad] (None: no position terms).
+    """
+
+    def __init__(self, settings: CorrectionSettings, params: Params, has: NDArray[np.bool_],
+                 angle_range_rad: tuple[float, float] | None) -> None:
+        s = settings
+        self.settings = s
+        p = held_params(params, has)
+        self.params = p
+        nt, ns = s.n_temperature, s.n_speed
+        self.ns, self.hi = ns, nt - 1
+        self.t0, self.inv_bin = s.temperature_min_c + 0.5 * s.temperature_bin_c, 1.0 / s.temperature_bin_c
+        self.vmin = s.min_speed_rad_s
+        self.rel, self.floor, self.independent = s.max_relative, s.floor_nm, s.max_independent_nm
+        self.odd = 0.5 * (p.speed_nm[0] + p.speed_nm[1])       # (bins, octaves)
+        self.even = 0.5 * (p.speed_nm[0] - p.speed_nm[1])
+        has_rip = p.ripple.size > 0 and bool(np.any(p.ripple))
+        has_trend = bool(np.any(p.trend_nm))
+        self.positions = angle_range_rad is not None and (has_rip or has_trend)
+        self.ripple_on, self.trend_on = has_rip, has_trend
+        self.grid0 = 0.0
+        self.inv_step = 1.0
+        self.n_grid = 0
+        if self.positions and angle_range_rad is not None:
+            margin = float(p.periods_rad.max()) if p.periods_rad.size else 0.0
+            lo, hi = angle_range_rad[0] - margin, angle_range_rad[1] + margin
+            step = 0.5 * s.position_resolution_rad
+            n = max(int(math.ceil((hi - lo) / step)) + 1, 2)
+            grid = lo + step * np.arange(n)
+            self.grid0, self.inv_step, self.n_grid = lo, 1.0 / step, n
+            taper = np.ones(n)
+            if margin > 0.0:
+                taper = np.clip(np.minimum(grid - lo, hi - grid) / margin, 0.0, 1.0)
+            phase = 2.0 * math.pi * grid[:, None] / p.periods_rad[None, :] if p.periods_rad.size else np.zeros((n, 0))
+            self._cos, self._sin = np.cos(phase) * taper[:, None], np.sin(phase) * taper[:, None]
+            self._trig = np.stack([np.sin(grid), np.cos(grid) - 1.0], axis=1)   # (grid, 2)
+        self.saturations = 0
+        self._at_t: float = math.nan
+        self._at: _AtTemperature | None = None
+        self._cache: dict[float, _AtTemperature] = {}
+
+    # ------------------------------------------------------------------ temperature
+    def _bins(self, t: float) -> tuple[int, float]:
+        x = (t - self.t0) * self.inv_bin
+        if 0.0 < x < self.hi:
+            i = int(x)
+            return i, x - i
+        if x > 0.0:
+            return self.hi - 1, 1.0
+        return 0, 0.0   # (NaN too)
+
+    def at_temperature(self, t: float) -> _AtTemperature:
+        """The lists of temperature ``t`` [°C] (kept for the next calls at the same temperature)."""
+        if t == self._at_t and self._at is not None:
+            return self._at
+        cached = self._cache.get(t)
+        if cached is not None:
+            self._at_t, self._at = t, cached
+            return cached
+        i, w = self._bins(t)
+        p = self.params
+        odd = ((1.0 - w) * self.odd[i] + w * self.odd[i + 1]).tolist()
+        even = ((1.0 - w) * self.even[i] + w * self.even[i + 1]).tolist()
+        rip = todd = teven = None
+        if self.positions:
+            if self.ripple_on:
+                c = (1.0 - w) * p.ripple[i] + w * p.ripple[i + 1]          # (K, 2)
+                rip = (self._cos @ c[:, 0] + self._sin @ c[:, 1]).tolist()
+            if self.trend_on:
+                tr = (1.0 - w) * p.trend_nm[i] + w * p.trend_nm[i + 1]
+                todd = (self._trig @ tr[:2]).tolist()
+                teven = (self._trig @ tr[2:]).tolist()
+        at = _AtTemperature(odd, even, rip, todd, teven)
+        self._at_t, self._at = t, at
+        if t == t:   # (not NaN)
+            if len(self._cache) >= CACHED_TEMPERATURES:
+                self._cache.clear()
+            self._cache[t] = at
+        return at
+
+    # ------------------------------------------------------------------ floats
+    def split_nm(self, temperature_c: float, velocity_rad_s: float, position_rad: float, model_nm: float
+                 ) -> tuple[float, float]:
+        """(odd, even) parts [N·m] at ``temperature_c`` [°C], ``velocity_rad_s`` [rad/s], ``position_rad`` [rad]
+        (NaN: no position terms) for the model friction ``model_nm`` [N·m]; each bounded. A model friction that is
+        not finite (an absurd speed) gets no correction: (0.0, 0.0)."""
+        if model_nm - model_nm != 0.0:   # (inf or NaN: inf - inf and NaN - NaN are NaN, and NaN != 0)
+            return 0.0, 0.0
+        at = self.at_temperature(temperature_c)
+        odd_l, even_l = at.odd, at.even
+        a = velocity_rad_s if velocity_rad_s >= 0.0 else -velocity_rad_s
+        if self.ns > 1:
+            x = math.log2(a / self.vmin) - 0.5 if a > self.vmin else -1.0
+            hi = self.ns - 1
+            if x <= 0.0:
+                odd, even = odd_l[0], even_l[0]
+            elif x >= hi:
+                odd, even = odd_l[hi], even_l[hi]
+            else:
+                k = int(x)
+                f = x - k
+                o0, e0 = odd_l[k], even_l[k]
+                odd = o0 + f * (odd_l[k + 1] - o0)
+                even = e0 + f * (even_l[k + 1] - e0)
+        else:
+            odd, even = odd_l[0], even_l[0]
+        m = model_nm if model_nm >= 0.0 else -model_nm
+        if self.positions and position_rad == position_rad:
+            y = (position_rad - self.grid0) * self.inv_step
+            last = self.n_grid - 1
+            if y <= 0.0:
+                j, h = 0, 0.0
+            elif y >= last:
+                j, h = last - 1, 1.0
+            else:
+                j = int(y)
+                h = y - j
+            rip = at.rip
+            if rip is not None:
+                r0 = rip[j]
+                odd += (r0 + h * (rip[j + 1] - r0)) * m
+            todd = at.todd
+            if todd is not None:
+                a0 = todd[j]
+                odd += a0 + h * (todd[j + 1] - a0)
+                teven = at.teven
+                b0 = teven[j]   # type: ignore[index]  # (set with todd)
+                even += b0 + h * (teven[j + 1] - b0)   # type: ignore[index]
+        if a < self.vmin:   # below the slowest speed learned the part along the motion fades out: the model alone
+            odd *= a / self.vmin
+        bound = self.rel * m + self.floor
+        if not (-bound <= odd <= bound):
+            self.saturations += 1
+            odd = bound if odd > 0.0 else -bound
+        bound = max(bound, self.independent)
+        if not (-bound <= even <= bound):
+            self.saturations += 1
+            even = bound if even > 0.0 else -bound
+        return odd, even
+
+    # ------------------------------------------------------------------ arrays
+    def terms_array(self, temperature_c: Any, velocity_rad_s: Any, position_rad: Any, model_nm: Any
+                    ) -> dict[str, Array]:
+        """Every term on arrays, unbounded [N·m], each element with its own temperature, with the operations of
+        :meth:`split_nm` (the same numbers to the last bit or two): ``odd_speed``, ``even_speed`` (the speed
+        profiles' parts), ``ripple`` (m ρ), ``trend_odd``, ``trend_even``."""
+        with np.errstate(over='ignore', invalid='ignore', divide='ignore'):   # (absurd inputs: as on floats)
+            return self._terms_array(*(a.ravel() for a in np.broadcast_arrays(*(np.asarray(a, dtype=float) for a in (
+                temperature_c, velocity_rad_s, position_rad, model_nm)))))
+
+    def _terms_array(self, t: Array, v: Array, pos: Array, m: Array) -> dict[str, Array]:
+        n = t.size
+        zero = np.zeros(n)
+        # temperature: bin and weight as _bins
+        x = (t - self.t0) * self.inv_bin
+        inside = (x > 0.0) & (x < self.hi)
+        i = np.where(inside, np.trunc(np.where(inside, x, 0.0)), np.where(x > 0.0, self.hi - 1, 0)).astype(np.int64)
+        w = np.where(inside, x - i, np.where(x > 0.0, 1.0, 0.0))
+        w0 = 1.0 - w
+        # speed: the octave coordinate and its node as split_nm
+        hi = self.ns - 1
+        if self.ns > 1:
+            a = np.abs(v)
+            with np.errstate(divide='ignore', invalid='ignore'):
+                xs = np.where(a > self.vmin, np.log2(np.where(a > self.vmin, a, 1.0) / self.vmin) - 0.5, -1.0)
+            low, high = ~(xs > 0.0), xs >= hi
+            inner = ~low & ~high
+            k = np.where(inner, np.trunc(np.where(inner, xs, 0.0)), np.where(high, hi, 0)).astype(np.int64)
+            f = np.where(inner, xs - k, 0.0)
+            k1 = np.minimum(k + 1, hi)
+        else:
+            inner = np.zeros(n, dtype=bool)
+            k = k1 = np.zeros(n, dtype=np.int64)
+            f = zero
+        out: dict[str, Array] = {}
+        for name, table in (('odd_speed', self.odd), ('even_speed', self.even)):
+            o0 = w0 * table[i, k] + w * table[i + 1, k]
+            o1 = w0 * table[i, k1] + w * table[i + 1, k1]
+            out[name] = np.where(inner, o0 + f * (o1 - o0), o0)
+        out['ripple'], out['trend_odd'], out['trend_even'] = zero, zero.copy(), zero.copy()
+        if not self.positions:
+            return out
+        known = ~np.isnan(pos)
+        last = self.n_grid - 1
+        y = (np.where(known, pos, self.grid0) - self.grid0) * self.inv_step
+        below, above = ~(y > 0.0), y >= last
+        mid = ~below & ~above
+        j = np.where(mid, np.trunc(np.where(mid, y, 0.0)), np.where(above, last - 1, 0)).astype(np.int64)
+        h = np.where(mid, y - j, np.where(above, 1.0, 0.0))
+        p = self.params
+        if self.ripple_on:
+            c = w0[:, None, None] * p.ripple[i] + w[:, None, None] * p.ripple[i + 1]       # (n, K, 2)
+            tab0 = (self._cos[j] * c[..., 0]).sum(axis=1) + (self._sin[j] * c[..., 1]).sum(axis=1)
+            tab1 = (self._cos[j + 1] * c[..., 0]).sum(axis=1) + (self._sin[j + 1] * c[..., 1]).sum(axis=1)
+            out['ripple'] = np.where(known, (tab0 + h * (tab1 - tab0)) * np.abs(m), 0.0)
+        if self.trend_on:
+            tr = w0[:, None] * p.trend_nm[i] + w[:, None] * p.trend_nm[i + 1]            # (n, 4)
+            g0, g1 = self._trig[j], self._trig[j + 1]
+            a0 = g0[:, 0] * tr[:, 0] + g0[:, 1] * tr[:, 1]
+            a1 = g1[:, 0] * tr[:, 0] + g1[:, 1] * tr[:, 1]
+            b0 = g0[:, 0] * tr[:, 2] + g0[:, 1] * tr[:, 3]
+            b1 = g1[:, 0] * tr[:, 2] + g1[:, 1] * tr[:, 3]
+            out['trend_odd'] = np.where(known, a0 + h * (a1 - a0), 0.0)
+            out['trend_even'] = np.where(known, b0 + h * (b1 - b0), 0.0)
+        return out
+
+    def split_array(self, temperature_c: Any, velocity_rad_s: Any, position_rad: Any, model_nm: Any
+                    ) -> tuple[Array, Array]:
+        """:meth:`split_nm` on arrays (a whole bag, the loop study): (odd, even) [N·m], each bounded; clipped
+        lookups counted the same way."""
+        t, v, pos, m = np.broadcast_arrays(*(np.asarray(a, dtype=float) for a in (
+            temperature_c, velocity_rad_s, position_rad, model_nm)))
+        shape = t.shape
+        terms = self.terms_array(t, v, pos, m)
+        odd = terms['odd_speed']
+        even = terms['even_speed']
+        if self.positions:   # in split_nm's order: ripple, then the trend
+            odd = odd + terms['ripple']
+            odd = odd + terms['trend_odd']
+            even = even + terms['trend_even']
+        a = np.abs(v.ravel())
+        with np.errstate(over='ignore', invalid='ignore'):
+            odd = np.where(a < self.vmin, odd * (a / self.vmin), odd)
+        bound = self.rel * np.abs(m.ravel()) + self.floor
+        bound_e = np.maximum(bound, self.independent)
+        clipped_o = ~((-bound <= odd) & (odd <= bound))
+        clipped_e = ~((-bound_e <= even) & (even <= bound_e))
+        self.saturations += int(np.count_nonzero(clipped_o) + np.count_nonzero(clipped_e))
+        odd = np.where(clipped_o, np.where(odd > 0.0, bound, -bound), odd)
+        even = np.where(clipped_e, np.where(even > 0.0, bound_e, -bound_e), even)
+        finite = np.isfinite(m.ravel())          # an absurd speed's infinite model: no correction, as on floats
+        if not finite.all():
+            self.saturations -= int(np.count_nonzero(clipped_o & ~finite) + np.count_nonzero(clipped_e & ~finite))
+            odd, even = np.where(finite, odd, 0.0), np.where(finite, even, 0.0)
+        return odd.reshape(shape), even.reshape(shape)
