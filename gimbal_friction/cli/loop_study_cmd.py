@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import json
 import math
 import sys
 import time
@@ -18,8 +19,9 @@ from typing import Any
 from gimbal_friction.cli._common import add_common, parse_temperature_spec, print_json, progress, refuse_existing
 from gimbal_friction.common.errors import ConfigError, GimbalFrictionError
 
-CASE_CHOICES = ('none', 'constant', 'feedforward', 'refit', 'learned', 'bound', 'ideal', 'feedforward_measured',
-                'feedforward_reference')
+CASE_CHOICES = ('none', 'constant', 'feedforward', 'refit', 'learned', 'chamber', 'bound', 'ideal',
+                'feedforward_measured', 'feedforward_reference')
+DEFAULT_CASES = 'none,constant,feedforward,refit,learned,chamber,bound,ideal'
 
 
 def add_parser(sub: Any) -> None:
@@ -31,26 +33,28 @@ def add_parser(sub: Any) -> None:
         'datasheet, LuGre breakaway and pre-sliding, position ripple, the measured CW/CCW asymmetry) over '
         'temperature plateaus and profiles, with each compensation case: none, constant (temperature-blind Coulomb '
         "tuned at +20 degC), feedforward (the suite's, as configured), refit (the feedforward after a refit from "
-        "the residual rows the suite's estimator collected in a learning run on another seed and time window), "
-        'learned (the feedforward with a correction learned online in such a learning run, then frozen; the learning '
-        "run is reported as learning), bound (the truth's own static map through the feedforward's delivery), "
-        'ideal (the truth cancelled). '
+        "the residual rows the suite's estimator collected over a service history on another seed), learned (the "
+        "feedforward with one correction learned online over that service history with the node's settings, then "
+        'frozen and scored on every profile; the learning run is reported as learning), chamber (the correction '
+        "learned from a simulated chamber test of the same truth through the suite's chamber path), bound (the "
+        "truth's own static map through the feedforward's delivery), ideal (the truth cancelled). "
         'Reports the LOS rate and position error RMS and peak, the peak error at reversals and the current margin.')
     add_common(parser)
     parser.add_argument('--axis', metavar='NAME', help='configured axis to simulate (default: the first)')
     parser.add_argument('--temperatures', default='-40,-20,0,20,40,60', metavar='SPEC',
                         help="temperature plateaus, '-40,0,60' or 'start:stop:step' [degC] (default -40:60:20)")
-    parser.add_argument('--profiles', default='tracking,scan,pointing', metavar='LIST',
+    parser.add_argument('--profiles', default='tracking,scan,pointing,weave', metavar='LIST',
                         help='profiles: tracking (1/3 rpm with reversals), scan (sine), pointing (fixed target under '
-                        'base motion); comma-separated (default all)')
-    parser.add_argument('--cases', default='none,constant,feedforward,refit,learned,bound,ideal', metavar='LIST',
-                        help=f'cases, comma-separated, from {", ".join(CASE_CHOICES)} '
-                        '(default none,constant,feedforward,refit,learned,bound,ideal)')
+                        'base motion), weave (tracking under base motion: never in the learning history); '
+                        'comma-separated (default all)')
+    parser.add_argument('--cases', default=DEFAULT_CASES, metavar='LIST',
+                        help=f'cases, comma-separated, from {", ".join(CASE_CHOICES)} (default {DEFAULT_CASES})')
     parser.add_argument('--truth', type=Path, metavar='PATH',
                         help="YAML file of the simulated truth's parameters (flat or in a gimbal_sim section; the "
                         'truth group of config/gimbal_sim.yaml plus temperature_bias_c, '
                         'temperature_sensor_time_constant_s, thermal_time_constant_s, inertia_truth_ratio, '
-                        'disturbance_torque_nm), layered over the configuration; default the packaged truth')
+                        'disturbance_torque_nm, unbalance_torque_nm, unbalance_phase_rad), layered over the '
+                        'configuration; default the packaged truth')
     parser.add_argument('--short', action='store_true', help='short profiles (one reversal each; for CI)')
     parser.add_argument('--latency-s', type=float, metavar='S',
                         help='transport latency of the feedforward [s] (default feedforward_latency_s, 0.001)')
@@ -60,15 +64,25 @@ def add_parser(sub: Any) -> None:
                         help='parameters refitted for case (d) (default walther_a,direction_asymmetry_cold,'
                         'direction_asymmetry_warm)')
     parser.add_argument('--learn-rate', type=float, default=None, metavar='NM_PER_MIN',
-                        help='case learned: largest change of the applied correction per minute [N*m/min] '
-                        '(default 0.01: the study compresses service life into its learning window)')
+                        help='case learned: largest change of the applied correction per minute [N*m/min] (default '
+                        "0.01, 33x the node's: the study compresses a service life into its history; the only setting "
+                        "the study changes, stated in the JSON's settings.differs_from_node_default)")
     parser.add_argument('--learn-prior', type=float, default=None, metavar='N',
-                        help='case learned: prior samples n0 of a cell (default 20)')
-    parser.add_argument('--learn-position-bins', type=int, default=None, metavar='N',
-                        help='case learned: bins of the position map over 3.4 deg (0: no map; default 32)')
+                        help="cases learned/chamber: prior samples n0 (default the node's, 50; another value is "
+                        'reported in settings.differs_from_node_default)')
+    parser.add_argument('--learn-position-bins', type=int, default=None, metavar='N', help=argparse.SUPPRESS)
     parser.add_argument('--learn-factor', type=float, default=None, metavar='X',
-                        help='case learned/refit: learning window = X times the profile duration, after the scoring '
-                        'window, on another noise seed (default 4)')
+                        help='cases learned/refit: passes of the service history (64 s each, 19 s with --short), on '
+                        'another noise seed (default 2)')
+    parser.add_argument('--truths', type=int, default=None, metavar='N',
+                        help='run the study over N truths of the seeded generator (lubricant, Walther slope, '
+                        'Palmgren factor, asymmetry, ripple periods, Stribeck curve, unbalance, motor, sensor, '
+                        'inertia, base motion: gimbals nobody described) and report the fraction of cells that meet '
+                        'each learning goal; --out also writes each truth as a --truth file')
+    parser.add_argument('--truth-seed', type=int, default=0, metavar='S',
+                        help='first truth of the generator for --truths (default 0; truth k is the same everywhere)')
+    parser.add_argument('--jobs', type=int, default=1, metavar='J',
+                        help='with --truths: truths studied at once in worker processes (default 1)')
     parser.add_argument('--explain', action=argparse.BooleanOptionalAction, default=None,
                         help='name the truth term responsible for each missed learning goal (reruns the missed cells '
                         'with each term off, short durations; default on, off with --short)')
@@ -116,12 +130,52 @@ def _learn_setup(args: argparse.Namespace) -> Any:
     if args.learn_prior is not None:
         corr = dataclasses.replace(corr, prior_samples=args.learn_prior)
     if args.learn_position_bins is not None:
-        corr = dataclasses.replace(corr, position_bins=args.learn_position_bins)
+        raise ConfigError('--learn-position-bins', 'is retired: ripple periods are now found in the data, no position '
+                          'map is given (see docs/closed-loop.md)', args.learn_position_bins)
     if args.learn_rate is not None:
         lrn = dataclasses.replace(lrn, max_rate_nm_per_min=args.learn_rate)
     if args.learn_factor is not None:
         factor = args.learn_factor
     return LearnSetup(corr, lrn, factor)
+
+
+def _run_truths(args: argparse.Namespace, inputs: Any, temperatures: list[float], profiles: list[str],
+                cases: list[str], learn: Any, show: Any, t0: float) -> int:
+    """``--truths N``: the study over generated truths, its goal fractions."""
+    from gimbal_friction.runs.truth_study import truths_study, truths_text, write_truth_files
+    for flag, given in (('--truth', args.truth is not None), ('--live', args.live), ('--explain', bool(args.explain))):
+        if given:
+            raise ConfigError(flag, 'cannot be combined with --truths (study one generated truth with --truth and '
+                              'the files --out writes)', True)
+    if not 1 <= args.truths <= 10000:
+        raise ConfigError('--truths', 'must be an integer in [1, 10000]', args.truths)
+    if not 1 <= args.jobs <= 64:
+        raise ConfigError('--jobs', 'must be an integer in [1, 64]', args.jobs)
+    if args.out is not None:
+        refuse_existing(args.out / 'truths.json', '--out', force=False)
+    def show_truth(stage: str, frac: float) -> None:
+        # a truth takes minutes: without a terminal for the bar, one line per truth done (a log shows progress)
+        if sys.stderr.isatty():
+            show(stage, frac)
+        else:
+            print(f'loop-study: {stage} done ({time.perf_counter() - t0:.0f} s)', file=sys.stderr, flush=True)
+
+    doc = truths_study(inputs, args.truths, args.truth_seed, jobs=args.jobs, short=args.short,
+                       temperatures=temperatures, profiles=profiles, cases=cases, learn=learn, progress=show_truth)
+    doc['wall_s'] = round(time.perf_counter() - t0, 1)
+    text = truths_text(doc)
+    if args.out is not None:
+        args.out.mkdir(parents=True, exist_ok=True)
+        (args.out / 'truths.json').write_text(json.dumps(doc, indent=1, default=float))
+        (args.out / 'truths.txt').write_text(text)
+        written = write_truth_files(args.out / 'truths', doc)
+        print(f'loop-study: wrote {args.out / "truths.json"}, truths.txt and {len(written)} truth files',
+              file=sys.stderr)
+    if args.format == 'json':
+        print_json(doc)
+    else:
+        sys.stdout.write(text)
+    return 0
 
 
 def run(args: argparse.Namespace) -> int:
@@ -165,6 +219,8 @@ def run(args: argparse.Namespace) -> int:
 
     t0 = time.perf_counter()
     learn = _learn_setup(args)
+    if args.truths is not None:
+        return _run_truths(args, inputs, temperatures, profiles, cases, learn, show, t0)
     result = study(inputs, temperatures=temperatures, profiles=profiles, cases=cases, short=args.short,
                    estimator_method=args.estimator_method, refit_fit=fit, learn=learn, progress=show)
     goals = goal_checks(result.records)
@@ -180,7 +236,7 @@ def run(args: argparse.Namespace) -> int:
                           realtime_factor=args.live_realtime_factor, publish_every_ticks=args.live_publish_every,
                           work_dir=(args.out / 'live') if args.out is not None else None,
                           log=lambda text: print(text, file=sys.stderr, flush=True), learn=learn)
-    doc = study_document(result, inputs, live=live, goals=goals, explained=explained)
+    doc = study_document(result, inputs, live=live, goals=goals, explained=explained, learn=learn)
     doc['wall_s']['total'] = round(time.perf_counter() - t0, 3)
     if args.out is not None:
         written = write_outputs(args.out, doc, result)

@@ -9,7 +9,7 @@ its ``gimbal_sim`` runs; the estimator in observer mode and the residual logger 
    a rate 100x the node default: service life squeezed into seconds), saved every :data:`SAVE_PERIOD_S` and
    published every :data:`PUBLISH_PERIOD_S`; then runs ``gimbal_sim`` (case ``learning``), recording
    ``/gimbal/friction/correction`` with a subscription of the probe node and reading the file with the library's
-   reader (:meth:`~gimbal_friction.feedforward.correction.Correction.load`, the model's identity checked) whenever
+   reader (:func:`~gimbal_friction.feedforward.correction.load`, the model's identity checked) whenever
    it changes;
 2. once a periodic save holds samples, sets ``learning_save_period_s`` to :data:`HOLD_SAVE_PERIOD_S` through the
    node's parameter service, so what is learned afterwards reaches the file only through the shutdown save;
@@ -32,7 +32,6 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any, NamedTuple
 
-import numpy as np
 import yaml
 
 from gimbal_friction.common.errors import GimbalFrictionError
@@ -44,6 +43,7 @@ from gimbal_friction.feedforward.correction import (
     ModelIdentity,
     model_identity,
 )
+from gimbal_friction.feedforward.correction import load as load_correction
 from gimbal_friction.recording import topics
 
 __all__ = ['CORRECTION_FILE', 'HOLD_SAVE_PERIOD_S', 'LEARNING_CASE', 'PUBLISH_PERIOD_S', 'RESUMED_CASE',
@@ -100,18 +100,17 @@ def correction_state(msg: Any, joint: str) -> CorrectionState | None:
 
 
 def file_cells(c: Correction, joint: str) -> dict[tuple[str, str], tuple[int, float, float, float]]:
-    """The cells of a correction named as in :attr:`CorrectionState.cells`: (samples, applied value [N*m], and the
-    range [N*m] a learner resuming from it can have moved the value to: between the applied and the learned value
-    of each cell)."""
-    nt = c.settings.n_temperature
-    v = c.values_nm[joint]
-    t = c.targets(joint)[0]
-    lo, hi = np.minimum(v, t), np.maximum(v, t)
+    """The cells of a correction named as in :attr:`CorrectionState.cells`: (samples, applied level [N*m], and the
+    range [N*m] a learner resuming from it can have moved the level to: between the applied level, the learned one
+    and the model's 0 (the guard may hold a cell back) of each cell)."""
+    fit = c.copy().refit(joint)
     out = {}
     for rec in c.cells(joint):
-        k = DIRECTIONS.index(rec['direction']) * nt + rec['bin']
-        out[rec['direction'], f'{rec["centre_c"]:g}'] = (int(rec['samples']), float(rec['value_nm']), float(lo[k]),
-                                                         float(hi[k]))
+        d = DIRECTIONS.index(rec['direction'])
+        learned = float(fit.flat_nm[d, rec['bin']])
+        value = float(rec['value_nm'])
+        out[rec['direction'], f'{rec["centre_c"]:g}'] = (int(rec['samples']), value, min(value, learned, 0.0),
+                                                         max(value, learned, 0.0))
     return out
 
 
@@ -147,7 +146,7 @@ class _FileWatch:
             return False
         self.key = key
         try:
-            self.correction, self.error = Correction.load(self.path, expected=self.identity), None
+            self.correction, self.error = load_correction(self.path, expected=self.identity), None
         except CorrectionError as err:
             self.correction, self.error = None, str(err)
         return True

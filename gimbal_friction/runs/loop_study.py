@@ -51,6 +51,7 @@ from gimbal_friction.sim.study import (
     explain_misses,
     goal_checks,
     run_study,
+    study_settings,
 )
 from gimbal_friction.streams.measurement import MeasurementArrays, detail_matrix
 from gimbal_friction.streams.residual_row import ResidualRows
@@ -129,19 +130,30 @@ def study(inputs: StudyInputs, *, temperatures: Sequence[float] = DEFAULT_TEMPER
           estimator_method: str = 'observer', refit_fit: Sequence[str] = DEFAULT_REFIT_FIT,
           learn: LearnSetup | None = None, progress: Callable[[str, float], None] | None = None) -> StudyResult:
     """:func:`~gimbal_friction.sim.study.run_study` with the inputs of the parameter files."""
+    from gimbal_friction.chamber.learned import chamber_correction
     from gimbal_friction.sim.config import PROFILES
     return run_study(inputs.sim, inputs.axis, temperatures=temperatures,
                      profiles=PROFILES if profiles is None else profiles, cases=cases, short=short,
                      feedforward=inputs.feedforward, estimator=inputs.estimator, estimator_method=estimator_method,
-                     refit_fit=refit_fit, learn=learn, progress=progress)
+                     refit_fit=refit_fit, learn=learn, chamber=_chamber_hook(inputs, chamber_correction),
+                     progress=progress)
+
+
+def _chamber_hook(inputs: StudyInputs, chamber_correction: Callable[..., Any]) -> Callable[..., Any]:
+    """Case ``chamber``'s chamber path with the configured joint name and feedforward settings."""
+    def hook(streams: Any, axis: AxisParams, estimator: EstimatorSettings, settings: Any) -> Any:
+        return chamber_correction(streams, axis, estimator, settings, joint='elevation',
+                                  feedforward=inputs.feedforward.settings)
+    return hook
 
 
 def explain(result: StudyResult, inputs: StudyInputs, goals: Sequence[dict[str, Any]], *,
             learn: LearnSetup | None = None) -> list[dict[str, Any]]:
     """The truth term responsible for each missed learning goal
     (:func:`~gimbal_friction.sim.study.explain_misses`, short durations)."""
+    from gimbal_friction.chamber.learned import chamber_correction
     return explain_misses(result.config, inputs.axis, goals, feedforward=inputs.feedforward,
-                          estimator=inputs.estimator, learn=learn)
+                          estimator=inputs.estimator, learn=learn, chamber=_chamber_hook(inputs, chamber_correction))
 
 
 def _number(x: Any) -> Any:
@@ -151,8 +163,8 @@ def _number(x: Any) -> Any:
 
 
 def study_document(result: StudyResult, inputs: StudyInputs, *, live: dict[str, Any] | None = None,
-                   explained: list[dict[str, Any]] | None = None, goals: list[dict[str, Any]] | None = None
-                   ) -> dict[str, Any]:
+                   explained: list[dict[str, Any]] | None = None, goals: list[dict[str, Any]] | None = None,
+                   learn: LearnSetup | None = None) -> dict[str, Any]:
     """The JSON document of a study (non-finite numbers are written as null by the CLI).
 
     ``records``: one per case × temperature × profile with :data:`RECORD_FIELDS` (``mode`` ``offline``; with
@@ -191,14 +203,16 @@ def study_document(result: StudyResult, inputs: StudyInputs, *, live: dict[str, 
         'refit': refit,
         'explained': explained,
         'learned': {p: c.summary() for p, c in (result.learned or {}).items()},
+        'chamber': result.chamber,
         'notes': list(result.notes),
         'settings': {'axis': inputs.axis_name, 'velocity_source': inputs.feedforward.velocity_source,
                      'velocity_threshold_rad_s': inputs.feedforward.settings.velocity_threshold_rad_s,
                      'feedforward_latency_s': result.config.feedforward_latency_s,
                      'controller_hz': result.config.rate_loop_hz, 'seed': result.config.seed,
                      'truth_differs_from_default': truth_differences(result.config),
+                     **study_settings(learn if learn is not None else LearnSetup()),
                      'durations_s': {p: result.config.profile_duration_s(p) for p in
-                                     dict.fromkeys(r['profile'] for r in result.records)}},
+                                     dict.fromkeys(r['profile'] for r in result.records) if p != 'history'}},
         'wall_s': {k: round(v, 3) for k, v in result.wall_s.items()},
     }
     if live is not None:

@@ -22,8 +22,10 @@ Cases of the loop study (the default five):
     same simulation (see :mod:`gimbal_friction.sim.study`).
 ``learned``
     the same feedforward carrying a learned correction (:class:`~gimbal_friction.feedforward.correction.Correction`,
-    looked up at the resolver's joint angle): learned online during a learning run, then frozen and scored on
-    another seed and time window (see :mod:`gimbal_friction.sim.study`).
+    looked up at the resolver's joint angle): one correction learned online over a service history, then frozen and
+    scored on another seed and on every profile (see :mod:`gimbal_friction.sim.study`).
+``chamber``
+    the same feedforward carrying the correction learned from the chamber test alone (the suite's chamber path).
 ``bound``
     :func:`truth_bound`: the truth's own static friction map (temperature, direction, position, speed) delivered
     through the same latency, current loop and smooth sign as the feedforward: what a perfect static feedforward
@@ -65,16 +67,17 @@ if TYPE_CHECKING:
 
 Array = NDArray[np.float64]
 
-__all__ = ['CASES', 'CASE_IDEAL', 'CASE_NONE', 'EXTRA_CASES', 'JOINT', 'VELOCITY_SOURCES', 'Compensator',
-           'ControllerInputs', 'TorqueHook', 'constant_coulomb', 'model_friction',
+__all__ = ['CASES', 'CASE_CHAMBER', 'CASE_IDEAL', 'CASE_NONE', 'EXTRA_CASES', 'JOINT', 'VELOCITY_SOURCES',
+           'Compensator', 'ControllerInputs', 'TorqueHook', 'constant_coulomb', 'model_friction',
            'suite_feedforward', 'truth_bound']
 
 #: The cases of the loop study, in report order.
-CASES = ('none', 'constant', 'feedforward', 'refit', 'learned', 'bound', 'ideal')
+CASES = ('none', 'constant', 'feedforward', 'refit', 'learned', 'chamber', 'bound', 'ideal')
 #: Optional cases the study also knows (not run by default).
 EXTRA_CASES = ('feedforward_measured', 'feedforward_reference')
 CASE_NONE = 'none'
 CASE_IDEAL = 'ideal'
+CASE_CHAMBER = 'chamber'
 #: Temperature a constant (temperature-blind) compensation is tuned at [°C].
 CONSTANT_TUNING_C = 20.0
 #: Joint name of the simulated axis (the suite's default axis).

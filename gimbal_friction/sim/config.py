@@ -94,7 +94,7 @@ from gimbal_friction.common.settings import coerce, setting, settings_from
 from gimbal_friction.common.text import did_you_mean
 
 #: Profiles the simulator knows (see :mod:`gimbal_friction.sim.profiles`).
-PROFILES = ('tracking', 'scan', 'pointing')
+PROFILES = ('tracking', 'scan', 'pointing', 'weave')
 #: Name of the section of a ROS 2 parameter file that holds the simulator parameters.
 SECTION = 'gimbal_sim'
 #: Parameters that are lists of names (every other list holds numbers).
@@ -119,6 +119,10 @@ class SimConfig:
                                     'inertia_kg_m2, used by the controller and the estimator)', 'plant')
     disturbance_torque_nm: float = _p(0.0, 'N*m', 'constant external disturbance torque tau_dist (unbalance, '
                                       'cable)', 'plant')
+    unbalance_torque_nm: float = _p(0.0, 'N*m', 'amplitude of an unbalance torque that depends on the joint angle: '
+                                    'unbalance_torque_nm * sin(joint angle + unbalance_phase_rad) (a mass off the '
+                                    'axis under gravity)', 'plant')
+    unbalance_phase_rad: float = _p(0.0, 'rad', 'phase of the angle-dependent unbalance torque', 'plant')
     plant_substeps: int = _p(4, '-', 'plant integration steps per controller tick (LuGre pre-sliding stiffness)',
                              'plant')
     # --- motor drive
@@ -223,6 +227,8 @@ class SimConfig:
     scan_frequency_hz: float = _p(0.5, 'Hz', 'sine scan: frequency', 'profiles')
     scan_duration_s: float = _p(6.0, 's', 'sine scan: duration', 'profiles')
     pointing_duration_s: float = _p(6.0, 's', 'pointing at a fixed target: duration', 'profiles')
+    weave_duration_s: float = _p(10.0, 's', 'tracking under base motion (the tracking motion while the body '
+                                 'weaves; never in the learning history): duration', 'profiles')
     base_motion_profiles: tuple[str, ...] = _p(('pointing',), '-', 'profiles that run under base motion',
                                                'profiles')
     settle_s: float = _p(1.0, 's', 'initial transient left out of the metrics', 'profiles')
@@ -415,6 +421,9 @@ class SimConfig:
              'must lie in (0, rate_bandwidth_hz / 4] [Hz]'),
             ('scan_duration_s', 0.0 < s.scan_duration_s <= 3600.0, 'must lie in (0, 3600] [s]'),
             ('pointing_duration_s', 0.0 < s.pointing_duration_s <= 3600.0, 'must lie in (0, 3600] [s]'),
+            ('weave_duration_s', 0.0 < s.weave_duration_s <= 3600.0, 'must lie in (0, 3600] [s]'),
+            ('unbalance_torque_nm', abs(s.unbalance_torque_nm) <= 1.0, 'must lie in [-1, 1] [N*m]'),
+            ('unbalance_phase_rad', abs(s.unbalance_phase_rad) <= 100.0, 'must lie in [-100, 100] [rad]'),
             ('base_motion_profiles', all(p in PROFILES for p in s.base_motion_profiles),
              f'must name profiles among {", ".join(PROFILES)}'),
             ('settle_s', s.settle_s >= 0.0, 'must be >= 0 [s]'),
@@ -434,7 +443,8 @@ class SimConfig:
 #: offset and lag. A ``loop-study --truth`` file holds only these.
 TRUTH_PARAMETERS: tuple[str, ...] = (
     *(f.name for f in dataclasses.fields(SimConfig) if f.metadata['group'] == 'truth'),
-    'inertia_truth_ratio', 'disturbance_torque_nm', 'thermal_time_constant_s', 'temperature_bias_c',
+    'inertia_truth_ratio', 'disturbance_torque_nm', 'unbalance_torque_nm', 'unbalance_phase_rad',
+    'thermal_time_constant_s', 'temperature_bias_c',
     'temperature_sensor_time_constant_s')
 
 
@@ -473,8 +483,8 @@ class RealtimeSettings:
     joint: str = setting('', '-', 'simulated axis: a configured joint name (empty: the first configured axis)')
     environment_temperature_c: float = setting(20.0, 'degC', 'environment (chamber) temperature of the run; the '
                                                'bearing starts soaked at it (see initial_bearing_offset_c)')
-    profile: str = setting('tracking', '-', 'reference motion: tracking (1/3 rpm with reversals), scan (sine) or '
-                           'pointing (fixed target under base motion)')
+    profile: str = setting('tracking', '-', 'reference motion: tracking (1/3 rpm with reversals), scan (sine), '
+                           'pointing (fixed target under base motion) or weave (tracking under base motion)')
     duration_s: float = setting(0.0, 's', "length of one run; 0: the profile's configured <profile>_duration_s")
     repeat: bool = setting(True, '-', 'start a new run (soaked again) when one ends; false: stop stepping')
     exit_when_done: bool = setting(False, '-', 'end the process after the first run (used by loop-study --live)')

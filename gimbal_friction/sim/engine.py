@@ -2,7 +2,7 @@ r"""Fixed-step closed-loop simulation of a gimbal axis, vectorised over independ
 
 The plant (one rigid axis, inertial angle θ and rate ω of the LOS, base rate ω_B of the missile body)::
 
-    J dω/dt = K_T i − F + τ_dist,      F = LuGre torque of the truth friction at v = ω − ω_B
+    J dω/dt = K_T i − F + τ_dist + τ_u sin(θ − θ_B + φ_u),      F = LuGre torque of the truth friction at v = ω − ω_B
     τ_i di/dt = i_cmd − i,             i_cmd = clip(i_fb + τ_ff / K_T, ±current_limit)
 
 Friction acts on the rate of the gimbal *relative to the base*, so base motion reaches the LOS through friction
@@ -182,11 +182,14 @@ class Plant:
         """Motor current [A], including the ideal compensation's F/K_T in the cancelled runs."""
         return np.asarray(self.current + self.cancel * self.friction / self.K_T)
 
-    def advance(self, i_cmd: Array, base_rates: Array, terms: TruthTerms, ripple_factor: Array | float) -> None:
+    def advance(self, i_cmd: Array, base_rates: Array, terms: TruthTerms, ripple_factor: Array | float,
+                external_nm: Array | float = 0.0) -> None:
         """Integrate one controller tick with the commanded current ``i_cmd`` [A] held (zero-order hold).
 
         ``base_rates`` [rad/s] is the body rate at the start of every sub-step, shape (substeps,);
-        ``terms`` and ``ripple_factor`` (1 + r) the truth's temperature terms and position ripple of the tick.
+        ``terms`` and ``ripple_factor`` (1 + r) the truth's temperature terms and position ripple of the tick;
+        ``external_nm`` a torque held over the tick besides the constant disturbance (the angle-dependent
+        unbalance) [N·m].
         """
         truth, h, J, K_T = self.truth, self.h, self.J, self.K_T
         sigma0, sigma1 = truth.sigma0, truth.sigma1
@@ -199,7 +202,7 @@ class Plant:
             z_new = lugre_z_step(z, v, g, sigma0, h)
             friction = lugre_force_1995(z_new, (z_new - z) / h, v, sigma0, sigma1)
             z = z_new
-            omega_new = omega + h * (K_T * current - self._keep * friction + self.tau_dist) / J
+            omega_new = omega + h * (K_T * current - self._keep * friction + self.tau_dist + external_nm) / J
             theta = theta + 0.5 * h * (omega + omega_new)
             omega = omega_new
         self.theta, self.omega, self.z, self.current, self.friction = theta, omega, z, current, friction
@@ -382,7 +385,9 @@ class ClosedLoop:
         if moved.any():   # per run, so a batch gives the same numbers as its runs one by one
             self._terms = _update_terms(self._terms, plant.truth.terms(bearing), moved)
             self._terms_at = np.where(moved, bearing, self._terms_at)
-        plant.advance(i_cmd, prof.base_rate_rad_s[k], self._terms, 1.0 + ripple(cfg, joint_true, bearing))
+        unbalance = cfg.unbalance_torque_nm * np.sin(joint_true + cfg.unbalance_phase_rad) \
+            if cfg.unbalance_torque_nm else 0.0
+        plant.advance(i_cmd, prof.base_rate_rad_s[k], self._terms, 1.0 + ripple(cfg, joint_true, bearing), unbalance)
         rec['friction_nm'][k] = plant.friction
         self._v_filter = self._v_filter + self._alpha_v * (
             plant.omega - prof.base_rate_rad_s[k, cfg.plant_substeps - 1] - self._v_filter)

@@ -12,6 +12,10 @@ Three profiles (inertial LOS target angle θ_T(t) and rate ω_T(t); the seeker's
     a sine scan θ_T = −A cos(2π f t) (starts at rest at −A; reversals every half period).
 ``pointing``
     a fixed target θ_T = 0.
+``weave``
+    the tracking motion while the missile body weaves (always under base motion, whatever ``base_motion_profiles``
+    says): a seeker tracking a target from a manoeuvring airframe. Never part of the learning history
+    (:func:`history_profile`), so the learned correction is scored on a motion it never saw.
 
 A profile listed in ``base_motion_profiles`` (default: ``pointing``) runs under base motion, the missile body rate
 ω_B(t) = Σ A_k sin(2π f_k t + φ_k) (body angle θ_B(0) = 0). The gimbal joint angle (what the resolver measures) is
@@ -42,7 +46,8 @@ from gimbal_friction.sim.config import PROFILES, SimConfig
 
 Array = NDArray[np.float64]
 
-__all__ = ['Profile', 'base_motion', 'make_profile', 'trapezoid_velocity_profile', 'zero_crossings']
+__all__ = ['HISTORY', 'Profile', 'base_motion', 'history_profile', 'make_profile', 'trapezoid_velocity_profile',
+           'zero_crossings']
 
 
 class Profile(NamedTuple):
@@ -158,7 +163,7 @@ def make_profile(config: SimConfig, name: str, duration_s: float | None = None) 
     period = config.controller_period_s
     n = int(round(duration / period))
     t = np.arange(n, dtype=float) * period
-    if name == 'tracking':
+    if name in ('tracking', 'weave'):
         low, high = (math.radians(x) for x in config.tracking_travel_deg)
         speed = config.tracking_speed_rpm * RAD_S_PER_RPM
         times, vels = trapezoid_velocity_profile(low, high, speed, config.tracking_reversal_s, duration)
@@ -169,7 +174,7 @@ def make_profile(config: SimConfig, name: str, duration_s: float | None = None) 
         angle, rate = -amp * np.cos(w * t), amp * w * np.sin(w * t)
     else:
         angle, rate = np.zeros(n), np.zeros(n)
-    moving_base = name in config.base_motion_profiles
+    moving_base = name in config.base_motion_profiles or name == 'weave'
     sub = t[:, None] + config.plant_step_s * np.arange(config.plant_substeps)[None, :]
     if moving_base:
         base_angle, _ = base_motion(config, t)
@@ -178,3 +183,89 @@ def make_profile(config: SimConfig, name: str, duration_s: float | None = None) 
         base_angle, base_rate = np.zeros(n), np.zeros(sub.shape)
     reversals = zero_crossings(t, rate - base_rate[:, 0])
     return Profile(name, t, angle, rate, base_angle, base_rate, reversals, moving_base)
+
+
+#: The service history a correction is learned from in the loop study (:func:`history_profile`): the study's own
+#: motions interleaved with motions it does not score, each segment (kind, duration [s], settings). ``weave`` is never
+#: in it. Kinds: ``tracking`` (the tracking motion at ``speed_rpm``, default the configured speed), ``scan`` (a sine
+#: scan of ``amplitude_deg`` at ``frequency_hz``, default the configured), ``slew`` (re-pointing: the target jumps
+#: between the angles ``targets_deg`` and the track loop slews to them), ``hold`` (a fixed target on a quiet base),
+#: ``pointing`` (a fixed target under base motion).
+HISTORY: tuple[tuple[str, float, dict[str, object]], ...] = (
+    ('tracking', 14.0, {}),
+    ('slew', 6.0, {'targets_deg': (0.0, 8.0, -5.0, 10.0, -6.0, 2.0)}),
+    ('scan', 6.0, {}),
+    ('tracking', 10.0, {'speed_rpm': 2.0}),
+    ('hold', 4.0, {}),
+    ('pointing', 6.0, {}),
+    ('scan', 8.0, {'amplitude_deg': 6.0, 'frequency_hz': 0.25}),
+    ('tracking', 10.0, {'speed_rpm': 0.1}),
+)
+#: Base motion fades in and out over this time at the edges of a segment under base motion [s].
+BASE_RAMP_S = 0.5
+
+
+def _segment(config: SimConfig, kind: str, t: Array, settings: dict[str, object]) -> tuple[Array, Array, bool]:
+    """Target angle [rad], target rate [rad/s] at times ``t`` [s] from the segment's start, and base motion on."""
+    n = t.size
+    if kind == 'tracking':
+        low, high = (math.radians(x) for x in config.tracking_travel_deg)
+        speed = float(settings.get('speed_rpm', config.tracking_speed_rpm)) * RAD_S_PER_RPM  # type: ignore[arg-type]
+        duration = float(t[-1]) + config.controller_period_s if n else 0.0
+        reversal = min(config.tracking_reversal_s, 0.9 * (high - low) / speed)
+        times, vels = trapezoid_velocity_profile(low, high, speed, reversal, duration)
+        angle, rate = _integrate_piecewise_linear(times, vels, 0.5 * (low + high), t)
+        return angle, rate, False
+    if kind == 'scan':
+        amp = math.radians(float(settings.get('amplitude_deg', config.scan_amplitude_deg)))  # type: ignore[arg-type]
+        w = 2.0 * math.pi * float(settings.get('frequency_hz', config.scan_frequency_hz))  # type: ignore[arg-type]
+        return -amp * np.cos(w * t), amp * w * np.sin(w * t), False
+    if kind == 'slew':
+        targets = np.radians(np.asarray(settings.get('targets_deg', (0.0,)), dtype=float))
+        k = np.minimum((t / (t[-1] + 1e-9) * targets.size).astype(np.int64), targets.size - 1) if n else t
+        return targets[k] if n else np.zeros(0), np.zeros(n), False
+    if kind in ('hold', 'pointing'):
+        return np.zeros(n), np.zeros(n), kind == 'pointing'
+    raise ConfigError('history', 'a segment kind must be tracking, scan, slew, hold or pointing', kind)
+
+
+def history_profile(config: SimConfig, scale: float = 1.0, repeats: int = 1,
+                    history: tuple[tuple[str, float, dict[str, object]], ...] = HISTORY) -> Profile:
+    """The service history (:data:`HISTORY`, each segment's duration × ``scale``, the whole ``repeats`` times) as one
+    profile ``history``: segments one after the other (a target that jumps between them is a slew), the base motion of
+    the ``pointing`` segments fading in and out over :data:`BASE_RAMP_S` (the body angle stays continuous).
+
+    >>> from gimbal_friction.sim.config import SimConfig
+    >>> p = history_profile(SimConfig(), scale=0.25)
+    >>> p.name, round(float(p.time_s[-1]) + 0.001, 3), p.base_motion
+    ('history', 16.0, True)
+    """
+    period = config.controller_period_s
+    angles, rates, envelope = [], [], []
+    for _ in range(repeats):
+        for kind, duration, settings in history:
+            n = max(int(round(duration * scale / period)), 1)
+            t = np.arange(n, dtype=float) * period
+            angle, rate, base = _segment(config, kind, t, settings)
+            angles.append(angle)
+            rates.append(rate)
+            envelope.append(np.full(n, 1.0 if base else 0.0))
+    angle = np.concatenate(angles)
+    rate = np.concatenate(rates)
+    on = np.concatenate(envelope)
+    n = angle.size
+    t = np.arange(n, dtype=float) * period
+    sub_t = t[:, None] + config.plant_step_s * np.arange(config.plant_substeps)[None, :]
+    # the envelope: on/off smoothed by a moving average over BASE_RAMP_S (continuous body rate and angle)
+    width = max(int(round(BASE_RAMP_S / period)), 1)
+    env = np.convolve(np.pad(on, (width // 2, width - 1 - width // 2), mode='edge'), np.ones(width) / width,
+                      mode='valid')
+    env_sub = np.interp(sub_t.ravel(), t, env).reshape(sub_t.shape)
+    _, raw = base_motion(config, sub_t.ravel())
+    base_rate = env_sub * raw.reshape(sub_t.shape)
+    flat = base_rate.ravel()
+    h = config.plant_step_s
+    angle_sub = np.concatenate([[0.0], np.cumsum(0.5 * h * (flat[1:] + flat[:-1]))])
+    base_angle = angle_sub.reshape(sub_t.shape)[:, 0]
+    reversals = zero_crossings(t, rate - base_rate[:, 0])
+    return Profile('history', t, angle, rate, base_angle, base_rate, reversals, bool(on.any()))

@@ -32,19 +32,26 @@ def study_out(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, dict, str
 def test_json_has_one_record_per_case_temperature_and_profile_with_the_contract_fields(study_out):
     _, doc, _ = study_out
     records = doc['records']
-    cases = ('none', 'constant', 'feedforward', 'refit', 'learning', 'learned', 'bound', 'ideal')
+    cases = ('none', 'constant', 'feedforward', 'refit', 'learning', 'learned', 'chamber', 'bound', 'ideal')
     assert len(records) == len(cases) * 2
     assert {(r['case'], r['temperature_c']) for r in records} == {(c, t) for c in cases for t in (-40.0, 20.0)}
     for r in records:
-        assert set(r) >= CONTRACT_FIELDS and r['profile'] == 'tracking' and r['mode'] == 'offline'
+        # (the learning run is scored on the service history it learned from)
+        assert set(r) >= CONTRACT_FIELDS and r['profile'] == ('history' if r['case'] == 'learning' else 'tracking')
+        assert r['mode'] == 'offline'
         assert ('learning_worst_window_ratio' in r) == (r['case'] == 'learning')
         assert all(isinstance(r[k], float) and math.isfinite(r[k]) for k in CONTRACT_FIELDS - {'case', 'profile'})
     rms = {(r['case'], r['temperature_c']): r['rate_error_rms_rad_s'] for r in records}
     assert rms[('ideal', -40.0)] <= rms[('feedforward', -40.0)] < rms[('none', -40.0)]
     assert {g['goal'] for g in doc['goals']} >= {'c_vs_a_cold', 'c_vs_a_all', 'c_vs_b_cold', 'd_near_e_cold',
                                                  'c_reversal', 'learned_vs_constant', 'learned_vs_bound',
-                                                 'learning_cost', 'ff_vs_constant', 'refit_vs_ff'}
+                                                 'learning_cost', 'ff_vs_constant', 'refit_vs_ff', 'learned_vs_ff',
+                                                 'chamber_vs_ff', 'chamber_vs_constant'}
     assert doc['explained'] is None   # --short: no attribution unless --explain
+    # one configuration: the node's defaults but the learning rate, and the JSON says so
+    assert set(doc['settings']['differs_from_node_default']) == {'learning_max_rate_nm_per_min'}
+    assert doc['settings']['time_compression'] == pytest.approx(100.0 / 3.0)
+    assert set(doc['learned']) == {'history', 'chamber'} and doc['chamber']['rows'] > 0
     assert doc['settings']['velocity_source'] == 'auto' and doc['refit']['accepted_by_method']['observer'] > 0
 
 
@@ -87,6 +94,9 @@ def test_table_is_the_default_output_and_the_configuration_is_layered(tmp_path, 
     (['--temperatures', '-90'], 'temperatures'),
     (['--latency-s', '-1'], '--latency-s'),
     (['--refit-fit', 'walther_z'], '--refit-fit'),
+    (['--learn-position-bins', '32'], 'ripple periods are now found in the data'),
+    (['--truths', '2', '--truth', 'config/truths/datasheet.yaml'], 'cannot be combined with --truths'),
+    (['--truths', '0'], '--truths'),
     (['--config', '/nonexistent/file.yaml'], 'parameter file /nonexistent/file.yaml: cannot read'),
     (['--truth', '/nonexistent/truth.yaml'], 'parameter file /nonexistent/truth.yaml: cannot read'),
 ])
@@ -104,7 +114,7 @@ def test_help_names_the_options(capsys):
     assert info.value.code == 0
     text = capsys.readouterr().out
     for opt in ('--temperatures', '--profiles', '--cases', '--short', '--latency-s', '--out', '--live', '--seed',
-                '--truth'):
+                '--truth', '--truths', '--truth-seed', '--jobs'):
         assert opt in text
 
 
@@ -145,19 +155,53 @@ def test_truth_file_sets_the_simulated_truth_and_refuses_other_parameters(tmp_pa
 
 
 @pytest.mark.slow
-def test_the_ci_study_of_the_learned_and_bound_cases(capsys):
-    code = main(['loop-study', '--short', '--cases', 'none,constant,feedforward,learned,bound', '--format', 'json'])
+def test_the_ci_study_of_the_learned_chamber_and_bound_cases(capsys):
+    """One correction learned over the service history with the node's settings scores every profile, weave (never
+    in the history) included; the chamber case from the chamber test alone."""
+    code = main(['loop-study', '--short', '--temperatures', '-40,20', '--cases',
+                 'none,constant,feedforward,learned,chamber,bound', '--format', 'json'])
     out = capsys.readouterr()
     assert code == 0, out.err
     doc = json.loads(out.out)
     cells = {(r['profile'], r['case'], r['temperature_c']): r['rate_error_rms_rad_s'] for r in doc['records']}
-    assert {p for p, _, _ in cells} == {'tracking', 'scan', 'pointing'}
-    assert {c for _, c, _ in cells} == {'none', 'constant', 'feedforward', 'learning', 'learned', 'bound'}
-    for p in ('tracking', 'scan', 'pointing'):
-        # the learned correction beats the plain feedforward in the cold, and the constant everywhere
-        assert cells[(p, 'learned', -40.0)] < cells[(p, 'feedforward', -40.0)]
-        assert cells[(p, 'bound', -40.0)] < cells[(p, 'feedforward', -40.0)]
-    goals = [g for g in doc['goals'] if g['goal'] == 'learned_vs_constant']
-    assert len(goals) == 18 and all(g['met'] for g in goals)
-    assert set(doc['learned']) == {'tracking', 'scan', 'pointing'}
-    assert all(s['samples'] > 0 for s in doc['learned'].values())
+    profiles = ('tracking', 'scan', 'pointing', 'weave')
+    assert {p for p, _, _ in cells} == {*profiles, 'history'}
+    assert {c for _, c, _ in cells} == {'none', 'constant', 'feedforward', 'learning', 'learned', 'chamber', 'bound'}
+    for p in profiles:
+        # the learned correction beats the plain feedforward in the cold
+        assert cells[(p, 'learned', -40.0)] < cells[(p, 'feedforward', -40.0)], p
+    for goal in ('learned_vs_constant', 'learned_vs_ff', 'chamber_vs_ff'):
+        mine = [g for g in doc['goals'] if g['goal'] == goal]
+        assert len(mine) == 8 and all(g['met'] for g in mine), (goal, [g for g in mine if not g['met']])
+    assert set(doc['learned']) == {'history', 'chamber'}
+    periods = doc['learned']['history']['joints']['elevation']['periods']
+    # the default truth's ripple (3.4 and 0.85 deg), found in the residuals: nobody gave the study a period
+    found = sorted(q['period_deg'] for q in periods[:2])
+    assert found == [pytest.approx(0.85, abs=0.04), pytest.approx(3.4, abs=0.1)], found
+
+
+@pytest.mark.slow
+def test_the_study_over_generated_truths_reports_the_goal_fractions(tmp_path, capsys):
+    out = tmp_path / 'truths'
+    code = main(['loop-study', '--short', '--truths', '2', '--truth-seed', '7', '--temperatures', '20',
+                 '--profiles', 'tracking', '--cases', 'constant,feedforward,learned,bound', '--jobs', '2',
+                 '--out', str(out), '--format', 'json'])
+    captured = capsys.readouterr()
+    assert code == 0, captured.err
+    doc = json.loads(captured.out)
+    assert [t['seed'] for t in doc['truths']] == [7, 8] and doc['n'] == 2
+    # no terminal: one progress line per truth done
+    assert 'truth 1 of 2 (seed 7) done' in captured.err and 'truth 2 of 2 (seed 8) done' in captured.err
+    for goal in ('learned_vs_constant', 'learned_vs_ff', 'learned_vs_bound'):
+        f = doc['fractions'][goal]
+        assert f['cells'] == 2 and 0 <= f['met'] <= 2 and f['fraction'] == f['met'] / 2
+    assert json.loads((out / 'truths.json').read_text())['fractions'] == doc['fractions']
+    # each truth as a --truth file: studied alone it gives the same cells
+    truth, sim = out / 'truths' / 'truth_7.yaml', out / 'truths' / 'sim_7.yaml'
+    assert main(['loop-study', '--short', '--temperatures', '20', '--profiles', 'tracking', '--cases',
+                 'constant,feedforward,learned,bound', '--truth', str(truth), '--config', str(sim),
+                 '--format', 'json']) == 0
+    alone = json.loads(capsys.readouterr().out)
+    first = {(r['case'], r['temperature_c']): r['rate_error_rms_rad_s'] for r in doc['truths'][0]['records']}
+    again = {(r['case'], r['temperature_c']): r['rate_error_rms_rad_s'] for r in alone['records']}
+    assert again == pytest.approx(first, rel=1e-9)

@@ -58,7 +58,8 @@ def test_from_mapping_accepts_the_flat_parameters_the_section_or_a_whole_file():
     ({'rate_integral_hz': 50.0}, 'rate_integral_hz', 'must lie in [0, rate_bandwidth_hz) [Hz]'),
     ({'gyro_noise_rad_s': math.nan}, 'gyro_noise_rad_s', 'must be a finite number'),
     ({'breakaway_ratio': 0.5}, 'breakaway_ratio', 'must lie in [1, 10] [-]'),
-    ({'base_motion_profiles': ['spin']}, 'base_motion_profiles', 'must name profiles among tracking, scan, pointing'),
+    ({'base_motion_profiles': ['spin']}, 'base_motion_profiles',
+     'must name profiles among tracking, scan, pointing, weave'),
     ({'tracking_travel_deg': [3.0, 1.0]}, 'tracking_travel_deg', 'must be [low, high] with low < high [deg]'),
     ({'asymmetry_cw_nmm': [3.19]}, 'asymmetry_cw_nmm', 'must give one value > 0 per asymmetry temperature [N*mm]'),
     ({'seed': -1}, 'seed', 'must be an integer >= 0'),
@@ -82,7 +83,7 @@ def test_every_parameter_is_documented_with_unit_and_group():
 
 
 @pytest.mark.parametrize(('values', 'parameter', 'rule'), [
-    ({'profile': 'spiral'}, 'profile', 'must be one of tracking, scan, pointing'),
+    ({'profile': 'spiral'}, 'profile', 'must be one of tracking, scan, pointing, weave'),
     ({'environment_temperature_c': -80.0}, 'environment_temperature_c', 'must lie in [-60, 120] [degC]'),
     ({'publish_every_ticks': 0}, 'publish_every_ticks', 'must be an integer in [1, 10000]'),
     ({'use_feedforward': 'yes'}, 'use_feedforward', 'must be true or false'),

@@ -58,7 +58,8 @@ def test_refit_case_is_built_from_the_estimators_residual_rows_of_the_learning_w
         calls.append(rows)
         return axis.replace(walther_a=axis.walther_a + 0.015)   # the truth's lubricant
 
-    res = run_study(TINY, temperatures=[-40.0, 20.0], profiles=['scan'], cases=['none', 'refit'], refit=refit)
+    res = run_study(TINY, temperatures=[-40.0, 20.0], profiles=['scan'], cases=['none', 'refit'], refit=refit,
+                    short=True)
     (rows,) = calls
     assert len(rows) > 100 and set(rows.method.tolist()) == {1}      # observer samples only, no sweep needed
     assert np.all(np.isfinite(rows.predicted_nm))                   # paired with the feedforward of their stamp
@@ -85,7 +86,8 @@ def test_a_refused_refit_leaves_the_case_out_with_a_note():
     def refit(rows, axis):
         raise FitError('too few samples: 0 (need at least 20)')
 
-    res = run_study(TINY, temperatures=[20.0], profiles=['pointing'], cases=['none', 'refit'], refit=refit)
+    res = run_study(TINY, temperatures=[20.0], profiles=['pointing'], cases=['none', 'refit'], refit=refit,
+                    short=True)
     assert {r['case'] for r in res.records} == {'none'}
     assert res.notes[-1] == 'case refit left out: the refit was refused (too few samples: 0 (need at least 20))'
     assert res.refit is not None and res.refit.params is None

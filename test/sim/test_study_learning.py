@@ -1,4 +1,6 @@
-"""Cases ``learned`` and ``bound`` of the loop study, out-of-sample scoring, the learning goals and the truth terms."""
+"""Cases ``learned``, ``chamber`` and ``bound`` of the loop study: one correction learned over a service history with
+the node's settings, the chamber case, out-of-sample scoring, the learning goals, the truth terms and the generator
+of truths."""
 
 from __future__ import annotations
 
@@ -9,17 +11,19 @@ import pytest
 
 from gimbal_friction.physics.params import AxisParams
 from gimbal_friction.sim.config import SimConfig
-from gimbal_friction.sim.profiles import make_profile
+from gimbal_friction.sim.profiles import HISTORY, history_profile, make_profile
 from gimbal_friction.sim.study import (
     LEARN_SEED,
     TRUTH_TERMS,
     FeedforwardSetup,
-    _learning_profile,
+    LearnSetup,
     explain_misses,
     goal_checks,
     run_study,
+    study_settings,
     term_off,
 )
+from gimbal_friction.sim.truths import draw_truth, draw_truths
 
 #: the packaged wiring: the reference velocity (``velocity_source: auto``)
 AUTO = FeedforwardSetup(velocity_source='auto')
@@ -46,28 +50,75 @@ def test_bound_is_the_truths_map_whatever_the_configured_model():
                                                                       rel=0.02)
 
 
-def test_the_learning_window_follows_the_scoring_window():
-    cfg = SimConfig().replace(scan_duration_s=2.5)
-    full = make_profile(cfg, 'scan', 2.5 * 3.0)
-    win = _learning_profile(cfg, 'scan', 2.0)
-    k0 = int(round(2.5 * cfg.rate_loop_hz))
-    assert win.time_s[0] == 0.0 and win.time_s.shape[0] == full.time_s.shape[0] - k0
-    np.testing.assert_array_equal(win.target_angle_rad, full.target_angle_rad[k0:])
+def test_the_service_history_holds_the_studys_motions_and_others_but_never_weave():
+    cfg = SimConfig()
+    hist = history_profile(cfg, scale=0.3)
+    kinds = {k for k, _, _ in HISTORY}
+    assert {'tracking', 'scan', 'pointing', 'slew', 'hold'} <= kinds and 'weave' not in kinds
+    assert any(k == 'tracking' and s.get('speed_rpm') not in (None, cfg.tracking_speed_rpm) for k, _, s in HISTORY)
+    n = hist.time_s.size
+    assert n == sum(int(round(d * 0.3 * cfg.rate_loop_hz)) for _, d, _ in HISTORY)
+    assert hist.base_motion and np.max(np.abs(np.diff(hist.base_angle_rad))) < 1e-3       # the body never jumps
+    assert np.abs(hist.base_rate_rad_s).max() > 0.03 and np.abs(hist.base_rate_rad_s[:1000]).max() == 0.0
     assert LEARN_SEED != 0
+    weave = make_profile(cfg, 'weave')
+    assert weave.base_motion and 'weave' not in cfg.base_motion_profiles   # weave always under base motion
+
+
+def test_the_study_learns_with_the_nodes_settings_but_the_rate_and_says_so():
+    info = study_settings(LearnSetup())
+    assert set(info['differs_from_node_default']) == {'learning_max_rate_nm_per_min'}
+    assert info['time_compression'] == pytest.approx(1e-2 / 3e-4)
+    other = study_settings(LearnSetup(correction=LearnSetup().correction.__class__(prior_samples=20.0)))
+    assert other['differs_from_node_default']['correction_prior_samples'] == {'study': 20.0, 'node': 50.0}
 
 
 @pytest.mark.slow
-def test_learned_improves_on_the_feedforward_where_the_truths_lubricant_differs():
-    cfg = SimConfig().replace(lubricant_walther_a_shift=0.04)   # thicker than the configured datasheet lubricant
-    res = run_study(cfg, temperatures=[-40.0], profiles=['tracking'], cases=['constant', 'feedforward', 'learned'],
-                    short=True, feedforward=AUTO)
-    ff, learned = _rms(res.records, 'feedforward'), _rms(res.records, 'learned')
-    assert learned < 0.85 * ff
-    assert res.learned is not None and res.learned['tracking'].summary()['samples'] > 1000
+def test_one_correction_learned_over_the_history_scores_every_profile_and_beats_the_feedforward():
+    """A lubricant thicker than the configured one (the generator's truth 3 has more besides): one correction, the
+    node's settings, scored on tracking, scan and weave (never in the history)."""
+    cfg = SimConfig().replace(lubricant_walther_a_shift=0.04)
+    res = run_study(cfg, temperatures=[-40.0], profiles=['tracking', 'scan', 'weave'],
+                    cases=['constant', 'feedforward', 'learned'], short=True, feedforward=AUTO)
+    assert res.learned is not None and set(res.learned) == {'history'}
+    assert res.learned['history'].summary()['samples'] > 5000
+    for p in ('tracking', 'scan', 'weave'):
+        ff, learned = _rms(res.records, 'feedforward', profile=p), _rms(res.records, 'learned', profile=p)
+        assert learned < 0.9 * ff, p
     (learning,) = [r for r in res.records if r['case'] == 'learning']
-    assert math.isfinite(learning['learning_worst_window_ratio']) and learning['duration_s'] > 10.0
+    assert learning['profile'] == 'history' and math.isfinite(learning['learning_worst_window_ratio'])
     goals = {g['goal'] for g in goal_checks(res.records)}
-    assert {'learned_vs_constant', 'learning_cost', 'ff_vs_constant'} <= goals
+    assert {'learned_vs_constant', 'learned_vs_ff', 'learning_cost', 'ff_vs_constant'} <= goals
+
+
+@pytest.mark.slow
+def test_the_chamber_case_learns_from_a_chamber_test_of_the_same_truth_through_the_chamber_path():
+    from gimbal_friction.chamber.learned import chamber_correction
+    cfg = SimConfig().replace(lubricant_walther_a_shift=0.04)
+    res = run_study(cfg, temperatures=[-40.0], profiles=['tracking'], cases=['constant', 'feedforward', 'chamber'],
+                    short=True, feedforward=AUTO, chamber=chamber_correction)
+    assert res.learned is not None and set(res.learned) == {'chamber'}
+    assert res.chamber is not None and res.chamber['rows'] > 500 and res.chamber['plateaus'] == 1
+    assert res.learned['chamber'].summary()['cells_applied'] >= 1
+    ff, chamber = _rms(res.records, 'feedforward'), _rms(res.records, 'chamber')
+    assert chamber < ff
+    assert {'chamber_vs_ff', 'chamber_vs_constant'} <= {g['goal'] for g in goal_checks(res.records)}
+    # without a chamber path the case is left out, and said
+    res = run_study(cfg, temperatures=[-40.0], profiles=['tracking'], cases=['feedforward', 'chamber'], short=True)
+    assert not any(r['case'] == 'chamber' for r in res.records) and any('chamber' in n for n in res.notes)
+
+
+def test_the_generator_draws_valid_plausible_truths_the_same_everywhere():
+    truths = draw_truths(30, first_seed=500)
+    assert [t.truth for t in truths] == [draw_truth(500 + k).truth for k in range(30)]
+    periods = [p for t in truths for p in t.truth['ripple_periods_deg']]
+    assert min(periods) >= 0.5 and max(periods) <= 6.0 and len(set(periods)) == len(periods)
+    assert any(t.truth['disturbance_torque_nm'] != 0.0 for t in truths)
+    assert any(t.truth['unbalance_torque_nm'] != 0.0 for t in truths)
+    assert len({round(t.truth['truth_walther_b'], 3) for t in truths}) == 30     # another slope each time
+    for t in truths:
+        cfg = t.config(SimConfig())
+        assert cfg.truth_walther_b == t.truth['truth_walther_b'] and t.describe().startswith(f'truth {t.seed}:')
 
 
 def _rec(case, t, rms, **extra):
@@ -78,9 +129,12 @@ def _rec(case, t, rms, **extra):
 def test_learning_goals_are_evaluated_cell_by_cell():
     recs = [_rec('none', -40.0, 10.0), _rec('constant', -40.0, 5.0), _rec('feedforward', -40.0, 5.5),
             _rec('refit', -40.0, 5.4), _rec('learned', -40.0, 3.5), _rec('bound', -40.0, 2.0),
-            _rec('learning', -40.0, 4.0, learning_worst_window_ratio=1.06)]
+            _rec('learning', -40.0, 4.0, learning_worst_window_ratio=1.06), _rec('chamber', -40.0, 5.7)]
     got = {g['goal']: (g['value'], g['met']) for g in goal_checks(recs)}
     assert got['learned_vs_constant'] == (pytest.approx(0.7), True)
+    assert got['learned_vs_ff'] == (pytest.approx(3.5 / 5.5), True)
+    assert got['chamber_vs_ff'] == (pytest.approx(5.7 / 5.5), True)          # within 1.05
+    assert got['chamber_vs_constant'] == (pytest.approx(5.7 / 5.0), False)  # above 1.02
     assert got['learned_vs_bound'] == (pytest.approx(1.75), False)
     assert got['learned_vs_none_cold'] == (pytest.approx(0.35), True)    # bound/none 0.2 <= 0.25
     assert got['learning_cost'] == (pytest.approx(1.06), False)
@@ -93,7 +147,7 @@ def test_learning_goals_are_evaluated_cell_by_cell():
 
 def test_each_truth_term_can_be_switched_off_once():
     axis = AxisParams()
-    cfg = SimConfig().replace(temperature_bias_c=3.0, disturbance_torque_nm=1e-4)
+    cfg = SimConfig().replace(temperature_bias_c=3.0, disturbance_torque_nm=1e-4, unbalance_torque_nm=1e-3)
     for term in TRUTH_TERMS:
         off = term_off(cfg, axis, term)
         assert off is not None and off != cfg, term
@@ -111,5 +165,5 @@ def test_explain_names_the_asymmetry_for_the_feedforward_losing_to_the_constant_
     assert not miss['met'] and miss['value'] > 1.2          # measured 1.30
     (why,) = explain_misses(res.config, AxisParams(), goals, feedforward=ff)
     assert why['responsible'] == 'asymmetry' and why['value_without']['asymmetry'] < 1.0   # measured 0.83
-    assert set(why['value_without']) == {'asymmetry', 'ripple', 'lubricant', 'breakaway', 'sensor'}
+    assert set(why['value_without']) == {'asymmetry', 'ripple', 'lubricant', 'breakaway', 'sensor'}   # (no unbalance)
     assert why['value_short'] == pytest.approx(miss['value'], rel=1e-9)   # the same short run, every term on
