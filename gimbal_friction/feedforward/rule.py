@@ -493,12 +493,13 @@ class Feedforward:
         correction = self._correction
         torque: float
         # (every configured joint is in the correction: set_correction checks; no learned value: the model, as rule)
-        if correction is None or correction.lookups[joint] is None:
+        lut = None if correction is None else correction.lookups[joint]
+        if lut is None:
             torque = feedforward_torque_nm(terms, k_positive, k_negative, velocity_rad_s, self._v_th,
                                            self._max_torque_nm, SCALAR)
-        else:
+        else:   # (the joint's lookup at once: Correction.split_nm is this call behind one more)
             model_nm = model_friction_nm(terms, k_positive, k_negative, velocity_rad_s, SCALAR)
-            odd_nm, even_nm = correction.split_nm(joint, temperature_c, velocity_rad_s, position_rad, model_nm)
+            odd_nm, even_nm = lut.split_nm(temperature_c, velocity_rad_s, position_rad, model_nm)
             torque = corrected_torque_nm(model_nm, odd_nm, even_nm, velocity_rad_s, self._v_th, self._max_torque_nm,
                                          SCALAR)
         if abs(torque) >= self._max_torque_nm:
