@@ -1,11 +1,21 @@
-"""Writing files safely: the one atomic write of the suite (temporary file + rename, :func:`write_bytes_atomic`),
-the one atomic replace of a file or folder written in steps (:func:`staged`); OS errors as one line."""
+"""Files read and written safely: the one atomic write of the suite (temporary file + rename,
+:func:`write_bytes_atomic`), the one atomic replace of a file or folder written in steps (:func:`staged`), the one
+bounded read of an untrusted text file (:func:`read_text_bounded`: a regular file, opened without blocking, of at most
+a given size, UTF-8); OS errors as one line.
+
+Files written follow the process's umask like any other tool's output (mode 0666 less the umask, 0644 with the usual
+umask 022), temporaries included: the temporary file a write renames into place is created with that mode, not
+``tempfile.mkstemp``'s private 0600.
+"""
 
 from __future__ import annotations
 
 import contextlib
+import errno
 import os
+import secrets
 import shutil
+import stat
 import tempfile
 from collections.abc import Iterator
 from pathlib import Path
@@ -39,7 +49,7 @@ def write_bytes_atomic(path: Path, data: bytes, *, fsync: bool = False, what: st
         raise error(msg)
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(prefix=f'.{path.name}.', suffix='.tmp', dir=path.parent)
+        fd, tmp = _new_temporary(path)
         try:
             with os.fdopen(fd, 'wb') as f:
                 f.write(data)
@@ -53,6 +63,19 @@ def write_bytes_atomic(path: Path, data: bytes, *, fsync: bool = False, what: st
     except OSError as err:
         msg = f'cannot write {label}: {os_error_text(err)}'
         raise error(msg) from None
+
+
+def _new_temporary(path: Path) -> tuple[int, Path]:
+    """A new, empty file ``.<name>.<random>.tmp`` beside ``path``, open for writing, created with mode 0666 less the
+    umask (as ``open()`` creates any new file; ``O_EXCL``: never an existing file or a symbolic link)."""
+    flags = os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, 'O_CLOEXEC', 0)
+    for _ in range(100):
+        tmp = path.parent / f'.{path.name}.{secrets.token_hex(4)}.tmp'
+        try:
+            return os.open(tmp, flags, 0o666), tmp
+        except FileExistsError:
+            continue
+    raise FileExistsError(errno.EEXIST, 'no free temporary file name', str(path.parent))  # pragma: no cover
 
 
 @contextlib.contextmanager
@@ -125,3 +148,84 @@ def os_error_text(err: OSError) -> str:
     """
     reason = err.strerror or ' '.join(str(err).split()) or type(err).__name__
     return f'{reason}: {err.filename!r}' if err.filename else reason
+
+
+# ---------------------------------------------------------------------------------------------------- reading
+class ReadError(GimbalFrictionError):
+    """An untrusted file could not be read within its bounds (:func:`read_text_bounded`). ``kind`` says why:
+    ``missing``, ``unreadable``, ``loop`` (a symbolic link loop), ``not_regular`` (a FIFO, a device, a folder),
+    ``too_big`` or ``not_utf8``; the message is one line without the file's name (the caller adds it and a fix)."""
+
+    def __init__(self, kind: str, reason: str) -> None:
+        super().__init__(reason)
+        self.kind = kind
+
+
+def _open_error(err: OSError) -> ReadError:
+    if err.errno == errno.ELOOP:
+        return ReadError('loop', 'a symbolic link loop (it never reaches a file)')
+    if err.errno in (errno.ENOENT, errno.ENOTDIR):
+        return ReadError('missing', 'no such file')
+    return ReadError('unreadable', f'cannot read it ({err.strerror or err})')
+
+
+def file_exists(path: str | os.PathLike[str]) -> bool:
+    """Whether ``path`` names something (a dangling link or no entry: False). Unlike :meth:`Path.exists`, what
+    hides the answer is not taken for "no file": a symbolic link loop or a folder that cannot be searched raises.
+
+    Raises:
+        ReadError: ``loop`` or ``unreadable`` (one line, without the path).
+    """
+    try:
+        Path(path).stat()
+    except OSError as err:
+        error = _open_error(err)
+        if error.kind == 'missing':
+            return False
+        raise error from None
+    return True
+
+
+def read_text_bounded(path: str | os.PathLike[str], max_bytes: int, what: str = 'the file') -> str:
+    """The UTF-8 text of ``path``, read as untrusted input: a regular file (opened without blocking, so a FIFO or a
+    device is refused at once instead of hanging the reader or reading for ever) of at most ``max_bytes`` bytes
+    (checked before reading and while reading: a file that grows is stopped at the bound). ``what`` names the file
+    in the size rule (``a correction file``).
+
+    Raises:
+        ReadError: one line without the path, its ``kind`` saying why (see :class:`ReadError`).
+
+    >>> read_text_bounded('/dev/zero', 100)
+    Traceback (most recent call last):
+    ...
+    gimbal_friction.common.files.ReadError: not a regular file (a FIFO, a device or a folder)
+    """
+    try:
+        fd = os.open(path, os.O_RDONLY | getattr(os, 'O_NONBLOCK', 0) | getattr(os, 'O_NOCTTY', 0)
+                     | getattr(os, 'O_CLOEXEC', 0))
+    except OSError as err:
+        raise _open_error(err) from None
+    chunks: list[bytes] = []
+    try:
+        info = os.fstat(fd)
+        if not stat.S_ISREG(info.st_mode):
+            raise ReadError('not_regular', 'not a regular file (a FIFO, a device or a folder)')
+        if info.st_size > max_bytes:
+            raise ReadError('too_big', f'{info.st_size} bytes, more than the {max_bytes} {what} may have')
+        size = 0
+        while True:
+            chunk = os.read(fd, 1 << 20)
+            if not chunk:
+                break
+            size += len(chunk)
+            if size > max_bytes:
+                raise ReadError('too_big', f'more than the {max_bytes} bytes {what} may have')
+            chunks.append(chunk)
+    except OSError as err:
+        raise ReadError('unreadable', f'cannot read it ({err.strerror or err})') from None
+    finally:
+        os.close(fd)
+    try:
+        return b''.join(chunks).decode('utf-8')
+    except UnicodeDecodeError as err:
+        raise ReadError('not_utf8', f'not UTF-8 text (byte {err.start}; a binary or damaged file)') from None
