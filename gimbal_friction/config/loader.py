@@ -32,7 +32,7 @@ import yaml
 
 from gimbal_friction.common.errors import ConfigError, ConfigFileError
 from gimbal_friction.common.text import did_you_mean
-from gimbal_friction.config.rcl import yaml_error_text
+from gimbal_friction.config.rcl import read_parameter_file, yaml_error_text
 from gimbal_friction.physics.params import AxisParams
 from gimbal_friction.streams.inputs import unconfigured_joints
 
@@ -53,8 +53,8 @@ _FAST_LOADER = getattr(yaml, 'CSafeLoader', yaml.SafeLoader)
 
 def read_yaml(source: str | Path, text: str | None = None) -> dict[str, Any]:
     try:
-        if text is None:
-            text = Path(source).read_text(encoding='utf-8')
+        if text is None:   # (a regular file, a size limit, UTF-8: as --params-file)
+            text = read_parameter_file(source)
         try:
             data = yaml.load(text, Loader=_FAST_LOADER)  # noqa: S506  # a safe loader (libyaml's: 15x faster)
         except yaml.YAMLError:

@@ -1,6 +1,12 @@
 """What a ROS node gets from its command line, resolved as rcl and rclpy do (one job: a faithful copy of rcl's
 parameter-file and ``-p`` rules, so that a node can tell what the user asked for), and YAML errors as one line.
-Used by :mod:`gimbal_friction.config.loader` (which re-exports these names) and the nodes."""
+Used by :mod:`gimbal_friction.config.loader` (which re-exports these names) and the nodes.
+
+A parameter file is untrusted input, read within bounds before rcl sees it (:func:`read_parameter_file`): a regular
+file (a FIFO or a device is refused at once, never waited on), at most :data:`MAX_PARAMETER_FILE_BYTES`, UTF-8; its
+YAML nested at most :data:`MAX_PARAMETER_DEPTH` deep and without aliases (rcl refuses them too). A refusal is one
+line naming the file, never a traceback.
+"""
 
 from __future__ import annotations
 
@@ -15,6 +21,52 @@ from typing import Any, NamedTuple
 import yaml
 
 from gimbal_friction.common.errors import ConfigError, ConfigFileError
+from gimbal_friction.common.files import ReadError, read_text_bounded
+
+#: largest parameter file read [bytes] (the packaged one is 10 kB; a whole robot's file is rarely 100 kB)
+MAX_PARAMETER_FILE_BYTES = 4 * 1024 * 1024
+#: deepest YAML nesting of a parameter file read (namespaces, node, ros__parameters, parameter groups)
+MAX_PARAMETER_DEPTH = 64
+
+
+def read_parameter_file(path: str | Path) -> str:
+    """The text of the parameter file ``path``, read as untrusted input (see the module notes).
+
+    Raises:
+        ConfigFileError: one line naming the file: missing, unreadable, a symbolic link loop, not a regular file,
+            too big or not UTF-8.
+    """
+    try:
+        return read_text_bounded(path, MAX_PARAMETER_FILE_BYTES, 'a parameter file')
+    except ReadError as err:
+        rule = {'too_big': f'{err}; name a parameter file', 'not_utf8': f'not a parameter file: {err}'}.get(
+            err.kind, f'cannot read: {err}')
+        raise ConfigFileError(str(path), rule) from None
+
+
+def check_parameter_yaml(text: str, source: str) -> None:
+    """Refuse YAML that rcl would refuse or that could hang the reader, before it is composed: nesting deeper than
+    :data:`MAX_PARAMETER_DEPTH` (the composer recurses) and aliases (rcl: "Will not support aliasing"; an alias can
+    also multiply what is built). A syntax error is left to the composer, which words it.
+
+    Raises:
+        ConfigFileError: one line naming ``source`` and the line.
+    """
+    depth = 0
+    try:
+        for event in yaml.parse(text, Loader=getattr(yaml, 'CSafeLoader', yaml.SafeLoader)):
+            if isinstance(event, (yaml.MappingStartEvent, yaml.SequenceStartEvent)):
+                depth += 1
+                if depth > MAX_PARAMETER_DEPTH:
+                    raise ConfigFileError(source, f'YAML nested more than {MAX_PARAMETER_DEPTH} deep at line '
+                                          f'{event.start_mark.line + 1}; not a parameter file')
+            elif isinstance(event, (yaml.MappingEndEvent, yaml.SequenceEndEvent)):
+                depth -= 1
+            elif isinstance(event, yaml.AliasEvent):
+                raise ConfigFileError(source, f'a YAML alias (*{event.anchor}) at line {event.start_mark.line + 1}: '
+                                      'rcl does not support aliasing; write the value out')
+    except yaml.YAMLError:
+        return
 
 
 def yaml_error_text(err: yaml.YAMLError) -> str:
@@ -191,6 +243,7 @@ def ros_parameter_sections(text: str, source: str) -> list[tuple[str, dict[str, 
     Raises:
         ConfigError: invalid YAML or not a parameters file, naming ``source``.
     """
+    check_parameter_yaml(text, source)
     try:
         root = yaml.compose(text, Loader=yaml.SafeLoader)
     except yaml.YAMLError as err:
@@ -307,7 +360,7 @@ def command_line_parameters(argv: Sequence[str], node_name: str, namespace: str 
     Raises:
         ConfigError: an unreadable file or a value rcl would refuse, naming it.
     """
-    read = read_file or (lambda path: Path(path).read_text(encoding='utf-8'))
+    read = read_file or read_parameter_file
     sections: dict[str, dict[str, _Variant]] = {}
     name, ns = node_name, namespace
     renamed = False
