@@ -33,6 +33,7 @@ import hashlib
 import re
 import sys
 import time
+from collections.abc import Sequence
 from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
@@ -55,14 +56,19 @@ from gimbal_friction.export.table import (
     TableCorrection,
     build_table,
     c_identifier,
+    check_in_validity,
     table_correction,
 )
 from gimbal_friction.feedforward.correction import load_file, model_identity
-from gimbal_friction.feedforward.rule import FeedforwardSettings
+from gimbal_friction.feedforward.rule import FeedforwardSettings, model_range
+from gimbal_friction.physics.params import AxisParams
+from gimbal_friction.physics.validity import VALID_T_MAX_C, VALID_T_MIN_C, ValidityRange, validity_range
 
 #: files an export directory may hold (what --force may replace)
 EXPORT_FILE = re.compile(r'gimbal_friction_[0-9A-Za-z_]+\.(csv|h|yaml)')
 _DEFAULTS = ExportOptions()
+#: the feedforward node's table range with the packaged defaults [°C]
+_NODE_RANGE = model_range(FeedforwardSettings(), ValidityRange(VALID_T_MIN_C, VALID_T_MAX_C, ''))
 
 
 def add_parser(sub: Any) -> None:
@@ -85,11 +91,13 @@ def add_parser(sub: Any) -> None:
                         help='largest |velocity| the table covers [rad/s]; faster is clamped (default %(default)g = '
                         '573 deg/s, above the slew rates of seeker gimbals)')
     parser.add_argument('--temperature-min-c', type=float, default=None, metavar='X',
-                        help='lowest table temperature [degC] (default: temperature_min_c of friction_feedforward, '
-                        f'{FeedforwardSettings().temperature_min_c:g})')
+                        help="lowest table temperature [degC], within the model's validity range "
+                        f"{VALID_T_MIN_C:g}..{VALID_T_MAX_C:g} degC (default: the feedforward node's table range, "
+                        'temperature_min_c of friction_feedforward within the validity range: '
+                        f'{_NODE_RANGE[0]:g})')
     parser.add_argument('--temperature-max-c', type=float, default=None, metavar='X',
-                        help='highest table temperature [degC] (default: temperature_max_c of friction_feedforward, '
-                        f'{FeedforwardSettings().temperature_max_c:g})')
+                        help="highest table temperature [degC], within the validity range (default: the node's, "
+                        f'{_NODE_RANGE[1]:g})')
     parser.add_argument('--random-points', type=int, default=_DEFAULTS.random_points, metavar='N',
                         help='seeded random points at which the table is checked against the model (default '
                         '%(default)d)')
@@ -109,15 +117,23 @@ def _option_flag(name: str) -> str:
     return '--' + name.replace('_', '-')
 
 
-def build_options(args: argparse.Namespace, settings: FeedforwardSettings) -> ExportOptions:
-    """The :class:`ExportOptions` of the command line (temperature range defaulting to the feedforward node's)."""
+def build_options(args: argparse.Namespace, settings: FeedforwardSettings,
+                  params: Sequence[AxisParams] = ()) -> ExportOptions:
+    """The :class:`ExportOptions` of the command line; the temperature range defaults to the feedforward node's
+    table range for the axes ``params`` (its credible range within the model's validity range, :func:`~gimbal_friction.
+    feedforward.rule.model_range`), and must lie within the validity range of each."""
+    common = ValidityRange(max([VALID_T_MIN_C, *(validity_range(p).low_c for p in params)]),
+                           min([VALID_T_MAX_C, *(validity_range(p).high_c for p in params)]), '')
+    low, high = model_range(settings, common) if common.low_c < common.high_c else (common.low_c, common.high_c)
     options = ExportOptions(
-        temperature_min_c=settings.temperature_min_c if args.temperature_min_c is None else args.temperature_min_c,
-        temperature_max_c=settings.temperature_max_c if args.temperature_max_c is None else args.temperature_max_c,
+        temperature_min_c=low if args.temperature_min_c is None else args.temperature_min_c,
+        temperature_max_c=high if args.temperature_max_c is None else args.temperature_max_c,
         max_speed_rad_s=args.max_speed_rad_s, relative_error=args.relative_error,
         random_points=args.random_points, seed=args.seed)
     try:
         options.validate()
+        for p in params:
+            check_in_validity(p, options)
     except ConfigError as err:
         raise ConfigError(_option_flag(err.parameter), err.rule, err.value) from None
     return options
@@ -194,6 +210,7 @@ def _summary(out: Path, table: ExportTable) -> dict[str, Any]:
         'axis': table.axis,
         'files': {kind: str(out / name) for kind, name in file_names(table.axis).items()},
         'temperature_range_c': [o.temperature_min_c, o.temperature_max_c],
+        'validity_range_c': list(validity_range(table.params)[:2]),
         'max_speed_rad_s': o.max_speed_rad_s,
         'eta_breakpoints': [float(x) for x in table.grid.eta],
         'feedforward': {'velocity_threshold_rad_s': table.settings.velocity_threshold_rad_s,
@@ -223,8 +240,8 @@ def run(args: argparse.Namespace) -> int:
     axes = all_axis_params(merged)
     settings = settings_from_parameters(FeedforwardSettings,
                                         load_parameters(config, node_name='friction_feedforward'))
-    options = build_options(args, settings)
     names = select_axes(list(axes), args.axis)
+    options = build_options(args, settings, [axes[n] for n in names])
     correction = None
     if args.correction is not None:   # refused (one line) before anything is built
         loaded = load_file(args.correction, expected=model_identity(axes))

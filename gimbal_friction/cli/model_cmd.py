@@ -19,6 +19,13 @@ from gimbal_friction.cli._common import (
 )
 from gimbal_friction.physics.model import CONTRACT_FIELDS, friction_torque
 from gimbal_friction.physics.thermal import loose_fit_temperature
+from gimbal_friction.physics.validity import (
+    LUBRICANT_DATA_C,
+    VALID_T_MAX_C,
+    VALID_T_MIN_C,
+    check_temperatures,
+    validity_range,
+)
 
 DEFAULT_TEMPERATURES = '-40:60:10'
 
@@ -40,13 +47,18 @@ _TABLE_COLUMNS = (
 def add_parser(sub: Any) -> None:
     parser = sub.add_parser('model', help='evaluate the model over temperatures: table, JSON, CSV or plot',
                             description='Friction torque of one gimbal axis (both bearings) and its components '
-                            'versus temperature. Torques in N*mm as in the paper.')
+                            'versus temperature. Torques in N*mm as in the paper. Temperatures must lie in the '
+                            f"model's validity range, {VALID_T_MIN_C:g}..{VALID_T_MAX_C:g} degC with the paper's "
+                            'parameters (where the paper computed and measured the friction; its lubricant data '
+                            f'reach {LUBRICANT_DATA_C[0]:g}..{LUBRICANT_DATA_C[1]:g} degC); narrower where the '
+                            'bearing pair loses its preload (docs/model.md, "Validity range").')
     add_common_noformat(parser)
     parser.add_argument('--format', choices=['table', 'json', 'csv'], default='table', help='output format')
     parser.add_argument('--axis', metavar='NAME', help='configured axis (default: the first in axes)')
     parser.add_argument('--temperature', '-t', default=DEFAULT_TEMPERATURES, metavar='SPEC',
-                        help="temperatures in degC: '-40,0,60' or 'start:stop:step' (stop inclusive); "
-                        f'default {DEFAULT_TEMPERATURES}')
+                        help="temperatures in degC: '-40,0,60' or 'start:stop:step' (stop inclusive), within "
+                        f'{VALID_T_MIN_C:g}..{VALID_T_MAX_C:g} degC (others are refused); default '
+                        f'{DEFAULT_TEMPERATURES}')
     parser.add_argument('--speed-rpm', type=float, metavar='X', help='shaft speed [rpm] (default: model.speed_rpm)')
     parser.add_argument('--interference-mm', type=float, metavar='X', help='override interference Delta [mm]')
     parser.add_argument('--gasket-mm', type=float, metavar='X', help='override gasket thickness P [mm]')
@@ -70,6 +82,7 @@ def run(args: argparse.Namespace) -> int:
     if changes:
         params = params.replace(**changes)
     temps = parse_temperature_spec(args.temperature)
+    check_temperatures(params, temps, what='--temperature')   # one line for a temperature outside the range
     result = friction_torque(params, temps)
     records = result.records()
     if args.plot is not None:
@@ -95,6 +108,8 @@ def run(args: argparse.Namespace) -> int:
               f'P = {params.gasket_thickness_mm:g} mm')
         print(f'outer ring loose in housing above {loose:.1f} degC' if math.isfinite(loose) else
               'outer ring fit does not change with temperature')
+        valid = validity_range(params)
+        print(f"the model's validity range: {valid.text}" + (f'; {valid.note}' if valid.note else ''))
         print(format_table(rows, [h for _, h, _ in _TABLE_COLUMNS]))
         if args.plot is not None:
             print(f'plot: {args.plot}')

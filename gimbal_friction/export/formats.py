@@ -27,6 +27,8 @@ from gimbal_friction.export.table import (
 )
 from gimbal_friction.physics.direction import direction_factor
 from gimbal_friction.physics.model import FrictionResult
+from gimbal_friction.physics.params import AxisParams
+from gimbal_friction.physics.validity import LUBRICANT_DATA_C, validity_range
 
 Array = NDArray[np.float64]
 
@@ -62,6 +64,14 @@ def _fmt(x: float) -> str:
     return repr(float(x))
 
 
+def _validity_line(p: AxisParams) -> str:
+    r = validity_range(p)
+    why = r.note or ('where the paper computed and measured the friction; the lubricant data reach '
+                     f'{LUBRICANT_DATA_C[0]:g} .. {LUBRICANT_DATA_C[1]:g} degC')
+    return (f"The model's validity range is {r.low_c:g} .. {r.high_c:g} degC ({why}); the table never reaches past "
+            'it (a temperature outside is used at the edge).')
+
+
 def provenance_lines(table: ExportTable, prov: Provenance) -> list[str]:
     """The comment block every file carries: generator, date, axis, parameters, hashes, bound and its check."""
     r, o, p, s = table.report, table.options, table.params, table.settings
@@ -74,6 +84,7 @@ def provenance_lines(table: ExportTable, prov: Provenance) -> list[str]:
         *[f'  {label}: {digest}' for label, digest in prov.sources],
         (f'Range: temperature {o.temperature_min_c:g} .. {o.temperature_max_c:g} degC, |velocity| <= '
          f'{o.max_speed_rad_s:g} rad/s; outside, inputs are clamped to these edges.'),
+        _validity_line(p),
         (f'Relative interpolation error bound |table - model|/model: requested {r.relative_error_bound:.3g}; '
          f'achieved {r.midpoint_max_relative_error:.3g} (max at {r.midpoint_checks} midpoints), '
          f'{r.random_max_relative_error:.3g} (max at {r.random_points} seeded random points; seed {o.seed}).'),

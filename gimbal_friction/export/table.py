@@ -47,8 +47,10 @@ random points (t uniform, |v| half uniform, half log-uniform over six decades, b
 midpoint error, or whose switch-speed deviation ``|lerp(ln v*) − ln v*|`` at its midpoint, exceeds half the bound
 is split into ``ceil(1.1 √(error / (bound/2)))`` equal parts (the error of linear interpolation scales with the
 step squared); an interval holding a random point above the bound is split too. The grid is capped at
-``max_breakpoints``; a bound that would need more is refused. Defaults: -60…120 °C (the feedforward node's table
-range), |v| ≤ 10 rad/s (573 °/s, above the slew rates of seeker gimbals; faster is clamped), bound 1e-4.
+``max_breakpoints``; a bound that would need more is refused. Defaults: −40…60 °C (the model's validity range,
+:mod:`gimbal_friction.physics.validity`: a table never reaches past it, and ``gimbal-friction export`` takes the
+feedforward node's table range within it), |v| ≤ 10 rad/s (573 °/s, above the slew rates of seeker gimbals; faster is
+clamped), bound 1e-4.
 
 **Learned correction.** With a correction file (``export --correction``; :class:`TableCorrection`), every table also
 carries the correction of its axis as the feedforward looks it up without a joint position: per temperature bin
@@ -93,6 +95,7 @@ from gimbal_friction.physics.friction import PALMGREN_THRESHOLD_CST_RPM
 from gimbal_friction.physics.model import FrictionResult, friction_torque, palmgren_threshold_temperature, viscosity_cst
 from gimbal_friction.physics.params import MODEL_T_MAX_C, MODEL_T_MIN_C, AxisParams
 from gimbal_friction.physics.thermal import loose_fit_temperature
+from gimbal_friction.physics.validity import VALID_T_MAX_C, VALID_T_MIN_C, validity_range
 
 Array = NDArray[np.float64]
 
@@ -121,8 +124,8 @@ Progress = Callable[[str], None]
 class ExportOptions:
     """What the table spans and how accurate it must be (options of ``gimbal-friction export``)."""
 
-    temperature_min_c: float = -60.0                 #: lowest table temperature [°C]
-    temperature_max_c: float = 120.0                 #: highest table temperature [°C]
+    temperature_min_c: float = VALID_T_MIN_C         #: lowest table temperature [°C] (within the validity range)
+    temperature_max_c: float = VALID_T_MAX_C         #: highest table temperature [°C] (within the validity range)
     max_speed_rad_s: float = DEFAULT_MAX_SPEED_RAD_S  #: largest |velocity| of the table [rad/s]
     relative_error: float = DEFAULT_RELATIVE_ERROR   #: bound on |table − model| / model [-]
     random_points: int = 20000                       #: random check points [-]
@@ -587,8 +590,23 @@ def _relative_error(table: Array, model: Array) -> Array:
     return np.asarray(np.abs(table - model) / np.abs(model), dtype=float)
 
 
+def check_in_validity(params: AxisParams, options: ExportOptions) -> None:
+    """Raise ConfigError unless the table range of ``options`` lies within the model's validity range for
+    ``params`` (a table for a controller never extrapolates the model; outside its range the table clamps)."""
+    r = validity_range(params)
+    why = (f' for these parameters: {r.note}' if r.note else
+           ', where the paper computed and measured the friction (docs/model.md, "Validity range")')
+    check_rules(options, [
+        ('temperature_min_c', options.temperature_min_c >= r.low_c,
+         f"must be >= {r.low_c:g} [degC]: the model's validity range is {r.text}{why}"),
+        ('temperature_max_c', options.temperature_max_c <= r.high_c,
+         f"must be <= {r.high_c:g} [degC]: the model's validity range is {r.text}{why}"),
+    ])
+
+
 def build_table(axis: str, params: AxisParams, settings: FeedforwardSettings,
-                options: ExportOptions | None = None, *, progress: Progress | None = None) -> ExportTable:
+                options: ExportOptions | None = None, *, progress: Progress | None = None,
+                extrapolate: bool = False) -> ExportTable:
     """Build the table of one axis so that linear interpolation stays within ``options.relative_error``.
 
     Parameters
@@ -603,6 +621,9 @@ def build_table(axis: str, params: AxisParams, settings: FeedforwardSettings,
         Range, speed limit, error bound, check points.
     progress : callable, optional
         Called with a one-line status after each refinement pass.
+    extrapolate : bool
+        Allow a range past the model's validity range (:func:`~gimbal_friction.physics.validity.validity_range`;
+        for checks of the table's numerics: a table for a controller never extrapolates the model).
 
     Returns
     -------
@@ -612,7 +633,7 @@ def build_table(axis: str, params: AxisParams, settings: FeedforwardSettings,
     Raises
     ------
     ConfigError
-        An option or setting breaks its rule.
+        An option or setting breaks its rule, or the range reaches past the model's validity range.
     GimbalFrictionError
         The bound needs more than ``max_breakpoints`` breakpoints (or breakpoints closer than 1e-6 °C).
     ModelDomainError
@@ -621,6 +642,8 @@ def build_table(axis: str, params: AxisParams, settings: FeedforwardSettings,
     o = options if options is not None else ExportOptions()
     o.validate()
     settings.validate()
+    if not extrapolate:
+        check_in_validity(params, o)
     target = 0.5 * o.relative_error
     t, kink = _initial_breakpoints(params, o)
     rt, rv = _random_points(np.random.default_rng(o.seed), o)

@@ -30,6 +30,11 @@ time of the temperature differ by at most ``temperature_timeout_s``; otherwise t
 (non-finite or out-of-range temperature, unknown or repeated joint names, mismatched arrays, non-finite velocity)
 never reach the output; the reason is counted (:attr:`Feedforward.counters`).
 
+The model's validity range (:mod:`gimbal_friction.physics.validity`, −40…+60 °C with the paper's parameters): each
+joint's table spans the credible range ``[temperature_min_c, temperature_max_c]`` within it (:func:`model_range`,
+:attr:`Feedforward.model_ranges`); a credible temperature outside is used at the edge of that range (the table
+clamps) and counted per joint (``counters.temperature_clamped``), so the feedforward never extrapolates the model.
+
 Every rule is written once against the namespace ``xp`` (:mod:`gimbal_friction.common.xp`): on Python floats for a
 message or a controller tick (:meth:`Feedforward.torque_nm`, :meth:`Feedforward.message`, under 1 µs per joint) and
 on numpy arrays for a whole bag (:meth:`Feedforward.bag_torques`).
@@ -61,6 +66,7 @@ from gimbal_friction.feedforward.correction import Correction, CorrectionError, 
 from gimbal_friction.physics.direction import direction_factors, select_direction
 from gimbal_friction.physics.params import MODEL_T_MAX_C, MODEL_T_MIN_C, AxisParams
 from gimbal_friction.physics.table import FrictionTable, TemperatureTerms, magnitude_from_terms
+from gimbal_friction.physics.validity import ValidityRange, validity_range
 from gimbal_friction.streams.arrays import ChamberArrays, JointStateArrays
 from gimbal_friction.streams.inputs import (
     J_DUPLICATE,
@@ -102,8 +108,10 @@ class FeedforwardSettings:
                                 'the last valid one), fallback_temperature (use fallback_temperature_c) or zero '
                                 '(publish 0 N*m)')
     fallback_temperature_c: float = setting(20.0, 'degC', 'temperature used by the fallback_temperature policy')
-    temperature_min_c: float = setting(-60.0, 'degC', 'lowest credible bearing temperature; the model table '
-                                       'spans [temperature_min_c, temperature_max_c]')
+    temperature_min_c: float = setting(-60.0, 'degC', 'lowest credible bearing temperature (lower ones are '
+                                       'refused); the model table spans the part of [temperature_min_c, '
+                                       "temperature_max_c] inside the model's validity range (-40..60 degC): a "
+                                       "credible temperature outside it is used at the range's edge and counted")
     temperature_max_c: float = setting(120.0, 'degC', 'highest credible bearing temperature')
     table_step_c: float = setting(0.1, 'degC', 'temperature step of the model table')
     velocity_source: str = setting('auto', '-', 'velocity used for the torque: measured (joint_states velocity, '
@@ -132,6 +140,27 @@ class FeedforwardSettings:
             ('reference_timeout_s', 0.0 < self.reference_timeout_s <= 3600.0, 'must lie in (0, 3600] [s]'),
         ]
         check_rules(self, checks)
+
+
+def model_range(settings: FeedforwardSettings, validity: ValidityRange, joint: str = '') -> tuple[float, float]:
+    """The temperatures [°C] a joint's model table spans: the credible range ``[temperature_min_c,
+    temperature_max_c]`` of ``settings`` within the model's ``validity`` range (the one rule the node, the replay,
+    the simulator and the in-process API share: the table never reaches past the range where the model holds).
+
+    Raises:
+        ConfigError: the two ranges do not overlap.
+
+    >>> model_range(FeedforwardSettings(), ValidityRange(-40.0, 60.0, ''))
+    (-40.0, 60.0)
+    """
+    low = max(settings.temperature_min_c, validity.low_c)
+    high = min(settings.temperature_max_c, validity.high_c)
+    if not low < high:
+        of = f' of joint {joint}' if joint else ''
+        raise ConfigError('temperature_min_c', f'the credible range {settings.temperature_min_c:g}..'
+                          f"{settings.temperature_max_c:g} degC leaves nothing of the model's validity range "
+                          f'{validity.text}{of}', settings.temperature_min_c)
+    return low, high
 
 
 # ---------------------------------------------------------------------------------------------------- the rules
@@ -213,6 +242,9 @@ class FeedforwardCounters:
     joint_state_rejected: dict[str, int] = field(default_factory=dict)
     reference_rejected: dict[str, int] = field(default_factory=dict)
     saturated: dict[str, int] = field(default_factory=dict)
+    #: per joint, valid temperatures outside the joint's model range (:attr:`Feedforward.model_ranges`), used at
+    #: its edge
+    temperature_clamped: dict[str, int] = field(default_factory=dict)
     published: int = 0
 
     def add(self, bucket: dict[str, int], reason: str, n: int = 1) -> None:
@@ -295,7 +327,13 @@ class Feedforward:
         self.axes = dict(axes)
         self.order = tuple(self.axes)
         s = settings
-        self.tables = {name: FrictionTable(p, s.temperature_min_c, s.temperature_max_c, s.table_step_c)
+        #: per joint, the model's validity range for its parameters (:func:`~gimbal_friction.physics.validity.
+        #: validity_range`)
+        self.validity: dict[str, ValidityRange] = {name: validity_range(p) for name, p in self.axes.items()}
+        #: per joint, the temperatures its table spans [°C]: the credible range within the validity range; a valid
+        #: temperature outside is used at the edge (the table clamps) and counted in ``temperature_clamped``
+        self.model_ranges = {name: model_range(s, r, name) for name, r in self.validity.items()}
+        self.tables = {name: FrictionTable(p, *self.model_ranges[name], s.table_step_c)
                        for name, p in self.axes.items()}
         self.counters = FeedforwardCounters()
         #: per (names, number of velocities) of a message: its index, (column, joint, entry) of each configured
@@ -378,6 +416,9 @@ class Feedforward:
             return reason
         self.last_temperature_c = float(temperature_c)
         self.last_temperature_time_s = float(time_s)
+        for joint, (low, high) in self.model_ranges.items():
+            if not low <= temperature_c <= high:   # used at the edge of the joint's model range
+                self.counters.add(self.counters.temperature_clamped, joint)
         return None
 
     # ------------------------------------------------------------------ reference velocity
@@ -600,6 +641,8 @@ class Feedforward:
             c.add(c.temperature_rejected, reason, n)
         t_log = np.asarray(temp.log_time_ns, dtype=np.int64)[valid]
         t_val = np.asarray(temp.temperature_c, dtype=np.float64)[valid]
+        for joint, (low, high) in self.model_ranges.items():
+            c.add(c.temperature_clamped, joint, int(np.count_nonzero((t_val < low) | (t_val > high))))
         t_time = effective_time(np.asarray(temp.stamp_ns, dtype=np.int64)[valid], t_log) / NS_PER_S
         js_log = np.asarray(js.log_time_ns, dtype=np.int64)
         js_stamp = np.asarray(js.stamp_ns, dtype=np.int64)

@@ -298,6 +298,17 @@ def _squeeze(p: AxisParams, r: RadialState) -> Array:
     return np.asarray(axial_squeeze_Eq16(p, r.dT, r.p_e, float(ref.p_e)), dtype=float)
 
 
+def axial_squeeze(p: AxisParams, t_c: ArrayLike) -> Array:
+    """The axial squeeze X of Eq. (16) at temperatures ``t_c`` [°C], [mm]: what the pair's deflection and the frame
+    take up (:func:`axial_squeeze_Eq16` after the radial coupling). X < 0 is a gap between the pair: the paper's
+    F_a of Eq. (16) turns negative, the bearings carry no preload and the model's contact loads no longer hold.
+
+    >>> round(float(axial_squeeze(AxisParams(), 20.0)), 3)   # g P = 2 x 0.03 mm at the reference temperature
+    0.06
+    """
+    return _squeeze(p, radial_coupling(p, t_c))
+
+
 def axial_coupling(p: AxisParams, r: RadialState) -> AxialState:
     """Preload and loaded contact angle at every temperature of ``r`` (vectorised), docs/model.md §8 steps 4–6.
 

@@ -46,7 +46,7 @@ def test_export_writes_three_files_per_axis_and_a_json_summary(tmp_path, two_axe
         r = axis['report']
         assert r['relative_error_bound'] == 1e-3
         assert r['midpoint_max_relative_error'] <= 1e-3 and r['random_max_relative_error'] <= 1e-3
-        assert r['temperatures'] > 10 and axis['temperature_range_c'] == [-60.0, 120.0]
+        assert r['temperatures'] > 10 and axis['temperature_range_c'] == [-40.0, 60.0]
         for path in axis['files'].values():
             text = (out / path.split('/')[-1]).read_text()
             assert digest in text and 'requested 0.001' in text
@@ -68,23 +68,25 @@ def test_export_writes_three_files_per_axis_and_a_json_summary(tmp_path, two_axe
 def test_axis_option_and_human_output(tmp_path, two_axes, capsys):
     out = tmp_path / 'az'
     assert main(['export', '--out', str(out), '--config', str(two_axes), '--axis', 'azimuth',
-                 '--temperature-min-c', '-40', '--temperature-max-c', '80', '--max-speed-rad-s', '2', *FAST]) == 0
+                 '--temperature-min-c', '-30', '--temperature-max-c', '50', '--max-speed-rad-s', '2', *FAST]) == 0
     text = capsys.readouterr().out
     assert 'breakpoints' in text and 'azimuth' in text and 'gimbal_friction_azimuth.h' in text
     assert sorted(p.name for p in out.iterdir()) == ['gimbal_friction_azimuth.csv', 'gimbal_friction_azimuth.h',
                                                      'gimbal_friction_azimuth.yaml']
     e = yaml.safe_load((out / 'gimbal_friction_azimuth.yaml').read_text())[ROS_NODE]['ros__parameters']['azimuth']
-    assert e['temperatures_c'][0] == -40.0 and e['temperatures_c'][-1] == 80.0 and e['max_speed_rad_s'] == 2.0
+    assert e['temperatures_c'][0] == -30.0 and e['temperatures_c'][-1] == 50.0 and e['max_speed_rad_s'] == 2.0
 
 
 def test_temperature_range_defaults_to_the_feedforward_nodes(tmp_path, capsys):
+    """The node's table range: its credible range within the model's validity range (issue 31 item 3)."""
     cfg = tmp_path / 'ff.yaml'
     cfg.write_text(yaml.safe_dump({'friction_feedforward': {'ros__parameters': {'temperature_min_c': -45.0,
+                                                                                 'temperature_max_c': 50.0,
                                                                                  'max_torque_nm': 0.01}}}))
     out = tmp_path / 'x'
     assert main(['export', '--out', str(out), '--config', str(cfg), '--format', 'json', *FAST]) == 0
     axis = json.loads(capsys.readouterr().out)['axes'][0]
-    assert axis['temperature_range_c'] == [-45.0, 120.0]
+    assert axis['temperature_range_c'] == [-40.0, 50.0] and axis['validity_range_c'] == [-40.0, 60.0]
     assert axis['feedforward']['max_torque_nm'] == 0.01
     assert '#define GF_ELEVATION_MAX_TORQUE_NM 0.01' in (out / 'gimbal_friction_elevation.h').read_text()
 
@@ -144,6 +146,9 @@ def test_nothing_overwritten_silently(tmp_path, capsys):
     (['--max-speed-rad-s', '0'], "'--max-speed-rad-s'"),
     (['--temperature-min-c', '50', '--temperature-max-c', '40'], "'--temperature-max-c'"),
     (['--temperature-min-c', '-300'], "'--temperature-min-c'"),
+    # issue 31 item 3: a table never reaches past the model's validity range
+    (['--temperature-max-c', '80'], "'--temperature-max-c' = 80.0: must be <= 60 [degC]: the model's validity range"),
+    (['--temperature-min-c', '-60'], "'--temperature-min-c' = -60.0: must be >= -40 [degC]"),
     (['--random-points', '3'], "'--random-points'"),
     (['--axis', 'roll'], "axis 'roll' is not configured (configured: elevation)"),
     (['--relative-error', '1e-10'], 'temperature breakpoints'),
@@ -164,6 +169,7 @@ def test_bad_arguments_and_help(capsys):
     text = capsys.readouterr().out
     for option in ('--out', '--config', '--axis', '--relative-error', '--max-speed-rad-s', '--force', '--format'):
         assert option in text
+    assert "within the model's validity range -40..60 degC" in ' '.join(text.split())
 
 
 def main_exit(argv):

@@ -73,6 +73,12 @@ def test_plot_written(tmp_path, capsys):
     (['model', '--axis', 'azimuth'], "'azimuth' is not configured", 1),
     (['model', '--format', 'xml'], 'invalid choice', 2),
     (['model', '--config', '/nonexistent.yaml'], 'cannot read', 1),
+    # issue 31 item 3: outside the model's validity range (30,695,377 N*mm at -100 degC before)
+    (['model', '-t', '200,-100'], "--temperature 200 degC lies outside the model's validity range -40..60 degC", 1),
+    (['model', '-t', '-100'], "--temperature -100 degC lies outside the model's validity range", 1),
+    (['model', '-t', '-60:60:20'], '--temperature -60 degC', 1),
+    (['model', '--gasket-mm', '0', '-t', '30'], 'validity range -40..20 degC for these parameters: the bearing pair '
+     'has no axial preload', 1),
 ])
 def test_bad_input_one_line_reason(capsys, argv, needle, code):
     with pytest.raises(SystemExit) if code == 2 else _nullcontext() as exc:
@@ -194,3 +200,12 @@ def test_report_table_says_what_its_model_columns_are_and_where_the_feedforward_
     assert lines[header - 1] == "model at t:  the configured model at the plateau's temperature"
     note = next(line for line in lines if line.startswith('note: the feedforward as published differs'))
     assert '-40.0 degC cw' in note and '-40.0 degC ccw' in note and '20.0 degC' not in note
+
+
+def test_the_validity_range_is_in_the_help_and_the_table(capsys):
+    with pytest.raises(SystemExit):
+        main(['model', '--help'])
+    text = ' '.join(capsys.readouterr().out.split())
+    assert "the model's validity range, -40..60 degC" in text and 'within -40..60 degC (others are refused)' in text
+    assert main(['model', '-t', '-40,60']) == 0
+    assert "the model's validity range: -40..60 degC" in capsys.readouterr().out

@@ -52,9 +52,15 @@ def model_upper_branch(params, t, v):
     return viscosity_cst(params, t) * rpm_from_rad_s(np.abs(v)) >= 2000.0
 
 
+#: the numerics are checked over the node's credible range, past the model's validity range (extrapolate=True: a
+#: table for a controller keeps to the validity range, see test_the_table_keeps_to_the_models_validity_range)
+WIDE = {'temperature_min_c': -60.0, 'temperature_max_c': 120.0}
+
+
 @pytest.fixture(scope='module')
 def table():
-    return build_table('elevation', AxisParams(), FeedforwardSettings(), ExportOptions(relative_error=BOUND))
+    return build_table('elevation', AxisParams(), FeedforwardSettings(), ExportOptions(relative_error=BOUND, **WIDE),
+                       extrapolate=True)
 
 
 def test_palmgren_switch_constant_is_the_models():
@@ -147,7 +153,8 @@ def test_switch_nodes_sit_on_the_upper_branch_even_when_very_cold():
     """At -100 degC nu is 2e15 cSt and v* = 1e-12 rad/s: the eta = 1 nodes must still be on the upper branch of
     Eq. (9) (exp(ln v*) alone loses |ln v*| ulp and can land below the switch)."""
     t = build_table('elevation', AxisParams(), FeedforwardSettings(),
-                    ExportOptions(temperature_min_c=-100.0, temperature_max_c=0.0, random_points=2000))
+                    ExportOptions(temperature_min_c=-100.0, temperature_max_c=0.0, random_points=2000),
+                    extrapolate=True)
     g = t.grid
     k = g.upper_nm.shape[0]
     assert k == len(g.t)
@@ -560,9 +567,10 @@ def test_a_correction_is_carried_in_every_format_and_the_c_feedforward_adds_it(t
     finite = np.isfinite(v)
     np.testing.assert_allclose(ff[finite], tau[finite], rtol=1e-12, atol=1e-18)
     assert ff[-3] == ff[-2] == pytest.approx(even[-3], rel=1e-12) and ff[-3] != 0.0   # at v = 0: the even part
-    # ... which is the node's rule (Feedforward with the correction, no position) up to the tables' error
+    # ... which is the node's rule (Feedforward with the correction, no position) up to the tables' error, inside the
+    # model's validity range (where the node's table clamps; this table is the wide one)
     node = Feedforward({'elevation': AxisParams()}, FeedforwardSettings(), correction=c)
-    sel = np.flatnonzero((t > -60.0) & (t < 120.0) & (np.abs(v) < 10.0))[:400]
+    sel = np.flatnonzero((t > -40.0) & (t < 60.0) & (np.abs(v) < 10.0))[:400]
     want = np.array([node.torque_at('elevation', float(v[k]), float(t[k])) for k in sel])
     np.testing.assert_allclose(ff[sel], want, rtol=2e-3, atol=1e-8)
     # the CSV columns: what the feedforward adds along the motion at the row's temperature and speed
@@ -662,3 +670,24 @@ def test_a_correction_without_speed_or_position_terms_and_an_axis_without_one(ta
     _, plain = _run_c(tmp_path, [table], t, v, 'elevation')
     finite = np.isfinite(v)
     assert np.array_equal(with_empty[finite, 4], plain[finite])
+
+
+def test_the_table_keeps_to_the_models_validity_range():
+    """Issue 31 item 3: a table spans the model's validity range by default, refuses a range past it (naming the
+    option), narrows with the parameters, and every file says so in its header."""
+    default = build_table('elevation', AxisParams(), FeedforwardSettings(), ExportOptions(random_points=200))
+    assert (default.temperatures_c[0], default.temperatures_c[-1]) == (-40.0, 60.0)
+    for change, name in (({'temperature_min_c': -60.0}, 'temperature_min_c'),
+                         ({'temperature_max_c': 120.0}, 'temperature_max_c')):
+        with pytest.raises(ConfigError) as info:
+            build_table('elevation', AxisParams(), FeedforwardSettings(), ExportOptions(random_points=200, **change))
+        assert info.value.parameter == name and 'validity range is -40..60 degC' in str(info.value)
+    loose = AxisParams(gasket_thickness_mm=0.0)   # no preload above 20 degC: the range ends there
+    with pytest.raises(ConfigError, match='no axial preload'):
+        build_table('elevation', loose, FeedforwardSettings(), ExportOptions(random_points=200))
+    narrow = build_table('elevation', loose, FeedforwardSettings(),
+                         ExportOptions(random_points=200, temperature_max_c=20.0))
+    assert narrow.temperatures_c[-1] == 20.0
+    for text in (render_csv(default, PROV), render_c_header(default, PROV), render_ros_yaml(default, PROV)):
+        assert "The model's validity range is -40 .. 60 degC" in text
+    assert 'validity range is -40 .. 20 degC (the bearing pair has no axial preload' in render_csv(narrow, PROV)

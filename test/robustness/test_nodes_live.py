@@ -328,7 +328,7 @@ def test_runtime_refusal_through_the_parameter_service_keeps_the_output(spawn, p
 
     probe.spin_until(lambda: abs(torque() - 3.143e-3) < 1e-5, what='-40 degC in use')
     before = torque()
-    for name, value, needle in (('temperature_min_c', -200.0, 'temperature_min_c'),
+    for name, value, needle in (('temperature_min_c', -201.0, 'temperature_min_c'),
                                 ('model.walther_a', 1.0, 'viscosity'), ('max_torque_nm', 1e300, 'must lie in'),
                                 ('model.ball_count', 'abc', 'must be a number'), ('model.ball_count', 16.5, 'whole')):
         result = _set(probe, 'friction_feedforward', name, value)

@@ -161,7 +161,7 @@ def test_feedforward_refuses_every_wrong_value_and_keeps_the_old_one_in_effect(f
     ('model.viscosity_offset_cst', 50.0, 'viscosity'),      # negative above 30 degC
     ('model.viscosity_model', 'walther', 'viscosity'),      # Eq. 20 with the Eq. 21 constants
     ('model.walther_b', -1e-9, 'viscosity'),                # overflows
-    ('temperature_min_c', -199.0, 'non-finite'),            # the Walther fit overflows below -170 degC
+    ('temperature_min_c', -199.0, 'accepted'),              # credible; the table keeps to the validity range
     ('temperature_max_c', 400.0, 'viscosity'),              # the viscosity stays positive: accepted
     ('max_torque_nm', 1e300, 'must lie in'),
     ('table_step_c', 1e-6, 'must lie in'),
@@ -174,8 +174,9 @@ def test_model_breaking_values_are_refused_whole(ff, name, value, needle):
     settings_before, axes_before = node.ff.settings, dict(node.ff.axes)
     result = node.set_parameters([Parameter(name, value=value)])[0]
     if result.successful:   # a value that builds must be in effect, whole
-        assert name == 'temperature_max_c' and node.ff.settings.temperature_max_c == 400.0
-        assert node.set_parameters([Parameter(name, value=120.0)])[0].successful
+        assert name in ('temperature_min_c', 'temperature_max_c') and getattr(node.ff.settings, name) == value
+        assert node.ff.model_ranges == dict.fromkeys(node.ff.axes, (-40.0, 60.0))   # never past the validity range
+        assert node.set_parameters([Parameter(name, value=getattr(FeedforwardSettings(), name))])[0].successful
         return
     assert name in result.reason and needle in result.reason, result.reason
     assert node.ff.settings == settings_before and node.ff.axes == axes_before
