@@ -22,8 +22,13 @@ A learned correction (``refit --correction-out``; :mod:`gimbal_friction.feedforw
 model friction when its file is given: ``load_feedforward('refit.yaml', correction='refit.correction.yaml')``, then
 pass the joint position (the reference position with a reference velocity) for its position map:
 ``ff.torque_nm('elevation', v, time_s=t, position_rad=p)``. A file learned against other parameters, or corrupt, is
-refused with one line (:class:`~gimbal_friction.feedforward.correction.CorrectionError`); ``ff.set_correction(None)``
-returns to the pure model at run time.
+refused with one line (:class:`~gimbal_friction.feedforward.correction.CorrectionError`), and so is one whose figures
+the model cannot give (a mean |model| the model does not reach: it would let the file move the output further than
+learning could); ``ff.set_correction(None)`` returns to the pure model at run time.
+
+The model's validity range (:mod:`gimbal_friction.physics.validity`, −40…+60 °C with the paper's parameters) holds
+here as in the node: ``ff.model_ranges`` gives each joint's table range, a credible temperature outside it is used at
+the range's edge and counted in ``ff.counters.temperature_clamped``.
 
 >>> ff = load_feedforward()
 >>> ff.update_temperature(-40.0, time_s=100.0)
@@ -86,5 +91,7 @@ def load_feedforward(*param_files: str | Path, node_name: str = 'friction_feedfo
     settings = settings_from_parameters(FeedforwardSettings, load_parameters(paths, node_name=node_name))
     ff = Feedforward(configured, settings)
     if correction is not None:
-        ff.set_correction(load_correction(correction, expected=whole), expected=whole)
+        # (every figure of the file checked against the model it was learned against: the whole configuration)
+        whole_model = all_axis_params(load_parameters(paths))
+        ff.set_correction(load_correction(correction, expected=whole, model=whole_model), expected=whole)
     return ff

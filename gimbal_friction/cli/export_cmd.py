@@ -244,7 +244,7 @@ def run(args: argparse.Namespace) -> int:
     options = build_options(args, settings, [axes[n] for n in names])
     correction = None
     if args.correction is not None:   # refused (one line) before anything is built
-        loaded = load_file(args.correction, expected=model_identity(axes))
+        loaded = load_file(args.correction, expected=model_identity(axes), model=axes)
         correction = loaded.correction
         digest = hashlib.sha256(Path(args.correction).read_bytes()).hexdigest()
         correction_source = f'{args.correction} (SHA-256 {digest})' + (f'; {loaded.note}' if loaded.note else '')

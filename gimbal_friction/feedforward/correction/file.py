@@ -48,17 +48,20 @@ from __future__ import annotations
 import hashlib
 import math
 import os
-import stat
+import re
 import time
+from collections.abc import Callable, Mapping
 from dataclasses import asdict, fields
 from pathlib import Path
 from typing import Any, NamedTuple
 
 import numpy as np
+from numpy.typing import NDArray
 
-from gimbal_friction.common.errors import ConfigError
-from gimbal_friction.common.files import write_bytes_atomic
+from gimbal_friction.common.errors import ConfigError, ModelDomainError
+from gimbal_friction.common.files import ReadError, file_exists, read_text_bounded, write_bytes_atomic
 from gimbal_friction.common.settings import settings_from
+from gimbal_friction.common.xp import ARRAY
 from gimbal_friction.feedforward.correction.core import GUARD_COLUMNS, Correction, applied_bound_nm
 from gimbal_friction.feedforward.correction.fit import Params, empty_params
 from gimbal_friction.feedforward.correction.periods import Period
@@ -68,11 +71,17 @@ from gimbal_friction.feedforward.correction.settings import (
     CorrectionError,
     CorrectionSettings,
     ModelIdentity,
+    model_identity,
 )
 from gimbal_friction.feedforward.correction.stats import SUMS
+from gimbal_friction.physics.direction import direction_factors
+from gimbal_friction.physics.params import AxisParams
+from gimbal_friction.physics.table import FrictionTable
+from gimbal_friction.physics.thermal import loose_fit_temperature
+from gimbal_friction.physics.validity import validity_range
 
-__all__ = ['FORMAT', 'MAX_BYTES', 'MAX_DEPTH', 'UNITS', 'VERSION', 'Loaded', 'check', 'load', 'load_file',
-           'remove_stale_temporaries', 'save', 'to_mapping']
+__all__ = ['FORMAT', 'MAX_BYTES', 'MAX_DEPTH', 'MAX_JOINTS', 'UNITS', 'VERSION', 'Loaded', 'check',
+           'check_against_model', 'exists', 'load', 'load_file', 'remove_stale_temporaries', 'save', 'to_mapping']
 
 FORMAT = 'gimbal_friction/correction'
 VERSION = 3
@@ -199,84 +208,303 @@ def remove_stale_temporaries(path: str | os.PathLike[str], older_than_s: float =
 
 
 # ---------------------------------------------------------------------------------------------------- reading
+#: most joints a correction file names [-]
+MAX_JOINTS = 64
+#: longest scalar read [characters] (the writer's longest is a held-back reason, far shorter)
+MAX_SCALAR_CHARS = 1024
+#: most entries of a mapping or list whose length the format does not set otherwise [-]
+MAX_ENTRIES = 64
+#: events between two looks at a reader's ``cancelled`` [-]
+_CANCEL_EVERY = 4096
+_READ_FIXES = {'not_regular': 'name a correction file', 'too_big': 'name another file or relearn it',
+               'not_utf8': 'delete it', 'loop': 'point the link at a file or remove it',
+               'missing': 'name an existing file', 'unreadable': 'check its permissions'}
+
+
 def _read_bounded(path: str | os.PathLike[str]) -> str:
-    """The text of ``path``: a regular file (opened without blocking, so a FIFO cannot hang the reader) of at most
-    :data:`MAX_BYTES`, UTF-8."""
+    """The text of ``path`` within the bounds of a correction file (:func:`~gimbal_friction.common.files.
+    read_text_bounded`: a regular file opened without blocking, at most :data:`MAX_BYTES`, UTF-8)."""
     try:
-        fd = os.open(path, os.O_RDONLY | getattr(os, 'O_NONBLOCK', 0) | getattr(os, 'O_NOCTTY', 0))
-    except OSError as err:
-        raise CorrectionError(f'cannot read it ({err.strerror or err})') from None
-    try:
-        info = os.fstat(fd)
-        if not stat.S_ISREG(info.st_mode):
-            raise CorrectionError('not a regular file (a FIFO, a device or a folder); name a correction file')
-        if info.st_size > MAX_BYTES:
-            raise CorrectionError(f'{info.st_size} bytes, more than the {MAX_BYTES} a correction file may have; '
-                                  'name another file or relearn it')
-        chunks = []
-        size = 0
-        while True:
-            chunk = os.read(fd, 1 << 20)
-            if not chunk:
-                break
-            size += len(chunk)
-            if size > MAX_BYTES:
-                raise CorrectionError(f'more than the {MAX_BYTES} bytes a correction file may have; relearn it')
-            chunks.append(chunk)
-    except OSError as err:
-        raise CorrectionError(f'cannot read it ({err.strerror or err})') from None
-    finally:
-        os.close(fd)
-    try:
-        return b''.join(chunks).decode('utf-8')
-    except UnicodeDecodeError as err:
-        raise CorrectionError(f'not UTF-8 text (byte {err.start}; a binary or damaged file); delete it') from None
+        return read_text_bounded(path, MAX_BYTES, 'a correction file')
+    except ReadError as err:
+        raise CorrectionError(f'{err}; {_READ_FIXES[err.kind]}') from None
 
 
-def _parse(text: str) -> Any:
-    """The YAML document of ``text``, its nesting checked on the parser's events before anything is built (a
-    deeply nested document would exhaust the stack of the builder)."""
-    import yaml
-    loader = getattr(yaml, 'CSafeLoader', yaml.SafeLoader)
-    try:
-        depth = 0
-        for event in yaml.parse(text, Loader=loader):
-            if isinstance(event, (yaml.MappingStartEvent, yaml.SequenceStartEvent)):
-                depth += 1
-                if depth > MAX_DEPTH:
-                    raise CorrectionError(f'YAML nested more than {MAX_DEPTH} deep; not a correction file, delete it')
-            elif isinstance(event, (yaml.MappingEndEvent, yaml.SequenceEndEvent)):
-                depth -= 1
-        return yaml.load(text, Loader=loader)  # noqa: S506  # a safe loader
-    except yaml.YAMLError as err:
-        raise CorrectionError(f'not valid YAML ({" ".join(str(err).split())}); delete it') from None
-    except RecursionError:
-        raise CorrectionError('YAML nested too deep; not a correction file, delete it') from None
-
-
-def load_file(path: str | os.PathLike[str], expected: ModelIdentity | None = None) -> Loaded:
-    """The correction in ``path`` and a note for the reader; with ``expected``, one learned against that model only.
+def exists(path: str | os.PathLike[str]) -> bool:
+    """Whether a correction file is at ``path`` (False: none yet, so learning starts empty). A symbolic link loop, or
+    a folder that cannot be searched, is not "no file yet": it is refused.
 
     Raises:
-        CorrectionError: one line naming the file, the cause and the fix: missing, unreadable, not a regular file,
-            too big, not UTF-8, not YAML, nested too deep, not a correction file, another version, a field missing
-            or out of range (named), edited (sha256), or another model.
+        CorrectionError: one line naming the file, the cause and the fix.
+    """
+    try:
+        return file_exists(path)
+    except ReadError as err:
+        raise CorrectionError(f'correction file {path}: {err}; {_READ_FIXES[err.kind]}') from None
+
+
+class _Limits:
+    """How many entries each mapping and list of a correction file may hold: the shape the writer produces, from the
+    settings read so far (the writer writes them before the joints; a file without them there gets the largest any
+    settings allow)."""
+
+    def __init__(self) -> None:
+        self._settings: CorrectionSettings | None = None
+        self._looked = False
+
+    def settings(self, root: dict[Any, Any]) -> CorrectionSettings | None:
+        """The settings of ``root`` (read whole by the time the joints come), None if absent or invalid."""
+        if not self._looked:
+            self._looked = True
+            given = root.get('settings')
+            if isinstance(given, dict):
+                names = {f.name for f in fields(CorrectionSettings)}
+                try:
+                    self._settings = settings_from(CorrectionSettings,
+                                                   {k: v for k, v in given.items() if k in names and k not in RETIRED})
+                except (ConfigError, TypeError, ValueError):
+                    self._settings = None   # (refused with its reason once the file is read)
+        return self._settings
+
+    def __call__(self, path: tuple[Any, ...], root: dict[Any, Any]) -> tuple[int, str]:
+        """(most entries, the rule in words) of the mapping or list at ``path`` of the document ``root``."""
+        n = len(path)
+        head = path[0] if path else None
+        if (head == 'model' and path[1:] == ('joints',)) or (head in ('joints', 'samples_total') and n == 1):
+            return MAX_JOINTS, f'a correction file names at most {MAX_JOINTS} joints'
+        if head == 'temperature_edges_c' and n == 1:
+            s = self.settings(root)
+            return (10001, 'at most 10001 edges') if s is None else (
+                s.n_temperature + 1, "the settings' temperature bins + 1")
+        if head != 'joints' or n < 2:
+            return MAX_ENTRIES, 'no field of a correction file is longer'
+        s = self.settings(root)
+        nt = s.n_temperature if s is not None else 10000
+        if root.get('version') in (1, 2):   # joints.<j>: a list of cells
+            return (2 * nt, 'one cell per direction and temperature bin') if n == 2 else (
+                MAX_ENTRIES, 'no field of a version-1/2 cell is longer')
+        if n == 2:
+            return MAX_ENTRIES, 'no field of a joint is longer'
+        field = path[2]
+        ns = s.n_speed if s is not None else 40
+        if n == 3:
+            return self._joint_field(field, s, nt)
+        name = path[4] if n >= 5 else None
+        if n == 5 and field == 'applied' and name in ('speed_cw_nm', 'speed_ccw_nm'):
+            return ns, "one value per speed octave (the settings' speed_bins)"
+        if n == 5 and field == 'applied' and name in ('ripple', 'trend_nm'):
+            return (16, 'one [cos, sin] per ripple period') if name == 'ripple' else (4, 'four trend coefficients')
+        if n == 6 and field == 'applied' and name == 'ripple':
+            return 2, '[cos, sin]'
+        if n == 5 and field == 'cells' and name in ('octave', 'position_bin', *SUMS):
+            rows = ns * (s.n_position + 1) if s is not None else MAX_BYTES // 2
+            return rows, 'a row per speed octave and position bin (+ 1) of the settings'
+        if n == 5 and field == 'cells' and name == 'guard':
+            return len(GUARD_COLUMNS), f'{len(GUARD_COLUMNS)} guard columns'
+        return MAX_ENTRIES, 'no field of a joint is longer'
+
+    @staticmethod
+    def _joint_field(field: Any, s: CorrectionSettings | None, nt: int) -> tuple[int, str]:
+        if field == 'periods':
+            k = s.ripple_periods_max if s is not None else 16
+            return k, f'the ripple periods found: at most ripple_periods_max = {k}'
+        if field == 'ripple_periods_rad':
+            return 16, 'at most 16 ripple periods'
+        if field == 'angle_range_rad':
+            return 2, '[low, high]'
+        if field == 'applied':
+            return nt, 'one per temperature bin'
+        if field == 'cells':
+            return 2 * nt, 'one per direction and temperature bin'
+        return MAX_ENTRIES, 'no field of a joint is longer'
+
+
+def _yaml() -> tuple[Any, Any, dict[str, list[tuple[str, Any]]], list[tuple[str, Any]]]:
+    """PyYAML (imported when a file is read), its safe loader (libyaml's where present), and the resolver's rules of
+    plain scalars per first character plus those for any character (the YAML 1.1 types its safe loader gives)."""
+    import yaml
+    rules: dict[Any, list[tuple[str, Any]]] = yaml.resolver.Resolver.yaml_implicit_resolvers
+    wildcard = list(rules.get(None, []))
+    return yaml, getattr(yaml, 'CSafeLoader', yaml.SafeLoader), {
+        c: list(r) + wildcard for c, r in rules.items() if c is not None}, wildcard
+
+
+#: a mapping's frame before its next key
+_NO_KEY = object()
+#: plain scalars that are a float or an integer by YAML 1.1's rules and mean the same to ``float`` / ``int``
+_PLAIN_FLOAT = re.compile(r'[-+]?[0-9]+\.[0-9]*(?:[eE][-+][0-9]+)?\Z')
+_PLAIN_INT = re.compile(r'[-+]?(?:0|[1-9][0-9]*)\Z')
+
+
+def _parse(text: str, cancelled: Callable[[], bool] | None = None) -> Any:
+    """The YAML document of ``text``, built from the parser's events with its bounds checked as it goes, so a hostile
+    file is refused at its first entry too many, before anything large is built: nesting at most :data:`MAX_DEPTH`, a
+    scalar at most :data:`MAX_SCALAR_CHARS` characters, every mapping and list within the length the writer gives it
+    (:class:`_Limits`), no anchors, aliases or explicit tags (the writer writes none; an alias could multiply what is
+    built), one document, no repeated key. Plain scalars get the types PyYAML's safe loader gives them. Interruptible:
+    a signal is handled between two events, and ``cancelled`` (polled every few thousand events) returning True
+    stops it."""
+    yaml, loader, by_char, wildcard = _yaml()
+    constructor = yaml.constructor.SafeConstructor()
+    makers = constructor.yaml_constructors
+    limits = _Limits()
+    root: dict[Any, Any] = {}
+    document: list[Any] = []
+    # per open collection: [container, path, key awaiting its value (or _NO_KEY), entries, most entries, the rule]
+    stack: list[list[Any]] = []
+
+    def where(path: tuple[Any, ...]) -> str:
+        return '.'.join(map(str, path)) or 'the document'
+
+    def scalar(event: Any) -> Any:
+        value: str = event.value
+        if len(value) > MAX_SCALAR_CHARS:
+            raise CorrectionError(f'a value of {len(value)} characters (at most {MAX_SCALAR_CHARS}); not a correction '
+                                  'file, delete it')
+        if not event.implicit[0]:
+            return value    # quoted, or a block: a string
+        if _PLAIN_FLOAT.match(value):   # the writer's numbers (what the rules below give them, faster)
+            return float(value)
+        if _PLAIN_INT.match(value):
+            return int(value)
+        tag = None
+        for rule_tag, regexp in by_char.get(value[:1], wildcard):
+            if regexp.match(value):
+                tag = rule_tag
+                break
+        if tag is None or tag not in makers:
+            return value
+        if tag.endswith(':float'):
+            try:
+                return float(value)
+            except ValueError:
+                pass    # .inf, 1_0.5, sexagesimal: below
+        elif tag.endswith(':int') and value.isdigit() and (value[0] != '0' or len(value) == 1):
+            return int(value)
+        return makers[tag](constructor, yaml.ScalarNode(tag, value))
+
+    def add(value: Any, collection: bool) -> None:
+        if not stack:
+            if document:
+                raise CorrectionError('more than one YAML document; not a correction file, delete it')
+            document.append(value)
+            if not collection:
+                return
+            path: tuple[Any, ...] = ()
+        else:
+            frame = stack[-1]
+            container, parent, key = frame[0], frame[1], frame[2]
+            if type(container) is dict:
+                if key is _NO_KEY:    # this is a key
+                    if collection:
+                        raise CorrectionError(f'{where(parent)}: a key that is a mapping or a list; not a correction '
+                                              'file, delete it')
+                    if value in container:
+                        raise CorrectionError(f'{where(parent)}: key {value!r} repeated; restore it or relearn it')
+                    frame[2] = value
+                    return
+                frame[2] = _NO_KEY
+                container[key] = value
+            else:
+                key = len(container)
+                container.append(value)
+            frame[3] += 1
+            if frame[3] > frame[4]:
+                raise CorrectionError(f'{where(parent)} holds more than {frame[4]} entries ({frame[5]}); not what the '
+                                      'writer writes: delete it or relearn it')
+            if not collection:
+                return
+            path = (*parent, key)
+        if len(stack) >= MAX_DEPTH:
+            raise CorrectionError(f'YAML nested more than {MAX_DEPTH} deep; not a correction file, delete it')
+        most, rule = limits(path, document[0] if type(document[0]) is dict else root)
+        stack.append([value, path, _NO_KEY, 0, most, rule])
+
+    count = 0
+    parser = loader(text)
+    try:
+        while True:
+            event = parser.get_event()
+            if event is None:
+                break
+            kind = type(event)
+            if kind is yaml.ScalarEvent:
+                if event.anchor is not None or event.tag not in (None, '!'):
+                    raise CorrectionError(_special(event))
+                top = stack[-1] if stack else None
+                if top is not None and type(top[0]) is list:   # (most scalars: an entry of a list)
+                    top[0].append(scalar(event))
+                    top[3] += 1
+                    if top[3] > top[4]:
+                        raise CorrectionError(f'{where(top[1])} holds more than {top[4]} entries ({top[5]}); not '
+                                              'what the writer writes: delete it or relearn it')
+                else:
+                    add(scalar(event), False)
+            elif kind is yaml.MappingStartEvent or kind is yaml.SequenceStartEvent:
+                if event.anchor is not None or event.tag not in (None, '!'):
+                    raise CorrectionError(_special(event))
+                add({} if kind is yaml.MappingStartEvent else [], True)
+            elif kind is yaml.MappingEndEvent or kind is yaml.SequenceEndEvent:
+                stack.pop()
+            elif kind is yaml.AliasEvent:
+                raise CorrectionError('a YAML alias (*...); the writer writes none, delete it or relearn it')
+            count += 1
+            if cancelled is not None and count % _CANCEL_EVERY == 0 and cancelled():
+                raise CorrectionError('reading it was cancelled')
+    except yaml.YAMLError as err:
+        raise CorrectionError(f'not valid YAML ({" ".join(str(err).split())}); delete it') from None
+    finally:
+        dispose = getattr(parser, 'dispose', None)
+        if dispose is not None:
+            dispose()
+    return document[0] if document else None
+
+
+def _special(event: Any) -> str:
+    what = f'an anchor (&{event.anchor})' if event.anchor is not None else f'an explicit tag ({event.tag})'
+    return f'a YAML {what}; the writer writes none, delete it or relearn it'
+
+
+def load_file(path: str | os.PathLike[str], expected: ModelIdentity | None = None, *,
+              model: Mapping[str, AxisParams] | None = None,
+              cancelled: Callable[[], bool] | None = None) -> Loaded:
+    """The correction in ``path`` and a note for the reader; with ``expected``, one learned against that model only.
+
+    ``model`` (joint -> the parameters the reader runs): every figure the file stores is checked against that model
+    (:func:`check_against_model`: the mean |model| of every row within what the model gives over its temperature
+    bin and speed octave, so the bound on applied values the file's own sums set is the one learning against this
+    model keeps to); its identity must be the file's (``expected`` defaults to it). Reading has no shared state: it
+    may run in a thread while the correction in use keeps serving; ``cancelled`` (polled every few thousand YAML
+    events) returning True stops it with a CorrectionError.
+
+    Raises:
+        CorrectionError: one line naming the file, the cause and the fix: missing, unreadable, a symbolic link loop,
+            not a regular file, too big, not UTF-8, not YAML, nested too deep, a list or mapping longer than the
+            writer writes, not a correction file, another version, a field missing or out of range (named), a
+            figure the model cannot give, edited (sha256), or another model.
     """
     name = f'correction file {path}'
+    if model is not None and expected is None:
+        expected = model_identity(model)
     try:
         text = _read_bounded(path)
         body, digest = _split_digest(text)
-        doc = _parse(body)
+        doc = _parse(body, cancelled)
         note = None
         if isinstance(doc, dict) and doc.get('version') == VERSION:
             if digest is None:
-                note = 'edited by hand (no sha256 line): read as a deliberate edit'
+                note = _no_digest_note(body)
             elif hashlib.sha256(_strip_header(body).encode('utf-8')).hexdigest() != digest:
                 raise CorrectionError('sha256 does not match its content: edited after it was written or damaged; '
                                       'restore it, relearn it, or delete the sha256 line to use a deliberate edit')
         c, converted = _from_mapping(doc)
+        if expected is not None:
+            c.check_identity(expected, name)
+        if model is not None:   # (versions 1 and 2 kept a cell's rows at one speed: over every speed)
+            check_against_model(c, model, speed_octaves=converted is None)
     except (CorrectionError, ConfigError) as err:
-        raise CorrectionError(f'{name}: {err.args[0]}') from None
+        message = err.args[0]
+        raise CorrectionError(message if message.startswith(name) else f'{name}: {message}') from None
     except (KeyError, TypeError, ValueError, IndexError, AttributeError, OverflowError) as err:
         if isinstance(err, KeyError):
             reason = f'field {err.args[0]!r} is missing (a file cut short or edited); restore it or relearn it'
@@ -284,14 +512,24 @@ def load_file(path: str | os.PathLike[str], expected: ModelIdentity | None = Non
             reason = (f'a field has a value of the wrong kind ({" ".join(str(err).split())}; a file cut short or '
                       'edited); restore it or relearn it')
         raise CorrectionError(f'{name}: {reason}') from None
-    if expected is not None:
-        c.check_identity(expected, name)
     return Loaded(c, converted or note)
 
 
-def load(path: str | os.PathLike[str], expected: ModelIdentity | None = None) -> Correction:
+def _no_digest_note(body: str) -> str:
+    """What a version-3 file without its ``sha256`` line may be: with the writer's header intact it may equally be
+    a file cut short just before that last line (a copy or a save interrupted) or a deliberate edit; without the
+    header it was rewritten by hand or by a tool."""
+    if body.startswith(HEADER):
+        return ('no sha256 line: either deleted by hand to make an edit deliberate, or the file was cut short just '
+                'before that last line (an interrupted copy or save; everything before it is whole and checked); read '
+                'as a deliberate edit: if nobody edited it, restore it from a copy')
+    return 'edited by hand (no sha256 line, and the header the writer writes is gone): read as a deliberate edit'
+
+
+def load(path: str | os.PathLike[str], expected: ModelIdentity | None = None, *,
+         model: Mapping[str, AxisParams] | None = None) -> Correction:
     """:func:`load_file`'s correction."""
-    return load_file(path, expected).correction
+    return load_file(path, expected, model=model).correction
 
 
 def _split_digest(text: str) -> tuple[str, str | None]:
@@ -310,6 +548,121 @@ def _strip_header(body: str) -> str:
     while i < len(lines) and lines[i].startswith('#'):
         i += 1
     return '\n'.join(lines[i:])
+
+
+# ---------------------------------------------------------------------------------------------------- the model
+#: relative slack of :func:`check_against_model` [-]: the model's jump where Palmgren's Eq. 9 switches branch (0.8 %),
+#: its table's interpolation (2e-7) and a temperature grid inside a bin; a figure off by more was not learned
+#: against this model
+MODEL_SLACK = 0.02
+#: temperatures per bin and speeds per octave :func:`check_against_model` evaluates the model at [-], and the step of
+#: its table [°C] (the contact torques interpolated to ~1e-6, far inside the slack)
+_BIN_POINTS, _OCTAVE_POINTS, _TABLE_STEP_C = 11, 5, 0.25
+
+
+def _model_span_nm(params: AxisParams, s: CorrectionSettings, bins: NDArray[np.int64], lo_v: NDArray[np.float64],
+                   hi_v: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """The least and the largest model friction along the motion, k_d M [N·m] (rows: cw, ccw), over each
+    temperature bin of ``bins`` and speeds ``lo_v…hi_v`` [rad/s] (one per bin): as the feedforward's table gives it
+    (over the credible range, once its default; now the model's validity range, where a temperature outside is used
+    at the edge: either may have learned the file)."""
+    edges = np.asarray(s.edges_c())
+    frac = np.linspace(0.0, 1.0, _BIN_POINTS)
+    t = edges[bins, None] + frac[None, :] * s.temperature_bin_c                              # (rows, points)
+    kink = loose_fit_temperature(params)
+    t = np.concatenate([t, np.clip(np.full((len(bins), 1), kink if math.isfinite(kink) else edges[0]),
+                                   edges[bins, None], edges[bins + 1, None])], axis=1)
+    r = validity_range(params)
+    lows, highs = [], []
+    for temps in (np.clip(t, r.low_c, r.high_c), t):
+        try:
+            with np.errstate(all='ignore'):
+                table = FrictionTable(params, float(temps.min()), max(float(temps.max()), float(temps.min()) + 1.0),
+                                      _TABLE_STEP_C)
+        except (ModelDomainError, ConfigError):
+            continue   # the equations do not reach there: no feedforward evaluated them
+        u = np.linspace(0.0, 1.0, _OCTAVE_POINTS)
+        v = np.exp(np.log(lo_v)[:, None] + u[None, :] * np.log(hi_v / lo_v)[:, None])        # (rows, speeds)
+        tt = np.broadcast_to(temps[:, :, None], (*temps.shape, v.shape[1]))
+        vv = np.broadcast_to(v[:, None, :], tt.shape)
+        with np.errstate(all='ignore'):
+            m = table.magnitude_nm(tt.ravel(), vv.ravel(), ARRAY).reshape(tt.shape)
+            k_pos, k_neg = direction_factors(params, tt, ARRAY)
+        for k in (k_pos, k_neg):
+            along = np.where(np.isfinite(k * m), k * m, np.nan)
+            lows.append(np.nanmin(along, axis=(1, 2)))
+            highs.append(np.nanmax(along, axis=(1, 2)))
+    if not lows:
+        nan = np.full(len(bins), np.nan)
+        return np.stack([nan, nan]), np.stack([nan, nan])
+    low = np.stack([np.fmin.reduce(lows[0::2]), np.fmin.reduce(lows[1::2])])
+    high = np.stack([np.fmax.reduce(highs[0::2]), np.fmax.reduce(highs[1::2])])
+    return low, high
+
+
+def check_against_model(c: Correction, model: Mapping[str, AxisParams], *, speed_octaves: bool = True) -> None:
+    """Check every figure of ``c`` that depends on the model against ``model`` (joint -> the parameters it was
+    learned against, as the node runs them): each row's mean |model| (Σ model / n) must lie within what the model
+    gives over the row's temperature bin and speed octave (``speed_octaves`` False: over every speed, for rows
+    converted from versions 1 and 2), :data:`MODEL_SLACK` either way; each cell's out-of-sample scores within what
+    residuals inside the learning gate can sum to. The bound on applied values (``max_relative`` × the largest mean
+    |model| of a bin + ``floor_nm``), checked when the file was read, then is the one learning against this model
+    keeps to: a file moves the feedforward no further than the node could have learned to.
+
+    Raises:
+        CorrectionError: one line naming the joint, the cell and the figure (no file name: the caller adds it).
+    """
+    s = c.settings
+    nt, ns = s.n_temperature, s.n_speed
+    for joint in c.identity.joints:
+        params = model.get(joint)
+        if params is None:
+            raise CorrectionError(f'joint {joint}: not in the model given to check it against')
+        st = c.joint(joint)
+        keys, sums = st.stats.rows()
+        if not keys.size:
+            continue
+        d, b, k, _, _ = st.stats.decode(keys)
+        mean = sums[:, 2] / sums[:, 0]
+        octave = k if speed_octaves else np.zeros_like(k)
+        last = s.min_speed_rad_s * 2.0 ** ns
+        lo_v = np.where(octave > 0, s.min_speed_rad_s * 2.0 ** octave, s.min_speed_rad_s) if speed_octaves \
+            else np.full(k.shape, s.min_speed_rad_s)
+        hi_v = np.where(octave < ns - 1, s.min_speed_rad_s * 2.0 ** (octave + 1), max(last, s.max_speed_rad_s)) \
+            if speed_octaves and ns > 1 else np.full(k.shape, max(last, s.max_speed_rad_s))
+        combos, first, inverse = np.unique(np.stack([b, octave]), axis=1, return_index=True, return_inverse=True)
+        inverse = inverse.ravel()
+        low, high = _model_span_nm(params, s, combos[0], lo_v[first], hi_v[first])
+        row_low, row_high = low[d, inverse], high[d, inverse]
+        bad = ~((mean >= row_low * (1.0 - MODEL_SLACK) - 1e-15) & (mean <= row_high * (1.0 + MODEL_SLACK) + 1e-15))
+        if bad.any():
+            i = int(np.flatnonzero(bad)[0])
+            dd, bb = int(d[i]), int(b[i])
+            span = (f'{row_low[i]:.4g}..{row_high[i]:.4g} N*m' if np.isfinite(row_low[i]) else
+                    'nothing (the model does not reach there)')
+            raise CorrectionError(f'joint {joint}: cell {DIRECTIONS[dd]} bin {bb} ({s.centre_c(bb):g} degC) claims a '
+                                  f'mean |model| of {mean[i]:.4g} N*m where the model it names gives {span} over the '
+                                  'bin and speed octave: not learned against this model (a hand edit or damage); '
+                                  'restore it or relearn it')
+        # the out-of-sample scores: squared residuals inside the learning gate (the model alone) and beyond it by
+        # at most the applied bound (with the candidate)
+        cell = d * nt + b
+        peak = np.zeros(2 * nt)
+        np.maximum.at(peak, cell, row_high)
+        gate = s.max_residual_relative * peak + s.max_residual_floor_nm
+        along = s.max_relative * peak + s.floor_nm
+        reach = gate + along + np.maximum(along, s.max_independent_nm)
+        g = st.guard.reshape(2 * nt, -1)
+        n_col, e_model, e_full = (GUARD_COLUMNS.index(x) for x in ('n', 'e_model', 'e_full'))
+        counts = st.stats.cell_counts()
+        worse = np.flatnonzero((g[:, n_col] > counts * (1.0 + 1e-9) + 1e-9)
+                               | (g[:, e_model] > g[:, n_col] * gate ** 2 * (1.0 + MODEL_SLACK) + 1e-30)
+                               | (g[:, e_full] > g[:, n_col] * reach ** 2 * (1.0 + MODEL_SLACK) + 1e-30))
+        if worse.size:
+            dd, bb = divmod(int(worse[0]), nt)
+            raise CorrectionError(f'joint {joint}: cell {DIRECTIONS[dd]} bin {bb} ({s.centre_c(bb):g} degC): its '
+                                  'guard scores more samples or larger squared residuals than the learning gate lets '
+                                  'through (a hand edit or damage); restore it or relearn it')
 
 
 def check(doc: Any) -> None:
@@ -433,6 +786,7 @@ def _read_joint_v3(c: Correction, j: str, jd: Any) -> None:
     cell_sq = np.zeros(2 * nt)
     guard = np.zeros((2, nt, len(GUARD_COLUMNS)))
     seen = set()
+    levels: dict[tuple[int, int], tuple[float, str]] = {}
     for i, rec in enumerate(jd['cells'] or []):
         f = f'{where}: cells[{i}]'
         if not isinstance(rec, dict) or rec.get('direction') not in DIRECTIONS:
@@ -471,6 +825,15 @@ def _read_joint_v3(c: Correction, j: str, jd: Any) -> None:
         if sq < (sum(sr) ** 2 / samples) * (1.0 - 1e-9) - 1e-300:
             raise CorrectionError(f'{f}.sum_sq_nm2 = {sq!r} is smaller than its sums allow (a hand edit or damage)')
         cell_sq[d * nt + b] = sq
+        # what the cell says, as the writer derived it from these sums
+        _centre(rec['centre_c'], s.centre_c(b), f'{f}.centre_c')
+        mean = _number(rec['mean_nm'], f'{f}.mean_nm')
+        if abs(mean - sum(sr) / samples) > 1e-9 * (abs(mean) + sum(map(abs, sr)) / samples) + 1e-300:
+            raise CorrectionError(f'{f}.mean_nm = {mean!r} is not the mean of its sums ({sum(sr) / samples!r}); '
+                                  'restore it or relearn it')
+        levels[(d, b)] = (_number(rec['value_nm'], f'{f}.value_nm'), f'{f}.value_nm')
+        if not isinstance(rec['applied'], bool) or not isinstance(rec['held_back'], str):
+            raise CorrectionError(f'{f}: applied must be true or false and held_back a text')
         g = _numbers(rec['guard'], f'{f}.guard', len(GUARD_COLUMNS))
         if any(g[c_] < 0.0 for c_, name in enumerate(GUARD_COLUMNS)
                if not name.startswith('d_') and (name == 'open_n' or not name.startswith('open_'))):
@@ -487,6 +850,10 @@ def _read_joint_v3(c: Correction, j: str, jd: Any) -> None:
     st.guard = guard
     # applied: within the bound learning keeps to
     bounds = applied_bound_nm(st.stats)
+    for (_, b), (level, f) in levels.items():
+        if abs(level) > float(bounds[b]) * (1 + 1e-9) + 1e-300:
+            raise CorrectionError(f'{f} = {level!r} lies beyond the bound learning keeps to ({float(bounds[b]):.4g} '
+                                  'N*m); restore it or relearn it')
     p = empty_params(s, np.asarray(slots))
     have_rows = np.zeros(nt, dtype=bool)
     for _, b in seen:
@@ -496,6 +863,7 @@ def _read_joint_v3(c: Correction, j: str, jd: Any) -> None:
         b = _count(rec['bin'], f'{f}.bin')
         if b >= nt or not have_rows[b]:
             raise CorrectionError(f'{f}.bin = {b} has no samples (or is out of range); an applied value needs them')
+        _centre(rec['centre_c'], s.centre_c(b), f'{f}.centre_c')
         bound = float(bounds[b])
         p.speed_nm[0, b] = _numbers(rec['speed_cw_nm'], f'{f}.speed_cw_nm', ns, -bound * (1 + 1e-9),
                                     bound * (1 + 1e-9))
@@ -514,6 +882,12 @@ def _read_joint_v3(c: Correction, j: str, jd: Any) -> None:
     st.applied = p
     st.angle_range = angle
     c.rebuild(j)
+
+
+def _centre(value: Any, centre_c: float, field: str) -> None:
+    if abs(_number(value, field) - centre_c) > 1e-9 * (1.0 + abs(centre_c)):
+        raise CorrectionError(f'{field} = {value!r} is not the centre of its bin ({centre_c:g} degC); restore it or '
+                              'relearn it')
 
 
 def _list(values: Any, field: str, n: int) -> list[Any]:
@@ -561,6 +935,10 @@ def _read_joint_old(c: Correction, j: str, cells: Any, old_settings: dict[str, A
         ref = _number(rec.get('speed_ref', 1.0), f'{f}.speed_ref') if version == 2 else 1.0
         x_nodes = (octave_v / v_ref) ** (2.0 / 3.0)
         bound = s.max_relative * sm / n + s.floor_nm
+        if abs(value) > bound * (1 + 1e-9) + 1e-300:
+            raise CorrectionError(f'{f}.value_nm = {value!r} lies beyond the bound learning keeps to '
+                                  f'(max_relative x its mean |model| + floor_nm = {bound:.4g} N*m); restore it or '
+                                  'relearn it')
         p.speed_nm[d, b] = np.clip(value + slope * (x_nodes - ref) if s.speed_term else value, -bound, bound)
         if bins and 'harmonics_cos' in rec:
             harmonics.setdefault(b, []).append((_numbers(rec['harmonics_cos'], f'{f}.harmonics_cos'),

@@ -9,12 +9,13 @@ that never delay the caller (a snapshot written by a thread, atomically).
 
 from __future__ import annotations
 
+import os
 import threading
 import time
-from pathlib import Path
+from collections.abc import Mapping
 
 from gimbal_friction.feedforward.correction.core import Correction
-from gimbal_friction.feedforward.correction.file import load_file, remove_stale_temporaries, save
+from gimbal_friction.feedforward.correction.file import exists, load_file, remove_stale_temporaries, save
 from gimbal_friction.feedforward.correction.learner import Learner
 from gimbal_friction.feedforward.correction.settings import (
     LAYOUT,
@@ -23,6 +24,7 @@ from gimbal_friction.feedforward.correction.settings import (
     LearningSettings,
     ModelIdentity,
 )
+from gimbal_friction.physics.params import AxisParams
 
 __all__ = ['CorrectionKeeper']
 
@@ -37,8 +39,11 @@ class CorrectionKeeper:
     was accepted (a deliberate hand edit, an older version converted).
     """
 
-    def __init__(self, identity: ModelIdentity, settings: CorrectionSettings, learning: LearningSettings) -> None:
+    def __init__(self, identity: ModelIdentity, settings: CorrectionSettings, learning: LearningSettings,
+                 model: Mapping[str, AxisParams] | None = None) -> None:
         self.identity, self.settings = identity, settings
+        #: the model's parameters per joint (of ``identity``): a file read is checked against them (None: its identity)
+        self.model = model
         self.learner = Learner(Correction(settings, identity), learning)
         self.load_error: str | None = None
         self.load_note: str | None = None
@@ -64,7 +69,7 @@ class CorrectionKeeper:
         Raises:
             CorrectionError: one line naming the file, the cause and the fix.
         """
-        loaded = load_file(path, expected=self.identity)
+        loaded = load_file(path, expected=self.identity, model=self.model)
         c = loaded.correction
         for name in LAYOUT:
             have, want = getattr(c.settings, name), getattr(self.settings, name)
@@ -85,9 +90,9 @@ class CorrectionKeeper:
         if not path:
             return
         self.removed_temporaries = [str(p) for p in remove_stale_temporaries(path)]
-        if not Path(path).exists():
-            return
         try:
+            if not exists(path):   # (a symbolic link loop is refused, not taken for no file yet)
+                return
             self.replace(self.read(path))
             self.loaded_from = path
         except CorrectionError as err:
@@ -105,11 +110,12 @@ class CorrectionKeeper:
         self.settings = settings
         self.learner.correction = self.adopt(self.correction)
 
-    def set_identity(self, identity: ModelIdentity) -> bool:
-        """The model changed: a correction learned against the old one does not apply; start empty. True if it
-        held something."""
+    def set_identity(self, identity: ModelIdentity, model: Mapping[str, AxisParams] | None = None) -> bool:
+        """The model changed (``model``: its parameters per joint): a correction learned against the old one does not
+        apply; start empty. True if it held something."""
         if identity == self.identity:
             return False
+        self.model = model
         had = bool(self.correction.summary()['samples']) or self.learner.pending > 0 or self.load_error is not None
         self.identity = identity
         self.replace(Correction(self.settings, identity))
@@ -124,8 +130,8 @@ class CorrectionKeeper:
         :attr:`last_save_error`."""
         if not path or not (self.dirty or self.learner.pending):
             return False
-        if self._refused_path is not None and Path(path).resolve() == Path(self._refused_path).resolve() \
-                and Path(path).exists():
+        if self._refused_path is not None and os.path.realpath(path) == os.path.realpath(self._refused_path) \
+                and os.path.lexists(path):
             self.last_save_error = (f'not saved: {path} was refused at load and is not overwritten; delete it or '
                                     'set another file')
             return False
