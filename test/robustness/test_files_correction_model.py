@@ -123,11 +123,16 @@ def test_a_model_sum_off_by_a_factor_is_refused(tmp_path: Path, good_text: str, 
     refused_with_the_model(written(tmp_path / 'c.yaml', doc), 'mean |model|')
 
 
-def test_guard_scores_beyond_the_learning_gate_are_refused(tmp_path: Path, good_text: str) -> None:
+@pytest.mark.parametrize(('column', 'value'), [(0, 1e9), (1, 1e6)])
+def test_guard_scores_beyond_what_the_cell_learned_are_refused(tmp_path: Path, good_text: str, column: int,
+                                                                value: float) -> None:
+    """The guard scores samples the cell then learns: never more of them (column n) nor larger squared residuals
+    (e_model) than the cell holds."""
     doc = doc_of(good_text)
-    cell = doc['joints']['elevation']['cells'][0]
-    cell['guard'][1] = 1e6        # e_model: squared residuals no gate lets through
-    refused_with_the_model(written(tmp_path / 'c.yaml', doc), 'guard scores')
+    doc['joints']['elevation']['cells'][0]['guard'][column] = value
+    path = written(tmp_path / 'c.yaml', doc)
+    with pytest.raises(CorrectionError, match=r'cells\[0\]\.guard: it scores more samples or larger squared'):
+        load(path)
 
 
 @pytest.mark.parametrize(('name', 'change', 'words'), [

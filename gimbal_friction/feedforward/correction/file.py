@@ -282,7 +282,7 @@ class _Limits:
         nt = s.n_temperature if s is not None else 10000
         if root.get('version') in (1, 2):   # joints.<j>: a list of cells
             return (2 * nt, 'one cell per direction and temperature bin') if n == 2 else (
-                MAX_ENTRIES, 'no field of a version-1/2 cell is longer')
+                MAX_ENTRIES if n == 3 else 10000, 'no field of a version-1/2 cell is longer')
         if n == 2:
             return MAX_ENTRIES, 'no field of a joint is longer'
         field = path[2]
@@ -604,16 +604,16 @@ def check_against_model(c: Correction, model: Mapping[str, AxisParams], *, speed
     """Check every figure of ``c`` that depends on the model against ``model`` (joint -> the parameters it was
     learned against, as the node runs them): each row's mean |model| (Σ model / n) must lie within what the model
     gives over the row's temperature bin and speed octave (``speed_octaves`` False: over every speed, for rows
-    converted from versions 1 and 2), :data:`MODEL_SLACK` either way; each cell's out-of-sample scores within what
-    residuals inside the learning gate can sum to. The bound on applied values (``max_relative`` × the largest mean
-    |model| of a bin + ``floor_nm``), checked when the file was read, then is the one learning against this model
-    keeps to: a file moves the feedforward no further than the node could have learned to.
+    converted from versions 1 and 2), :data:`MODEL_SLACK` either way. The bound on applied values (``max_relative``
+    × the largest mean |model| of a bin + ``floor_nm``), checked when the file was read, then is the one learning
+    against this model keeps to: a file moves the feedforward no further than the node could have learned to.
 
     Raises:
         CorrectionError: one line naming the joint, the cell and the figure (no file name: the caller adds it).
     """
     s = c.settings
-    nt, ns = s.n_temperature, s.n_speed
+    ns = s.n_speed
+    top = max(s.min_speed_rad_s * 2.0 ** ns, s.max_speed_rad_s)   # the last octave holds every faster sample learned
     for joint in c.identity.joints:
         params = model.get(joint)
         if params is None:
@@ -625,11 +625,10 @@ def check_against_model(c: Correction, model: Mapping[str, AxisParams], *, speed
         d, b, k, _, _ = st.stats.decode(keys)
         mean = sums[:, 2] / sums[:, 0]
         octave = k if speed_octaves else np.zeros_like(k)
-        last = s.min_speed_rad_s * 2.0 ** ns
-        lo_v = np.where(octave > 0, s.min_speed_rad_s * 2.0 ** octave, s.min_speed_rad_s) if speed_octaves \
-            else np.full(k.shape, s.min_speed_rad_s)
-        hi_v = np.where(octave < ns - 1, s.min_speed_rad_s * 2.0 ** (octave + 1), max(last, s.max_speed_rad_s)) \
-            if speed_octaves and ns > 1 else np.full(k.shape, max(last, s.max_speed_rad_s))
+        lo_v = s.min_speed_rad_s * 2.0 ** octave.astype(float)
+        hi_v = np.where(octave < ns - 1, 2.0 * lo_v, top)
+        if not speed_octaves:   # (a version-1/2 cell's row: its samples at any speed)
+            lo_v, hi_v = np.full(k.shape, s.min_speed_rad_s), np.full(k.shape, top)
         combos, first, inverse = np.unique(np.stack([b, octave]), axis=1, return_index=True, return_inverse=True)
         inverse = inverse.ravel()
         low, high = _model_span_nm(params, s, combos[0], lo_v[first], hi_v[first])
@@ -644,25 +643,6 @@ def check_against_model(c: Correction, model: Mapping[str, AxisParams], *, speed
                                   f'mean |model| of {mean[i]:.4g} N*m where the model it names gives {span} over the '
                                   'bin and speed octave: not learned against this model (a hand edit or damage); '
                                   'restore it or relearn it')
-        # the out-of-sample scores: squared residuals inside the learning gate (the model alone) and beyond it by
-        # at most the applied bound (with the candidate)
-        cell = d * nt + b
-        peak = np.zeros(2 * nt)
-        np.maximum.at(peak, cell, row_high)
-        gate = s.max_residual_relative * peak + s.max_residual_floor_nm
-        along = s.max_relative * peak + s.floor_nm
-        reach = gate + along + np.maximum(along, s.max_independent_nm)
-        g = st.guard.reshape(2 * nt, -1)
-        n_col, e_model, e_full = (GUARD_COLUMNS.index(x) for x in ('n', 'e_model', 'e_full'))
-        counts = st.stats.cell_counts()
-        worse = np.flatnonzero((g[:, n_col] > counts * (1.0 + 1e-9) + 1e-9)
-                               | (g[:, e_model] > g[:, n_col] * gate ** 2 * (1.0 + MODEL_SLACK) + 1e-30)
-                               | (g[:, e_full] > g[:, n_col] * reach ** 2 * (1.0 + MODEL_SLACK) + 1e-30))
-        if worse.size:
-            dd, bb = divmod(int(worse[0]), nt)
-            raise CorrectionError(f'joint {joint}: cell {DIRECTIONS[dd]} bin {bb} ({s.centre_c(bb):g} degC): its '
-                                  'guard scores more samples or larger squared residuals than the learning gate lets '
-                                  'through (a hand edit or damage); restore it or relearn it')
 
 
 def check(doc: Any) -> None:
@@ -838,6 +818,10 @@ def _read_joint_v3(c: Correction, j: str, jd: Any) -> None:
         if any(g[c_] < 0.0 for c_, name in enumerate(GUARD_COLUMNS)
                if not name.startswith('d_') and (name == 'open_n' or not name.startswith('open_'))):
             raise CorrectionError(f'{f}.guard: a count or sum of squares is negative')
+        # (the scores are of samples the cell then learned, forgetting: no more of them, no larger squares)
+        if g[0] > samples * (1.0 + 1e-9) or g[1] > sq * (1.0 + 1e-9) + 1e-300:
+            raise CorrectionError(f'{f}.guard: it scores more samples or larger squared residuals than the cell '
+                                  'holds (a hand edit or damage); restore it or relearn it')
         guard[d, b] = g
         for m in range(k):
             jj = int(pos[m]) if pos[m] >= 0 else npos
