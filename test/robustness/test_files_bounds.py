@@ -137,6 +137,18 @@ def test_a_large_file_of_the_writers_shape_still_loads_and_a_reader_can_stop_it(
     assert len(calls) == 1
 
 
+def test_nothing_is_written_that_is_too_big_to_read_back(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A correction whose file would pass the reader's size limit is not written (the reader would refuse it at
+    the next start, and a refused file is never overwritten): the file there stays."""
+    path = tmp_path / 'c.yaml'
+    save(learned(), path)
+    before = path.read_bytes()
+    monkeypatch.setattr(cfile, 'MAX_BYTES', len(before) // 2)
+    with pytest.raises(CorrectionError, match=r'not written, \d+ bytes is more than the'):
+        save(learned(n=6000), path)
+    assert path.read_bytes() == before and sorted(p.name for p in tmp_path.iterdir()) == ['c.yaml']
+
+
 def test_reading_has_no_shared_state_so_threads_may_read_while_one_serves(tmp_path: Path) -> None:
     """What the node needs to load a file set at run time while the old correction keeps serving: reads in threads
     at once give what each gives alone."""

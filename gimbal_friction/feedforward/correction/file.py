@@ -171,7 +171,8 @@ def _dump(mapping: dict[str, Any]) -> str:
 
 def save(c: Correction, path: str | os.PathLike[str]) -> None:
     """Write ``c`` to ``path`` atomically (a temporary file in the same folder, renamed over ``path``), after
-    checking it reads back (:func:`check`: a state the reader would refuse is never written).
+    checking it reads back (:func:`check`, and at most :data:`MAX_BYTES`: a state the reader would refuse is never
+    written).
 
     Raises:
         CorrectionError: the correction would not read back, or the file cannot be written (one line).
@@ -183,8 +184,12 @@ def save(c: Correction, path: str | os.PathLike[str]) -> None:
         raise CorrectionError(f'correction file {path}: not written, it would not read back: {err}') from None
     body = _dump(mapping)
     digest = hashlib.sha256(body.encode('utf-8')).hexdigest()
-    text = HEADER + body + f'sha256: {digest}\n'
-    write_bytes_atomic(Path(path), text.encode('utf-8'), fsync=True, what='correction file', error=CorrectionError)
+    data = (HEADER + body + f'sha256: {digest}\n').encode('utf-8')
+    if len(data) > MAX_BYTES:   # (the reader would refuse it: keep the file there is)
+        raise CorrectionError(f'correction file {path}: not written, {len(data)} bytes is more than the {MAX_BYTES} '
+                              'a correction file may have (rows over too many positions and temperatures); '
+                              'coarsen correction_position_resolution_rad or start a new file')
+    write_bytes_atomic(Path(path), data, fsync=True, what='correction file', error=CorrectionError)
 
 
 def remove_stale_temporaries(path: str | os.PathLike[str], older_than_s: float = 5.0) -> list[Path]:
