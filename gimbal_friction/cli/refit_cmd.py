@@ -105,9 +105,12 @@ def add_parser(sub: Any) -> None:
                             description='Refit the Walther viscosity constants (and with --fit the Palmgren factor, '
                             'the sliding coefficient and the per-direction factors) to the measured friction in '
                             'residual logs by weighted least squares on the full model; report the fitted values '
-                            'with 95 % confidence intervals, which parameters the data can determine, and the RMS '
-                            'residual before and after per temperature bin and direction; write a parameter file '
-                            'layerable with --config / --params-file (refitted values under axis.<name>).')
+                            'with their intervals, which parameters the data can determine, the RMS residual before '
+                            'and after per temperature bin and direction, and whether the model fits every bin (a '
+                            'lack-of-fit check against batch-means standard errors: only then are the intervals 95 '
+                            '% confidence intervals; otherwise the bins off are named, with what to try); write a '
+                            'parameter file layerable with --config / --params-file (refitted values under '
+                            'axis.<name>).')
     parser.add_argument('logs', nargs='+', type=Path, metavar='LOG_DIR',
                         help='residual-log folder (or .mcap file) written by residual_logger or replay')
     parser.add_argument('--out', type=Path, required=True, metavar='FILE.yaml',
@@ -265,8 +268,18 @@ def plot_refit(fits: list[AxisRefit], path: Path) -> Path:
                        label=f'nu*n >= {PALMGREN_THRESHOLD:g} (refitted, {min(speeds):.3g} rpm): M_L depends on nu')
         ax.set_xlabel('temperature [°C]')
         ax.set_ylabel('friction torque |M| of the axis [N·mm]')
-        ax.set_title(f'{f.axis}: measured vs model by direction (paper Fig. 13)\nRMS residual '
-                     f'{1e3 * r.rms_before_nm:.3g} -> {1e3 * r.rms_after_nm:.3g} N·mm', fontsize=9)
+        notes = []
+        if r.direction != 'both':
+            other = 'CCW' if r.direction == 'cw' else 'CW'
+            notes.append(f'fitted on {r.direction.upper()} samples only: a model of {r.direction.upper()} motion'
+                         + (f', NOT of {other} (its samples do not fit it)' if f.held_out.checked
+                            and not f.held_out.fits else ''))
+        if r.fit_check.checked and not r.fit_check.fits:
+            notes.append(f'the model does NOT fit {len(r.fit_check.misfits)} of {len(r.fit_check.bins)} bins: its '
+                         'intervals are not confidence intervals')
+        rms = f'RMS residual {1e3 * r.rms_before_nm:.3g} -> {1e3 * r.rms_after_nm:.3g} N·mm'
+        ax.set_title('\n'.join([f'{f.axis}: measured vs model by direction (paper Fig. 13)', rms, *notes]),
+                     fontsize=9)
         ax.grid(True, alpha=0.4)
         ax.legend(fontsize=7)
     fig.tight_layout()

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import textwrap
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -169,7 +170,8 @@ def plot_model_vs_measured(summary: Sequence[dict[str, Any]], models: dict[str, 
     ax.set_xlabel('temperature [°C]')
     ax.set_ylabel('friction torque of the axis [N·mm]')
     head = title or 'Model vs measured friction by direction (paper Fig. 13)'
-    ax.set_title('\n'.join([head, *notes]), fontsize=9 if notes else None)
+    lines = [line for note in notes for line in textwrap.wrap(note, 100)]
+    ax.set_title('\n'.join([head, *lines]), fontsize=8 if notes else None)
     ax.grid(True, alpha=0.4)
     ax.legend(fontsize=8)
     fig.tight_layout()
