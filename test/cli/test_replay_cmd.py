@@ -293,7 +293,7 @@ def test_every_missing_topic_and_the_topic_option_are_named(tmp_path, capsys):
     assert main(['replay', str(bag), '--out', str(tmp_path / 'out')]) == 1
     line = _one_line_refusal(capsys, 'replay')
     assert f'required topics {topics.JOINT_STATES}, {topics.MOTOR_CURRENT} are missing' in line
-    assert f'--topic {topics.JOINT_STATES}=/gimbal/joint_states --topic {topics.MOTOR_CURRENT}=BAG_TOPIC' in line
+    assert f'--topic {topics.JOINT_STATES}=/gimbal/joint_states --topic {topics.MOTOR_CURRENT}=/drive/current' in line
     assert not (tmp_path / 'out').exists()
     assert main(['replay', str(bag), '--out', str(tmp_path / 'out'), '--topic',
                  f'{topics.JOINT_STATES}=/gimbal/joint_states', '--topic',
