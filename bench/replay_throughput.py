@@ -1,8 +1,11 @@
 """Throughput of ``gimbal-friction replay`` against the decode limit of the same bag, measured in the same run.
 
-Two bags by default: ``bags/chamber_sample`` (61 k messages) and a synthetic chamber bag of 2.6 M messages
+Three bags by default: ``bags/chamber_sample`` (61 k messages), a synthetic chamber bag of 2.6 M messages
 (``--big-bag``, default ``/tmp/gimbal_friction_bench/chamber_1khz``: the sample's test with the joint states and
-motor currents at 1 kHz), written by ``gimbal-friction synth-bag`` when absent. On each bag, repeated ``--repeat``
+motor currents at 1 kHz) and issue 31's composition (``--long-bag``, default
+``/tmp/gimbal_friction_bench/chamber_long_holds``: ``synth-bag --seed 5 --hold-s 600 --soak-s 60 --joint-rate-hz
+250 --storage mcap``, 2.19 M messages whose 945 k accepted samples make a residual log of 7.06 M messages), each
+written by ``gimbal-friction synth-bag`` when absent. On each bag, repeated ``--repeat``
 times, interleaved (the order is reversed on every other round so that neither side always runs on a warm or a
 cold machine):
 
@@ -51,20 +54,24 @@ SAMPLE_BAG = ROOT / 'bags' / 'chamber_sample'
 BIG_BAG = Path(tempfile.gettempdir()) / 'gimbal_friction_bench' / 'chamber_1khz'
 #: ``gimbal-friction synth-bag`` options of the big bag (2,588,347 messages; about a minute to write)
 BIG_BAG_OPTIONS = ('--joint-rate-hz', '1000')
+#: issue 31's composition (2,188,720 messages: long holds, 250 Hz joint states; 945 k accepted samples, so the
+#: residual log outweighs the bag: 7.06 M messages written for 2.19 M read; about 80 s to write)
+LONG_BAG = Path(tempfile.gettempdir()) / 'gimbal_friction_bench' / 'chamber_long_holds'
+LONG_BAG_OPTIONS = ('--seed', '5', '--hold-s', '600', '--soak-s', '60', '--joint-rate-hz', '250', '--storage', 'mcap')
 STAGE_ORDER = ('setup', 'reading bag', 'nodes', 'summary', 'serializing log', 'writing residual log')
 
 Workload = Callable[[Path], tuple[float, int, dict[str, float]]]
 
 
-def ensure_big_bag(path: Path) -> Path:
-    """The big bag at ``path``, written with ``gimbal-friction synth-bag`` if it is not there."""
+def ensure_big_bag(path: Path, options: Sequence[str] = BIG_BAG_OPTIONS) -> Path:
+    """The big bag at ``path``, written with ``gimbal-friction synth-bag OPTIONS`` if it is not there."""
     if (path / 'metadata.yaml').is_file():
         return path
     path.parent.mkdir(parents=True, exist_ok=True)
-    print(f'writing the big bag {path} (gimbal-friction synth-bag {" ".join(BIG_BAG_OPTIONS)}; about a minute)',
+    print(f'writing the bag {path} (gimbal-friction synth-bag {" ".join(options)}; a minute or two)',
           file=sys.stderr)
     from gimbal_friction.cli.main import main as cli
-    if cli(['synth-bag', '--out', str(path), *BIG_BAG_OPTIONS]) != 0:
+    if cli(['synth-bag', '--out', str(path), *options]) != 0:
         msg = f'synth-bag failed to write {path}'
         raise SystemExit(msg)
     return path
@@ -198,10 +205,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split('\n\n')[0],
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument('--bag', type=Path, action='append',
-                        help='chamber-test bag (repeatable; default: bags/chamber_sample and the big bag)')
+                        help='chamber-test bag (repeatable; default: bags/chamber_sample, the big bag and the '
+                        'long-holds bag)')
     parser.add_argument('--big-bag', type=Path, default=BIG_BAG,
                         help=f'the big bag, written by synth-bag if absent (default {BIG_BAG})')
-    parser.add_argument('--sample-only', action='store_true', help='only bags/chamber_sample (no big bag)')
+    parser.add_argument('--long-bag', type=Path, default=LONG_BAG,
+                        help=f'the long-holds bag of issue 31, written by synth-bag if absent (default {LONG_BAG})')
+    parser.add_argument('--sample-only', action='store_true', help='only bags/chamber_sample (no big bags)')
     parser.add_argument('--repeat', type=int, default=3, help='rounds of each workload (default 3)')
     parser.add_argument('--no-inputs', action='store_true',
                         help='also time the replay without copying the input topics (replay --no-inputs)')
@@ -218,7 +228,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         parser.error('--repeat must be >= 1')
     if args.before is not None and not (args.before / 'gimbal_friction' / '__init__.py').is_file():
         parser.error(f'--before {args.before}: no gimbal_friction package there')
-    bags = list(args.bag) if args.bag else [SAMPLE_BAG] + ([] if args.sample_only else [ensure_big_bag(args.big_bag)])
+    bags = list(args.bag) if args.bag else [SAMPLE_BAG] + ([] if args.sample_only else [
+        ensure_big_bag(args.big_bag), ensure_big_bag(args.long_bag, LONG_BAG_OPTIONS)])
     docs = [bench_bag(bag, args) for bag in bags]
     machine = {'date': time.strftime('%Y-%m-%d %H:%M %Z'), 'machine': platform.machine(), 'cpus': os.cpu_count(),
                'python': platform.python_version(), 'processor': platform.processor() or platform.machine()}

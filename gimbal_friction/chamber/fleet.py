@@ -477,7 +477,7 @@ def progress_line(done: int, total: int, rec: Mapping[str, Any], stream: Any = N
         status = 'ok' + ''.join(f'; {axis} failed: {why}' for axis, why in failed.items())
     read = rec.get('read') or {}
     if read.get('skipped'):  # every command that skips data says how much
-        status += f'; skipped: {read["summary"]}'
+        status += f'; {read["summary"]}'
     out.write(f'fleet: {done}/{total} {rec["unit"]} ({rec.get("seconds", math.nan):.1f} s) {status}\n')
     out.flush()
 

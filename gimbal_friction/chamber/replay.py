@@ -46,7 +46,7 @@ from gimbal_friction.physics.params import AxisParams
 from gimbal_friction.recording import topics
 from gimbal_friction.recording.bag import ChamberBag, RawBatch, default_typestore, open_chamber_bag
 from gimbal_friction.recording.cdr import float64_multi_array_cdr_rows, joint_state_cdr_rows, split_rows
-from gimbal_friction.recording.errors import EmptyInputError
+from gimbal_friction.recording.errors import EmptyInputError, RecordingError
 from gimbal_friction.recording.residual_log import ResidualLogWriter
 from gimbal_friction.streams.arrays import ChamberArrays
 from gimbal_friction.streams.inputs import effective_time
@@ -185,12 +185,12 @@ def replay_bag(bag_path: str | Path, out_dir: str | Path | None, *, config_paths
         with ResidualLogWriter(residual_dir, flush_interval_s=None, chunk_size=1 << 20,
                                typestore=default_typestore()) as writer:
             report('serializing log', 0.0)
-            log_topics, ids, logs, datas = _log_stream(ff, measured, measured_log, rows, raw)
+            log_topics, ids, logs, datas, lengths = _log_stream(ff, measured, measured_log, rows, raw)
             report('writing residual log', 0.0)
             total = len(datas)
             for a in range(0, total, _LOG_BATCH):
                 b = min(a + _LOG_BATCH, total)
-                writer.write_raw_many(log_topics, ids[a:b], logs[a:b], datas[a:b])
+                writer.write_raw_many(log_topics, ids[a:b], logs[a:b], datas[a:b], lengths=lengths[a:b])
                 messages_out = b
                 report('writing residual log', b / total)
         report('writing residual log', 1.0)
@@ -227,6 +227,7 @@ class _RawInputs(NamedTuple):
     ids: NDArray[np.int64]
     log_time_ns: NDArray[np.int64]
     datas: list[bytes]
+    lengths: NDArray[np.int64]   #: of each message's bytes [B]
 
 
 def _read_inputs(bag: ChamberBag, log_inputs: bool) -> tuple[ChamberArrays, _RawInputs | None]:
@@ -239,52 +240,91 @@ def _read_inputs(bag: ChamberBag, log_inputs: bool) -> tuple[ChamberArrays, _Raw
     datas: list[bytes] = []
     pairs: dict[tuple[str, str], int] = {}
 
+    lengths: list[NDArray[np.int64]] = []
+
     def sink(batch: RawBatch) -> None:
         lut = np.array([pairs.setdefault(pair, len(pairs)) for pair in batch.topics] or [0], dtype=np.int64)
         ids.append(lut[batch.topic])
         logs.append(batch.log_time)
+        _check_cdr_heads(batch)
+        lengths.append(batch.length)
         datas.extend(batch.datas())
 
     arrays = bag.read_arrays(raw_sink=sink)
-    return arrays, _RawInputs(list(pairs), np.concatenate([np.zeros(0, dtype=np.int64), *ids]),
-                              np.concatenate([np.zeros(0, dtype=np.int64), *logs]), datas)
+    none = np.zeros(0, dtype=np.int64)
+    return arrays, _RawInputs(list(pairs), np.concatenate([none, *ids]), np.concatenate([none, *logs]), datas,
+                              np.concatenate([none, *lengths]))
 
 
-def _by_layout(keys: NDArray[np.int64], serialize: Callable[[NDArray[np.int64], int], list[bytes]]) -> list[bytes]:
-    """``serialize(rows, key)`` per distinct key (one CDR layout each), put back in the order of ``keys``."""
+def _check_cdr_heads(batch: RawBatch) -> None:
+    """Refuse a bag message that is not plain CDR (its first two bytes 0, 0 or 0, 1; 4 bytes at least), checked
+    as arrays: the residual log copies the input messages in as they are.
+
+    Raises:
+        RecordingError: the first such message, named by topic.
+    """
+    if not batch.start.shape[0]:
+        return
+    u8 = np.frombuffer(batch.buffer, dtype=np.uint8)
+    short = batch.length < 4
+    first = u8[np.minimum(batch.start, max(u8.shape[0] - 2, 0))]
+    second = u8[np.minimum(batch.start + 1, max(u8.shape[0] - 1, 0))]
+    bad = short | (first != 0) | (second > 1)
+    if bad.any():
+        k = int(np.argmax(bad))
+        topic = batch.topics[int(batch.topic[k])][0]
+        head = bytes(u8[batch.start[k]: batch.start[k] + 4])
+        msg = f'bag: a {topic} message is not plain CDR (encapsulation header {head!r}): cannot copy it into the log'
+        raise RecordingError(msg)
+
+
+def _by_layout(keys: NDArray[np.int64], serialize: Callable[[NDArray[np.int64], int], NDArray[np.uint8]]
+               ) -> tuple[list[bytes], NDArray[np.int64]]:
+    """``serialize(rows, key)`` per distinct key (one CDR layout each: an (n, L) matrix), put back in the order of
+    ``keys`` as one ``bytes`` each, and their lengths [B]."""
     uniq = np.unique(keys)
+    sizes = np.zeros(keys.shape[0], dtype=np.int64)
     if uniq.size == 1:
-        return serialize(np.arange(keys.shape[0], dtype=np.int64), int(uniq[0]))
+        matrix = serialize(np.arange(keys.shape[0], dtype=np.int64), int(uniq[0]))
+        sizes[:] = matrix.shape[1]
+        return split_rows(matrix), sizes
     out: list[bytes] = [b''] * keys.shape[0]
     for key in uniq.tolist():
         rows = np.flatnonzero(keys == key)
-        for k, data in zip(rows.tolist(), serialize(rows, key), strict=True):
+        matrix = serialize(rows, key)
+        sizes[rows] = matrix.shape[1]
+        for k, data in zip(rows.tolist(), split_rows(matrix), strict=True):
             out[k] = data
-    return out
+    return out, sizes
 
 
 def _log_stream(ff: BagTorques, measured: MeasurementArrays, measured_log: NDArray[np.int64], rows: ResidualRows,
                 raw: _RawInputs | None) -> tuple[list[tuple[str, str]], NDArray[np.int64], NDArray[np.int64],
-                                                 list[bytes]]:
+                                                 list[bytes], NDArray[np.int64]]:
     """Every message of the residual log in log-time order (ties: feedforward, measurement, its detail, residual,
-    its detail, then inputs): topics, topic ids, log times [ns], CDR bytes."""
+    its detail, then inputs): topics, topic ids, log times [ns], CDR bytes and their lengths [B]."""
     joints = np.asarray(ff.joints)
     patterns = ff.present @ (1 << np.arange(len(ff.joints), dtype=np.int64)) if len(ff) else np.empty(0, np.int64)
-    ff_datas = _by_layout(patterns, lambda r, _: split_rows(joint_state_cdr_rows(
-        ff.stamp_ns[r], joints[ff.present[r[0]]].tolist(), effort=ff.commands_nm[r][:, ff.present[r[0]]])))
+    ff_datas, ff_lengths = _by_layout(patterns, lambda r, _: joint_state_cdr_rows(
+        ff.stamp_ns[r], joints[ff.present[r[0]]].tolist(), effort=ff.commands_nm[r][:, ff.present[r[0]]]))
     n = len(measured)
     joints = measured.joint.tolist()
     stamps = np.asarray(measured.stamp_ns, dtype=np.int64)
     m_detail = detail_matrix(measured)
     r_detail = rows.matrix()
 
+    m_lengths = [0, 0, 0, 0]   # [B] of the 4 messages of a measurement (one joint: one layout each)
+
     def measured_rows(r: NDArray[np.int64], joint: str) -> list[bytes]:
         out: list[bytes] = [b''] * (4 * r.shape[0])
         pos, vel = measured.position_rad[r], measured.velocity_rad_s[r]
-        out[0::4] = split_rows(joint_state_cdr_rows(stamps[r], [joint], pos, vel, measured.friction_nm[r]))
-        out[1::4] = split_rows(float64_multi_array_cdr_rows(m_detail[r], joint))
-        out[2::4] = split_rows(joint_state_cdr_rows(stamps[r], [joint], pos, vel, rows.residual_nm[r]))
-        out[3::4] = split_rows(float64_multi_array_cdr_rows(r_detail[r], joint))
+        for q, matrix in enumerate((
+                joint_state_cdr_rows(stamps[r], [joint], pos, vel, measured.friction_nm[r]),
+                float64_multi_array_cdr_rows(m_detail[r], joint),
+                joint_state_cdr_rows(stamps[r], [joint], pos, vel, rows.residual_nm[r]),
+                float64_multi_array_cdr_rows(r_detail[r], joint))):
+            out[q::4] = split_rows(matrix)
+            m_lengths[q] = matrix.shape[1]
         return out
 
     names = sorted(set(joints))
@@ -300,19 +340,23 @@ def _log_stream(ff: BagTorques, measured: MeasurementArrays, measured_log: NDArr
     log_topics = list(_GENERATED_TOPICS)
     ids = [np.zeros(len(ff_datas), dtype=np.int64), np.tile(np.arange(1, 5, dtype=np.int64), n)]
     logs = [np.asarray(ff.log_time_ns, dtype=np.int64), np.repeat(measured_log, 4)]
+    # the lengths of what this serialized (its rows; the bag's as recorded), so the writer need not measure them
+    sizes = [ff_lengths, np.tile(np.asarray(m_lengths, dtype=np.int64), n) if len(names) == 1
+             else np.fromiter(map(len, m_datas), dtype=np.int64, count=len(m_datas))]
     datas = ff_datas + m_datas
     if raw is not None:
         shift = len(log_topics)
         log_topics += raw.topics
         ids.append(raw.ids + shift)
         logs.append(raw.log_time_ns)
+        sizes.append(raw.lengths)
         datas += raw.datas
     all_ids = np.concatenate(ids)
     all_logs = np.concatenate(logs)
     order = np.argsort(all_logs, kind='stable')
     pool = np.empty(len(datas), dtype=object)  # a take on an object array: no Python loop per message
     pool[:] = datas
-    return log_topics, all_ids[order], all_logs[order], pool[order].tolist()
+    return log_topics, all_ids[order], all_logs[order], pool[order].tolist(), np.concatenate(sizes)[order]
 
 
 #: the measured_detail / residual_detail layouts, for readers of this module

@@ -121,7 +121,9 @@ def run(bag: Path, out: Path, rate: float, domain: int) -> int:
         return code
     print()
     print(f'residual log:          {residuals}/  (open with Foxglove + {ROOT / "config" / "foxglove_layout.json"})')
-    print(f'refitted parameters:   {refit}  (layer with --config / --params-file)')
+    from gimbal_friction.refit.records import read_refit_validity, validity_text
+    good_for = '; '.join(validity_text(v) for v in read_refit_validity(refit).values())
+    print(f'refitted parameters:   {refit}  (layer with --config / --params-file{"; " + good_for if good_for else ""})')
     print(f'figures:               {out / "figures"}/')
     print(f'node logs:             {logs}/')
     (out / 'demo.json').write_text(json.dumps({'bag': str(bag), 'rate': rate, 'residuals': str(residuals),

@@ -100,7 +100,7 @@ def table_rows(run: FleetRun) -> tuple[list[dict[str, Any]], list[str]]:
     """One row per unit and axis (a unit that failed: one row with its error)."""
     names = sorted({n for a in run.population['axes'].values() for n in a} - {'viscosity_m40_cst'})
     fields = ['unit', 'axis', 'kind', 'samples', *names, 'viscosity_m40_cst', 'm_total_m40_nmm', 'm_total_20_nmm',
-              'rms_after_nmm', 'outlier', 'reason', 'error']
+              'rms_after_nmm', 'model_fits', 'outlier', 'reason', 'error']
     flags: dict[tuple[str, str], list[str]] = {}
     for o in run.population['outliers']:
         flags.setdefault((o['unit'], o['axis']), []).append(o['reason'])
@@ -125,6 +125,9 @@ def table_rows(run: FleetRun) -> tuple[list[dict[str, Any]], list[str]]:
             row['m_total_m40_nmm'] = a['friction_nmm'].get('-40', '')
             row['m_total_20_nmm'] = a['friction_nmm'].get('20', '')
             row['rms_after_nmm'] = a['rms_after_nmm']
+            check = a.get('fit_check') or {}
+            row['model_fits'] = ('yes' if check.get('fits') else
+                                 f'NO (max |z| {check.get("max_abs_z") or 0.0:.1f})') if check.get('checked') else ''
             reasons = flags.get((rec['unit'], axis), [])
             row['outlier'] = 'yes' if reasons else ''
             row['reason'] = '; '.join(reasons)
@@ -214,6 +217,10 @@ def run(args: argparse.Namespace) -> int:
     shown = [f for f in fields if f not in ('reason', 'kind')]
     print(format_table([[_fmt(r[f]) if isinstance(r[f], float) else str(r[f]) for f in shown] for r in rows],
                        shown))
+    misfit = sorted({r['unit'] for r in rows if str(r.get('model_fits', '')).startswith('NO')})
+    if misfit:
+        print(f'the model does NOT fit the bins of {len(misfit)} unit(s) ({", ".join(misfit)}): their intervals are '
+              'not confidence intervals; refit one with gimbal-friction refit to see which bins and what to try')
     print()
     for axis, params in result.population['axes'].items():
         for name, st in params.items():

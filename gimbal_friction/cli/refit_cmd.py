@@ -83,9 +83,17 @@ from gimbal_friction.refit.fit import (
     RefitResult,
     palmgren_threshold_temperature,
 )
+from gimbal_friction.refit.fit_check import FitCheck, describe_bin, direction_name, interval_label, summary_line
 from gimbal_friction.refit.logs import LearnedCorrection, correction_table
-from gimbal_friction.refit.records import REFIT_SECTION, offset_values, refit_record, refit_section_text
-from gimbal_friction.refit.run import AxisRefit, refit_logs
+from gimbal_friction.refit.records import (
+    REFIT_SECTION,
+    fit_check_record,
+    offset_values,
+    refit_record,
+    refit_section_text,
+    validity_values,
+)
+from gimbal_friction.refit.run import Alternative, AxisRefit, refit_logs
 
 #: ``--fit`` shorthand for both anchors of the direction asymmetry
 FIT_ALIASES = {'direction_asymmetry': ASYMMETRY_PARAMETERS}
@@ -97,9 +105,12 @@ def add_parser(sub: Any) -> None:
                             description='Refit the Walther viscosity constants (and with --fit the Palmgren factor, '
                             'the sliding coefficient and the per-direction factors) to the measured friction in '
                             'residual logs by weighted least squares on the full model; report the fitted values '
-                            'with 95 % confidence intervals, which parameters the data can determine, and the RMS '
-                            'residual before and after per temperature bin and direction; write a parameter file '
-                            'layerable with --config / --params-file (refitted values under axis.<name>).')
+                            'with their intervals, which parameters the data can determine, the RMS residual before '
+                            'and after per temperature bin and direction, and whether the model fits every bin (a '
+                            'lack-of-fit check against batch-means standard errors: only then are the intervals 95 '
+                            '% confidence intervals; otherwise the bins off are named, with what to try); write a '
+                            'parameter file layerable with --config / --params-file (refitted values under '
+                            'axis.<name>).')
     parser.add_argument('logs', nargs='+', type=Path, metavar='LOG_DIR',
                         help='residual-log folder (or .mcap file) written by residual_logger or replay')
     parser.add_argument('--out', type=Path, required=True, metavar='FILE.yaml',
@@ -178,20 +189,46 @@ def provenance_header(fits: list[AxisRefit], logs: list[Path], files: int, fit: 
         r = f.result
         lines.append(f"axis '{f.axis}': {r.n_samples} samples; RMS residual {1e3 * r.rms_before_nm:.4g} -> "
                      f'{1e3 * r.rms_after_nm:.4g} N*mm')
+        label = interval_label(r.fit_check)
         for name in r.fitted:
             ident = r.identifiability[name]
             if ident.identifiable:
                 lo, hi = r.confidence_intervals[name]
-                lines.append(f'  {name} = {r.fitted[name]:.8g} (was {r.base[name]:.8g}; 95% CI '
+                lines.append(f'  {name} = {r.fitted[name]:.8g} (was {r.base[name]:.8g}; {label} '
                              f'[{lo:.8g}, {hi:.8g}])')
             else:
                 lines.append(f'  {name}: not identifiable, not written ({ident.reason})')
         for vi in r.viscosity:
             lines.append(f'  viscosity at {vi.temperature_c:.1f} degC: {vi.before_cst:.6g} -> {vi.after_cst:.6g} cSt '
-                         f'(95% [{vi.low_cst:.6g}, {vi.high_cst:.6g}])')
+                         f'({label} [{vi.low_cst:.6g}, {vi.high_cst:.6g}])')
         lines.append(f'  {offset_text(r)} (no parameter: in the {REFIT_SECTION} section, for report --compare)')
+        lines.append(f'  {summary_line(r.fit_check)}')
+        lines.append(f'  good for: {good_for(f)}')
     lines.append('layer with: gimbal-friction ... --config FILE, or ros2 run ... --ros-args --params-file FILE')
     return '\n'.join(lines)
+
+
+def good_for(f: AxisRefit) -> str:
+    """What the refitted file of one axis is good for: the directions it was fitted on, whether its model fits
+    them, and how it does on the direction a one-direction refit left out."""
+    r = f.result
+    if r.direction == 'both':
+        what = 'both directions'
+    else:
+        what = f'{r.direction.upper()} motion only (fitted on --direction {r.direction})'
+    if not r.fit_check.fits:
+        what += ', but its model does not fit them (see the fit check)'
+    held = f.held_out
+    if held.checked:
+        other = direction_name(-1 if r.direction == 'cw' else 1)
+        if held.fits:
+            what += f'; it also fits the {other} samples of the logs (worst |z| {abs(held.worst.z):.1f})' \
+                if held.worst is not None else ''
+        else:
+            worst = held.misfits[0]
+            what += (f'; NOT for {other}: {len(held.misfits)} of {len(held.bins)} {other} bins of the logs do not fit '
+                     f'it, worst {describe_bin(worst)}')
+    return what
 
 
 def plot_refit(fits: list[AxisRefit], path: Path) -> Path:
@@ -231,8 +268,18 @@ def plot_refit(fits: list[AxisRefit], path: Path) -> Path:
                        label=f'nu*n >= {PALMGREN_THRESHOLD:g} (refitted, {min(speeds):.3g} rpm): M_L depends on nu')
         ax.set_xlabel('temperature [°C]')
         ax.set_ylabel('friction torque |M| of the axis [N·mm]')
-        ax.set_title(f'{f.axis}: measured vs model by direction (paper Fig. 13)\nRMS residual '
-                     f'{1e3 * r.rms_before_nm:.3g} -> {1e3 * r.rms_after_nm:.3g} N·mm', fontsize=9)
+        notes = []
+        if r.direction != 'both':
+            other = 'CCW' if r.direction == 'cw' else 'CW'
+            notes.append(f'fitted on {r.direction.upper()} samples only: a model of {r.direction.upper()} motion'
+                         + (f', NOT of {other} (its samples do not fit it)' if f.held_out.checked
+                            and not f.held_out.fits else ''))
+        if r.fit_check.checked and not r.fit_check.fits:
+            notes.append(f'the model does NOT fit {len(r.fit_check.misfits)} of {len(r.fit_check.bins)} bins: its '
+                         'intervals are not confidence intervals')
+        rms = f'RMS residual {1e3 * r.rms_before_nm:.3g} -> {1e3 * r.rms_after_nm:.3g} N·mm'
+        ax.set_title('\n'.join([f'{f.axis}: measured vs model by direction (paper Fig. 13)', rms, *notes]),
+                     fontsize=9)
         ax.grid(True, alpha=0.4)
         ax.legend(fontsize=7)
     fig.tight_layout()
@@ -243,7 +290,16 @@ def plot_refit(fits: list[AxisRefit], path: Path) -> Path:
 def _axis_record(f: AxisRefit) -> dict[str, Any]:
     """The JSON record of one axis: the rows read and :func:`~gimbal_friction.refit.records.refit_record`."""
     return {'rows': f.data.rows, 'skipped_nonfinite': f.data.skipped_nonfinite,
-            'skipped_standstill': f.data.skipped_standstill, **refit_record(f.result)}
+            'skipped_standstill': f.data.skipped_standstill, **refit_record(f.result),
+            'held_out_direction': fit_check_record(f.held_out) if f.held_out.checked else None,
+            'good_for': good_for(f),
+            'alternatives': [{'options': a.options, 'fit': list(a.fit), 'direction': a.direction, 'error': a.error,
+                              'fits': None if a.result is None else a.result.fit_check.fits,
+                              'fitted': None if a.result is None else a.result.refitted,
+                              'confidence_intervals_95': None if a.result is None else
+                              {k: list(v) for k, v in a.result.confidence_intervals.items()},
+                              'fit_check': None if a.result is None else fit_check_record(a.result.fit_check)}
+                             for a in f.alternatives]}
 
 
 def offset_text(r: RefitResult) -> str:
@@ -255,7 +311,8 @@ def offset_text(r: RefitResult) -> str:
     cal = (f'; calibration T_0 1-sigma {1e3 * o.calibration_se_nm:.3g} N*mm: '
            + ('EXCEEDS it' if o.exceeds_calibration else 'within it')) if o.exceeds_calibration is not None else \
         '; no calibration uncertainty given (--calibration / --calibration-se)'
-    return (f'torque offset {1e3 * o.value_nm:+.4g} N*mm (95% [{1e3 * lo:+.4g}, {1e3 * hi:+.4g}]), as if I_0 were '
+    label = '95%' if r.fit_check.fits else 'interval, NOT a 95% CI'
+    return (f'torque offset {1e3 * o.value_nm:+.4g} N*mm ({label} [{1e3 * lo:+.4g}, {1e3 * hi:+.4g}]), as if I_0 were '
             f'{o.implied_no_load_current_a:.6g} A instead of {o.no_load_current_a:.6g} A{cal}')
 
 
@@ -274,7 +331,8 @@ def _print_axis(f: AxisRefit) -> None:
                          f'[{_fmt(lo, 8)}, {_fmt(hi, 8)}]', 'yes'])
         else:
             rows.append([name, _fmt(r.base[name]), _fmt(r.fitted[name], 8), '-', '-', 'NO (held)'])
-    print(format_table(rows, ['parameter', 'base', 'fitted', 'std. error', '95% CI', 'identifiable']))
+    print(format_table(rows, ['parameter', 'base', 'fitted', 'std. error', interval_label(r.fit_check),
+                              'identifiable']))
     for name, ident in r.identifiability.items():
         if not ident.identifiable:
             print(f'  {name}: not identifiable: {ident.reason}')
@@ -282,23 +340,90 @@ def _print_axis(f: AxisRefit) -> None:
     print(offset_text(r))
     for warning in r.warnings:
         print(f'WARNING: {warning}')
+    print_fit_check(f)
+    z = {(b.temperature_bin_c, b.direction, b.speed_rpm): b.z for b in r.fit_check.bins}
     brows = []
     for b in r.bins:
         brows.append([f'{b.temperature_c:.1f}', 'CW' if b.direction > 0 else 'CCW', f'{b.speed_rpm:.3g}',
                       f'{b.n}' + ('' if b.used else ' (unused)'), f'{1e3 * b.measured_mean_nm:.4f}',
                       _fmt(1e3 * b.measured_se_nm, 2), f'{1e3 * b.model_before_nm:.4f}',
                       f'{1e3 * b.model_after_nm:.4f}', f'{1e3 * b.rms_before_nm:.4f}', f'{1e3 * b.rms_after_nm:.4f}',
-                      f'{b.viscosity_before_cst:.5g}', f'{b.viscosity_after_cst:.5g}', 'yes' if b.viscous else ''])
+                      f'{b.viscosity_before_cst:.5g}', f'{b.viscosity_after_cst:.5g}', 'yes' if b.viscous else '',
+                      _z_text(z.get((b.temperature_bin_c, b.direction, b.speed_rpm)), r.fit_check)])
     print(format_table(brows, ['t [degC]', 'dir', 'n [rpm]', 'samples', '|M| meas [N*mm]', 'se', 'model before',
                                'model after', 'RMS before', 'RMS after', 'nu before [cSt]', 'nu after',
-                               'nu*n>=2000']))
+                               'nu*n>=2000', 'z after']))
+    label = '95% interval' if r.fit_check.fits else 'interval, NOT a 95% CI (the model does not fit)'
     for vi in r.viscosity:
         print(f'viscosity at {vi.temperature_c:.1f} degC: {vi.before_cst:.5g} -> {vi.after_cst:.5g} cSt '
-              f'(95% interval {vi.low_cst:.5g} .. {vi.high_cst:.5g})')
+              f'({label} {vi.low_cst:.5g} .. {vi.high_cst:.5g})')
     if r.viscous_temperatures_c:
         temps = ', '.join(f'{x:g}' for x in r.viscous_temperatures_c)
         print(f'viscosity determined by the data at {temps} degC only (nu*n >= {PALMGREN_THRESHOLD:g}); elsewhere '
               'the viscous torque does not depend on viscosity at these speeds')
+
+
+def _z_text(z: float | None, check: FitCheck) -> str:
+    """A bin's z after the fit, marked when beyond what the check allows ('' for a bin not in the fit)."""
+    if z is None:
+        return ''
+    return f'{z:+.1f}' + (' OFF' if abs(z) > check.z_critical else '')
+
+
+def _alternative_text(a: Alternative) -> str:
+    """One line on a fit tried instead: does its model fit, and its first parameter with the interval."""
+    r = a.result
+    if r is None:
+        return f'{a.options}: refused ({a.error})'
+    c = r.fit_check
+    name = next((n for n in r.fitted if r.identifiability[n].identifiable), '')
+    value = ''
+    if name:
+        lo, hi = r.confidence_intervals[name]
+        value = (f'; {name} {_fmt(r.fitted[name], 8)} ({"95% CI" if c.fits else "interval, not a CI"} '
+                 f'[{_fmt(lo, 8)}, {_fmt(hi, 8)}])')
+    if c.fits:
+        verdict = f'fits every bin (worst |z| {abs(c.worst.z):.1f}, allowed {c.z_critical:.2f})' if c.worst else 'fits'
+    else:
+        worst = c.misfits[0]
+        verdict = (f'does NOT fit {len(c.misfits)} of {len(c.bins)} bins (worst {worst.temperature_c:.1f} degC '
+                   f'{direction_name(worst.direction)}, z {worst.z:+.1f})')
+    return f'{a.options}: {verdict}{value}'
+
+
+def print_fit_check(f: AxisRefit) -> None:
+    """The lack-of-fit check of one axis: the verdict, the bins that do not fit with their numbers, what they have
+    in common, what to try (with the fits tried on the same data) and, for a one-direction refit, how the other
+    direction of the logs fares."""
+    c = f.result.fit_check
+    print(summary_line(c) if c.fits or not c.checked else
+          f'fit check: the model does NOT fit {len(c.misfits)} of {len(c.bins)} bins: |z| = |measured - model| / '
+          f'standard error above {c.z_critical:.2f} (the 5 % family-wise limit; standard errors from batch means: '
+          f'the samples are correlated); chi2 {c.chi2:.4g}, dof {c.dof}')
+    if c.checked and not c.fits:
+        rows = [[f'{b.temperature_c:.1f}', direction_name(b.direction), f'{1e3 * b.measured_mean_nm:.4f}',
+                 f'{1e3 * b.model_nm:.4f}', f'{1e3 * b.residual_nm:+.4f}', f'{1e3 * b.standard_error_nm:.4f}',
+                 f'{b.z:+.1f}'] for b in c.misfits]
+        print(format_table(rows, ['t [degC]', 'dir', 'measured [N*mm]', 'model [N*mm]', 'residual [N*mm]',
+                                  'se [N*mm]', 'z']))
+        print(f'  {c.pattern}')
+        print('  so the intervals above are NOT 95 % confidence intervals: they assume a model that fits, and the '
+              'truth may lie outside them')
+        print('  what to try: ' + '; '.join(c.advice))
+        if f.alternatives:
+            print('  tried on the same data:')
+            for a in f.alternatives:
+                print(f'    {_alternative_text(a)}')
+    held = f.held_out
+    if held.checked:
+        other = direction_name(-1 if f.result.direction == 'cw' else 1)
+        if held.fits:
+            print(f'the {other} samples left out (--direction {f.result.direction}) fit the refitted model too '
+                  f'({len(held.bins)} bins, worst |z| {abs(held.worst.z) if held.worst else 0.0:.1f})')
+        else:
+            print(f'the {other} samples left out (--direction {f.result.direction}): {len(held.misfits)} of '
+                  f'{len(held.bins)} bins do not fit the refitted model, worst {describe_bin(held.misfits[0])}: '
+                  f'the file describes {f.result.direction.upper()} motion, not {other}')
 
 
 def print_correction(learned: LearnedCorrection, path: Path) -> None:
@@ -346,7 +471,8 @@ def run(args: argparse.Namespace) -> int:
     text = render_parameter_file(axes_overrides={f.axis: f.result.refitted for f in fits},
                                  header=provenance_header(fits, list(args.logs), len(report.files), fit,
                                                           list(args.config)))
-    text += refit_section_text({f.axis: offset_values(f.result) for f in fits})   # the offsets, as data
+    text += refit_section_text({f.axis: offset_values(f.result) for f in fits},   # the offsets, as data
+                               {f.axis: validity_values(f.result, f.held_out) for f in fits})
     write_text_atomic(out, text)
     for f in fits:
         for warning in f.result.warnings:
@@ -369,7 +495,8 @@ def run(args: argparse.Namespace) -> int:
               + ('' if correction_out is None else f', correction: {correction_out}'), file=sys.stderr)
         return 0
     print(f'refit of {", ".join(fit)} from {len(report.files)} file(s) in {where}'
-          + (f' (skipped: {report.summary()})' if report.skipped else ''))
+          + (f': {report.summary()}; the fit below uses the {report.rows} rows read, and no other'
+             if report.skipped else ''))
     if ignored:
         print(f'joints not configured, ignored: {", ".join(ignored)}')
     for f in fits:

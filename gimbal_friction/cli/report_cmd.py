@@ -21,7 +21,7 @@ from gimbal_friction.common.errors import GimbalFrictionError
 from gimbal_friction.common.units import nmm_from_nm
 from gimbal_friction.config.loader import load_parameters
 from gimbal_friction.physics.model import friction_torque
-from gimbal_friction.refit.records import read_refit_offsets
+from gimbal_friction.refit.records import read_refit_offsets, read_refit_validity, validity_text
 
 
 def add_parser(sub: Any) -> None:
@@ -65,6 +65,8 @@ def _run(args: argparse.Namespace) -> int:
     summary = None
     read: dict[str, Any] = {}
     offsets: dict[str, float] = {}
+    validity = read_refit_validity(args.compare).get(axis, {}) if args.compare is not None else {}
+    good_for = validity_text(validity)
     if args.residuals:  # read (and refuse empty logs) before drawing anything
         summary, models, offsets, read = _fig13_data(args, axis, params)
     files = model_figures(params, args.out)
@@ -72,15 +74,21 @@ def _run(args: argparse.Namespace) -> int:
     res = friction_torque(params, temps)
     rows = res.records()
     if summary is not None:
-        files.append(plot_model_vs_measured(summary, models, args.out / FIG13_FILE, offsets_nmm=offsets,
-                                            title=f'{axis}: model vs measured by direction (paper Fig. 13)'))
+        compare_label = next((k for k in models if k != 'configured'), '')
+        side = str(validity.get('fitted_directions', 'both'))
+        files.append(plot_model_vs_measured(
+            summary, models, args.out / FIG13_FILE, offsets_nmm=offsets,
+            title=f'{axis}: model vs measured by direction (paper Fig. 13)',
+            fitted_direction={compare_label: side} if compare_label else None,
+            notes=[f'{args.compare.name}: {good_for}'] if good_for and args.compare is not None else []))
     if args.format == 'json':
         doc: dict[str, Any] = {'axis': axis, 'figures': [str(f) for f in files], 'fig11': rows}
         if summary is not None:
             doc['fig13'] = summary
             doc['read'] = read
             if args.compare is not None:
-                doc['compare'] = {'file': str(args.compare), 'torque_offset_nmm': next(iter(offsets.values()))}
+                doc['compare'] = {'file': str(args.compare), 'torque_offset_nmm': next(iter(offsets.values())),
+                                  'validity': validity, 'good_for': good_for}
         print_json(doc)
         return 0
     print(f'axis {axis}: figures written to {args.out}/')
@@ -92,7 +100,7 @@ def _run(args: argparse.Namespace) -> int:
                         for r in rows], ['t [degC]', 'M_L [N*mm]', 'M_S+M_R [N*mm]', 'M [N*mm]']))
     if summary is not None:
         print()
-        print(summary_table(summary))
+        print(summary_table(summary, good_for, str(validity.get('fitted_directions', 'both'))))
         note = model_mismatch_note(summary)
         if note is not None:
             print(note)
@@ -103,9 +111,11 @@ def _run(args: argparse.Namespace) -> int:
 MODEL_MISMATCH = 0.01
 
 
-def summary_table(summary: list[dict[str, Any]]) -> str:
+def summary_table(summary: list[dict[str, Any]], compare_note: str = '', fitted_direction: str = 'both') -> str:
     """Model vs measured by temperature plateau and direction, N*mm (with the model at the plateau's temperature
-    and the compared model when present), after a legend line saying what each model column is."""
+    and the compared model when present), after a legend line saying what each model column is (``compare_note``:
+    what the compared file is good for, from its refit section; ``fitted_direction`` 'cw' or 'ccw': the compared
+    model of the other direction is marked ``*``, not fitted)."""
     at_t = any('model_at_t_nmm' in r for r in summary)
     extra = any('compare_nmm' in r for r in summary)
     header = ['joint', 't [degC]', 'dir', 'measured [N*mm]', 'model [N*mm]', 'residual [N*mm]', 'samples']
@@ -114,7 +124,7 @@ def summary_table(summary: list[dict[str, Any]]) -> str:
     if extra:
         header[5:5] = ['refit model [N*mm]']
         legend.append("refit model: the compared parameters with the torque offset refit wrote, over the plateau's "
-                      "samples (refit's own 'model after')")
+                      "samples (refit's own 'model after')" + (f'; {compare_note}' if compare_note else ''))
     if at_t:
         header[5:5] = ['model at t [N*mm]']
         legend.insert(1, "model at t:  the configured model at the plateau's temperature")
@@ -123,10 +133,14 @@ def summary_table(summary: list[dict[str, Any]]) -> str:
         row = [str(r['joint']), f'{r["temperature_c"]:.1f}', str(r['direction']), f'{r["measured_mean_nmm"]:+.3f}',
                f'{r["predicted_nmm"]:+.3f}', f'{r["residual_nmm"]:+.3f}', str(r['samples'])]
         if extra:
-            row[5:5] = [f'{r["compare_nmm"]:+.3f}']
+            unfitted = fitted_direction in ('cw', 'ccw') and str(r['direction']) != fitted_direction
+            row[5:5] = [f'{r["compare_nmm"]:+.3f}' + ('*' if unfitted else '')]
         if at_t:
             row[5:5] = [f'{r["model_at_t_nmm"]:+.3f}']
         rows.append(row)
+    if extra and fitted_direction in ('cw', 'ccw'):
+        other = 'CCW' if fitted_direction == 'cw' else 'CW'
+        legend.append(f'*: {other}, which the compared refit was not fitted on (--direction {fitted_direction})')
     return '\n'.join([*legend, format_table(rows, header)])
 
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import textwrap
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -122,13 +123,18 @@ def model_figures(params: AxisParams, out_dir: Path, t_min: float = -40.0, t_max
 
 
 def plot_model_vs_measured(summary: Sequence[dict[str, Any]], models: dict[str, AxisParams], path: Path, *,
-                           title: str = '', offsets_nmm: Mapping[str, float] | None = None) -> Path:
+                           title: str = '', offsets_nmm: Mapping[str, float] | None = None,
+                           fitted_direction: Mapping[str, str] | None = None,
+                           notes: Sequence[str] = ()) -> Path:
     """Fig. 13: measured mean friction per plateau by direction (|CCW| shown positive) and model curves.
 
     ``summary`` holds records of :func:`gimbal_friction.estimation.residuals.plateau_summary` (signed means [N·mm]);
     ``models`` maps a label to the parameters of a model curve (e.g. before and after a refit); ``offsets_nmm`` a
     label to the calibration torque offset [N·mm] a refit fitted beside its parameters, added to that curve's
-    magnitude (the refit model of the measurement, as the refit's table shows it).
+    magnitude (the refit model of the measurement, as the refit's table shows it); ``fitted_direction`` a label to
+    the one direction ('cw' or 'ccw') its refit was fitted on: that curve is drawn for that direction, and the other
+    direction's thin and grey, labelled as not fitted; ``notes`` are lines printed under the title (what a model is
+    good for).
     """
     plt = pyplot()
     fig, ax = plt.subplots(figsize=(7.5, 4.8))
@@ -140,7 +146,15 @@ def plot_model_vs_measured(summary: Sequence[dict[str, Any]], models: dict[str, 
         cw, ccw = (direction_factor(params, t, np.full(t.shape, d), ARRAY) * m + shift for d in (1.0, -1.0))
         if shift:
             label = f'{label}, offset {shift:+.3g} N·mm'
-        if np.allclose(cw, ccw):
+        side = (fitted_direction or {}).get(label.split(', offset')[0], 'both')
+        if side in ('cw', 'ccw'):   # fitted on one direction: the other is drawn as what it is, not a fit
+            fitted, other = (cw, ccw) if side == 'cw' else (ccw, cw)
+            name, other_name = side.upper(), ('CCW' if side == 'cw' else 'CW')
+            ax.plot(t, fitted, style, lw=2, color='tab:blue' if side == 'cw' else 'k',
+                    label=f'model {name}: {label} (fitted on {name} only)')
+            ax.plot(t, other, ':', lw=1, color='0.6', label=f'model |{other_name}|: {label} (NOT fitted: '
+                    f'{name} fit, for {name} motion)')
+        elif np.allclose(cw, ccw):
             ax.plot(t, cw, style, lw=2, label=f'model: {label}')
         else:  # a per-direction term: both curves
             ax.plot(t, cw, style, lw=2, color='tab:blue', label=f'model CW: {label}')
@@ -155,7 +169,9 @@ def plot_model_vs_measured(summary: Sequence[dict[str, Any]], models: dict[str, 
     ax.plot(*zip(*PAPER_TEST_CW), 'x', color='tab:red', label='paper test mean, CW')
     ax.set_xlabel('temperature [°C]')
     ax.set_ylabel('friction torque of the axis [N·mm]')
-    ax.set_title(title or 'Model vs measured friction by direction (paper Fig. 13)')
+    head = title or 'Model vs measured friction by direction (paper Fig. 13)'
+    lines = [line for note in notes for line in textwrap.wrap(note, 100)]
+    ax.set_title('\n'.join([head, *lines]), fontsize=8 if notes else None)
     ax.grid(True, alpha=0.4)
     ax.legend(fontsize=8)
     fig.tight_layout()

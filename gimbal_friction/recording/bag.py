@@ -22,6 +22,7 @@ and both are kept as recorded (a zero stamp stays zero: the rule that falls back
 
 from __future__ import annotations
 
+import difflib
 import struct
 from pathlib import Path, PurePath
 from typing import TYPE_CHECKING, NamedTuple
@@ -257,20 +258,66 @@ def _read_error(bag: Path, doing: str, err: BaseException) -> RecordingError:
                           f'{recover_hint(bag)}')
 
 
+def _name_likeness(contract: str, topic: str) -> tuple[bool, float, float]:
+    """How much a bag topic's name looks like a contract topic's: the same last name, then the likeness of the last
+    names, then of the whole names (:class:`difflib.SequenceMatcher` ratios, 0..1)."""
+    leaf, tail = contract.rsplit('/', 1)[-1], topic.rsplit('/', 1)[-1]
+    return (tail == leaf, difflib.SequenceMatcher(None, leaf, tail).ratio(),
+            difflib.SequenceMatcher(None, contract, topic).ratio())
+
+
+def suggest_topics(missing: Sequence[str], bag_topics: Mapping[str, tuple[str, int]], taken: Sequence[str] = ()
+                   ) -> dict[str, list[str]]:
+    """Per missing contract topic, the bag topics of its type (not ``taken`` by an input already found), the likely
+    one first: each bag topic goes to at most one missing input, the pairs of most alike names first
+    (:func:`_name_likeness`); the candidates no other input took follow, most alike first.
+
+    >>> bag = {'/arm/bearing_temp': ('sensor_msgs/msg/Temperature', 9),
+    ...        '/arm/joints': ('sensor_msgs/msg/JointState', 9),
+    ...        '/arm/drive_current': ('sensor_msgs/msg/JointState', 9)}
+    >>> wanted = ['/gimbal/temperature', '/joint_states', '/gimbal/motor_current']
+    >>> for contract, found in suggest_topics(wanted, bag).items():
+    ...     print(contract, found)
+    /gimbal/temperature ['/arm/bearing_temp']
+    /joint_states ['/arm/joints']
+    /gimbal/motor_current ['/arm/drive_current']
+    """
+    free = {t: m for t, (m, _) in bag_topics.items() if t not in set(taken)}
+    pairs = sorted(((_name_likeness(c, t), c, t) for c in missing for t, m in free.items() if m == CHAMBER_TOPICS[c]),
+                   key=lambda p: p[0], reverse=True)
+    chosen: dict[str, str] = {}
+    used: set[str] = set()
+    for _, contract, topic in pairs:
+        if contract not in chosen and topic not in used:
+            chosen[contract] = topic
+            used.add(topic)
+    out: dict[str, list[str]] = {}
+    for contract in missing:
+        rest = [t for _, c, t in pairs if c == contract and t not in used]
+        out[contract] = ([chosen[contract]] if contract in chosen else []) + rest
+    return out
+
+
 def _missing_topics(bag: Path, missing: Sequence[str], mapping: Mapping[str, str],
                     bag_topics: Mapping[str, tuple[str, int]]) -> RecordingError:
-    """The one-line refusal naming every missing input topic and the option that maps them (``--topic``)."""
+    """The one-line refusal naming every missing input topic and the option that maps them (``--topic``), with the
+    bag topics of the right type as the candidates, the likely one by name first (:func:`suggest_topics`)."""
     shown = [c if mapping.get(c, c) == c else f'{c} (recorded as {mapping[c]})' for c in missing]
     have = ', '.join(f'{t} ({m or "several types"})' for t, (m, _) in sorted(bag_topics.items())) or 'none'
-    examples = []
-    for contract in missing:  # a bag topic of the right type and the same last name is the likely one
-        leaf = contract.rsplit('/', 1)[-1]
-        like = [t for t, (m, _) in bag_topics.items() if m == CHAMBER_TOPICS[contract] and t.endswith('/' + leaf)]
-        examples.append(f'--topic {contract}={like[0] if len(like) == 1 else "BAG_TOPIC"}')
+    taken = [mapping.get(c, c) for c in CHAMBER_TOPICS if c not in missing]
+    candidates = suggest_topics(missing, bag_topics, taken)
+    examples, notes = [], []
+    for contract in missing:
+        found = candidates[contract]
+        examples.append(f'--topic {contract}={found[0] if found else "BAG_TOPIC"}')
+        if not found:
+            notes.append(f'no {CHAMBER_TOPICS[contract]} topic in the bag for {contract}')
+        elif len(found) > 1:
+            notes.append(f'other {CHAMBER_TOPICS[contract]} topics for {contract}: {", ".join(found[1:])}')
     what = f'required topic {shown[0]} is' if len(shown) == 1 else f'required topics {", ".join(shown)} are'
     return RecordingError(f'bag {bag}: {what} missing (topics in bag: {have}); map each to the topic it was '
-                          f'recorded under with {" ".join(examples)} (chamber_replay: the same CONTRACT=BAG entries '
-                          f'in its parameter topic_map)')
+                          f'recorded under with {" ".join(examples)}{" (" + "; ".join(notes) + ")" if notes else ""} '
+                          f'(chamber_replay: the same CONTRACT=BAG entries in its parameter topic_map)')
 
 
 #: the one message serialization the readers decode: ROS 2's CDR, what ``ros2 bag record`` writes

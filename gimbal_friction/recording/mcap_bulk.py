@@ -159,7 +159,12 @@ class BulkChunk:
         parts: list[bytes] = [b''] * (2 * m)
         parts[0::2] = header.view(_RECORD_HEAD_BYTES).tolist()  # bytes objects (a void dtype keeps NULs)
         parts[1::2] = datas
-        buffer.write(b''.join(parts))
+        records = b''.join(parts)
+        if len(records) != int(record_offsets[-1] - record_offsets[0]):   # lengths given by the caller, checked
+            msg = (f'bulk chunk: the messages hold {len(records) - MESSAGE_OVERHEAD * m} bytes, their lengths say '
+                   f'{int(record_offsets[-1] - record_offsets[0]) - MESSAGE_OVERHEAD * m}')
+            raise ValueError(msg)
+        buffer.write(records)
         positions = record_offsets[:-1] + start
         indices = builder.message_indices  # type: ignore[attr-defined]  # mcap's ChunkBuilder and Statistics internals carry no type hints
         counts = stats.channel_message_counts  # type: ignore[attr-defined]  # mcap's ChunkBuilder and Statistics internals carry no type hints

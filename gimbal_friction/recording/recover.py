@@ -249,6 +249,8 @@ def _copy_mcap(
                         stat['end'] = logs[k] if stat['end'] is None else max(stat['end'], logs[k])
                         kept += 1
                     block = next(blocks, None)
+                for channel_id in sorted(scan.channels):   # channels that held no message: kept, with 0
+                    out_channel(channel_id)
                 writer.finish()  # type: ignore[no-untyped-call]  # mcap's Writer.finish is unannotated
                 stream.flush()
                 os.fsync(stream.fileno())
@@ -268,19 +270,56 @@ def _copy_mcap(
         problems=tuple(problems), source=source, target=target, storage='mcap',
         topics={name: TopicStats(t['msgtype'], t['encoding'], _qos(t['qos']), t['hash'], t['count'],
                                  t['start'] or 0, t['end'] or 0)
-                for name, t in topics.items() if t['count']},
+                for name, t in topics.items()},
     )
 
 
-def _qos(text: str) -> object:
-    """The channel's ``offered_qos_profiles`` as a YAML list for metadata.yaml (version 9), [] if unreadable."""
-    if not text:
+def _qos(text: object) -> list[Any]:
+    """``offered_qos_profiles`` (a channel's or a topic row's string, or a list already) as a list of profiles,
+    [] if unreadable."""
+    if isinstance(text, list):
+        return text
+    if not isinstance(text, str) or not text:
         return []
     try:
         value = yaml.safe_load(text)
     except yaml.YAMLError:
         return []
     return value if isinstance(value, list) else []
+
+
+#: the metadata.yaml version this writes when the source has none, the newest rosbag2 reads (Kilted: 9)
+METADATA_VERSION = 9
+#: rmw's QoS policies by name (version >= 9 writes names; earlier versions their numbers): rmw/types.h
+_POLICY_NUMBERS = {
+    'history': {'system_default': 0, 'keep_last': 1, 'keep_all': 2, 'unknown': 3},
+    'reliability': {'system_default': 0, 'reliable': 1, 'best_effort': 2, 'unknown': 3, 'best_available': 4},
+    'durability': {'system_default': 0, 'transient_local': 1, 'volatile': 2, 'unknown': 3, 'best_available': 4},
+    'liveliness': {'system_default': 0, 'automatic': 1, 'manual_by_topic': 3, 'unknown': 4, 'best_available': 5},
+}
+
+
+def qos_for_version(profiles: object, version: int) -> object:
+    r"""``offered_qos_profiles`` in the form metadata.yaml of ``version`` needs (rosbag2_storage's yaml.hpp): a YAML
+    sequence of profiles from version 9 on, before it one string holding that sequence as YAML with the policies as
+    numbers (rosbag2's decoder of version 9 reads numbers or names; before 9, numbers only); a string for a version
+    before 9 is kept as it is.
+
+    >>> qos_for_version('- history: 3\n  depth: 0', 9)
+    [{'history': 3, 'depth': 0}]
+    >>> qos_for_version([{'history': 'keep_last', 'depth': 5, 'reliability': 'reliable'}], 8)
+    '- history: 1\n  depth: 5\n  reliability: 1\n'
+    """
+    items = _qos(profiles)
+    if version >= 9:
+        return items
+    if isinstance(profiles, str) and items:   # already a string of that form: kept as written
+        return profiles
+    numbered = [{k: (_POLICY_NUMBERS[k].get(v, _POLICY_NUMBERS[k]['unknown']) if k in _POLICY_NUMBERS
+                     and isinstance(v, str) else v) for k, v in p.items()} if isinstance(p, dict) else p
+                for p in items]
+    text: str = yaml.safe_dump(numbered, sort_keys=False, default_flow_style=False) if numbered else ''
+    return text
 
 
 # ----------------------------------------------------------------------------------------------------------------
@@ -497,9 +536,9 @@ def _db3_topics(con: sqlite3.Connection) -> dict[str, TopicStats]:
         'SELECT topic_id, count(*), min(timestamp), max(timestamp) FROM messages GROUP BY topic_id')}
     out = {}
     for row in con.execute(query):
-        count, start, end = counts.get(row[0], (0, 0, 0))
-        if count:
-            out[row[1]] = TopicStats(row[2], row[3], row[4] or [], row[5] if has_hash else '', count, start, end)
+        count, start, end = counts.get(row[0], (0, 0, 0))   # a topic with no message is kept, with 0
+        out[row[1]] = TopicStats(row[2], row[3], row[4] or [], (row[5] or '') if has_hash else '', count, start,
+                                 end)
     return out
 
 
@@ -515,8 +554,9 @@ def recover(
 ) -> Recovery:
     """Recover a bag folder, a bag file (``.mcap``/``.db3``) or a residual-log folder/file into ``dst``.
 
-    A folder gives a folder of the same file names plus a rosbag2 ``metadata.yaml`` (version 9) describing what was
-    kept; its files are those its metadata.yaml lists and any other ``.mcap``/``.db3`` in it (a recorder killed
+    A folder gives a folder of the same file names plus a rosbag2 ``metadata.yaml`` (of the source's version, in
+    that version's form; version 9 without one) describing what was kept, every topic, those with no message too;
+    its files are those its metadata.yaml lists and any other ``.mcap``/``.db3`` in it (a recorder killed
     before writing metadata.yaml). A file gives a file.
 
     Args:
@@ -637,7 +677,13 @@ def _folder_files(folder: Path, meta: dict[str, Any] | None) -> list[Path]:
 def _write_metadata(
     folder: Path, storage: str, files: list[FileRecovery], meta: dict[str, Any] | None, source: Path
 ) -> None:
-    """A rosbag2 metadata.yaml (version 9) describing the recovered files."""
+    """A rosbag2 metadata.yaml describing the recovered files: of the source's version (:data:`METADATA_VERSION`
+    without a readable source metadata, or for a newer one), every field in the form that version needs
+    (``offered_qos_profiles``: :func:`qos_for_version`; ``type_description_hash`` from version 7), every topic of
+    the recovered files, those with no message too."""
+    version = METADATA_VERSION
+    with contextlib.suppress(KeyError, TypeError, ValueError):
+        version = min(int((meta or {})['version']), METADATA_VERSION)
     known = {}
     for entry in (meta or {}).get('topics_with_message_count') or []:
         with contextlib.suppress(KeyError, TypeError):
@@ -647,38 +693,39 @@ def _write_metadata(
         for name, t in (f.topics or {}).items():
             entry = topics.setdefault(name, {'stats': t, 'count': 0})
             entry['count'] += t.messages
-    starts = [t.start_ns for f in files for t in (f.topics or {}).values()]
-    ends = [t.end_ns for f in files for t in (f.topics or {}).values()]
-    start = min(starts, default=0)
+
+    def span(stats: list[TopicStats]) -> tuple[int, int]:
+        busy = [t for t in stats if t.messages]
+        start = min((t.start_ns for t in busy), default=0)
+        return start, max((t.end_ns for t in busy), default=0) - start
+
+    def topic_metadata(name: str, stats: TopicStats) -> dict[str, Any]:
+        src = known.get(name) or {}
+        out = {'name': name, 'type': str(src.get('type') or stats.msgtype),
+               'serialization_format': str(src.get('serialization_format') or stats.serialization_format),
+               'offered_qos_profiles': qos_for_version(src.get('offered_qos_profiles', stats.offered_qos_profiles),
+                                                       version)}
+        if version >= 7:
+            out['type_description_hash'] = str(src.get('type_description_hash') or stats.type_description_hash or '')
+        return out
+
+    start, duration = span([t for f in files for t in (f.topics or {}).values()])
     info = {
-        'version': 9,
+        'version': version,
         'storage_identifier': storage,
-        'duration': {'nanoseconds': max(ends, default=0) - start},
+        'duration': {'nanoseconds': duration},
         'starting_time': {'nanoseconds_since_epoch': start},
         'message_count': sum(f.messages for f in files),
-        'topics_with_message_count': [
-            {
-                'topic_metadata': known.get(name) or {
-                    'name': name,
-                    'type': e['stats'].msgtype,
-                    'serialization_format': e['stats'].serialization_format,
-                    'offered_qos_profiles': e['stats'].offered_qos_profiles,
-                    'type_description_hash': e['stats'].type_description_hash,
-                },
-                'message_count': e['count'],
-            }
-            for name, e in topics.items()
-        ],
+        'topics_with_message_count': [{'topic_metadata': topic_metadata(name, e['stats']), 'message_count': e['count']}
+                                      for name, e in topics.items()],
         'compression_format': '',
         'compression_mode': '',
         'relative_file_paths': [f.target.name for f in files if f.target is not None],
         'files': [
             {
                 'path': f.target.name,
-                'starting_time': {'nanoseconds_since_epoch': min((t.start_ns for t in (f.topics or {}).values()),
-                                                                 default=0)},
-                'duration': {'nanoseconds': max((t.end_ns for t in (f.topics or {}).values()), default=0)
-                             - min((t.start_ns for t in (f.topics or {}).values()), default=0)},
+                'starting_time': {'nanoseconds_since_epoch': span(list((f.topics or {}).values()))[0]},
+                'duration': {'nanoseconds': span(list((f.topics or {}).values()))[1]},
                 'message_count': f.messages,
             }
             for f in files if f.target is not None
@@ -686,5 +733,6 @@ def _write_metadata(
         'custom_data': {'recovered_by': LIBRARY, 'recovered_from': str(source)},
         'ros_distro': str((meta or {}).get('ros_distro') or ''),
     }
-    text = yaml.safe_dump({'rosbag2_bagfile_information': info}, sort_keys=False, default_flow_style=False)
+    text = yaml.safe_dump({'rosbag2_bagfile_information': info}, sort_keys=False, default_flow_style=False,
+                          width=1 << 30)   # (no folded lines: one string per line, as rosbag2 writes them)
     (folder / 'metadata.yaml').write_text(text, encoding='utf-8')

@@ -283,6 +283,8 @@ class ResidualLogWriter:
         topic_ids: ArrayLike,
         log_times_ns: ArrayLike,
         datas: Sequence[bytes | bytearray | memoryview],
+        *,
+        lengths: ArrayLike | None = None,
     ) -> None:
         """Log many already-serialized CDR messages, in the given order, with little overhead per message.
 
@@ -298,6 +300,11 @@ class ResidualLogWriter:
             topic_ids: (n,) index into ``topics`` of each message.
             log_times_ns: (n,) log times [ns], 0 <= t < 2**63.
             datas: n serialized messages (encapsulation header included).
+            lengths: (n,) ``len`` of each message, from a caller that knows them and has checked the messages'
+                encapsulation headers itself (``replay``: the rows it serialized, and the bag's messages as they
+                were read): the per-message checks of type, header and length, three passes over the messages,
+                are then skipped. Every run of messages appended is checked against its lengths; a mismatch fails
+                the writer (RecordingError) instead of writing a wrong file.
 
         Raises:
             RecordingError: a bad batch (lengths, indexes, log times, not plain CDR, a topic with two types, an
@@ -322,6 +329,14 @@ class ResidualLogWriter:
         if logs.min() < 0:
             msg = f'residual log: log time {int(logs.min())} ns is negative'
             raise RecordingError(msg)
+        if lengths is not None:   # the caller's lengths, its headers checked (see the docstring)
+            given = np.asarray(lengths, dtype=np.int64).reshape(-1)
+            if given.shape[0] != n or (n and given.min() < 4):
+                msg = f'residual log: {given.shape[0]} lengths for {n} messages, or a message under 4 bytes'
+                raise RecordingError(msg)
+            given_blobs = cast('Sequence[bytes]', datas)
+            self._write_many(pairs, ids, logs, given_blobs, given)
+            return
         blobs: Sequence[bytes] = (
             cast('Sequence[bytes]', datas) if set(map(type, datas)) == {bytes}
             else [d if isinstance(d, bytes) else bytes(d) for d in datas]
@@ -331,11 +346,17 @@ class ResidualLogWriter:
             k = next(k for k, d in enumerate(blobs) if d[:2] not in _CDR_HEADS or len(d) < 4)
             msg = f'residual log: {pairs[ids[k]][0]} message is not plain CDR (encapsulation header {blobs[k][:4]!r})'
             raise RecordingError(msg)
-        lengths = np.fromiter(map(len, blobs), dtype=np.int64, count=n)
-        if lengths.min() < 4:
-            k = int(np.argmax(lengths < 4))
+        sizes = np.fromiter(map(len, blobs), dtype=np.int64, count=n)
+        if sizes.min() < 4:
+            k = int(np.argmax(sizes < 4))
             msg = f'residual log: {pairs[ids[k]][0]} message is not plain CDR (encapsulation header {blobs[k][:4]!r})'
             raise RecordingError(msg)
+        self._write_many(pairs, ids, logs, blobs, sizes)
+
+    def _write_many(self, pairs: list[tuple[str, str]], ids: NDArray[np.int64], logs: NDArray[np.int64],
+                    blobs: Sequence[bytes], lengths: NDArray[np.int64]) -> None:
+        """:meth:`write_raw_many` once the messages are checked: topics and types, then the runs."""
+        n = ids.shape[0]
         canonical: dict[tuple[str, str], int] = {}
         remap = np.array([canonical.setdefault(pair, k) for k, pair in enumerate(pairs)], dtype=np.int64)
         if len(canonical) != len(pairs):  # one id per (topic, msgtype)
@@ -470,7 +491,7 @@ class ResidualLogWriter:
             msg = f'residual log {self.folder}: writer is closed'
             raise RecordingError(msg)
 
-    def _fail(self, path: Path, doing: str, err: OSError) -> None:
+    def _fail(self, path: Path, doing: str, err: OSError | ValueError) -> None:
         """Remember an I/O error and raise it as RecordingError (files on disk are left as they are)."""
         self._failed = f'{doing} {path.name}: {err}'
         msg = f'residual log {self.folder}: {doing} {path.name} failed: {err}'
@@ -712,7 +733,7 @@ class ResidualLogWriter:
             self._topic_counts[topic] = self._topic_counts.get(topic, 0) + count
         try:
             bulk.append(channel, sequence, logs, datas, offsets)
-        except OSError as err:
+        except (OSError, ValueError) as err:   # (ValueError: lengths given that are not the messages')
             self._fail(current.path, 'writing', err)
         log_min, log_max = int(logs.min()), int(logs.max())
         self._messages += m

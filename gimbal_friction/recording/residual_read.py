@@ -93,10 +93,25 @@ class ReadReport:
     """One line per problem met."""
 
     def summary(self) -> str:
-        """One line: files, rows, and what was cut short, skipped or lost."""
-        parts = [f'{len(self.files)} files, {self.rows} residual rows']
+        """One line: what was read (files, rows) and what was not (files cut short, damaged chunks, messages
+        that are not rows), so that a reader knows which rows any result rests on.
+
+        >>> r = ReadReport(files=[Path('a.mcap')], truncated_files=[Path('a.mcap')], rows=14870)
+        >>> print(r.summary())
+        14870 residual rows read from 1 file; not read: the end of 1 file cut short, after its last complete
+        chunk (a.mcap)
+        """
+        parts = [f'{self.rows} residual rows read from {len(self.files)} file{"s" if len(self.files) != 1 else ""}']
+        lost = self.not_read()
+        return '; '.join(parts) + (f'; not read: {lost}' if lost else '')
+
+    def not_read(self) -> str:
+        """What the read could not use, in words ('' when nothing)."""
+        parts = []
         if self.truncated_files:
-            parts.append(f'{len(self.truncated_files)} cut short ({", ".join(p.name for p in self.truncated_files)})')
+            n = len(self.truncated_files)
+            parts.append(f'the end of {n} file{"s" if n != 1 else ""} cut short, after {"their" if n != 1 else "its"} '
+                         f'last complete chunk ({", ".join(p.name for p in self.truncated_files)})')
         if self.bad_chunks:
             parts.append(f'{self.bad_chunks} damaged chunks skipped ({self.lost_messages} messages lost'
                          f'{" and more" if self.unknown_loss else ""})')
@@ -154,9 +169,23 @@ def residual_log_files(path: str | os.PathLike[str]) -> list[Path]:
         msg = f'not a residual log: {where} ({err.strerror or err})'
         raise RecordingError(msg) from err
     if not files:
-        msg = f'not a residual log: {where} (no .mcap files)'
+        inner = _inner_log(where)
+        hint = f'; it holds the residual log {inner}: give that folder' if inner is not None else ''
+        msg = f'not a residual log: {where} (no .mcap files{hint})'
         raise RecordingError(msg)
     return sorted(files, key=file_write_order)
+
+
+def _inner_log(where: Path) -> Path | None:
+    """The residual-log folder inside a ``replay`` / ``residual_logger`` output folder (``residuals/``, or the one
+    subfolder holding .mcap files), or None."""
+    try:
+        subs = sorted(p for p in where.iterdir() if p.is_dir())
+        found = [p for p in subs if any(f.suffix == '.mcap' and f.is_file() for f in p.iterdir())]
+    except OSError:
+        return None
+    named = [p for p in found if p.name == 'residuals']
+    return named[0] if named else (found[0] if len(found) == 1 else None)
 
 
 def file_write_order(p: Path) -> tuple[str, int, str]:

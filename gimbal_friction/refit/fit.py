@@ -98,6 +98,7 @@ from gimbal_friction.common.units import NM_PER_NMM
 from gimbal_friction.physics.model import palmgren_threshold_temperature
 from gimbal_friction.physics.params import MODEL_T_MAX_C, MODEL_T_MIN_C, AxisParams
 from gimbal_friction.physics.viscosity import nu_Walther, nu_Walther_fitting_jacobian
+from gimbal_friction.refit.fit_check import FIT_NOT_CHECKED, BinCheck, FitCheck, decide
 from gimbal_friction.refit.identifiability import (
     _a_priori_reasons,
     _confounding_text,
@@ -152,11 +153,37 @@ from gimbal_friction.refit.results import (
 from gimbal_friction.refit.sufficient import SufficientStats
 
 __all__ = [
-    'ASYMMETRY_PARAMETERS', 'DEFAULT_FIT', 'FIT_PARAMETERS', 'GRID_STEP_C', 'LOSSES', 'MAX_ASYMMETRY_SE',
-    'MAX_CONDITION', 'MAX_RELATIVE_SE', 'MIN_BIN_SAMPLES', 'MIN_SAMPLES', 'NOT_CHECKED', 'OFFSET', 'OFFSET_MODES',
-    'PALMGREN_THRESHOLD', 'SPEED_BIN_RATIO', 'VISCOSITY_PARAMETERS', 'WEIGHTS', 'Z95', 'BinStats',
-    'Identifiability', 'OffsetConfounding', 'OffsetResult', 'RefitResult', 'SampleModel', 'ViscosityInterval',
-    'palmgren_threshold_temperature', 'refit_model', 'refit_stats',
+    'ASYMMETRY_PARAMETERS',
+    'DEFAULT_FIT',
+    'FIT_PARAMETERS',
+    'GRID_STEP_C',
+    'LOSSES',
+    'MAX_ASYMMETRY_SE',
+    'MAX_CONDITION',
+    'MAX_RELATIVE_SE',
+    'MIN_BIN_SAMPLES',
+    'MIN_SAMPLES',
+    'NOT_CHECKED',
+    'OFFSET',
+    'OFFSET_MODES',
+    'PALMGREN_THRESHOLD',
+    'SPEED_BIN_RATIO',
+    'VISCOSITY_PARAMETERS',
+    'WEIGHTS',
+    'Z95',
+    'BinCheck',
+    'BinStats',
+    'FitCheck',
+    'Identifiability',
+    'OffsetConfounding',
+    'OffsetResult',
+    'RefitResult',
+    'SampleModel',
+    'ViscosityInterval',
+    'check_model',
+    'palmgren_threshold_temperature',
+    'refit_model',
+    'refit_stats',
 ]
 
 
@@ -472,6 +499,9 @@ def _result(base: AxisParams, stats: SufficientStats, problem: _Problem, groups:
                                           calibration_se_nm)
         if confounding.confounded:
             warnings.append(_confounding_text(confounding, reasons.get(OFFSET, '')))
+    check = decide([BinCheck(b.temperature_bin_c, b.temperature_c, b.direction, b.speed_rpm, b.n, b.measured_mean_nm,
+                             b.model_after_nm, b.measured_se_nm) for b in bins if b.used],
+                   len(active), viscous_bins=sorted({b.temperature_bin_c for b in bins if b.used and b.viscous}))
     n_used = float(c[used].sum())
     message = (f'fitted {", ".join(_label(n) for n in active)} from {int(round(n_used))} samples in '
                f'{groups.size.shape[0]} groups, {int(np.count_nonzero(used))} bins ({sol.nfev} evaluations: '
@@ -484,7 +514,7 @@ def _result(base: AxisParams, stats: SufficientStats, problem: _Problem, groups:
         bins=tuple(bins), viscous_temperatures_c=tuple(visc_temps), viscosity=viscosity,
         n_samples=int(round(n_used)), n_dropped=int(round(float(c[~used].sum()))), cost=sol.cost,
         success=sol.status > 0, message=message, offset=off, warnings=tuple(warnings),
-        n_bins=int(np.count_nonzero(used)), offset_confounding=confounding)
+        n_bins=int(np.count_nonzero(used)), offset_confounding=confounding, fit_check=check)
 def _viscosity_intervals(model: SampleModel, pts: _Points, groups: _Groups, upper: NDArray[np.bool_],
                          visc_temps: list[float], v0: Mapping[str, float], v1: Mapping[str, float],
                          active: Sequence[str], cov: Array, q: float) -> tuple[ViscosityInterval, ...]:
@@ -508,3 +538,44 @@ def _viscosity_intervals(model: SampleModel, pts: _Points, groups: _Groups, uppe
         half = q * math.sqrt(max(float(g @ c @ g), 0.0))
         out.append(ViscosityInterval(t_c, nu0, nu1, nu1 * math.exp(-half), nu1 * math.exp(half)))
     return tuple(out)
+
+
+def check_model(params: AxisParams, stats: SufficientStats, *, offset_nm: float = 0.0, bin_width_c: float = 5.0,
+                min_bin_samples: int = MIN_BIN_SAMPLES, se_floor_rel: float = 0.002) -> FitCheck:
+    """The lack-of-fit check (:mod:`~gimbal_friction.refit.fit_check`) of a model, ``params`` with the calibration
+    torque offset ``offset_nm`` [N·m], against statistics it was not fitted to (e.g. the direction a
+    ``--direction cw`` refit left out): the same groups, standard errors and test as a refit's own check, with no
+    fitted parameter. Not checked when the statistics hold no group of ``min_bin_samples``.
+
+    >>> t = np.repeat([-40.0, 20.0], 200)
+    >>> d = np.tile([1.0, -1.0], 200)
+    >>> rng = np.random.default_rng(1)
+    >>> tau = measurement_model_nmm(AxisParams(), t, np.full(t.shape, 1 / 3), d) * 1e-3
+    >>> stats = SufficientStats.from_arrays(t, np.full(t.shape, 1 / 3), tau * (1 + rng.normal(0, 0.01, t.size)), d)
+    >>> check_model(AxisParams(), stats).fits, check_model(AxisParams(walther_a=8.64), stats).fits
+    (True, False)
+    """
+    if stats.n_samples == 0:
+        return FIT_NOT_CHECKED
+    pts = _points(stats)
+    ok = np.isfinite(pts.t) & (pts.t >= MODEL_T_MIN_C) & (pts.t <= MODEL_T_MAX_C) & (pts.n > 0.0)
+    if not np.all(ok):
+        return FIT_NOT_CHECKED
+    groups = _group(pts, bin_width_c, max(int(min_bin_samples), 2))
+    if groups.size.shape[0] == 0:
+        return FIT_NOT_CHECKED
+    model = SampleModel(params, pts.t, pts.n, pts.d)
+    tau = model.torque_nmm(model.values({OFFSET: offset_nm})) * NM_PER_NMM
+    used = groups.of >= 0
+    idx = groups.of[used]
+    y_mean = _group_mean(idx, groups.size, pts.weight[used], pts.y[used])
+    m_mean = _group_mean(idx, groups.size, pts.weight[used], tau[used])
+    t_mean = _group_mean(idx, groups.size, pts.weight[used], pts.t[used])
+    n_mean = _group_mean(idx, groups.size, pts.weight[used], pts.n[used])
+    se = _group_se(stats, pts, groups, tau, np.abs(y_mean), se_floor_rel)
+    bins = [BinCheck(float(groups.t_bin[j]), float(t_mean[j]), int(groups.direction[j]), float(n_mean[j]),
+                     int(round(float(groups.size[j]))), float(y_mean[j]), float(m_mean[j]), float(se[j]))
+            for j in range(groups.size.shape[0])]
+    upper = model.upper_branch(model.values())
+    viscous = _distinct_viscous_temperatures(pts, groups, upper, min_bin_samples)
+    return decide(bins, 0, viscous_bins=viscous)

@@ -39,6 +39,7 @@ class AxisData(NamedTuple):
     rows: int
     skipped_nonfinite: int
     skipped_standstill: int
+    held_out: SufficientStats | None = None   #: the direction left out by a direction filter (None: not read)
 
 
 def _with_progress(chunks: Iterable[_Chunk], label: str) -> Iterator[_Chunk]:
@@ -55,13 +56,21 @@ def _with_progress(chunks: Iterable[_Chunk], label: str) -> Iterator[_Chunk]:
 
 
 def read_stats(logs: Sequence[Path], *, joints: list[str] | None = None, direction: str = 'both',
-               report: ReadReport | None = None, label: str = 'refit: reading') -> dict[str, AxisData]:
+               report: ReadReport | None = None, label: str = 'refit: reading',
+               held_out: bool = False) -> dict[str, AxisData]:
     """Per-joint sufficient statistics of the logs, streamed chunk by chunk with bounded memory
-    (:func:`~gimbal_friction.recording.residual_read.iter_residual_rows`; progress on a terminal's stderr)."""
+    (:func:`~gimbal_friction.recording.residual_read.iter_residual_rows`; progress on a terminal's stderr);
+    ``direction`` 'cw' or 'ccw' keeps one direction, and with ``held_out`` the other direction's statistics are
+    kept beside it (:attr:`AxisData.held_out`: what a one-direction refit is then checked against)."""
     stats: dict[str, SufficientStats] = {}
+    other: dict[str, SufficientStats] = {}
+    opposite = {'cw': 'ccw', 'ccw': 'cw'}.get(direction) if held_out else None
     for chunk in _with_progress(iter_residual_rows(list(logs), chunk_rows=CHUNK_ROWS, report=report), label):
         accumulate_rows(chunk, stats, joints=joints, direction=direction)
-    return {j: AxisData(s, s.tally.rows, s.tally.skipped_nonfinite, s.tally.skipped_standstill)
+        if opposite is not None:
+            accumulate_rows(chunk, other, joints=joints, direction=opposite)
+    return {j: AxisData(s, s.tally.rows, s.tally.skipped_nonfinite, s.tally.skipped_standstill,
+                        other.get(j) if opposite is not None else None)
             for j, s in stats.items()}
 
 

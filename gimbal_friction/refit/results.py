@@ -10,6 +10,7 @@ from numpy.typing import NDArray
 
 from gimbal_friction.physics.friction import PALMGREN_THRESHOLD_CST_RPM
 from gimbal_friction.physics.params import AxisParams
+from gimbal_friction.refit.fit_check import FIT_NOT_CHECKED, FitCheck
 
 Array = NDArray[np.float64]
 
@@ -153,6 +154,13 @@ class RefitResult(NamedTuple):
     warnings: tuple[str, ...] = ()              #: things a user must look at (e.g. an offset beyond calibration)
     n_bins: int = 0                             #: fine bins the model was evaluated on [-]
     offset_confounding: OffsetConfounding = NOT_CHECKED  #: an offset the fit set could not separate
+    fit_check: FitCheck = FIT_NOT_CHECKED       #: whether the refitted model fits every bin (lack of fit)
+    direction: str = 'both'                     #: the samples fitted: 'both', 'cw' or 'ccw'
+
+    @property
+    def intervals_are_confidence_intervals(self) -> bool:
+        """The intervals may be read as 95 % confidence intervals: the model fits every bin it was fitted to."""
+        return self.fit_check.checked and self.fit_check.fits
 
     @property
     def refitted(self) -> dict[str, float]:

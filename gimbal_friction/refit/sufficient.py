@@ -227,6 +227,14 @@ class SufficientStats(NamedTuple):
                                    tally, self.temperature_resolution_c, self.speed_ratio, True)
         return _merge_cells([self, *others], tally)
 
+    def only_direction(self, sign: int) -> SufficientStats:
+        """The cells of one direction (``sign`` +1: positive motion, the paper's CW; −1), the same tally."""
+        keep = self.direction == (1 if sign > 0 else -1)
+        return SufficientStats(self.t_index[keep], self.direction[keep], self.s_index[keep], self.batch[keep],
+                               self.samples[keep], self.sum_t[keep], self.sum_n[keep], self.mean_y[keep],
+                               self.m2_y[keep], self.tally, self.temperature_resolution_c, self.speed_ratio,
+                               self.exact)
+
     def with_tally(self, tally: Tally) -> SufficientStats:
         """The same cells with another tally."""
         return self._replace(tally=tally)

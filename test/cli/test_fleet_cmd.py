@@ -142,8 +142,8 @@ def test_damaged_chunks_of_a_unit_are_counted_and_said(tmp_path, damage_mcap_chu
     assert (rec['read']['damaged_chunks'], rec['read']['lost_messages'], rec['read']['skipped']) == (1, lost, True)
     line = io.StringIO()
     progress_line(1, 1, rec, stream=line)
-    assert f'ok; skipped: 1 files, {960 - lost} residual rows; 1 damaged chunks skipped ({lost} messages lost)' \
-        in line.getvalue()
+    assert (f'ok; {960 - lost} residual rows read from 1 file; not read: 1 damaged chunks skipped ({lost} messages '
+            'lost)') in line.getvalue()
 
 
 def test_an_earlier_run_in_out_is_refused_unless_force(fleet_dir, tmp_path, capsys):

@@ -99,7 +99,10 @@ def test_refit_writes_a_loadable_file_with_the_truth_viscosity(log_dir, tmp_path
     # beside the parameters, as data the nodes ignore: the calibration offset fitted with them (report --compare)
     section = doc.pop('gimbal_friction_refit')['ros__parameters']
     assert set(doc) == {'/**'} and section['format_version'] == 1
-    assert set(section['axis']['elevation']) == {'torque_offset_nm', 'torque_offset_se_nm', 'torque_offset_estimated'}
+    assert set(section['axis']['elevation']) == {'torque_offset_nm', 'torque_offset_se_nm', 'torque_offset_estimated',
+                                                 'fitted_directions', 'model_fits', 'max_abs_z'}
+    assert section['axis']['elevation']['model_fits'] is True   # the truth is of the model's form
+    assert section['axis']['elevation']['fitted_directions'] == 'both'
     # the model with the refitted file reproduces the truth's viscosity where the data determine it
     nu_fit = friction_torque(params, [-40.0]).viscosity_cst[0]
     assert nu_fit == pytest.approx(float(viscosity_cst(truth, -40.0)), rel=0.03)
@@ -620,3 +623,112 @@ def test_correction_out_learns_the_residual_against_the_refitted_model(tmp_path,
     shown = capsys.readouterr().out
     assert 'learned correction' in shown and '-42.5..-37.5' in shown and f'wrote {corr}' in shown
     assert load(corr).cells('elevation') == c.cells('elevation')
+
+
+# ---------------------------------------------------------------------------------------------- issue 31 items 1, 2, 5
+# The README tour: replay the shipped sample, refit it. Its truth (walther_a 8.6345) has a cold asymmetry that
+# lowers CCW alone, which the model's direction term (one direction up, the other down by the same fraction)
+# cannot describe: a both-direction refit must say that its model does not fit, name the bins, not call its
+# interval a confidence interval, and say what to try; --direction cw fits and covers the truth.
+SAMPLE_WALTHER_A = 8.6345
+
+
+@pytest.fixture(scope='module')
+def sample_log(tmp_path_factory) -> Path:
+    root = tmp_path_factory.mktemp('tour')
+    assert main(['replay', str(SAMPLE_BAG), '--out', str(root / 'unit7'), '--format', 'json']) == 0
+    return root / 'unit7'
+
+
+def test_tour_refit_of_both_directions_says_its_model_does_not_fit(sample_log, tmp_path, capsys):
+    capsys.readouterr()
+    out = tmp_path / 'refit.yaml'
+    assert main(['refit', str(sample_log / 'residuals'), '--out', str(out), '--format', 'json']) == 0
+    rec = json.loads(capsys.readouterr().out)['axes']['elevation']
+    check = rec['fit_check']
+    assert check['checked'] and not check['fits'] and not rec['intervals_are_confidence_intervals']
+    bad = {(b['temperature_bin_c'], b['direction']) for b in check['bins_not_fitting']}
+    assert {(-40.0, 'cw'), (-20.0, 'ccw')} <= bad
+    for b in check['bins_not_fitting']:   # named with numbers: residual, standard error (batch means), z
+        assert abs(b['z']) > check['z_critical']
+        assert b['z'] == pytest.approx(b['residual_nmm'] / b['standard_error_nmm'])
+        assert b['standard_error_nmm'] > 0.0
+    lo, hi = rec['confidence_intervals_95']['walther_a']
+    assert not lo <= SAMPLE_WALTHER_A <= hi    # the biased fit: which is why it must not be called a CI
+    assert any('--direction cw' in tip for tip in check['advice'])
+    tried = {a['options']: a for a in rec['alternatives']}
+    cw = tried['--direction cw']
+    assert cw['fits'] is True
+    lo, hi = cw['confidence_intervals_95']['walther_a']
+    assert lo <= SAMPLE_WALTHER_A <= hi
+    assert tried['--direction ccw']['fits'] is False
+    # the file says so in its header and its section
+    text = out.read_text()
+    assert 'NOT a 95% CI' in text and '; 95% CI [' not in text and '(95% CI [' not in text
+    section = yaml.safe_load(text)['gimbal_friction_refit']['ros__parameters']['axis']['elevation']
+    assert section['model_fits'] is False and section['bins_not_fitting']
+    # and the human table
+    assert main(['refit', str(sample_log / 'residuals'), '--out', str(tmp_path / 'b.yaml')]) == 0
+    shown = capsys.readouterr().out
+    assert 'interval (NOT a 95% CI: the model does not fit)' in shown
+    assert 'fit check: the model does NOT fit' in shown and '-20.3' in shown
+    assert '--direction cw: fits every bin' in shown
+
+
+def test_tour_refit_of_cw_fits_covers_the_truth_and_says_it_is_not_for_ccw(sample_log, tmp_path, capsys):
+    from gimbal_friction.cli.demo import REFIT_ARGS
+    from gimbal_friction.refit.records import read_refit_validity, validity_text
+    capsys.readouterr()
+    out = tmp_path / 'refit.yaml'
+    assert main(['refit', *REFIT_ARGS, str(sample_log / 'residuals'), '--out', str(out), '--format', 'json']) == 0
+    rec = json.loads(capsys.readouterr().out)['axes']['elevation']
+    assert rec['direction'] == 'cw' and rec['fit_check']['fits'] and rec['intervals_are_confidence_intervals']
+    lo, hi = rec['confidence_intervals_95']['walther_a']
+    assert lo <= SAMPLE_WALTHER_A <= hi
+    held = rec['held_out_direction']
+    assert held['checked'] and not held['fits']
+    assert {b['direction'] for b in held['bins_not_fitting']} == {'ccw'}
+    assert 'NOT for CCW' in rec['good_for']
+    # the file (which the demo prints and report reads) says what it is good for
+    validity = read_refit_validity(out)['elevation']
+    assert validity['fitted_directions'] == 'cw' and validity['other_direction_fits'] is False
+    assert 'good for CW motion; NOT for CCW' in validity_text(validity)
+    assert 'good for: CW motion only' in out.read_text()
+    # report --compare marks the CCW refit model as not fitted, in the table and the figure's legend
+    figs = tmp_path / 'figs'
+    assert main(['report', '--residuals', str(sample_log / 'residuals'), '--compare', str(out), '--out',
+                 str(figs)]) == 0
+    shown = capsys.readouterr().out
+    assert 'NOT for CCW' in shown and '*: CCW, which the compared refit was not fitted on' in shown
+    ccw_rows = [line for line in shown.splitlines() if line.startswith('elevation') and ' ccw ' in line]
+    assert ccw_rows and all('*' in line for line in ccw_rows)
+
+
+def _truncated_log(folder: Path) -> tuple[Path, int]:
+    rows, stamps = detail_rows(truth_params())
+    with ResidualLogWriter(folder, chunk_size=4096) as writer:
+        for row, stamp in zip(rows, stamps, strict=True):
+            writer.write(RESIDUAL_DETAIL, FLOAT64_MULTI_ARRAY_TYPE, stamp, make_float64_multi_array(row, 'elevation'))
+    (path,) = folder.glob('*.mcap')
+    data = path.read_bytes()
+    path.write_bytes(data[:int(len(data) * 0.6)])    # killed mid-write: no footer, the last chunk cut
+    return path, len(rows)
+
+
+def test_a_truncated_log_says_what_was_read_and_used(tmp_path, capsys):
+    path, written = _truncated_log(tmp_path / 'cut')
+    assert main(['refit', str(path.parent), '--out', str(tmp_path / 'a.yaml'), '--format', 'json']) == 0
+    doc = json.loads(capsys.readouterr().out)
+    rows = doc['read']['rows']
+    assert 0 < rows < written and doc['axes']['elevation']['rows'] == rows
+    assert main(['refit', str(path.parent), '--out', str(tmp_path / 'b.yaml')]) == 0
+    first = capsys.readouterr().out.splitlines()[0]
+    assert f'{rows} residual rows read from 1 file' in first
+    assert f'not read: the end of 1 file cut short, after its last complete chunk ({path.name})' in first
+    assert f'the fit below uses the {rows} rows read' in first
+
+
+def test_a_replay_folder_is_refused_naming_its_residual_log(sample_log, tmp_path, capsys):
+    out = tmp_path / 'refit.yaml'
+    err = _refused(['refit', str(sample_log), '--out', str(out)], capsys, out, 'not a residual log')
+    assert f'it holds the residual log {sample_log / "residuals"}: give that folder' in err

@@ -293,7 +293,7 @@ def test_every_missing_topic_and_the_topic_option_are_named(tmp_path, capsys):
     assert main(['replay', str(bag), '--out', str(tmp_path / 'out')]) == 1
     line = _one_line_refusal(capsys, 'replay')
     assert f'required topics {topics.JOINT_STATES}, {topics.MOTOR_CURRENT} are missing' in line
-    assert f'--topic {topics.JOINT_STATES}=/gimbal/joint_states --topic {topics.MOTOR_CURRENT}=BAG_TOPIC' in line
+    assert f'--topic {topics.JOINT_STATES}=/gimbal/joint_states --topic {topics.MOTOR_CURRENT}=/drive/current' in line
     assert not (tmp_path / 'out').exists()
     assert main(['replay', str(bag), '--out', str(tmp_path / 'out'), '--topic',
                  f'{topics.JOINT_STATES}=/gimbal/joint_states', '--topic',
@@ -418,3 +418,20 @@ def test_replay_takes_the_nodes_correction_file_unless_told_otherwise(tmp_path):
     missing.write_text(f'friction_feedforward:\n  ros__parameters:\n    correction_file: {tmp_path / "none.yaml"}\n')
     assert replay_correction(axes, [missing]) == (None, None)   # nothing learned yet
     assert replay_correction(axes, [missing], path)[1] == str(path)
+
+
+def test_a_bag_message_that_is_not_plain_cdr_is_refused_before_it_is_copied_in():
+    """Issue 31 item 14: replay gives the writer the lengths of the bag's messages and checks their CDR headers
+    itself, as arrays (the writer then skips its per-message checks)."""
+    import numpy as np
+
+    from gimbal_friction.chamber.replay import _check_cdr_heads
+    from gimbal_friction.recording.bag import RawBatch
+    from gimbal_friction.recording.errors import RecordingError
+    buffer = b'\x00\x01\x00\x00abcd' + b'\x01\x00\x00\x00efgh'
+    batch = RawBatch([('/joint_states', 'sensor_msgs/msg/JointState')], np.zeros(2, dtype=np.int64),
+                     np.array([1, 2]), buffer, np.array([0, 8]), np.array([8, 8]))
+    with pytest.raises(RecordingError, match=r"a /joint_states message is not plain CDR .*b'\\x01\\x00"):
+        _check_cdr_heads(batch)
+    _check_cdr_heads(batch._replace(start=batch.start[:1], length=batch.length[:1], topic=batch.topic[:1],
+                                    log_time=batch.log_time[:1]))

@@ -472,10 +472,31 @@ def test_every_missing_topic_is_named_with_the_option_that_maps_it(tmp_path: Pat
     assert '\n' not in text
     assert f'required topics {TEMPERATURE}, {JOINT_STATES} are missing' in text
     assert f'--topic {JOINT_STATES}=/gimbal/joint_states' in text
-    assert f'--topic {TEMPERATURE}=BAG_TOPIC' in text  # no bag topic ends like it: the placeholder
+    assert f'--topic {TEMPERATURE}=/chamber/temp' in text  # the one Temperature topic of the bag
     assert '/chamber/temp (sensor_msgs/msg/Temperature)' in text  # what the bag holds, to pick from
     bag = open_chamber_bag(path, {JOINT_STATES: '/gimbal/joint_states', TEMPERATURE: '/chamber/temp'})
     assert len(bag.read_arrays().temperature) == 3
+
+
+def test_the_refusal_suggests_the_topics_of_the_right_type_by_name(tmp_path: Path) -> None:
+    """Issue 31 item 13: a bag whose one Temperature topic is /arm/bearing_temp and whose JointState topics are
+    /arm/joints and /arm/drive_current: each missing input is given the topic of its type whose name is most like
+    it (not a placeholder), a topic never for two inputs; with no topic of the type, the placeholder and why."""
+    msgs = chamber_messages(joint_topic='/arm/joints', temperature_topic='/arm/bearing_temp',
+                            current_topic='/arm/drive_current')
+    path = write_chamber_bag(tmp_path / 'bag', msgs)
+    with pytest.raises(RecordingError) as info:
+        open_chamber_bag(path)
+    text = str(info.value)
+    assert (f'--topic {TEMPERATURE}=/arm/bearing_temp --topic {JOINT_STATES}=/arm/joints '
+            f'--topic {MOTOR_CURRENT}=/arm/drive_current') in text
+    assert 'BAG_TOPIC' not in text
+    no_temp = write_chamber_bag(tmp_path / 'bag2', [m for m in msgs if m[0] != '/arm/bearing_temp'])
+    with pytest.raises(RecordingError) as info:
+        open_chamber_bag(no_temp, {JOINT_STATES: '/arm/joints', MOTOR_CURRENT: '/arm/drive_current'})
+    text = str(info.value)
+    assert f'--topic {TEMPERATURE}=BAG_TOPIC' in text
+    assert f'no sensor_msgs/msg/Temperature topic in the bag for {TEMPERATURE}' in text
 
 
 def robot_joint_bag(path: Path, *, effort: bool = True) -> Path:

@@ -250,3 +250,27 @@ def test_chunks_compressed_in_the_worker_thread_give_the_same_files(tmp_path, mo
                            max_duration_s=1.5)
     assert sum(closed) > 10   # chunks went through the worker thread
     assert len(one) >= 3 and one == many   # files rotated by duration, and metadata.yaml
+
+
+# ---------------------------------------------------------------------------------------------- issue 31 item 14
+def test_lengths_given_by_the_caller_write_the_same_files(tmp_path):
+    """``replay`` passes the lengths of what it serialized (skipping three passes over the messages): the same
+    bytes as without them; lengths that are not the messages' fail the writer instead of writing a wrong file."""
+    rng = np.random.default_rng(31)
+    batches = [make_batch(rng, 400) for _ in range(3)]
+    _, plain = write_both(tmp_path / 'a', batches, chunk_size=5000)
+    given = tmp_path / 'given'
+    with ResidualLogWriter(given, chunk_size=5000) as writer:
+        for ids, logs, datas in batches:
+            writer.write_raw_many(TOPICS, ids, logs, datas, lengths=[len(d) for d in datas])
+    assert folder_bytes(given) == plain
+    ids, logs, datas = batches[0]
+    with ResidualLogWriter(tmp_path / 'wrong', chunk_size=5000, flush_interval_s=None) as writer:
+        with pytest.raises(RecordingError, match='lengths for'):
+            writer.write_raw_many(TOPICS, ids, logs, datas, lengths=[len(d) for d in datas][:-1])
+        wrong = [len(d) for d in datas]
+        wrong[5] += 1
+        with pytest.raises(RecordingError, match='their lengths say'):
+            writer.write_raw_many(TOPICS, ids, logs, datas, lengths=wrong)
+        with pytest.raises(RecordingError):   # and the writer refuses what follows
+            writer.write_raw_many(TOPICS, ids, logs, datas)

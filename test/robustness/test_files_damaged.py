@@ -139,8 +139,8 @@ def test_a_damaged_chunk_in_a_residual_log_costs_only_that_chunk(tmp_path: Path,
     assert int(rows.stamp_s[-1]) == 599  # the chunks after the damage are used (refit, report, fleet)
     run = rb.run('report', '--residuals', str(folder), '--out', str(tmp_path / 'rep'))
     note, *rest = run.err.strip().splitlines()
-    assert note == (f'note: residual logs: 1 files, {600 - n} residual rows; 1 damaged chunks skipped '
-                    f'({n} messages lost)')
+    assert note == (f'note: residual logs: {600 - n} residual rows read from 1 file; not read: 1 damaged chunks '
+                    f'skipped ({n} messages lost)')
     # the damage is a note, not a refusal: these rows (a temperature ramp) hold no plateau, and that is what is said
     assert run.code == 1 and len(rest) == 1 and 'no temperature plateau' in rest[0], run.err
 
