@@ -51,8 +51,8 @@ FF = 'friction_feedforward'
 
 @pytest.fixture(scope='module')
 def domain() -> Any:
-    from domain_coordinator import domain_id
-    with domain_id() as did:
+    from gimbal_friction.runs.supervisor import free_domain
+    with free_domain() as did:
         yield did
 
 
