@@ -35,6 +35,16 @@ settings.register_profile('explore', derandomize=False, print_blob=True, deadlin
 settings.load_profile(os.environ.get('HYPOTHESIS_PROFILE', 'ci'))
 
 
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    """Run the files with the most ``slow`` tests first (each file's tests in their own order): with xdist
+    (``--dist loadfile``: a file whole on one worker) a long file at the end leaves the other workers idle."""
+    by_file: dict[str, list[pytest.Item]] = {}
+    for item in items:
+        by_file.setdefault(item.nodeid.split('::')[0], []).append(item)
+    weight = {f: sum(1 for i in its if i.get_closest_marker('slow')) for f, its in by_file.items()}
+    items[:] = [i for f in sorted(by_file, key=lambda f: -weight[f]) for i in by_file[f]]
+
+
 # ---------------------------------------------------------------------------------------------- live nodes
 BIN = Path(sys.executable).parent
 TIMEOUT = 20.0   #: [s] default wait for a condition
