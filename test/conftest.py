@@ -1,7 +1,8 @@
 """Shared by the whole suite: the Hypothesis profiles, and the live-node harness (real rclpy nodes as their own
 processes on an isolated ROS_DOMAIN_ID, loopback only) that test/ros and test/robustness both use.
 
-Live nodes: each test gets its own domain (ros-domain-coordinator) and ROS_LOG_DIR; nodes run as the installed
+Live nodes: each test gets its own domain (reserved with ros-domain-coordinator's port convention, and only if no
+other node is seen on it) and ROS_LOG_DIR; nodes run as the installed
 console scripts and are stopped with SIGINT; waits are on conditions with generous timeouts. rclpy is imported
 only when a node fixture is used (the pure tests run without it).
 
@@ -34,6 +35,16 @@ settings.register_profile('explore', derandomize=False, print_blob=True, deadlin
 settings.load_profile(os.environ.get('HYPOTHESIS_PROFILE', 'ci'))
 
 
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    """Run the files with the most ``slow`` tests first (each file's tests in their own order): with xdist
+    (``--dist loadfile``: a file whole on one worker) a long file at the end leaves the other workers idle."""
+    by_file: dict[str, list[pytest.Item]] = {}
+    for item in items:
+        by_file.setdefault(item.nodeid.split('::')[0], []).append(item)
+    weight = {f: sum(1 for i in its if i.get_closest_marker('slow')) for f, its in by_file.items()}
+    items[:] = [i for f in sorted(by_file, key=lambda f: -weight[f]) for i in by_file[f]]
+
+
 # ---------------------------------------------------------------------------------------------- live nodes
 BIN = Path(sys.executable).parent
 TIMEOUT = 20.0   #: [s] default wait for a condition
@@ -41,10 +52,12 @@ TIMEOUT = 20.0   #: [s] default wait for a condition
 
 @pytest.fixture
 def ros_env(tmp_path: Path) -> Iterator[tuple[int, dict[str, str]]]:
-    """(domain id, environment) of the test: its own ROS_DOMAIN_ID and ROS_LOG_DIR, loopback discovery."""
-    from domain_coordinator import domain_id
+    """(domain id, environment) of the test: its own ROS_DOMAIN_ID (reserved through the domain coordinator, with no
+    other node seen on it: :func:`gimbal_friction.runs.supervisor.free_domain`) and ROS_LOG_DIR, loopback
+    discovery."""
+    from gimbal_friction.runs.supervisor import free_domain
 
-    with domain_id() as did:
+    with free_domain() as did:
         yield did, dict(os.environ, ROS_DOMAIN_ID=str(did), ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST',
                         ROS_LOG_DIR=str(tmp_path / 'roslog'), PYTHONUNBUFFERED='1')
 

@@ -48,6 +48,7 @@ def test_layered_files_refit_and_node_section(tmp_path):
         load_feedforward(tmp_path / 'missing.yaml')
 
 
+@pytest.mark.slow
 def test_a_correction_file_is_added_and_a_mismatched_or_corrupt_one_refused(tmp_path):
     from gimbal_friction.feedforward.correction import (
         Correction,

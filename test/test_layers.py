@@ -100,6 +100,7 @@ def test_importing_the_pure_layers_loads_no_ros_or_io_module():
     assert 'pure' in out.stdout
 
 
+@pytest.mark.slow
 def test_the_command_line_loads_no_ros():
     code = ('import sys, gimbal_friction.cli.main as c; c.build_parser()\n'
             'bad = [m for m in sys.modules if m.startswith("rclpy")]\nassert not bad, bad\nprint("pure")')

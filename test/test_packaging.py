@@ -8,8 +8,11 @@ import re
 import shutil
 import subprocess
 import sys
+import types
 import xml.etree.ElementTree as ET
 from pathlib import Path
+
+import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 EXECUTABLES = ('friction_feedforward', 'friction_estimator', 'residual_logger', 'chamber_replay', 'gimbal_sim')
@@ -129,6 +132,110 @@ def test_launch_file_layers_a_user_file_once_and_resolves_the_log_folder(monkeyp
     assert started['friction_feedforward']['parameters'] == [packaged]
 
 
+class _StandInModule(types.ModuleType):
+    """A stand-in for a module of launch / launch_ros (not on PyPI): every name is a class that records the
+    arguments of each instance (in ``made``, by name)."""
+
+    def __init__(self, name: str, made: dict[str, list[types.SimpleNamespace]]) -> None:
+        super().__init__(name)
+        self._made = made
+
+    def __getattr__(self, attr: str):
+        if attr.startswith('__'):
+            raise AttributeError(attr)
+        made = self._made
+
+        class Recorder(types.SimpleNamespace):
+            def __init__(self, *args, **kwargs):
+                super().__init__(args=args, kwargs=kwargs)
+                made.setdefault(attr, []).append(self)
+
+        Recorder.__name__ = attr
+        setattr(self, attr, Recorder)
+        return Recorder
+
+
+def _load_launch_file(monkeypatch, name: str, configurations: dict[str, str]):
+    """The route by which the launch files are tested where launch / launch_ros are absent (PyPI wheels): the file
+    is imported with every launch, launch_ros and ament_index_python module a recording stand-in, its
+    generate_launch_description() called, then its OpaqueFunction with the declared defaults overlaid with
+    ``configurations``. Returns (declared arguments and defaults, what the OpaqueFunction returned, the stand-ins
+    made by name). ``ros2 launch`` on a ROS 2 install runs the same functions with the real classes."""
+    import importlib.util
+
+    made: dict[str, list[types.SimpleNamespace]] = {}
+    for mod in ('launch', 'launch.actions', 'launch.conditions', 'launch.event_handlers', 'launch.events',
+                'launch.substitutions', 'launch_ros', 'launch_ros.actions', 'ament_index_python',
+                'ament_index_python.packages'):
+        monkeypatch.setitem(sys.modules, mod, _StandInModule(mod, made))
+    spec = importlib.util.spec_from_file_location(f'gf_launch_{name}', ROOT / 'launch' / name)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    (entities,) = module.generate_launch_description().args
+    declared = {a.args[0]: a.kwargs['default_value'] for a in entities if type(a).__name__ == 'DeclareLaunchArgument'}
+    (opaque,) = [a for a in entities if type(a).__name__ == 'OpaqueFunction']
+    context = types.SimpleNamespace(launch_configurations={**declared, **configurations})
+    actions = opaque.kwargs['function'](context, *opaque.kwargs.get('args', []))
+    return declared, actions, made
+
+
+def test_closed_loop_launch_file_starts_the_loop_as_loop_study_live(monkeypatch, tmp_path):
+    """closed_loop.launch.py starts what loop-study --live starts (gimbal_friction.runs.loop_wiring, the one source
+    of both; test/runs/test_loop_wiring.py holds the live study to it): the three nodes and gimbal_sim, under their
+    names, each with the loop's parameter files and parameters, with loop-study --live's defaults; gimbal_sim's end
+    shuts the launch down."""
+    from gimbal_friction.runs.loop_study import load_study_inputs
+    from gimbal_friction.runs.loop_wiring import SimRun, closed_loop, write_parameter_files
+
+    work = tmp_path / 'loop'
+    declared, actions, made = _load_launch_file(monkeypatch, 'closed_loop.launch.py', {'work_dir': str(work)})
+    assert {'params_file', 'axis', 'work_dir', 'temperature_c', 'profile', 'duration_s', 'use_feedforward',
+            'realtime_factor', 'publish_every_ticks', 'exit_when_done'} == set(declared)
+    nodes = [a.kwargs for a in actions if type(a).__name__ == 'Node']
+    inputs = load_study_inputs([])
+    files = write_parameter_files(inputs, tmp_path / 'expected')
+    launched = [work / 'params' / f.name for f in files]
+    for mine, expected in zip(launched, files, strict=True):
+        assert mine.read_text() == expected.read_text(), mine.name
+    run = SimRun(duration_s=inputs.sim.profile_duration_s('tracking'), record_path=str(work / 'run_feedforward.npz'))
+    specs = closed_loop(launched, work / 'residuals', run)
+    assert [(n['name'], n['executable'], n['package']) for n in nodes] == [
+        (s.name, s.executable, 'gimbal_friction') for s in specs]
+    assert [n['name'] for n in nodes] == ['friction_feedforward', 'friction_estimator', 'residual_logger',
+                                          'gimbal_sim']
+    for node, spec in zip(nodes, specs, strict=True):
+        assert node['parameters'] == [*map(str, launched), dict(spec.parameters)], spec.name
+        assert node['remappings'] == list(spec.remappings) == [], spec.name
+    assert nodes[2]['parameters'][-1] == {'output_dir': str(work / 'residuals')}
+    sim = nodes[3]['parameters'][-1]
+    assert sim == {'environment_temperature_c': -40.0, 'profile': 'tracking',
+                   'duration_s': inputs.sim.profile_duration_s('tracking'), 'exit_when_done': True,
+                   'use_feedforward': True, 'wait_for_subscribers': 3, 'wait_for_feedforward': True,
+                   'realtime_factor': 1.0, 'record_path': str(work / 'run_feedforward.npz'), 'publish_every_ticks': 2}
+    (handler,) = made['OnProcessExit']
+    assert handler.kwargs['target_action'].kwargs['name'] == 'gimbal_sim'
+    assert [type(a).__name__ for a in handler.kwargs['on_exit']] == ['LogInfo', 'EmitEvent']
+
+
+def test_closed_loop_launch_arguments_reach_the_nodes(monkeypatch, tmp_path):
+    """A user's parameter file is layered like loop-study --config; the run's arguments reach gimbal_sim."""
+    extra = tmp_path / 'extra.yaml'
+    extra.write_text('gimbal_sim:\n  ros__parameters:\n    scan_duration_s: 7.5\n')
+    monkeypatch.chdir(tmp_path)
+    _, actions, made = _load_launch_file(monkeypatch, 'closed_loop.launch.py', {
+        'work_dir': 'rel', 'params_file': str(extra), 'profile': 'scan', 'use_feedforward': 'false',
+        'temperature_c': '60', 'exit_when_done': 'false', 'publish_every_ticks': '4'})
+    nodes = {a.kwargs['name']: a.kwargs for a in actions if type(a).__name__ == 'Node'}
+    sim = nodes['gimbal_sim']['parameters'][-1]
+    assert sim['duration_s'] == 7.5 and sim['profile'] == 'scan' and sim['environment_temperature_c'] == 60.0
+    assert sim['use_feedforward'] is False and sim['wait_for_feedforward'] is False
+    assert sim['exit_when_done'] is False and sim['publish_every_ticks'] == 4
+    assert sim['record_path'] == str(tmp_path / 'rel' / 'run_none.npz')
+    assert 'scan_duration_s: 7.5' in (tmp_path / 'rel' / 'params' / 'study.yaml').read_text()
+    assert 'OnProcessExit' not in made   # without exit_when_done the launch keeps running
+
+
+@pytest.mark.slow
 def test_colcon_build_installs_ros2_run_layout(tmp_path):
     colcon = shutil.which('colcon', path=str(Path(sys.executable).parent)) or shutil.which('colcon')
     assert colcon, 'colcon is installed by requirements-test.txt'
@@ -148,7 +255,8 @@ def test_colcon_build_installs_ros2_run_layout(tmp_path):
     assert (install / 'share' / 'ament_index' / 'resource_index' / 'packages' / 'gimbal_friction').exists()
     assert (install / 'share' / 'gimbal_friction' / 'package.xml').exists()
     assert (install / 'share' / 'gimbal_friction' / 'config' / 'gimbal_friction.yaml').exists()
-    assert (install / 'share' / 'gimbal_friction' / 'launch' / 'gimbal_friction.launch.py').exists()
+    for launch_file in ('gimbal_friction.launch.py', 'closed_loop.launch.py'):
+        assert (install / 'share' / 'gimbal_friction' / 'launch' / launch_file).exists(), launch_file
     # what `ros2 run gimbal_friction <exe>` does: ament index prefix, then an executable file under lib/<pkg>
     for exe in EXECUTABLES:
         path = install / 'lib' / 'gimbal_friction' / exe
@@ -156,3 +264,21 @@ def test_colcon_build_installs_ros2_run_layout(tmp_path):
     # the installed package carries the packaged defaults (importlib.resources path)
     site = list(install.glob('lib/python3*/site-packages/gimbal_friction/data/gimbal_friction.yaml'))
     assert site and 'ros__parameters' in site[0].read_text()
+
+
+@pytest.mark.slow
+def test_the_test_command_runs_on_every_core_and_passes_arguments_through():
+    """scripts/test.sh (what CI runs) spreads the tests over workers (pytest-xdist, pinned in
+    requirements-test.txt), each test file whole on one worker, and a user's pytest arguments still pass through
+    after its own (here a selection, and the worker count)."""
+    assert re.search(r'^pytest-xdist==', (ROOT / 'requirements-test.txt').read_text(), re.MULTILINE)
+    env = dict(os.environ, TEST_WORKERS='2')
+    selection = ['test/test_packaging.py', '-k', 'package_xml', '-p', 'no:randomly']
+    out = subprocess.run(['bash', 'scripts/test.sh', *selection], cwd=ROOT, env=env, capture_output=True, text=True,
+                         timeout=300)
+    assert out.returncode == 0, out.stdout[-2000:] + out.stderr[-2000:]
+    assert 'created: 2/2 workers' in out.stdout and ' 1 passed' in out.stdout
+    one = subprocess.run(['bash', 'scripts/test.sh', *selection, '-n', '0'], cwd=ROOT, env=env,
+                         capture_output=True, text=True, timeout=300)
+    assert one.returncode == 0, one.stdout[-2000:] + one.stderr[-2000:]
+    assert 'workers' not in one.stdout and re.search(r'1 passed, \d+ deselected', one.stdout)   # in this process

@@ -1,9 +1,11 @@
 """The main job: a chamber-test bag replayed live through all three nodes, then refit and report.
 
-    python -m gimbal_friction.demo [--bag bags/chamber_sample] [--rate 20] [--out out/demo-<time>]
+    python -m gimbal_friction.demo [--bag bags/chamber_sample] [--rate 20] [--out out/demo-<time>] [--domain N]
 
 1. starts ``friction_feedforward``, ``friction_estimator`` and ``residual_logger`` as processes (the packaged
-   parameter file) on a free ROS_DOMAIN_ID, loopback only (``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST``);
+   parameter file) on ROS_DOMAIN_ID ``--domain``, else ``$ROS_DOMAIN_ID`` if set, else a free one (reserved
+   through ros-domain-coordinator and with no other node seen on it), loopback only
+   (``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST``);
 2. waits until every node is connected, then ``chamber_replay`` plays the bag at ``--rate`` × recorded speed;
 3. waits for the last measurements and for the nodes' counts on ``/diagnostics`` to settle, stops the nodes with
    SIGINT (the logger closes its MCAP files) and prints what each live node counted (messages received and lost
@@ -14,22 +16,32 @@
 5. prints where the residual log, the refitted parameter file and the figures are, and model vs measured by
    temperature and direction.
 
-Processes are cleaned up on success, failure and Ctrl-C (this is also the pip-environment equivalent of
-``ros2 launch gimbal_friction gimbal_friction.launch.py`` plus ``ros2 bag play``).
+Processes are cleaned up on success, failure and SIGINT (Ctrl-C), SIGTERM or SIGHUP at any moment, start-up
+included (exit code 128 + the signal; :class:`~gimbal_friction.runs.supervisor.Supervisor`). This is also the
+pip-environment equivalent of ``ros2 launch gimbal_friction gimbal_friction.launch.py`` plus ``ros2 bag play``.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
 import sys
 import time
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 
 from gimbal_friction.runs.live_counts import degradations, describe, summarize, verdict
-from gimbal_friction.runs.supervisor import NODES, Supervisor, Watcher, packaged_params_file
+from gimbal_friction.runs.supervisor import (
+    NODES,
+    Interrupted,
+    Supervisor,
+    Watcher,
+    free_domain,
+    packaged_params_file,
+    requested_domain,
+)
 
 #: The refit of the main job: the lubricant (``walther_a``) with the calibration offset fitted as a nuisance
 #: (``--offset auto``, the default), on the CW samples. Not ``palmgren_factor``: fitting it switches the offset off,
@@ -50,7 +62,9 @@ def _bar(frac: float, label: str) -> None:
         sys.stderr.flush()
 
 
-def run(bag: Path, out: Path, rate: float, domain: int) -> int:
+def run(bag: Path, out: Path, rate: float, domain: int, sup: Supervisor) -> int:
+    """The main job on ``domain`` with its nodes started and stopped by ``sup`` (entered by the caller, so its
+    signal handlers are up before anything starts); the exit code."""
     from gimbal_friction.cli.main import main as cli
     from gimbal_friction.recording.bag import open_chamber_bag
 
@@ -61,7 +75,7 @@ def run(bag: Path, out: Path, rate: float, domain: int) -> int:
     env = dict(os.environ, ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST',
                ROS_LOG_DIR=str(logs / 'ros'), PYTHONUNBUFFERED='1')
     residuals = out / 'residuals'
-    sup = Supervisor(env, logs)
+    sup.env, sup.log_dir = env, logs
     watcher = None
     try:
         with packaged_params_file() as params:
@@ -74,7 +88,7 @@ def run(bag: Path, out: Path, rate: float, domain: int) -> int:
             while not watcher.connected():
                 sup.check_alive()
                 if time.monotonic() > deadline:
-                    raise RuntimeError('the nodes did not connect within 60 s (see logs/)')
+                    raise RuntimeError(f'the nodes did not connect within 60 s (see {logs})')
                 watcher.spin(0.1)
             print(f'[2/4] playing {bag} ({duration_s:.0f} s recorded) at {rate:g}x through the live nodes',
                   flush=True)
@@ -132,20 +146,50 @@ def run(bag: Path, out: Path, rate: float, domain: int) -> int:
     return 0
 
 
+@contextlib.contextmanager
+def _domain(requested: int | None) -> Iterator[int]:
+    """``requested`` as it is (the user's choice), else a free domain (:func:`free_domain`)."""
+    if requested is not None:
+        yield requested
+        return
+    with free_domain(log=lambda text: print(f'demo: {text}', file=sys.stderr, flush=True)) as did:
+        yield did
+
+
+def _domain_arg(text: str) -> int:
+    if not text.isdigit() or not 0 <= int(text) <= 232:
+        msg = f'{text!r} is not a ROS domain id (0-232)'
+        raise argparse.ArgumentTypeError(msg)
+    return int(text)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog='python -m gimbal_friction.demo', description=__doc__.splitlines()[0])
     parser.add_argument('--bag', type=Path, default=ROOT / 'bags' / 'chamber_sample', help='chamber-test bag')
     parser.add_argument('--rate', type=float, default=20.0, help='playback rate factor (default 20)')
     parser.add_argument('--out', type=Path, default=None, help='output folder (default out/demo-<time>)')
+    parser.add_argument('--domain', type=_domain_arg, default=None, metavar='N',
+                        help='ROS_DOMAIN_ID of the nodes (default $ROS_DOMAIN_ID if set, else a free one with no '
+                        'other node on it)')
     args = parser.parse_args(argv)
     out = args.out or Path('out') / time.strftime('demo-%Y%m%d-%H%M%S')
     if out.exists() and any(out.iterdir()):
         print(f'demo: {out} is not empty; choose another --out (nothing is overwritten)', file=sys.stderr)
         return 1
-    from domain_coordinator import domain_id
     try:
-        with domain_id() as did:
-            return run(args.bag.resolve(), out.resolve(), args.rate, did)
+        requested = requested_domain(args.domain)
+    except ValueError as err:
+        print(f'demo: error: {err} (unset it or give --domain)', file=sys.stderr)
+        return 2
+    out = out.resolve()
+    try:
+        with Supervisor({}, out / 'logs') as sup, _domain(requested) as did:
+            code = run(args.bag.resolve(), out, args.rate, did, sup)
+        if sup.signalled is not None:   # caught by the refit or report command run in this process
+            raise Interrupted(sup.signalled)
+    except Interrupted as sig:
+        print(f'\ndemo: interrupted ({sig}); processes stopped', file=sys.stderr)
+        return sig.exit_code
     except KeyboardInterrupt:
         print('\ndemo: interrupted; processes stopped', file=sys.stderr)
         return 130
@@ -158,6 +202,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             print(f'demo: error: {err}', file=sys.stderr)
             return 1
         raise
+    return code
 
 
 if __name__ == '__main__':

@@ -2,9 +2,12 @@
 
 :func:`live_study` starts ``friction_feedforward``, ``friction_estimator`` (method ``observer``) and
 ``residual_logger`` as processes with the study's parameter files, waits until they are connected, then runs
-``gimbal_sim`` once per live case (``exit_when_done``, ``wait_for_subscribers``, ``record_path``) on a free
-ROS_DOMAIN_ID with ``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST`` (the supervisor of
-:mod:`gimbal_friction.runs.supervisor`; processes are stopped with SIGINT on success, failure and Ctrl-C). Each
+``gimbal_sim`` once per live case (``exit_when_done``, ``wait_for_subscribers``, ``record_path``): the wiring of
+:mod:`gimbal_friction.runs.loop_wiring`, the same as ``closed_loop.launch.py``'s. They run on a free
+ROS_DOMAIN_ID (:func:`~gimbal_friction.runs.supervisor.free_domain`: reserved, no other node on it) with
+``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST``, under the supervisor of :mod:`gimbal_friction.runs.supervisor`
+(stopped with SIGINT, then SIGTERM, then SIGKILL on success, failure and SIGINT / SIGTERM / SIGHUP at any moment,
+start-up included). Each
 ``gimbal_sim`` run writes its traces and latencies (:func:`save_run`); :func:`load_run` turns them into the same
 :class:`~gimbal_friction.sim.engine.BatchResult` the offline study measures, so both are measured by the same
 :func:`~gimbal_friction.sim.metrics.batch_metrics`. The same case is then simulated offline with the
@@ -33,6 +36,8 @@ import numpy as np
 from gimbal_friction.common.errors import GimbalFrictionError
 from gimbal_friction.common.files import write_bytes_atomic
 from gimbal_friction.feedforward.correction import Correction
+from gimbal_friction.runs.loop_wiring import LOOP_NODES, SimRun, loop_nodes, sim_node, write_parameter_files
+from gimbal_friction.runs.supervisor import Supervisor, free_domain
 from gimbal_friction.sim.compensation import Compensator, ControllerInputs
 from gimbal_friction.sim.config import SimConfig
 from gimbal_friction.sim.engine import BatchResult, Run, Traces, simulate
@@ -45,7 +50,7 @@ __all__ = ['AGREEMENT', 'live_study', 'load_run', 'save_run']
 
 #: Live and offline agree when their LOS rate error RMS differ by at most this fraction [-].
 AGREEMENT = 0.10
-LIVE_NODES = ('friction_feedforward', 'friction_estimator', 'residual_logger')
+LIVE_NODES = LOOP_NODES
 
 
 # ---------------------------------------------------------------------------------------------- run records
@@ -121,7 +126,7 @@ class _GraphProbe:
         self.context.try_shutdown()
 
 
-def _wait_connected(watcher: Any, sup: Any, timeout_s: float) -> None:
+def _wait_connected(watcher: Any, sup: Supervisor, timeout_s: float) -> None:
     from gimbal_friction.recording import topics
     n = watcher.node
     deadline = time.monotonic() + timeout_s
@@ -157,8 +162,6 @@ def live_study(inputs: Any, *, temperature_c: float = -40.0, profile: str = 'tra
     """
     import tempfile
 
-    from domain_coordinator import domain_id
-
     from gimbal_friction.runs.live_learning import LEARNING_CASE, RESUMED_CASE, live_learning
     from gimbal_friction.sim.study import LearnSetup
 
@@ -172,31 +175,33 @@ def live_study(inputs: Any, *, temperature_c: float = -40.0, profile: str = 'tra
         work_dir = Path(tmp.name)
     work_dir = Path(work_dir)
     (work_dir / 'logs').mkdir(parents=True, exist_ok=True)
-    param_files = _parameter_files(inputs, work_dir)
+    param_files = write_parameter_files(inputs, work_dir)
     records: list[dict[str, Any]] = []
     runs: dict[str, tuple[BatchResult, dict[str, Any], dict[str, np.ndarray]]] = {}
     learning: dict[str, Any] | None = None
     resumed_from: Correction | None = None
     try:
-        with domain_id() as did:
-            env = dict(os.environ, ROS_DOMAIN_ID=str(did), ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST',
-                       ROS_LOG_DIR=str(work_dir / 'logs' / 'ros'), PYTHONUNBUFFERED='1')
-            sup = _supervisor(env, work_dir / 'logs')
+        with Supervisor({}, work_dir / 'logs', may_exit=lambda name: name.startswith('gimbal_sim')) as sup, \
+                free_domain(log=lambda text: log(f'loop-study --live: {text}')) as did:
+            sup.env = dict(os.environ, ROS_DOMAIN_ID=str(did), ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST',
+                           ROS_LOG_DIR=str(work_dir / 'logs' / 'ros'), PYTHONUNBUFFERED='1')
             watcher = None
             try:
-                args = ['--ros-args', *(a for f in param_files for a in ('--params-file', str(f)))]
-                names = LIVE_NODES if plain else LIVE_NODES[1:]
-                log(f'loop-study --live: starting {", ".join(names)} (domain {did}, loopback only)')
-                for name in names:
-                    more = ['-p', f'output_dir:={work_dir / "residuals"}'] if name == 'residual_logger' else []
-                    sup.start(name, [*args, *more])
+                every = loop_nodes(param_files, work_dir / 'residuals')
+                # the feedforward's arguments (the parameter files only): live_learning adds its own file to them
+                args = every[0].ros_args()
+                nodes = every if plain else every[1:]   # the learning case starts its own feedforward
+                log(f'loop-study --live: starting {", ".join(n.name for n in nodes)} (domain {did}, loopback only)')
+                for node in nodes:
+                    sup.start_as(node.name, node.executable, node.ros_args())
                 watcher = _GraphProbe(did)
 
                 def run_sim(case: str, tick: Callable[[], None] | None = None
                             ) -> tuple[BatchResult, dict[str, Any], dict[str, np.ndarray]]:
-                    return _run_sim(sup, args, work_dir, case, temperature_c=temperature_c, profile=profile,
-                                    duration_s=duration_s, realtime_factor=realtime_factor,
-                                    publish_every_ticks=publish_every_ticks, timeout_s=connect_timeout_s, log=log,
+                    run = SimRun(duration_s=float(duration_s), use_feedforward=case != 'none',
+                                 temperature_c=temperature_c, profile=profile, realtime_factor=realtime_factor,
+                                 publish_every_ticks=publish_every_ticks, record_path=str(work_dir / f'run_{case}.npz'))
+                    return _run_sim(sup, param_files, work_dir, case, run, timeout_s=connect_timeout_s, log=log,
                                     tick=tick)
 
                 if plain:
@@ -283,23 +288,17 @@ def live_study(inputs: Any, *, temperature_c: float = -40.0, profile: str = 'tra
     return out
 
 
-def _run_sim(sup: Any, args: list[str], work_dir: Path, case: str, *, temperature_c: float, profile: str,
-             duration_s: float, realtime_factor: float, publish_every_ticks: int, timeout_s: float,
-             log: Callable[[str], None], tick: Callable[[], None] | None = None
+def _run_sim(sup: Supervisor, param_files: Sequence[Path], work_dir: Path, case: str, run: SimRun, *,
+             timeout_s: float, log: Callable[[str], None], tick: Callable[[], None] | None = None
              ) -> tuple[BatchResult, dict[str, Any], dict[str, np.ndarray]]:
-    """One ``gimbal_sim`` run of ``case`` (with the feedforward unless case ``none``), waited for (``tick`` called
-    while waiting, else 0.2 s waits); the loaded run (:func:`load_run`)."""
-    record = work_dir / f'run_{case}.npz'
-    log(f'loop-study --live: gimbal_sim {case}, {profile} at {temperature_c:+g} degC for '
-        f'{duration_s:g} s (real time x{realtime_factor:g})')
-    use = 'false' if case == 'none' else 'true'
-    proc = sup.start_as(f'gimbal_sim_{case}', 'gimbal_sim', [
-        *args, '-p', f'environment_temperature_c:={float(temperature_c)}', '-p', f'profile:={profile}',
-        '-p', f'duration_s:={float(duration_s)}', '-p', 'exit_when_done:=true',
-        '-p', f'use_feedforward:={use}', '-p', 'wait_for_subscribers:=3',
-        '-p', f'wait_for_feedforward:={use}', '-p', f'realtime_factor:={float(realtime_factor)}',
-        '-p', f'record_path:={record}', '-p', f'publish_every_ticks:={int(publish_every_ticks)}'])
-    deadline = time.monotonic() + timeout_s + 3.0 * duration_s / realtime_factor + 30.0
+    """One ``gimbal_sim`` run of ``case`` (``run``: :mod:`gimbal_friction.runs.loop_wiring`), waited for (``tick``
+    called while waiting, else 0.2 s waits); the loaded run (:func:`load_run`)."""
+    record = Path(run.record_path)
+    log(f'loop-study --live: gimbal_sim {case}, {run.profile} at {run.temperature_c:+g} degC for '
+        f'{run.duration_s:g} s (real time x{run.realtime_factor:g})')
+    node = sim_node(param_files, run)
+    proc = sup.start_as(f'gimbal_sim_{case}', node.executable, node.ros_args())
+    deadline = time.monotonic() + timeout_s + 3.0 * run.duration_s / run.realtime_factor + 30.0
     while proc.poll() is None:
         sup.check_alive()
         if time.monotonic() > deadline:
@@ -346,54 +345,3 @@ def _replayed(comp: Compensator, age: np.ndarray, config: SimConfig) -> Compensa
         return history[k - a] if a <= k and config.feedforward_fresh(a) else np.zeros_like(history[k])
 
     return Compensator(torque, delayed=False)
-
-
-def _parameter_files(inputs: Any, work_dir: Path) -> list[Path]:
-    """The parameter files of the live nodes: the packaged defaults, the user's ``--config`` files (their
-    ``/**`` model and node settings, their ``gimbal_sim`` section), and the study's own: the estimator in
-    observer mode, the simulator configuration the study ran with (latency and seed included)."""
-    import yaml
-
-    from gimbal_friction.config.loader import render_parameter_file
-    from gimbal_friction.runs.supervisor import packaged_params_file
-    with packaged_params_file() as packaged:
-        text = Path(packaged).read_text(encoding='utf-8')
-    files = [work_dir / 'packaged.yaml']
-    files[0].write_text(text, encoding='utf-8')
-    axis_file = work_dir / 'axis.yaml'
-    axis_file.write_text(render_parameter_file(axes_overrides={inputs.axis_name: inputs.axis.to_mapping()},
-                                               axes=[inputs.axis_name]), encoding='utf-8')
-    files.append(axis_file)
-    ff = inputs.feedforward
-    node = {'method': 'observer', **{k: getattr(ff.settings, k) for k in ff.settings.__dataclass_fields__},
-            'velocity_source': ff.velocity_source}
-    est = inputs.estimator
-    node.update({k: getattr(est, k) for k in est.__dataclass_fields__ if k != 'method'})
-    study = work_dir / 'study.yaml'
-    study.write_text(yaml.safe_dump({'/**': {'ros__parameters': node},
-                                     'gimbal_sim': {'ros__parameters': inputs.sim.to_mapping()}},
-                                    sort_keys=False), encoding='utf-8')
-    files.append(study)
-    return files
-
-
-def _supervisor(env: dict[str, str], log_dir: Path) -> Any:
-    """The demo's supervisor, starting ``gimbal_sim`` runs under their own names and letting them exit."""
-    from gimbal_friction.runs.supervisor import Supervisor, node_command
-
-    class LoopSupervisor(Supervisor):
-        def start_as(self, name: str, exe: str, args: Sequence[str]) -> subprocess.Popen[bytes]:
-            log_file = open(self.log_dir / f'{name}.log', 'wb')  # noqa: SIM115 - closed with the process
-            proc = subprocess.Popen(node_command(exe) + list(args), env=self.env, stdout=log_file,
-                                    stderr=subprocess.STDOUT, start_new_session=True)
-            self.procs[name] = proc
-            return proc
-
-        def check_alive(self) -> None:
-            for name, proc in self.procs.items():
-                if proc.poll() is not None and not name.startswith('gimbal_sim'):
-                    tail = (self.log_dir / f'{name}.log').read_text(errors='replace').strip().splitlines()[-3:]
-                    msg = f'{name} exited early (code {proc.returncode}): ' + ' | '.join(tail)
-                    raise GimbalFrictionError(msg)
-
-    return LoopSupervisor(env, log_dir)

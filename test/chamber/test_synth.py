@@ -274,6 +274,7 @@ def test_cli_refuses_non_empty_out(tmp_path, capsys):
     assert (out / 'keep.txt').read_text() == 'precious'
 
 
+@pytest.mark.slow
 def test_cli_force_replaces_bag_and_empty_dir_ok(tmp_path, capsys):
     out = tmp_path / 'bag'
     out.mkdir()                                          # empty: fine without --force
@@ -288,6 +289,7 @@ def test_cli_force_replaces_bag_and_empty_dir_ok(tmp_path, capsys):
     assert len(msgs[topics.JOINT_STATES]) == doc['messages'][topics.JOINT_STATES]
 
 
+@pytest.mark.slow
 def test_cli_sqlite3_and_truth_file(tmp_path, capsys):
     truth = tmp_path / 'my_truth.yaml'
     truth.write_text('/**:\n  ros__parameters:\n    model:\n      walther_a: 8.63\n')
@@ -435,6 +437,7 @@ def test_paper_preset_reproduces_the_four_measured_means():
             assert mean == pytest.approx(PAPER_MEANS_NMM[(p.temperature_c, d)], rel=0.02), (p.temperature_c, d)
 
 
+@pytest.mark.slow
 def test_cli_paper_preset_and_truth_file(tmp_path, capsys):
     out, truth = tmp_path / 'bag', tmp_path / 'truth.yaml'
     assert main(['synth-bag', '--out', str(out), '--preset', 'paper', '--plateaus=-40,60', '--hold-s', '10',

@@ -87,6 +87,7 @@ def test_json_is_one_document_with_fit_quality(synthetic_csv, tmp_path, capsys):
     assert 'wrote' in captured.err
 
 
+@pytest.mark.slow
 def test_shipped_example_with_speed_and_plot(tmp_path, capsys):
     out, png = tmp_path / 'kt.yaml', tmp_path / 'fig' / 'kt.png'
     assert main(['calibrate-kt', str(DATA), '--out', str(out), '--plot', str(png), '--format', 'json']) == 0

@@ -146,6 +146,7 @@ def test_damaged_chunks_of_a_unit_are_counted_and_said(tmp_path, damage_mcap_chu
             'lost)') in line.getvalue()
 
 
+@pytest.mark.slow
 def test_an_earlier_run_in_out_is_refused_unless_force(fleet_dir, tmp_path, capsys):
     out = tmp_path / 'o'
     out.mkdir()
@@ -167,6 +168,7 @@ def test_refusals_are_one_line(tmp_path, capsys):
         assert len(err.splitlines()) == 1 and err.startswith('gimbal-friction fleet: error: ') and match in err
 
 
+@pytest.mark.slow
 def test_discover_units_kinds(fleet_dir, tmp_path):
     replay_out = tmp_path / 'replay_out'
     (replay_out / 'residuals').mkdir(parents=True)
@@ -191,6 +193,7 @@ def test_population_is_robust_and_noise_aware():
     assert pop['axes']['x']['walther_a']['median'] == pytest.approx(8.644)
 
 
+@pytest.mark.slow
 def test_process_unit_records_an_unconfigured_joint(fleet_dir):
     settings = FitSettings(axes={'azimuth': AxisParams()}, config_paths=())
     rec = process_unit(UnitSpec('u', str(fleet_dir / 'seeker_00'), 'log'), settings)
@@ -222,6 +225,7 @@ def test_a_bag_unit_without_a_configured_axis_says_which_joints_it_has(tmp_path)
     assert '--joint elevation=joint_2' in rec['error'] and rec['axes'] == {}
 
 
+@pytest.mark.slow
 def test_a_bag_unit_is_read_in_windows_with_the_same_statistics(tmp_path, capsys):
     """A chamber bag is fed to the estimator window by window (bounded memory): the same samples and statistics
     as one pass over the whole bag, and as many samples as the offline replay accepts."""
@@ -257,6 +261,7 @@ def test_without_dask_fleet_says_how_to_install_it(tmp_path, capsys, monkeypatch
     assert not (tmp_path / 'o').exists()
 
 
+@pytest.mark.slow
 def test_correction_out_writes_each_units_refit_and_correction_as_refit_does(fleet_dir, tmp_path, capsys):
     """fleet --correction-out DIR: per unit, DIR/<unit>.refit.yaml and DIR/<unit>.correction.yaml, the same
     correction refit --correction-out learns from that unit's log with the same fit; named in fleet.json; loadable
@@ -296,6 +301,7 @@ def test_correction_out_writes_each_units_refit_and_correction_as_refit_does(fle
 SAMPLE = Path(__file__).resolve().parents[2] / 'bags' / 'chamber_sample'
 
 
+@pytest.mark.slow
 def test_the_default_fit_refits_the_shipped_sample(tmp_path, capsys):
     """Issue 11: a new user's first fleet run (the shipped sample, default options) succeeds. Was: exit 1, the
     sliding coefficient (then in the default fit, beside the calibration offset) ran to its bound."""

@@ -131,6 +131,7 @@ def test_a_correction_message_is_read_per_joint():
     assert correction_state(msg, 'pitch') is None
 
 
+@pytest.mark.slow
 def test_the_command_fails_with_one_line_when_live_learning_did_nothing(monkeypatch, capsys):
     from gimbal_friction.runs import loop_live
     report = {'failure': 'the correction did not change (0 -> 0 samples, 1 states)'}

@@ -56,6 +56,7 @@ def test_overrides_and_config_layering(tmp_path, capsys):
     assert fast['m_viscous_nmm'] > 1.5
 
 
+@pytest.mark.slow
 def test_plot_written(tmp_path, capsys):
     png = tmp_path / 'fig11.png'
     assert main(['model', '--plot', str(png), '--format', 'json']) == 0
@@ -99,6 +100,7 @@ class _nullcontext:
         return False
 
 
+@pytest.mark.slow
 def test_report_writes_every_figure(tmp_path, capsys):
     assert main(['report', '--out', str(tmp_path), '--format', 'json']) == 0
     doc = json.loads(capsys.readouterr().out)

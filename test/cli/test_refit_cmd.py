@@ -163,6 +163,7 @@ def test_table_names_the_parameters_it_cannot_determine(log_dir, tmp_path, capsy
     assert 'NO (held)' in shown
 
 
+@pytest.mark.slow
 def test_second_cold_plateau_determines_two_constants(tmp_path, capsys):
     logs = write_log(tmp_path / 'log', plateaus=(-40.0, -35.0, -20.0, 0.0, 20.0, 40.0, 60.0))
     out = tmp_path / 'refit.yaml'
@@ -258,6 +259,7 @@ def test_an_existing_output_is_refused_unless_force(log_dir, tmp_path, capsys):
     assert 'walther_a' in yaml.safe_load(out.read_text())['/**']['ros__parameters']['axis']['elevation']
 
 
+@pytest.mark.slow
 def test_damaged_chunks_are_counted_in_the_output_and_the_json(tmp_path, capsys, damage_mcap_chunk):
     """Every command that skips data says how much: a damaged chunk of the log is a note and a JSON count."""
     from gimbal_friction.recording.mcap_scan import McapScanner
@@ -325,6 +327,7 @@ def test_refuses_bad_options(log_dir, tmp_path, capsys):
     _refused(['refit', str(log_dir), '--out', str(tmp_path)], capsys, out, 'is a directory')
 
 
+@pytest.mark.slow
 def test_rows_without_a_value_or_at_standstill_are_skipped(tmp_path, capsys):
     rows, stamps = detail_rows(truth_params())
     rows[0][1] = math.nan                      # no temperature
@@ -515,6 +518,7 @@ def test_the_demo_refit_recovers_the_sample_lubricant_despite_a_calibration_erro
         assert rec['offset']['value_nmm'] == pytest.approx(-1e3 * 0.05 * i0, abs=0.03)  # -K_T * dI_0
 
 
+@pytest.mark.slow
 def test_a_fit_set_confounded_with_the_offset_says_so_with_numbers(sample_wrong_i0, tmp_path, capsys):
     """The old demo refit (palmgren_factor switches the offset off): the calibration error goes into the viscosity,
     and the refit says which parameters are confounded and by how much a calibration offset moves them."""
@@ -539,6 +543,7 @@ def test_a_fit_set_confounded_with_the_offset_says_so_with_numbers(sample_wrong_
     assert 'cannot be told apart' in shown.err
 
 
+@pytest.mark.slow
 def test_the_offset_warning_advises_the_calibration_not_palmgren_factor(sample_wrong_i0, tmp_path, capsys):
     log = sample_wrong_i0[I0_ERROR_A]
     capsys.readouterr()
@@ -552,6 +557,7 @@ def test_the_offset_warning_advises_the_calibration_not_palmgren_factor(sample_w
 
 
 # Learned correction (--correction-out): residuals against the refitted model.
+@pytest.mark.slow
 def test_correction_out_learns_the_residual_against_the_refitted_model(tmp_path, capsys):
     """A truth the refit of walther_a cannot reach (CCW 10 % below CW): the correction holds, per temperature bin
     and direction, the shrunk mean of measured - refitted model along the motion; the file loads with the refitted

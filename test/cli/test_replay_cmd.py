@@ -215,6 +215,7 @@ def test_summary_counts_equal_the_refit_counts_on_every_plateau(sample_replay, t
         assert r['samples'] > 700  # every sample of the bin, not only those of the steady stretch
 
 
+@pytest.mark.slow
 def test_report_compare_shows_the_refit_model_as_refit_does(sample_replay, tmp_path, capsys):
     """Issue 12: report --compare's refit model is refit's own 'model after' at every plateau: the refitted friction
     plus the calibration torque offset refit fitted beside it (written as data into its file), averaged over the
@@ -318,7 +319,21 @@ def test_a_bag_not_in_cdr_is_unsupported_for_replay_and_for_recover(tmp_path, ca
 
 
 def _learned_correction(axes, positions: bool = True):
-    """A correction (the guard off) with a speed profile and, with ``positions``, a ripple found at 2 deg."""
+    """A correction (the guard off) with a speed profile and, with ``positions``, a ripple found at 2 deg. (A copy
+    of the one learned once per model and ``positions``: the fit takes about 10 s.)"""
+    import copy
+
+    from gimbal_friction.feedforward.correction import model_identity
+    key = (repr(model_identity(axes)), positions)
+    if key not in _LEARNED:
+        _LEARNED[key] = _learn_correction(axes, positions)
+    return copy.deepcopy(_LEARNED[key])
+
+
+_LEARNED: dict = {}
+
+
+def _learn_correction(axes, positions: bool):
     from gimbal_friction.feedforward.correction import Correction, CorrectionSettings, model_identity
     rng = np.random.default_rng(3)
     n = 20_000
@@ -332,6 +347,7 @@ def _learned_correction(axes, positions: bool = True):
     return c
 
 
+@pytest.mark.slow
 def test_replay_with_a_correction_equals_the_node_message_by_message_with_reference_positions(tmp_path, capsys):
     """replay --correction adds the learned correction as the node does: its position map at the reference
     position while the reference drives the torque, else at the joint state's; refused with one line if it was
@@ -398,6 +414,7 @@ def test_replay_with_a_correction_equals_the_node_message_by_message_with_refere
     assert not (tmp_path / 'refused').exists()
 
 
+@pytest.mark.slow
 def test_replay_takes_the_nodes_correction_file_unless_told_otherwise(tmp_path):
     """replay_correction: --correction first, else friction_feedforward's correction_file (if it exists and
     use_correction is not false): what the live node would load."""

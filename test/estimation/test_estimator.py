@@ -322,6 +322,7 @@ def _sweep(logic, direction, tau, n=400, t0=S):
     return t0 + int(round(n * dt * 1e9)), kept
 
 
+@pytest.mark.slow
 def test_statistics_mean_std_and_position_ripple():
     period = math.radians(15.0)
     lo = math.radians(-5.0)
@@ -494,6 +495,7 @@ _TWO_JOINT_DATA = synth.generate(synth.SynthConfig(plateaus_c=(-40.0, 20.0), hol
 
 @settings(max_examples=8, deadline=None)
 @given(cuts=st.lists(st.floats(0.0, 1.0), min_size=1, max_size=40), method=st.sampled_from(est.METHODS))
+@pytest.mark.slow
 def test_any_batching_gives_the_same_result(cuts, method):
     arrays = arrays_of(_TWO_JOINT_DATA)
     lo, hi = _span(arrays)

@@ -374,6 +374,7 @@ def test_c_function_agrees_with_the_python_model_at_random_points(table, tmp_pat
     assert err[outside].max() <= BOUND
 
 
+@pytest.mark.slow
 def test_c_feedforward_is_the_nodes_rule(tmp_path):
     """gf_<axis>_feedforward_nm against Feedforward.torque_at (the node's rule) with direction factors
     and a clamp that bites; tolerance: the bound plus the node table's own (0.1 degC grid) error."""
@@ -490,6 +491,7 @@ def _correction_points(n, seed=9):
     return t, v, m
 
 
+@pytest.mark.slow
 def test_a_correction_is_exported_as_its_lookup_without_a_position(learned):
     """table_correction holds the tables the lookup reads (after the hold rule), its constants, and per cell the
     samples and the error bound; correction_nm gives the numbers of Correction.split_nm_array at NaN positions."""
@@ -536,6 +538,7 @@ def test_a_correction_is_exported_as_its_lookup_without_a_position(learned):
     assert tc.error_nm[0, hot + 2] == 0.0 and not np.any(tc.odd_nm[hot + 2])
 
 
+@pytest.mark.slow
 def test_a_correction_is_carried_in_every_format_and_the_c_feedforward_adds_it(table, learned, tmp_path):
     """The C header (compiled standalone, -pedantic -Werror) looks the correction up as the feedforward does at a
     NaN position and adds it, tanh(v/v_th) (k_dir M + odd) + even, clamped; the CSV columns and the ROS arrays hold
@@ -639,6 +642,7 @@ def _correction_from_ros_parameters(e, t, v, m):
     return o, min(max(out[1], -b), b)
 
 
+@pytest.mark.slow
 def test_a_correction_without_speed_or_position_terms_and_an_axis_without_one(table, tmp_path):
     """One value per cell (speed_term false: one octave) and no position terms: exported and added the same way, and
     the files say nothing is left out; an axis the correction applies nothing to exports zeros (the model)."""

@@ -80,6 +80,7 @@ def test_an_empty_correction_is_exactly_zero():
     assert np.array_equal(odd, [0.0, 0.0]) and np.array_equal(even, [0.0, 0.0])
 
 
+@pytest.mark.slow
 def test_the_array_lookup_gives_the_scalar_lookups_numbers():
     c = learn(lambda t, v, p, m: np.sign(v) * (2e-4 + 0.05 * m * np.sin(2 * np.pi * p / np.radians(3.4)))
               + 3e-4 * np.sin(p), speeds=(0.01, 0.03, 0.1, 0.4))
@@ -97,6 +98,7 @@ def test_the_array_lookup_gives_the_scalar_lookups_numbers():
 
 
 # ------------------------------------------------------------------------------------------------ what it learns
+@pytest.mark.slow
 def test_a_level_off_the_model_is_learned_per_temperature_bin_and_shrunk_where_thin():
     c = learn(lambda t, v, p, m: np.sign(v) * 0.3 * m)       # 30 % more friction than the model everywhere
     for t in (-40.0, 0.0, 40.0):
@@ -108,6 +110,7 @@ def test_a_level_off_the_model_is_learned_per_temperature_bin_and_shrunk_where_t
     assert applied_torque(thin, -40.0, SPEED, 0.05) == pytest.approx(400 / 450 * 2e-4, rel=0.05)
 
 
+@pytest.mark.slow
 def test_a_speed_profile_that_falls_and_rises_is_learned():
     """Stribeck at low speed (more friction), a viscous rise above: one value per cell could not hold both. The
     profile is smoothed like ``speed_smoothing`` x n0 samples per octave pair, so the shape needs more samples than
@@ -135,6 +138,7 @@ def test_a_speed_profile_that_falls_and_rises_is_learned():
     assert applied_torque(held, 0.0, 0.6, 0.05) == pytest.approx(float(extra(0.0, 0.6, 0.0, 0.0)), abs=0.12 * 4e-4)
 
 
+@pytest.mark.slow
 def test_two_ripple_periods_are_found_in_irregularly_sampled_residuals():
     """Periods nobody gives: 2.2 and 0.6 deg, sampled where a scan and a sweep happen to be."""
     p1, p2 = np.radians(2.2), np.radians(0.6)
@@ -173,6 +177,7 @@ def test_the_periodogram_copes_with_irregular_sampling_and_says_nothing_without_
     assert strongest_period_GLS_Zechmeister_2009(theta[:5], y[:5], np.ones(5), 0.004, 0.15) is None
 
 
+@pytest.mark.slow
 def test_a_torque_independent_of_the_direction_is_learned_as_its_own_term():
     """An unbalance (constant and with the angle) is applied without the sign of the motion: through a reversal it
     stays instead of switching off and on."""
@@ -188,6 +193,7 @@ def test_a_torque_independent_of_the_direction_is_learned_as_its_own_term():
     assert c.summary()['max_abs_unbalance_nm'] > 1e-3
 
 
+@pytest.mark.slow
 def test_an_asymmetry_is_learned_per_direction():
     c = learn(lambda t, v, p, m: np.where(v > 0, 0.2 * m, 0.0))     # CW 20 % above the model, CCW as the model
     m = abs(float(model_nm(-40.0, SPEED)))
@@ -196,6 +202,7 @@ def test_an_asymmetry_is_learned_per_direction():
 
 
 # ------------------------------------------------------------------------------------------------ the guard
+@pytest.mark.slow
 def test_the_guard_applies_nothing_that_has_not_earned_its_place_out_of_sample():
     guarded = GUARDED
     pure_noise = learn(lambda t, v, p, m: np.zeros(np.shape(t)), settings=guarded, noise_nm=5e-4)
@@ -208,6 +215,7 @@ def test_the_guard_applies_nothing_that_has_not_earned_its_place_out_of_sample()
     assert real.summary()['cells_held_back'] == 0
 
 
+@pytest.mark.slow
 def test_correlated_noise_is_judged_over_blocks_not_sample_by_sample():
     """A kHz stream's residual is correlated over many samples (the same ripple, the same temperature for a while):
     zero-mean noise with a memory of ~1000 samples, sweeps of 2000 samples each way. Judged sample by sample its
@@ -257,6 +265,7 @@ def test_a_term_that_does_not_earn_its_place_is_dropped():
 
 
 # ------------------------------------------------------------------------------------------------ bound and gate
+@pytest.mark.slow
 def test_the_bound_clips_and_says_so():
     c = learn(lambda t, v, p, m: np.sign(v) * 3.0 * m,
               settings=CorrectionSettings(max_relative=0.5, guard_min_samples=0, guard_z=0.0))
@@ -265,6 +274,7 @@ def test_the_bound_clips_and_says_so():
     assert applied_torque(c, -40.0, SPEED, 0.0) <= 0.5 * m + 2e-5 + 1e-12
 
 
+@pytest.mark.slow
 def test_the_gate_refuses_absurd_inputs_and_every_sum_stays_finite(tmp_path):
     c = Correction(CorrectionSettings(), IDENT)
     learner = Learner(c, LearningSettings(max_rate_nm_per_min=1.0, step_period_s=0.1))

@@ -4,6 +4,7 @@ or absent correction is exactly the model; the per-message and array paths agree
 from __future__ import annotations
 
 import copy
+import functools
 import math
 
 import numpy as np
@@ -37,7 +38,13 @@ def learned(positions: bool = True, seed: int = 0, joints: tuple[str, ...] = ('e
             scale_nm: float = 3e-4) -> Correction:
     """A correction learned from random residuals (a temperature trend, a direction asymmetry, a speed dependence
     and, with ``positions``, a position ripple and a torque independent of the direction) over -60..120 degC, both
-    directions, speeds 0.01..0.1 rad/s."""
+    directions, speeds 0.01..0.1 rad/s. (A copy of the one learned once per set of arguments: the fit takes
+    about 10 s.)"""
+    return copy.deepcopy(_learned_once(positions, seed, joints, scale_nm))
+
+
+@functools.cache
+def _learned_once(positions: bool, seed: int, joints: tuple[str, ...], scale_nm: float) -> Correction:
     rng = np.random.default_rng(seed)
     samples = {}
     for k, joint in enumerate(joints):
@@ -125,6 +132,7 @@ def test_a_learned_correction_is_added_along_the_motion_and_beside_it():
     assert ff.correction is None and ff.torque_nm('elevation', 0.03, 0.1) == ff_plain.torque_nm('elevation', 0.03, 0.1)
 
 
+@pytest.mark.slow
 def test_the_clamp_applies_to_the_corrected_torque_and_saturation_is_counted():
     c = learned(positions=False, scale_nm=5e-3)
     ff = Feedforward(AXES, FeedforwardSettings(max_torque_nm=0.0031), correction=c)
@@ -148,6 +156,7 @@ def test_a_learner_updating_the_correction_in_place_is_followed_at_once():
     assert ff.torque_nm('elevation', 0.03, 0.1) == before
 
 
+@pytest.mark.slow
 def test_a_correction_of_another_model_is_refused_with_one_line():
     other = Correction(CorrectionSettings(), model_identity({'elevation': AxisParams(walther_a=9.0),
                                                             'azimuth': AXES['azimuth']}))
@@ -194,7 +203,16 @@ def test_the_reference_position_is_used_when_the_velocity_is_the_references():
     assert measured.message(['elevation'], [0.05], 10.1, [0.0]).torques_nm == [at(0.0)]
 
 
-LEARNED = {positions: learned(positions) for positions in (False, True)}
+class _Learned(dict):
+    """``LEARNED[positions]``: ``learned(positions)``, learned when a test first asks (not when the module is
+    collected: a fast-lane run, and each xdist worker, would pay for it)."""
+
+    def __missing__(self, positions: bool) -> Correction:
+        self[positions] = value = learned(positions)
+        return value
+
+
+LEARNED = _Learned()
 
 
 @pytest.mark.slow

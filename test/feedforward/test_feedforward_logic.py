@@ -48,6 +48,7 @@ def test_clamp_and_saturation_count():
     assert ff.counters.saturated == {'elevation': 2}
 
 
+@pytest.mark.slow
 def test_stale_policies_judge_freshness_on_stamps():
     for policy, source, t_expected in (('hold_last', SOURCE_HOLD_LAST, -40.0),
                                        ('fallback_temperature', SOURCE_FALLBACK, 20.0),

@@ -69,6 +69,7 @@ def test_ellipticity_solves_its_equation_and_circle_limit():
 
 @pytest.mark.filterwarnings('ignore::scipy.integrate.IntegrationWarning')
 @pytest.mark.parametrize(('a', 'b'), [(0.1115, 0.0219), (0.05, 0.05), (0.166, 0.0327)])
+@pytest.mark.slow
 def test_spin_closed_form_matches_double_integral(a, b):
     mu, Q = 0.095, 16.6
     e2 = 1 - (b / a) ** 2

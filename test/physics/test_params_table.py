@@ -52,6 +52,7 @@ def test_int_accepted_for_float_parameter():
     assert AxisParams.from_mapping({'width_mm': 5}).width_mm == 5.0
 
 
+@pytest.mark.slow
 def test_table_interpolation_error_is_small():
     table = FrictionTable(P0, -60.0, 120.0, 0.1)
     assert len(table.grid) == 1802 and table.grid[0] < -60.0 < table.grid[1]  # a node on the loose-fit kink

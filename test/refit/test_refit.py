@@ -176,6 +176,7 @@ def test_weakly_determined_parameters_get_wide_intervals_that_hold_the_truth(one
                 res.identifiability[name].reason
 
 
+@pytest.mark.slow
 def test_weights_and_robust_loss_options(one_cold):
     truth, t, n, y, d = one_cold
     y = y.copy()

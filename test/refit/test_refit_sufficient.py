@@ -118,6 +118,7 @@ def test_statistics_from_residual_rows_skip_and_count(data):
     np.testing.assert_allclose(s.mean_y, ref.mean_y, rtol=1e-12)
 
 
+@pytest.mark.slow
 def test_direction_asymmetry_is_recovered_with_intervals():
     base = AxisParams()
     truth = base.replace(walther_a=base.walther_a + 0.02, direction_asymmetry_cold=0.13,

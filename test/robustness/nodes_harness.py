@@ -72,11 +72,11 @@ class InProcess:
 
 @pytest.fixture(scope='module')
 def in_process(tmp_path_factory: pytest.TempPathFactory) -> Iterator[InProcess]:
-    from domain_coordinator import domain_id
+    from gimbal_friction.runs.supervisor import free_domain
     log_dir = tmp_path_factory.mktemp('roslog')
     saved = {k: os.environ.get(k) for k in ('ROS_AUTOMATIC_DISCOVERY_RANGE', 'ROS_LOG_DIR')}
     os.environ.update(ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST', ROS_LOG_DIR=str(log_dir))
-    with domain_id() as did:
+    with free_domain() as did:
         p = InProcess(did)
         try:
             yield p

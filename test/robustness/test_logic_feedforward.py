@@ -136,6 +136,7 @@ def test_duplicate_joint_uses_the_first_entry_and_counts_the_rest():
 @given(temps=st.lists(st.tuples(TEMPERATURE, st.integers(0, 10**12)), max_size=10),
        js=st.lists(st.tuples(st.lists(SPEED, min_size=2, max_size=2), st.integers(0, 10**12),
                              st.sampled_from([0, 1, 2])), min_size=1, max_size=20))
+@pytest.mark.slow
 def test_bag_torques_never_raise_and_stay_within_the_clamp(temps, js):
     """The replay path (arrays) under the same hostile values: every output finite and clamped."""
     t_msgs = [(k + 1, stamp, t) for k, (t, stamp) in enumerate(temps)]

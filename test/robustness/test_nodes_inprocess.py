@@ -82,6 +82,7 @@ def ff(in_process: Any) -> Any:
 @settings(max_examples=120, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(stream=st.lists(st.one_of(joint_state_msg(), temperature_msg(), st.tuples(st.just('ref'), joint_state_msg())),
                        min_size=1, max_size=25))
+@pytest.mark.slow
 def test_feedforward_node_survives_hostile_streams(ff, stream):
     ff.pub_ff.clear()
     ff.pub_cmd.clear()
@@ -145,6 +146,7 @@ def feed_clean(node: Any, sec: int, steps: int, sign: float = 1.0) -> None:
 @settings(max_examples=80, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(stream=st.lists(st.tuples(st.sampled_from(['js', 'cur', 't', 'process']), joint_state_msg(),
                                  temperature_msg()), min_size=1, max_size=30))
+@pytest.mark.slow
 def test_estimator_node_survives_hostile_streams(estimator, stream):
     estimator.pub_measured.clear()
     estimator.pub_detail.clear()
@@ -292,6 +294,7 @@ def test_logger_closes_a_readable_log_whatever_it_was_fed(in_process: Any, tmp_p
                     st.one_of(st.sampled_from(['finished', 'playing', '0a0b', 'zz', '-1', '1e400', '9' * 30, '']),
                               st.integers(-5, 10**6).map(str), st.text(max_size=8)), max_size=5)),
     min_size=1, max_size=20))
+@pytest.mark.slow
 def test_logger_survives_hostile_publisher_counts(logger, statuses_in):
     """What a publisher says it sent (/diagnostics) is untrusted: any status, any value, no exception; an unusable
     'finished' status is refused and counted; the counts waiting to be taken stay bounded."""

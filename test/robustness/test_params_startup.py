@@ -51,8 +51,8 @@ FF = 'friction_feedforward'
 
 @pytest.fixture(scope='module')
 def domain() -> Any:
-    from domain_coordinator import domain_id
-    with domain_id() as did:
+    from gimbal_friction.runs.supervisor import free_domain
+    with free_domain() as did:
         yield did
 
 
@@ -414,6 +414,7 @@ def test_help_of_the_installed_executable(tmp_path):
 
 # ------------------------------------------------------------------------------------------------ bad command lines
 @pytest.mark.parametrize('exe', sorted(EXECUTABLES))
+@pytest.mark.slow
 def test_a_bad_params_file_prints_exactly_one_line(exe, tmp_path, domain):
     """The documented promise: a parameter file that cannot be read, or is not YAML, ends every executable with
     exit code 1 and exactly one line on stderr naming the file (rcl used to print its own "Failed to parse global

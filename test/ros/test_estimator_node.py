@@ -262,6 +262,7 @@ def test_constant_speed_sweep_gives_eq23_friction_and_rejects_the_rest(spawn, pr
 
 
 # ------------------------------------------------------------------------------------------------ live == offline
+@pytest.mark.slow
 def test_live_node_matches_the_offline_logic(spawn, probe, monkeypatch):
     cfg = synth.SynthConfig(plateaus_c=(-40.0,), hold_s=12.0, joint_rate_hz=25.0, temperature_rate_hz=2.0,
                             no_load_current_a=0.004, seed=11)

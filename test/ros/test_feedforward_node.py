@@ -192,6 +192,7 @@ def _set(probe, name, value):
     return future.result().results[0]
 
 
+@pytest.mark.slow
 def test_runtime_parameter_change_and_refusal(node_and_probe):
     node, probe = node_and_probe
     sec = wait_temperature_used(probe, -40.0, 300)
@@ -232,6 +233,7 @@ def test_stale_temperature_policy(spawn, probe, monkeypatch):
     assert node.stop()[0] == 0
 
 
+@pytest.mark.slow
 def test_bad_parameter_file_exits_with_one_line(spawn, tmp_path):
     bad = tmp_path / 'bad.yaml'
     bad.write_text('/**:\n  ros__parameters:\n    model:\n      ball_diameter_mm: -2.0\n')
@@ -270,6 +272,7 @@ def test_refitted_parameter_file_changes_the_output(spawn, probe, tmp_path, monk
     assert node.stop()[0] == 0
 
 
+@pytest.mark.slow
 def test_chamber_replay_refuses_a_bag_without_the_contract_topics(spawn, tmp_path):
     from gimbal_friction.recording.bag_write import make_temperature, write_chamber_bag
     bag = write_chamber_bag(tmp_path / 'bag', [('/gimbal/temperature', 'sensor_msgs/msg/Temperature', 1,

@@ -91,6 +91,7 @@ def test_sigint_ends_a_run_cleanly_and_records_it(spawn, probe, tmp_path):
     assert batch.traces.los_rate_rad_s.shape == (meta['ticks'], 1)
 
 
+@pytest.mark.slow
 def test_a_bad_parameter_is_refused_in_one_line(spawn):
     node = spawn('gimbal_sim', '--ros-args', '-p', 'profile:=spiral')
     assert _exited(node), 'gimbal_sim kept running with a bad parameter'

@@ -354,6 +354,7 @@ def _logger_counts(probe) -> dict[str, str]:
     return {}
 
 
+@pytest.mark.slow
 def test_what_a_publisher_said_it_sent_and_never_arrived_counts_as_lost(spawn, probe, tmp_path):
     """A publisher that says how many messages it sent (chamber_replay's ``finished`` status) is counted against
     what arrived: the messages it sent before the logger was there, which no sequence gap shows, count as lost

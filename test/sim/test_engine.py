@@ -57,6 +57,7 @@ def test_p_rate_loop_steady_state_error_is_the_closed_form():
         -tau + float(res.traces.friction_nm[-1, 0]), rel=1e-6)
 
 
+@pytest.mark.slow
 def test_pi_rate_loop_with_track_loop_has_no_steady_state_error():
     cfg = SimConfig(**QUIET, disturbance_torque_nm=2e-3)
     prof = make_profile(cfg, 'pointing', 4.0)
@@ -87,6 +88,7 @@ def test_a_batch_is_its_runs_one_by_one():
         _traces_equal(batch.traces, single.traces, i)
 
 
+@pytest.mark.slow
 def test_seeded_noise_is_deterministic_and_the_seed_matters():
     cfg = SimConfig()
     prof = make_profile(cfg, 'tracking', 0.5)

@@ -5,7 +5,10 @@ from __future__ import annotations
 import subprocess
 import sys
 
+import pytest
 
+
+@pytest.mark.slow
 def test_importing_sim_loads_no_rclpy_and_no_recording():
     code = ('import sys, gimbal_friction.sim, gimbal_friction.sim.study\n'
             'bad = [m for m in sys.modules if m.startswith(("rclpy", "gimbal_friction.recording", "yaml"))]\n'

@@ -37,6 +37,7 @@ def test_ideal_beats_feedforward_beats_no_compensation_in_the_cold(cold_study):
         assert rms[(profile, 'ideal')] <= rms[(profile, 'feedforward')] < rms[(profile, 'none')], profile
 
 
+@pytest.mark.slow
 def test_records_carry_the_contract_fields(cold_study):
     res, seen = cold_study
     assert len(res.records) == 2 * 3

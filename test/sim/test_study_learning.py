@@ -34,6 +34,7 @@ def _rms(records, case, t=-40.0, profile='tracking'):
     return r['rate_error_rms_rad_s']
 
 
+@pytest.mark.slow
 def test_bound_beats_the_feedforward_in_a_cold_cell_and_ideal_beats_bound():
     res = run_study(SimConfig(), temperatures=[-40.0], profiles=['tracking'], cases=['feedforward', 'bound', 'ideal'],
                     short=True, feedforward=AUTO)
@@ -108,6 +109,7 @@ def test_the_chamber_case_learns_from_a_chamber_test_of_the_same_truth_through_t
     assert not any(r['case'] == 'chamber' for r in res.records) and any('chamber' in n for n in res.notes)
 
 
+@pytest.mark.slow
 def test_the_generator_draws_valid_plausible_truths_the_same_everywhere():
     truths = draw_truths(30, first_seed=500)
     assert [t.truth for t in truths] == [draw_truth(500 + k).truth for k in range(30)]
