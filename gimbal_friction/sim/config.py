@@ -74,6 +74,16 @@ synthetic chamber bag's truth: +46 % viscosity at −40 °C), the model's Palmgr
 paper's measured CW/CCW means (3.19 / −2.45 N·mm at −40 °C, 1.05 / −1.34 N·mm at +60 °C) as a direction asymmetry
 and a mean factor (see :mod:`gimbal_friction.sim.truth`).
 
+A truth of the other pre-sliding family (``presliding_model = 'gms'``, the generalized Maxwell-slip model of
+Al-Bender, Lampaert & Swevers 2005, :mod:`gimbal_friction.sim.gms`) replaces the bristle by four elasto-slide
+elements with stiffnesses (200, 80, 30, 10) N·m/rad holding (40, 30, 20, 10) % of the Stribeck level: at the
+default truth's breakaway level at +20 °C (≈ 1.6 N·mm) they saturate after ≈ 3, 6, 10 and 16 µrad, the same
+order as the LuGre bristle's F/σ0, and the total initial stiffness 320 N·m/rad puts the pre-sliding resonance at
+√(K/J)/2π ≈ 285 Hz (h √(K/J) = 0.45 at the default 4 kHz plant step: stable, see
+:class:`~gimbal_friction.sim.engine.Plant`). The element limits follow the truth's own Stribeck level, so the
+pre-sliding hysteresis grows in the cold with the friction; the damping is ``sigma1_nm_s_per_rad``'s. The default
+truth is LuGre's.
+
 Thermal: bearing temperature lags the environment with 30 s (as the synthetic chamber bag).
 
 Base motion: missile body rate 0.05 rad/s at 0.5 Hz (airframe weaving / autopilot), 0.02 rad/s at 2 Hz
@@ -95,6 +105,8 @@ from gimbal_friction.common.text import did_you_mean
 
 #: Profiles the simulator knows (see :mod:`gimbal_friction.sim.profiles`).
 PROFILES = ('tracking', 'scan', 'pointing', 'weave')
+#: Pre-sliding forms of the truth friction (:mod:`gimbal_friction.sim.lugre`, :mod:`gimbal_friction.sim.gms`).
+PRESLIDING_MODELS = ('lugre', 'gms')
 #: Name of the section of a ROS 2 parameter file that holds the simulator parameters.
 SECTION = 'gimbal_sim'
 #: Parameters that are lists of names (every other list holds numbers).
@@ -191,9 +203,23 @@ class SimConfig:
     truth_no_load_current_a: float = _p(0.0, 'A', 'true motor no-load current I_0 of the plant (a Coulomb torque '
                                         'K_T I_0 against the motion)', 'truth')
     sigma0_nm_per_rad: float = _p(100.0, 'N*m/rad', 'LuGre bristle stiffness sigma0', 'truth')
-    sigma1_nm_s_per_rad: float = _p(0.1, 'N*m*s/rad', 'LuGre bristle damping sigma1', 'truth')
+    sigma1_nm_s_per_rad: float = _p(0.1, 'N*m*s/rad', 'LuGre bristle damping sigma1 (gms: the same damping of '
+                                    "the pre-sliding springs, sigma1 / sum(k_i) x the rate of the elements' force)",
+                                    'truth')
     stribeck_velocity_rad_s: float = _p(0.002, 'rad/s', 'LuGre Stribeck velocity v_s', 'truth')
     breakaway_ratio: float = _p(1.5, '-', 'breakaway (static) over sliding friction F_S/F_C', 'truth')
+    presliding_model: str = _p('lugre', '-', 'pre-sliding form of the truth friction: lugre (Canudas de Wit et al. '
+                               '1995, one bristle state) or gms (generalized Maxwell-slip, Al-Bender et al. 2005: '
+                               'gms_stiffness_nm_per_rad elements with limits gms_weights x the Stribeck level); the '
+                               'static Stribeck curve is the same for both', 'truth')
+    gms_stiffness_nm_per_rad: tuple[float, ...] = _p((200.0, 80.0, 30.0, 10.0), 'N*m/rad', 'gms: stiffness k_i of '
+                                                     'each Maxwell-slip element', 'truth')
+    gms_weights: tuple[float, ...] = _p((0.4, 0.3, 0.2, 0.1), '-', 'gms: share W_i of the Stribeck level each '
+                                        'element holds before it slips (sum 1); element i saturates after a '
+                                        'displacement W_i s(v) / k_i', 'truth')
+    gms_attraction_nm_per_s: float = _p(0.0, 'N*m/s', 'gms: attraction C of the slip law dF_i/dt = C (sgn v - '
+                                        'F_i / (W_i s(v))); 0: infinitely fast (a slipping element is dragged at '
+                                        'its limit)', 'truth')
     ripple_amplitudes: tuple[float, ...] = _p((0.06, 0.03), '-', 'position ripple: amplitude of each sine as a '
                                               'fraction of the friction', 'truth')
     ripple_periods_deg: tuple[float, ...] = _p((3.4, 0.85), 'deg', 'position ripple: period of each sine in '
@@ -393,6 +419,14 @@ class SimConfig:
             ('sigma1_nm_s_per_rad', s.sigma1_nm_s_per_rad >= 0.0, 'must be >= 0 [N*m*s/rad]'),
             ('stribeck_velocity_rad_s', s.stribeck_velocity_rad_s > 0.0, 'must be > 0 [rad/s]'),
             ('breakaway_ratio', 1.0 <= s.breakaway_ratio <= 10.0, 'must lie in [1, 10] [-]'),
+            ('presliding_model', s.presliding_model in PRESLIDING_MODELS,
+             f'must be one of {", ".join(PRESLIDING_MODELS)}'),
+            ('gms_stiffness_nm_per_rad', 1 <= len(s.gms_stiffness_nm_per_rad) <= 20
+             and all(k > 0.0 for k in s.gms_stiffness_nm_per_rad), 'must give 1 to 20 stiffnesses > 0 [N*m/rad]'),
+            ('gms_weights', len(s.gms_weights) == len(s.gms_stiffness_nm_per_rad)
+             and all(w > 0.0 for w in s.gms_weights) and abs(sum(s.gms_weights) - 1.0) <= 1e-3,
+             'must give one share > 0 per element of gms_stiffness_nm_per_rad, summing to 1 [-]'),
+            ('gms_attraction_nm_per_s', s.gms_attraction_nm_per_s >= 0.0, 'must be >= 0 [N*m/s]'),
             ('ripple_periods_deg', len(s.ripple_periods_deg) == n_rip and len(s.ripple_phases_rad) == n_rip,
              'ripple_amplitudes, ripple_periods_deg and ripple_phases_rad must have the same length'),
             ('ripple_periods_deg', all(p > 0.0 for p in s.ripple_periods_deg), 'must be > 0 [deg]'),

@@ -2,14 +2,17 @@ r"""Fixed-step closed-loop simulation of a gimbal axis, vectorised over independ
 
 The plant (one rigid axis, inertial angle θ and rate ω of the LOS, base rate ω_B of the missile body)::
 
-    J dω/dt = K_T i − F + τ_dist + τ_u sin(θ − θ_B + φ_u),      F = LuGre torque of the truth friction at v = ω − ω_B
+    J dω/dt = K_T i − F + τ_dist + τ_u sin(θ − θ_B + φ_u),      F = truth friction (LuGre or GMS) at v = ω − ω_B
     τ_i di/dt = i_cmd − i,             i_cmd = clip(i_fb + τ_ff / K_T, ±current_limit)
 
 Friction acts on the rate of the gimbal *relative to the base*, so base motion reaches the LOS through friction
 (Lagunowich et al. 2007, the paper's introduction). The plant integrates at ``plant_substeps`` steps per
 controller tick (explicit Euler for ω, trapezoidal θ, exact exponential updates for the current loop and the LuGre
-deflection, see :func:`~gimbal_friction.sim.lugre.lugre_z_step`); the controller runs at ``rate_loop_hz`` with a
-zero-order hold.
+deflection, see :func:`~gimbal_friction.sim.lugre.lugre_z_step`, or the exact stick/slip update of the GMS elements,
+:func:`~gimbal_friction.sim.gms.gms_step_AlBender_2005`); the controller runs at ``rate_loop_hz`` with a
+zero-order hold. The friction of a step is that of the deflection at its end, so the pre-sliding spring and the
+inertia form a symplectic-Euler pair, stable while ``h √(K/J) < 2`` (``K`` the contact's initial stiffness, ``J`` the
+plant's inertia); a GMS truth is refused above 1.5 (raise ``plant_substeps``).
 
 Sensors at each tick: the LOS rate gyro (inertial rate + bias + noise), the resolver (joint angle θ − θ_B and the
 RDC velocity: the relative rate behind a first-order filter, + noise), the tracker's boresight error θ_T − θ at
@@ -41,6 +44,7 @@ from gimbal_friction.common.units import NS_PER_S
 from gimbal_friction.physics.params import AxisParams
 from gimbal_friction.sim.compensation import CASE_IDEAL, CASE_NONE, Compensator, ControllerInputs
 from gimbal_friction.sim.config import SimConfig
+from gimbal_friction.sim.gms import gms_force_AlBender_2005, gms_step_AlBender_2005
 from gimbal_friction.sim.lugre import lugre_force_1995, lugre_z_step
 from gimbal_friction.sim.profiles import Profile
 from gimbal_friction.sim.truth import TemperatureTerms, TruthFriction, TruthTerms, ripple
@@ -136,9 +140,10 @@ class BatchResult(NamedTuple):
 
 
 class Plant:
-    """The rigid axis with its current loop and the truth friction (LuGre), vectorised over runs.
+    """The rigid axis with its current loop and the truth friction (LuGre or GMS), vectorised over runs.
 
-    State per run: inertial LOS angle ``theta`` [rad] and rate ``omega`` [rad/s], bristle deflection ``z`` [rad],
+    State per run: inertial LOS angle ``theta`` [rad] and rate ``omega`` [rad/s], bristle deflection ``z`` [rad]
+    (LuGre) or the GMS element forces ``gms_force`` [N·m] and slip states ``gms_slipping``, shape (runs, elements),
     motor current ``current`` [A]; ``friction`` is the truth torque of the last step [N·m].
     :meth:`advance` integrates one controller tick in ``plant_substeps`` steps: explicit Euler for ω with the
     torque of the step (the friction from the bristle deflection at the end of the step), the trapezoidal rule for
@@ -155,6 +160,9 @@ class Plant:
         Initial angle [rad] and rate [rad/s], one per run.
     cancel_friction : array_like of bool, optional
         Runs whose friction is cancelled exactly (case ``ideal``); their current includes F/K_T.
+
+    Raises:
+        ConfigError: a GMS truth too stiff for the plant step (``h √(Σk_i/J) > 1.5``).
     """
 
     def __init__(self, config: SimConfig, axis: AxisParams, theta: Array, omega: Array,
@@ -171,6 +179,12 @@ class Plant:
         self.theta = np.array(theta, dtype=float)
         self.omega = np.array(omega, dtype=float)
         self.z = np.zeros(m)
+        n_el = self.truth.gms_stiffness.size if self.truth.presliding == 'gms' else 0
+        self.gms_force = np.zeros((m, n_el))
+        self.gms_slipping = np.zeros((m, n_el), dtype=bool)
+        if n_el and self.h * math.sqrt(self.truth.presliding_stiffness_nm_per_rad / self.J) > 1.5:
+            raise ConfigError('gms_stiffness_nm_per_rad', 'too stiff for the plant step: h sqrt(sum(k_i) / J) must be '
+                              '<= 1.5 (raise plant_substeps)', config.gms_stiffness_nm_per_rad)
         self.current = np.zeros(m)
         self.friction = np.zeros(m)
         cancel = np.zeros(m, dtype=bool) if cancel_friction is None else np.asarray(cancel_friction, dtype=bool)
@@ -195,17 +209,28 @@ class Plant:
         sigma0, sigma1 = truth.sigma0, truth.sigma1
         theta, omega, z, current = self.theta, self.omega, self.z, self.current
         friction = self.friction
+        gms = truth.presliding == 'gms'
+        f_el, slipping = self.gms_force, self.gms_slipping
+        k_total = truth.presliding_stiffness_nm_per_rad
         for j in range(self.substeps):
             v = omega - base_rates[j]
             current = i_cmd + (current - i_cmd) * self.decay_i
             g = truth.stribeck_level_nm(terms, v, ripple_factor)
-            z_new = lugre_z_step(z, v, g, sigma0, h)
-            friction = lugre_force_1995(z_new, (z_new - z) / h, v, sigma0, sigma1)
-            z = z_new
+            if gms:
+                f_new, slipping = gms_step_AlBender_2005(f_el, slipping, v, g, truth.gms_stiffness,
+                                                         truth.gms_weights, h, truth.gms_attraction)
+                friction = gms_force_AlBender_2005(f_new, (f_new.sum(axis=-1) - f_el.sum(axis=-1)) / h, v,
+                                                   k_total, sigma1)
+                f_el = f_new
+            else:
+                z_new = lugre_z_step(z, v, g, sigma0, h)
+                friction = lugre_force_1995(z_new, (z_new - z) / h, v, sigma0, sigma1)
+                z = z_new
             omega_new = omega + h * (K_T * current - self._keep * friction + self.tau_dist + external_nm) / J
             theta = theta + 0.5 * h * (omega + omega_new)
             omega = omega_new
         self.theta, self.omega, self.z, self.current, self.friction = theta, omega, z, current, friction
+        self.gms_force, self.gms_slipping = f_el, slipping
 
 
 def _noise(config: SimConfig, runs: Sequence[Run], n: int) -> Array:

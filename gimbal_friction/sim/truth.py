@@ -25,7 +25,10 @@ Sliding (Coulomb) level of the truth at bearing temperature t, relative velocity
   truth) the cold end is more viscous (CW ≈ 3.97 N·mm at −40 °C, like the sample bag's measured 3.83).
 - ``r`` is the position ripple of :func:`ripple`: a sum of sines in the joint angle, amplified in the cold.
 
-The LuGre model (:mod:`gimbal_friction.sim.lugre`) makes it dynamic: Stribeck level
+The pre-sliding form is per truth (``presliding_model``): LuGre (the default) or the generalized Maxwell-slip model
+(:mod:`gimbal_friction.sim.gms`, Al-Bender et al. 2005), whose elements' limits are the same Stribeck level ``g(v)``
+shared by ``gms_weights`` (so its pre-sliding follows the truth's own temperature dependence and its static curve is
+the same). The LuGre model (:mod:`gimbal_friction.sim.lugre`) makes it dynamic: Stribeck level
 ``g(v) = F_C + (F_S − F_C) e^{−(v/v_s)²}`` with ``F_S = breakaway_ratio · F_C`` (the breakaway torque relative to
 the sliding level at the same low speed, i.e. to M(t, 0) of the lower Palmgren branch), plus the motor's
 no-load torque ``T_0 = K_T I_0`` (the truth's) as a Coulomb term (the torque motor ``τ = K_T (i − sgn(ω) I_0)``,
@@ -188,6 +191,15 @@ class TruthFriction:
         self.sigma1 = config.sigma1_nm_s_per_rad
         self.v_s = config.stribeck_velocity_rad_s
         self.beta = config.breakaway_ratio
+        self.presliding = config.presliding_model
+        self.gms_stiffness = np.asarray(config.gms_stiffness_nm_per_rad, dtype=float)
+        self.gms_weights = np.asarray(config.gms_weights, dtype=float) / float(np.sum(config.gms_weights))
+        self.gms_attraction = config.gms_attraction_nm_per_s
+
+    @property
+    def presliding_stiffness_nm_per_rad(self) -> float:
+        """Initial stiffness of the pre-sliding contact from rest [N·m/rad]: σ0 (LuGre) or Σ k_i (GMS)."""
+        return float(np.sum(self.gms_stiffness)) if self.presliding == 'gms' else float(self.sigma0)
 
     def terms(self, t_c: ArrayLike) -> TruthTerms:
         """Temperature-dependent terms at bearing temperatures ``t_c`` [°C]."""
