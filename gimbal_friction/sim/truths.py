@@ -21,7 +21,17 @@ A learned correction is judged on truths it was not tuned to. Each draw is the p
 - **motor**: a no-load current up to 4 mA in 30 % of the draws, the torque constant within ±3 % of the configured;
 - **sensor**: a temperature offset in ±3 °C and a lag of 2 … 60 s;
 - **plant**: the inertia 0.8 … 1.25 × the configured;
-- **base motion**: the body rates × 0.5 … 3 (not a truth parameter: a configuration of the simulator).
+- **base motion**: the body rates × 0.5 … 3 (not a truth parameter: a configuration of the simulator);
+- **pre-sliding family** (from a second seeded stream, so every other parameter of a truth is what it was before
+  the family was drawn): half the draws LuGre (as above), half the generalized Maxwell-slip model
+  (:mod:`gimbal_friction.sim.gms`) with 3 to 6 elements whose shares of the Stribeck level are Dirichlet-drawn and
+  which saturate, at the truth's own breakaway level at +20 °C, after displacements log-uniform between a third and
+  three times a characteristic pre-sliding distance, itself log-uniform in [5, 50] µrad (the stiffnesses then stay
+  fixed and the limits follow the truth's Stribeck curve at every temperature; stiffnesses scaled down where the
+  plant step would need ``h √(Σk/J)`` above 1.2);
+- **unbalance at every plateau** (the same second stream, 40 % of the draws): a constant, direction-independent
+  torque of 0.5 … 3 N·mm of either sign *and* an angle-dependent unbalance of 0.5 … 3 N·mm at a random phase (the
+  ``m g r cos``-like term of the plant), both present at every temperature (they replace the draws above).
 
 >>> a, b = draw_truth(7), draw_truth(7)
 >>> a == b, a.truth['ripple_periods_deg'] == b.truth['ripple_periods_deg']
@@ -56,6 +66,7 @@ class GeneratedTruth(NamedTuple):
     truth: dict[str, Any]     #: truth parameters (``loop-study --truth`` accepts them)
     sim: dict[str, Any]       #: other simulator parameters (base motion)
     base_scale: float = 1.0   #: the body rates' factor over the configured [-]
+    kinds: tuple[str, ...] = ()   #: named hidden kinds drawn for this truth (``unbalance at every plateau``)
 
     def config(self, base: SimConfig) -> SimConfig:
         """``base`` with this truth (validated)."""
@@ -66,7 +77,14 @@ class GeneratedTruth(NamedTuple):
         t = self.truth
         rip = ', '.join(f'{p:.2g} deg {a * 100:.1f} %' for p, a in zip(t['ripple_periods_deg'],
                                                                        t['ripple_amplitudes'], strict=True))
-        return (f'truth {self.seed}: walther a {t["truth_walther_a"]:.4f} b {t["truth_walther_b"]:.3f}, '
+        if t.get('presliding_model', 'lugre') == 'gms':
+            family = (f'pre-sliding gms {len(t["gms_stiffness_nm_per_rad"])} elements '
+                      f'(k {min(t["gms_stiffness_nm_per_rad"]):.3g}..{max(t["gms_stiffness_nm_per_rad"]):.3g} N*m/rad)')
+        else:
+            family = 'pre-sliding lugre'
+        kinds = ''.join(f', {k}' for k in self.kinds)
+        return (f'truth {self.seed}: {family}{kinds}, walther a {t["truth_walther_a"]:.4f} '
+                f'b {t["truth_walther_b"]:.3f}, '
                 f'palmgren {t["truth_palmgren_factor"]:.2f}, ripple {rip} (cold x{1 + t["ripple_cold_gain"]:.2f}), '
                 f'stribeck {t["stribeck_velocity_rad_s"]:.3g} rad/s x{t["breakaway_ratio"]:.2f}, unbalance '
                 f'{t["disturbance_torque_nm"] * 1e3:+.2f} N*mm + {t["unbalance_torque_nm"] * 1e3:.2f} N*mm sin, '
@@ -137,9 +155,46 @@ def draw_truth(seed: int, base: SimConfig | None = None) -> GeneratedTruth:
     }
     scale = u(0.5, 3.0)
     sim = {'base_motion_amplitudes_rad_s': tuple(round(a * scale, 6) for a in cfg.base_motion_amplitudes_rad_s)}
-    out = GeneratedTruth(int(seed), truth, sim, round(scale, 4))
+    kinds = _draw_family_and_unbalance(np.random.default_rng([20261127, int(seed), 34]), truth, cfg)
+    out = GeneratedTruth(int(seed), truth, sim, round(scale, 4), kinds)
     out.config(cfg)   # every draw must be a valid truth (raises ConfigError otherwise)
     return out
+
+
+def _draw_family_and_unbalance(rng: np.random.Generator, truth: dict[str, Any], cfg: SimConfig) -> tuple[str, ...]:
+    """Draw the pre-sliding family and the unbalance-at-every-plateau kind into ``truth`` (see the module notes);
+    the kinds drawn."""
+    from gimbal_friction.sim.truth import TruthFriction
+    u = rng.uniform
+    gms = u() < 0.5
+    n = int(rng.integers(3, 7))
+    distance_rad = float(np.exp(u(math.log(5e-6), math.log(50e-6))))
+    spread = np.sort(np.exp(u(math.log(1.0 / 3.0), math.log(3.0), n)))
+    weights = np.maximum(rng.dirichlet(np.full(n, 2.0)), 1e-3)
+    weights /= weights.sum()
+    unbalance = u() < 0.4
+    constant = u(0.5e-3, 3e-3) * (1.0 if u() < 0.5 else -1.0)
+    angle_amp, angle_phase = u(0.5e-3, 3e-3), u(-math.pi, math.pi)
+    truth['presliding_model'] = 'gms' if gms else 'lugre'
+    if gms:
+        w = [round(float(x), 5) for x in weights[:-1]]
+        w.append(round(1.0 - sum(w), 5))
+        level = TruthFriction(SimConfig.from_mapping(truth, base=cfg))
+        s20 = float(level.stribeck_level_nm(level.terms(np.array([20.0])), np.zeros(1))[0])
+        k = np.array(w) * s20 / (distance_rad * spread)
+        j = PAPER_AXIS.inertia_kg_m2 * float(truth['inertia_truth_ratio'])
+        k_max = (1.2 / cfg.plant_step_s) ** 2 * j
+        if k.sum() > k_max:
+            k *= k_max / k.sum()
+        truth['gms_stiffness_nm_per_rad'] = tuple(float(f'{x:.5g}') for x in k)
+        truth['gms_weights'] = tuple(w)
+        truth['gms_attraction_nm_per_s'] = 0.0
+    if unbalance:
+        truth['disturbance_torque_nm'] = round(constant, 7)
+        truth['unbalance_torque_nm'] = round(angle_amp, 7)
+        truth['unbalance_phase_rad'] = round(angle_phase, 4)
+        return ('unbalance at every plateau',)
+    return ()
 
 
 def draw_truths(n: int, first_seed: int = 0, base: SimConfig | None = None) -> list[GeneratedTruth]:

@@ -139,3 +139,29 @@ def test_bad_gms_parameters_are_refused(values, parameter):
     with pytest.raises(ConfigError) as info:
         SimConfig.from_mapping(values)
     assert info.value.parameter == parameter
+
+
+def test_the_generator_draws_both_families_and_the_unbalance_at_every_plateau():
+    from gimbal_friction.sim.truth import TruthFriction
+    from gimbal_friction.sim.truths import draw_truth
+    truths = [draw_truth(seed) for seed in range(24)]
+    families = [t.truth['presliding_model'] for t in truths]
+    assert 'gms' in families and 'lugre' in families
+    unbalanced = [t for t in truths if 'unbalance at every plateau' in t.kinds]
+    assert 0 < len(unbalanced) < len(truths)
+    for t in unbalanced:
+        assert 0.5e-3 <= abs(t.truth['disturbance_torque_nm']) <= 3e-3
+        assert 0.5e-3 <= t.truth['unbalance_torque_nm'] <= 3e-3
+        assert 'unbalance at every plateau' in t.describe()
+    for t in truths:
+        cfg = t.config(SimConfig())
+        assert f'pre-sliding {t.truth["presliding_model"]}' in t.describe()
+        if cfg.presliding_model != 'gms':
+            continue
+        assert 3 <= len(cfg.gms_stiffness_nm_per_rad) <= 6
+        Plant(cfg, AxisParams(), np.zeros(1), np.zeros(1))           # stable at the sim's step (else refused)
+        truth = TruthFriction(cfg)
+        s20 = float(truth.stribeck_level_nm(truth.terms(np.array([20.0])), np.zeros(1))[0])
+        distances = truth.gms_weights * s20 / truth.gms_stiffness
+        assert np.all(distances >= 5e-6 / 3.0 * 0.99) and np.all(distances <= 150e-6 * 1.01)
+    assert draw_truth(5).truth == draw_truth(5).truth                 # seeded: the same everywhere
