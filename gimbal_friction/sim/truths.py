@@ -51,7 +51,7 @@ import numpy as np
 
 from gimbal_friction.physics.model import friction_torque
 from gimbal_friction.sim.config import SimConfig
-from gimbal_friction.sim.truth import PAPER_AXIS
+from gimbal_friction.sim.truth import PAPER_AXIS, TruthFriction
 
 __all__ = ['GeneratedTruth', 'draw_truth', 'draw_truths', 'truth_mapping']
 
@@ -163,8 +163,7 @@ def draw_truth(seed: int, base: SimConfig | None = None) -> GeneratedTruth:
 
 def _draw_family_and_unbalance(rng: np.random.Generator, truth: dict[str, Any], cfg: SimConfig) -> tuple[str, ...]:
     """Draw the pre-sliding family and the unbalance-at-every-plateau kind into ``truth`` (see the module notes);
-    the kinds drawn."""
-    from gimbal_friction.sim.truth import TruthFriction
+    the kinds drawn. Every number is drawn whatever the family, so the unbalance draws do not depend on it."""
     u = rng.uniform
     gms = u() < 0.5
     n = int(rng.integers(3, 7))
