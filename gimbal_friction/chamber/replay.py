@@ -120,7 +120,7 @@ def replay_arrays(arrays: ChamberArrays, axes: dict[str, AxisParams], ff_setting
     ff_logic = Feedforward(axes, ff_settings, correction=correction)
     ff = ff_logic.bag_torques(arrays)
     est_logic = EstimatorLogic(axes, est_settings)
-    measured, measured_log = est_logic.feed_timed(arrays)
+    measured, measured_log = est_logic.feed_timed(arrays, final=True)   # the bag is the whole input
     ff_joint, ff_stamp, ff_torque = _flat_feedforward(ff)
     predicted = match_predictions(measured.joint, measured.stamp_ns, ff_joint, ff_stamp, ff_torque)
     return ff, ff_logic, measured, measured_log, est_logic, residual_rows(measured, predicted)

@@ -50,9 +50,14 @@ Input rules (rejections counted in ``counters.rejected[joint][reason]``; ``'*'``
   arrived (so arrival order does not matter); none in the window → ``'unpaired'``. A current arriving after
   more than :data:`HISTORY_LENGTH` newer joint states, or pushed out of the :data:`WAIT_LENGTH` buffer of currents
   waiting for their joint state, is ``'unpaired'`` too.
-- temperature: the latest valid temperature (finite, in ``[temperature_min_c, temperature_max_c]``) received
-  before the current; fresh if its time and the joint state's differ by at most ``temperature_timeout_s``. The
-  statistics plateau is ``round(t / temperature_bin_c) · temperature_bin_c`` when fresh, else unknown.
+- temperature: the one in force at the sample's stamp (the joint state's): the latest valid temperature (finite,
+  in ``[temperature_min_c, temperature_max_c]``) stamped at or before it, whatever the order the messages arrived
+  in (:mod:`gimbal_friction.estimation.temperatures`). A paired sample waits until a temperature stamped at or
+  after it has arrived, at most ``temperature_wait_s`` of its joint's stamps and
+  :data:`~gimbal_friction.estimation.gating.TEMPERATURE_WAIT_STATES` joint states (``feed(..., final=True)`` or
+  :meth:`EstimatorLogic.flush` at the end of the input); then it takes the latest of those arrived. Fresh if its
+  time and the joint state's differ by at most ``temperature_timeout_s``. The statistics plateau is
+  ``round(t / temperature_bin_c) · temperature_bin_c`` when fresh, else unknown.
 
 Statistics (:meth:`EstimatorLogic.statistics`, steady-state samples only, the paper's per-plateau means): per
 (joint, direction, plateau) count, mean, sample standard deviation, ripple (peak-to-peak of the mean friction in
@@ -60,13 +65,16 @@ Statistics (:meth:`EstimatorLogic.statistics`, steady-state samples only, the pa
 
 >>> logic = EstimatorLogic({'elevation': AxisParams(no_load_current_a=0.01)}, EstimatorSettings(min_dwell_s=0.0))
 >>> v = EstimatorSettings().commanded_speed_rad_s
+>>> _ = logic.on_temperature(-40.0, stamp_ns=10**9)
 >>> for k in range(3):                          # three joint states at 100 Hz: the acceleration is known
 ...     _ = logic.on_joint_state(10**9 + k * 10**7, ['elevation'], [0.0], [-v])
 >>> logic.on_current(10**9 + 2 * 10**7, ['elevation'], [-0.05])
 []
->>> (m,) = logic.on_joint_state(10**9 + 3 * 10**7, ['elevation'], [0.0], [-v])   # beyond the pairing window
->>> round(m.friction_nm, 6), m.direction   # 0.05 N*m/A * (-0.05 A + 0.01 A)
-(-0.002, -1)
+>>> logic.on_joint_state(10**9 + 3 * 10**7, ['elevation'], [0.0], [-v])   # paired: waits for its temperature
+[]
+>>> (m,) = logic.on_temperature(-39.9, stamp_ns=10**9 + 10**8)    # stamped after the sample: -40.0 was in force
+>>> round(m.friction_nm, 6), m.direction, m.temperature_c   # 0.05 N*m/A * (-0.05 A + 0.01 A)
+(-0.002, -1, -40.0)
 
 One job in one module: :class:`EstimatorLogic` (its per-message and batch paths share one state and must stay
 side by side to stay equal); the rules as data are in :mod:`gimbal_friction.estimation.gating`.
@@ -113,6 +121,7 @@ from gimbal_friction.estimation.gating import (
     R_UNPAIRED,
     R_WINDOW,
     STEADY_STATE_REASONS,
+    TEMPERATURE_WAIT_STATES,
     UNKNOWN_JOINT,
     WAIT_LENGTH,
     EstimatorCounters,
@@ -129,7 +138,8 @@ from gimbal_friction.streams.arrays import (
     chamber_arrays,
     single_message_arrays,
 )
-from gimbal_friction.streams.inputs import effective_time, is_fresh, latest_before, temperature_valid
+from gimbal_friction.estimation.temperatures import TemperatureHistory
+from gimbal_friction.streams.inputs import effective_time, is_fresh, temperature_valid
 from gimbal_friction.streams.measurement import METHOD_OBSERVER, METHOD_STEADY_STATE, Measurement, MeasurementArrays
 
 #: the rules as data live in :mod:`gimbal_friction.estimation.gating`; importable from here as before
@@ -166,10 +176,6 @@ __all__ = [
     'EstimatorSettings',
 ]
 
-#: the temperature [°C] and its time [s] in force before each of the given sample positions
-_TemperatureBefore = Callable[[NDArray[np.int64]], tuple[NDArray[np.float64], NDArray[np.float64]]]
-
-
 class _History(NamedTuple):
     """Accepted joint states of one joint's stream (carried between batches): times [ns], values, verdicts."""
 
@@ -180,11 +186,12 @@ class _History(NamedTuple):
     code: NDArray[np.int8]          #: steady-state verdict (0 = steady)
     alpha: NDArray[np.float64]      #: observer acceleration [rad/s^2] (NaN: window too short)
     alpha_se: NDArray[np.float64]   #: its standard error [rad/s^2]
+    serial: NDArray[np.int64]       #: count of the joint's accepted joint states before this one [-]
 
     @staticmethod
     def empty() -> _History:
         i, f = np.empty(0, dtype=np.int64), np.empty(0, dtype=np.float64)
-        return _History(i, i, f, f, np.empty(0, dtype=np.int8), f, f)
+        return _History(i, i, f, f, np.empty(0, dtype=np.int8), f, f, i)
 
     def concat(self, other: _History) -> _History:
         return _History._make(np.concatenate([a, b]) for a, b in zip(self, other, strict=True))
@@ -194,19 +201,38 @@ class _History(NamedTuple):
 
 
 class _Waiting(NamedTuple):
-    """Currents waiting for their joint state: time [ns], current [A], global arrival position, and the latest
-    valid temperature [°C] and its time [s] when they arrived."""
+    """Currents waiting for their joint state: time [ns], current [A], global arrival position."""
 
     stamp: NDArray[np.int64]
     current: NDArray[np.float64]
     pos: NDArray[np.int64]
-    temperature_c: NDArray[np.float64]
-    temperature_time_s: NDArray[np.float64]
 
     @staticmethod
     def empty() -> _Waiting:
         i, f = np.empty(0, dtype=np.int64), np.empty(0, dtype=np.float64)
-        return _Waiting(i, f, i, f, f)
+        return _Waiting(i, f, i)
+
+
+class _Held(NamedTuple):
+    """Friction samples waiting for the temperature at their stamp: the arrival position that paired each, its
+    current's arrival position, the serial of its joint state, and the sample (temperature not yet set)."""
+
+    emit: NDArray[np.int64]
+    entry: NDArray[np.int64]
+    serial: NDArray[np.int64]
+    m: MeasurementArrays
+
+    @staticmethod
+    def empty() -> _Held:
+        i = np.empty(0, dtype=np.int64)
+        return _Held(i, i, i, MeasurementArrays.empty())
+
+    def concat(self, other: _Held) -> _Held:
+        return _Held(np.concatenate([self.emit, other.emit]), np.concatenate([self.entry, other.entry]),
+                     np.concatenate([self.serial, other.serial]), MeasurementArrays.concatenate([self.m, other.m]))
+
+    def select(self, mask: NDArray[np.bool_]) -> _Held:
+        return _Held(self.emit[mask], self.entry[mask], self.serial[mask], self.m.select(mask))
 
 
 @dataclass
@@ -222,6 +248,8 @@ class _JointState:
     speed_ok_last: bool = False
     history: _History = field(default_factory=_History.empty)
     waiting: _Waiting = field(default_factory=_Waiting.empty)
+    held: _Held = field(default_factory=_Held.empty)
+    serial_next: int = 0                   #: serial of the next accepted joint state [-]
 
     def restart(self) -> None:
         self.last_stamp = None
@@ -260,9 +288,11 @@ class EstimatorLogic:
         self.joints = {name: _JointState(float(p.torque_constant_nm_per_a), float(p.no_load_current_a),
                                          float(p.inertia_kg_m2)) for name, p in self.axes.items()}
         self.counters = EstimatorCounters(accepted=dict.fromkeys(self.axes, 0))
-        self.last_temperature_c = math.nan       #: latest valid temperature [°C]
+        self.last_temperature_c = math.nan       #: latest valid temperature received [°C]
         self.last_temperature_time_s = math.nan  #: its time [s]
+        self._temperatures = TemperatureHistory(ns_from_seconds(settings.stamp_reset_s))
         self._seq = 0                            #: global arrival position of the next message
+        self._last_log_ns = 0                    #: arrival (log) time of the last message [ns]
         self._stats = self._new_stats()
         self.last: dict[str, MeasurementArrays] = {}
 
@@ -280,6 +310,10 @@ class EstimatorLogic:
         for j in self.joints.values():
             j.restart()
             j.waiting = _Waiting.empty()
+            j.held = _Held.empty()
+        self._temperatures.reset_ns = ns_from_seconds(settings.stamp_reset_s)
+        t = self._temperatures.value
+        self._temperatures.keep((settings.temperature_min_c <= t) & (t <= settings.temperature_max_c))
         layout = ('position_min_rad', 'position_max_rad', 'ripple_bins', 'temperature_bin_c')
         if any(getattr(old, n) != getattr(settings, n) for n in layout):
             self._stats = self._new_stats()
@@ -302,6 +336,10 @@ class EstimatorLogic:
     def pending(self, joint: str) -> int:
         """Currents of ``joint`` waiting for their joint state [-]."""
         return int(self.joints[joint].waiting.stamp.shape[0])
+
+    def held(self, joint: str) -> int:
+        """Friction samples of ``joint`` waiting for the temperature at their stamp [-]."""
+        return len(self.joints[joint].held.m)
 
     # ------------------------------------------------------------------ one message at a time (examples, tests)
     def _arrival(self, stamp_ns: int, arrival_ns: int | None) -> int:
@@ -347,20 +385,27 @@ class EstimatorLogic:
                     self.counters.reject(joint, nan_reason, n)
 
     # ------------------------------------------------------------------ the batch
-    def feed(self, batch: ChamberArrays) -> MeasurementArrays:
+    def feed(self, batch: ChamberArrays, final: bool = False) -> MeasurementArrays:
         """Process a batch of messages (arrival order = ``log_time_ns`` order; on equal times temperature, then
-        joint states, then currents). Returns the samples accepted, in the order they were completed."""
-        return self.feed_timed(batch)[0]
+        joint states, then currents). Returns the samples accepted, in the order they were completed.
+
+        ``final``: the input ends with this batch (a bag, a simulated run): the samples still waiting for the
+        temperature at their stamp are given the one known at the end (see ``temperature_wait_s``)."""
+        return self.feed_timed(batch, final)[0]
+
+    def flush(self) -> MeasurementArrays:
+        """The samples still waiting for their temperature, given the one known now (the input has ended)."""
+        return self.feed(chamber_arrays(configured=self.order)[0], final=True)
 
     # absurd finite inputs (a velocity of 1e308) give NaN or inf verdicts, which refuse the sample; no warnings
     @np.errstate(over='ignore', invalid='ignore', divide='ignore')
-    def feed_timed(self, batch: ChamberArrays) -> tuple[MeasurementArrays, NDArray[np.int64]]:
+    def feed_timed(self, batch: ChamberArrays, final: bool = False) -> tuple[MeasurementArrays, NDArray[np.int64]]:
         """:meth:`feed`, and the arrival (log) time [ns] of the message that completed each sample."""
         t_arr, js, cur = batch.temperature, batch.joint_states, batch.motor_current
         nT, nJ, nC = len(t_arr.log_time_ns), len(js), len(cur)
         n = nT + nJ + nC
         none = np.empty(0, dtype=np.int64)
-        if n == 0:
+        if n == 0 and not (final and any(len(j.held.m) for j in self.joints.values())):
             return MeasurementArrays.empty(), none
         logs = np.concatenate([np.asarray(x, dtype=np.int64) for x in (t_arr.log_time_ns, js.log_time_ns,
                                                                          cur.log_time_ns)])
@@ -372,6 +417,9 @@ class EstimatorLogic:
         rank[order] = np.arange(n, dtype=np.int64) + base
         self._seq += n
         logs_sorted = logs[order]
+        if n:
+            self._last_log_ns = int(logs_sorted[-1])
+        last_pos = self._seq - 1 if final else _I64_MAX
         posT, posJ, posC = rank[:nT], rank[nT:nT + nJ], rank[nT + nJ:]
 
         # temperatures: the latest valid one before each position
@@ -381,17 +429,13 @@ class EstimatorLogic:
             self.counters.temperature_rejected[reason] = self.counters.temperature_rejected.get(reason, 0) + count
         t_pos = posT[valid]
         t_val = np.asarray(t_arr.temperature_c, dtype=np.float64)[valid]
-        t_time = effective_time(np.asarray(t_arr.stamp_ns, dtype=np.int64)[valid],
-                                np.asarray(t_arr.log_time_ns, dtype=np.int64)[valid]) / NS_PER_S
+        t_ns = effective_time(np.asarray(t_arr.stamp_ns, dtype=np.int64)[valid],
+                              np.asarray(t_arr.log_time_ns, dtype=np.int64)[valid])
         t_order = np.argsort(t_pos, kind='stable')
-        t_pos, t_val, t_time = t_pos[t_order], t_val[t_order], t_time[t_order]
-        carried = (self.last_temperature_c, self.last_temperature_time_s)
+        t_pos, t_val, t_ns = t_pos[t_order], t_val[t_order], t_ns[t_order]
         if t_pos.size:
-            self.last_temperature_c, self.last_temperature_time_s = float(t_val[-1]), float(t_time[-1])
-
-        def temperature_before(pos: NDArray[np.int64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-            value, time = latest_before(t_pos, pos, (t_val, t_time), inclusive=False, carried=carried)
-            return value, time
+            self.last_temperature_c, self.last_temperature_time_s = float(t_val[-1]), float(t_ns[-1]) / NS_PER_S
+        self._temperatures.extend(t_pos, t_ns, t_val)
 
         for name in js.names:
             if name not in self.axes:
@@ -403,9 +447,15 @@ class EstimatorLogic:
 
         parts: list[_Emitted] = []
         for name in self.order:
-            emitted = self._joint(name, js, cur, posJ, posC, temperature_before)
+            emitted = self._joint(name, js, cur, posJ, posC, last_pos)
             if emitted is not None and len(emitted.m):
                 parts.append(emitted)
+            state = self.joints[name]
+            if emitted is None and len(state.held.m):   # no message of the joint: a temperature may release some
+                rest = self._release(state, _Held.empty(), state.history, last_pos)
+                if len(rest.m):
+                    parts.append(rest)
+        self._temperatures.trim()
         if not parts:
             return MeasurementArrays.empty(), none
         joint_rank = {name: i for i, name in enumerate(self.order)}
@@ -415,7 +465,9 @@ class EstimatorLogic:
         out = MeasurementArrays.concatenate([p.m for p in parts])
         order_out = np.lexsort((entry, jr, emit))
         out = out.select(order_out)
-        emit_log = logs_sorted[emit[order_out] - base]
+        emit_sorted = emit[order_out]
+        emit_log = np.where(emit_sorted >= base, logs_sorted[np.clip(emit_sorted - base, 0, max(n - 1, 0))]
+                            if n else self._last_log_ns, self._last_log_ns).astype(np.int64)
         for name in self.order:
             sel = out.joint == name
             count = int(np.count_nonzero(sel))
@@ -433,7 +485,7 @@ class EstimatorLogic:
 
     # ------------------------------------------------------------------ one joint
     def _joint(self, name: str, js: JointStateArrays, cur: JointStateArrays, posJ: NDArray[np.int64],
-               posC: NDArray[np.int64], temperature_before: _TemperatureBefore) -> _Emitted | None:
+               posC: NDArray[np.int64], last_pos: int) -> _Emitted | None:
         s = self.settings
         state = self.joints[name]
         counters = self.counters
@@ -488,15 +540,14 @@ class EstimatorLogic:
             in_seg = (C_pos >= seg_start) & (C_pos < seg_end)
             parts.append(self._segment(name, state, stamp[lo:hi][ok], J_pos[lo:hi][ok], J_p[lo:hi][ok],
                                        J_v[lo:hi][ok], C_stamp[in_seg], C_cur[in_seg], C_pos[in_seg],
-                                       temperature_before))
+                                       last_pos))
         emit = np.concatenate([p.emit for p in parts])
         entry = np.concatenate([p.entry for p in parts])
         return _Emitted(emit, entry, MeasurementArrays.concatenate([p.m for p in parts]))
 
     def _segment(self, name: str, state: _JointState, S: NDArray[np.int64], A: NDArray[np.int64],
                  P: NDArray[np.float64], V: NDArray[np.float64], C_stamp: NDArray[np.int64],
-                 C_cur: NDArray[np.float64], C_pos: NDArray[np.int64],
-                 temperature_before: _TemperatureBefore) -> _Emitted:
+                 C_cur: NDArray[np.float64], C_pos: NDArray[np.int64], last_pos: int) -> _Emitted:
         s = self.settings
         counters = self.counters
         new = self._verdicts(state, S, A, P, V)
@@ -505,12 +556,9 @@ class EstimatorLogic:
             state.last_stamp = int(S[-1])
         # ---- currents: the carried waiting ones first
         w = state.waiting
-        new_t, new_time = temperature_before(C_pos)
         c_stamp = np.concatenate([w.stamp, C_stamp])
         c_cur = np.concatenate([w.current, C_cur])
         c_pos = np.concatenate([w.pos, C_pos])
-        c_t = np.concatenate([w.temperature_c, np.asarray(new_t, dtype=np.float64).reshape(-1)])
-        c_time = np.concatenate([w.temperature_time_s, np.asarray(new_time, dtype=np.float64).reshape(-1)])
         tol = ns_from_seconds(s.pairing_tolerance_s)
         FS, FA = full.stamp, full.pos
         nF = FS.shape[0]
@@ -529,10 +577,9 @@ class EstimatorLogic:
                 alive[wi] = _simulate_wait_buffer(entry, decide_pos[wi])
                 counters.reject(name, R_UNPAIRED, int(np.count_nonzero(~alive)))
         pending = alive & ~decided
-        state.waiting = _Waiting(c_stamp[pending], c_cur[pending], c_pos[pending], c_t[pending], c_time[pending])
+        state.waiting = _Waiting(c_stamp[pending], c_cur[pending], c_pos[pending])
         go = np.flatnonzero(alive & decided)
         c_stamp, c_cur, c_pos, r, decide_pos = c_stamp[go], c_cur[go], c_pos[go], r[go], decide_pos[go]
-        c_t, c_time = c_t[go], c_time[go]
         # the nearest joint state within the window, still in the history when the current arrived
         lo = np.searchsorted(FS, c_stamp - tol, side='left')
         j = np.searchsorted(FS, c_stamp, side='left')
@@ -546,7 +593,6 @@ class EstimatorLogic:
         found &= idx >= arrived_before - HISTORY_LENGTH
         counters.reject(name, R_UNPAIRED, int(np.count_nonzero(~found)))
         c_cur, c_pos, idx, decide_pos = c_cur[found], c_pos[found], idx[found], decide_pos[found]
-        c_t, c_time = c_t[found], c_time[found]
         # ---- verdicts and friction
         direction = np.where(full.velocity[idx] > 0.0, 1.0, -1.0)
         base = friction_from_current_Eq23(c_cur, state.kt, state.i0, direction)
@@ -576,18 +622,44 @@ class EstimatorLogic:
         take &= ~opposes
         k = np.flatnonzero(take)
         idx_k = idx[k]
-        t_c, t_time = c_t[k], c_time[k]
-        js_time = full.stamp[idx_k] / NS_PER_S
-        fresh = is_fresh(js_time, t_time, s.temperature_timeout_s, ARRAY) & np.isfinite(t_c)
         nk = k.shape[0]
         m = MeasurementArrays(
             np.full(nk, name), full.stamp[idx_k].astype(np.int64), full.position[idx_k],
-            full.velocity[idx_k], alpha[k], c_cur[k], np.asarray(t_c, dtype=np.float64), np.asarray(fresh, bool),
+            full.velocity[idx_k], alpha[k], c_cur[k], np.full(nk, np.nan), np.zeros(nk, dtype=bool),
             friction[k], np.full(nk, state.kt), np.full(nk, state.i0), inertia[k],
             np.where(use_obs[k], METHOD_OBSERVER, METHOD_STEADY_STATE).astype(np.int8))
-        # ---- carry the history
+        # ---- the temperature at the sample's stamp (waiting for it, bounded), then carry the history
+        out = self._release(state, _Held(decide_pos[k], c_pos[k], full.serial[idx_k], m), full, last_pos)
         state.history = full.tail(max(HISTORY_LENGTH, OBSERVER_MAX_SAMPLES))
-        return _Emitted(decide_pos[k], c_pos[k], m)
+        return out
+
+    def _release(self, state: _JointState, new: _Held, full: _History, last_pos: int) -> _Emitted:
+        """The samples (held ones first, then ``new``) whose temperature is known: a temperature stamped at or after
+        the sample has arrived, or the wait is over (``temperature_wait_s`` of the joint's stamps, or
+        TEMPERATURE_WAIT_STATES of its joint states, or the input ended at ``last_pos``). Each is given the latest
+        temperature stamped at or before it among those arrived by then; the others stay held."""
+        s = self.settings
+        held = state.held.concat(new)
+        ts = held.m.stamp_ns
+        if s.temperature_wait_s > 0.0:
+            ready = self._temperatures.ready_position(ts)
+            FS, FA, nF = full.stamp, full.pos, full.stamp.shape[0]
+            i_time = np.searchsorted(FS, ts + ns_from_seconds(s.temperature_wait_s), side='right')
+            i_count = np.searchsorted(full.serial, held.serial + TEMPERATURE_WAIT_STATES, side='left')
+            i = np.minimum(i_time, i_count)
+            timeout = np.where(i < nF, FA[np.minimum(i, nF - 1)], _I64_MAX) if nF else np.full(ts.shape, _I64_MAX)
+            release = np.maximum(held.emit, np.minimum(np.minimum(ready, timeout), last_pos))
+        else:
+            release = held.emit
+        go = release < _I64_MAX
+        state.held = held.select(~go)
+        out = held.select(go)
+        at = release[go]
+        value, time_s = self._temperatures.at(out.m.stamp_ns, at)
+        fresh = is_fresh(out.m.stamp_ns / NS_PER_S, time_s, s.temperature_timeout_s, ARRAY) & np.isfinite(value)
+        cols = dict(zip(MeasurementArrays._fields, out.m, strict=True))
+        cols.update(temperature_c=value, temperature_fresh=np.asarray(fresh, dtype=bool))
+        return _Emitted(at, out.entry, MeasurementArrays(**cols))
 
     def _verdicts(self, state: _JointState, S: NDArray[np.int64], A: NDArray[np.int64], P: NDArray[np.float64],
                   V: NDArray[np.float64]) -> _History:
@@ -617,7 +689,9 @@ class EstimatorLogic:
         state.speed_ok_last = bool(speed_ok[-1])
         state.run_sign = int(sign[-1]) if speed_ok[-1] else 0
         state.run_start = int(run_start[-1])
-        return _History(S, A, P, V, code.astype(np.int8), alpha, alpha_se)
+        serial = state.serial_next + np.arange(n, dtype=np.int64)
+        state.serial_next += n
+        return _History(S, A, P, V, code.astype(np.int8), alpha, alpha_se, serial)
 
     def _observer_code(self, full: _History, idx: NDArray[np.intp]) -> NDArray[np.int64]:
         s = self.settings

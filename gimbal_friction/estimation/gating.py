@@ -21,6 +21,9 @@ HISTORY_LENGTH = 256
 WAIT_LENGTH = 256
 #: most joint states used in one acceleration window [-]
 OBSERVER_MAX_SAMPLES = 64
+#: a friction sample waits for its temperature at most this many joint states of its joint [-] (with
+#: ``temperature_wait_s``: the wait is bounded in memory whatever the rate)
+TEMPERATURE_WAIT_STATES = 16384
 #: joint states of an acceleration window spanning more than this (or ten windows) straddle a gap [ns]
 MAX_GAP_NS = 250_000_000
 #: joint key of rejections that belong to no configured joint (unknown names)
@@ -85,6 +88,10 @@ class EstimatorSettings:
                                        '(plateau = round(t/bin)*bin)')
     temperature_timeout_s: float = setting(5.0, 's', "a temperature whose stamp differs from the sample's by more "
                                            'than this is stale: sample kept, plateau "unknown"')
+    temperature_wait_s: float = setting(5.0, 's', "a sample waits for a temperature stamped at or after its own "
+                                        "(so that its temperature is the one at its stamp whatever the arrival "
+                                        "order) for at most this much joint-state time, and at most "
+                                        f"{TEMPERATURE_WAIT_STATES} joint states (0: no wait)")
     temperature_min_c: float = setting(-60.0, 'degC', 'lowest credible bearing temperature (lower ones are '
                                        'rejected)')
     temperature_max_c: float = setting(120.0, 'degC', 'highest credible bearing temperature')
@@ -120,6 +127,7 @@ class EstimatorSettings:
             ('max_opposing_torque_nm', 0.0 <= self.max_opposing_torque_nm <= 100.0, 'must lie in [0, 100] [N*m]'),
             ('temperature_bin_c', 0.001 <= self.temperature_bin_c <= 1000.0, 'must lie in [0.001, 1000] [degC]'),
             ('temperature_timeout_s', 0.0 < self.temperature_timeout_s <= 86400.0, 'must lie in (0, 86400] [s]'),
+            ('temperature_wait_s', 0.0 <= self.temperature_wait_s <= 60.0, 'must lie in [0, 60] [s]'),
             ('temperature_min_c', self.temperature_min_c >= MODEL_T_MIN_C, f'must be >= {MODEL_T_MIN_C:g} [degC]'),
             ('temperature_max_c', self.temperature_max_c <= MODEL_T_MAX_C, f'must be <= {MODEL_T_MAX_C:g} [degC]'),
             ('temperature_max_c', self.temperature_max_c > self.temperature_min_c,

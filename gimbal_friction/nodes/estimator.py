@@ -270,6 +270,7 @@ class FrictionEstimator(Node):
                 values = {
                     'accepted': accepted,
                     'pending': logic.pending(axis),
+                    'waiting_for_temperature': logic.held(axis),
                     'last_friction_nm': float(last.friction_nm[0]) if last is not None else 'none',
                     'last_stamp_s': f'{int(last.stamp_ns[0]) / NS_PER_S:.9f}' if last is not None else 'none',
                     'last_method': METHOD_NAMES[int(last.method[0])] if last is not None else 'none',

@@ -235,8 +235,10 @@ class FrictionFeedforward(Node):
         self._reported: dict[str, dict[str, int]] = {}
         self._outputs = OutputBytes(len(self.ff.order))
         qos = QoSProfile(depth=100)
-        self.pub_ff = self.create_publisher(JointState, topics.FEEDFORWARD, qos)
-        self.pub_cmd = self.create_publisher(Float64MultiArray, topics.FEEDFORWARD_COMMANDS, qos)
+        # the outputs keep as many as a joint-state burst (a loaded subscriber catching up loses none)
+        self.pub_ff = self.create_publisher(JointState, topics.FEEDFORWARD, QoSProfile(depth=JOINT_STATE_DEPTH))
+        self.pub_cmd = self.create_publisher(Float64MultiArray, topics.FEEDFORWARD_COMMANDS,
+                                             QoSProfile(depth=JOINT_STATE_DEPTH))
         self.pub_diag = self.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, 10)
         subscribe(self, self.inputs, Temperature, topics.TEMPERATURE, self.on_temperature, qos_profile_sensor_data)
         subscribe(self, self.inputs, JointState, topics.JOINT_STATES, self.on_joint_state,

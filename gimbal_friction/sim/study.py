@@ -305,7 +305,7 @@ def estimator_rows(results: Sequence[tuple[BatchResult, Sequence[int]]], axis: A
         for i in indices:
             trace = batch.estimator_trace(i, start_ns=start_ns)
             logic = EstimatorLogic({JOINT: axis}, settings)
-            m = logic.feed(trace.chamber_arrays(JOINT))
+            m = logic.feed(trace.chamber_arrays(JOINT), final=True)   # the run is the whole input
             _merge_counters(counters, logic.counters.as_dict())
             predicted = match_predictions(m.joint, m.stamp_ns, np.full(trace.stamp_ns.shape, JOINT),
                                           trace.stamp_ns, batch.traces.feedforward_computed_nm[:, i])

@@ -31,6 +31,9 @@ EL = 'elevation'
 
 
 def make(**settings) -> EstimatorLogic:
+    """An estimator of one joint; by default samples do not wait for a later temperature (the tests of pairing and
+    verdicts feed none), the wait has tests of its own."""
+    settings.setdefault('temperature_wait_s', 0.0)
     return EstimatorLogic({EL: AxisParams(torque_constant_nm_per_a=KT, no_load_current_a=I0)},
                           EstimatorSettings(**settings))
 
@@ -302,7 +305,91 @@ def test_temperature_stamped_in_the_future_is_not_fresh():
     logic.on_temperature(-40.0, stamp_ns=t + 100 * S)
     logic.on_current(t, [EL], [0.06])
     (m,) = logic.on_joint_state(t + DT, [EL], [0.1], [V])
-    assert m.temperature_c == -40.0 and not m.temperature_fresh
+    assert math.isnan(m.temperature_c) and not m.temperature_fresh   # not in force at the sample's stamp
+
+
+def _one_sample(logic: EstimatorLogic, order: list[str], t: int) -> list:
+    """A sample at stamp t between temperatures stamped t - 50 ms (-40 degC) and t + 30 ms (-39 degC), its
+    messages arriving in ``order``; returns what each message completed."""
+    out: list = []
+    for what in order:
+        if what == 'T1':
+            out += logic.on_temperature(-40.0, stamp_ns=t - 50 * MS, arrival_ns=t)
+        elif what == 'T2':
+            out += logic.on_temperature(-39.0, stamp_ns=t + 30 * MS, arrival_ns=t)
+        elif what == 'I':
+            out += logic.on_current(t, [EL], [0.06], arrival_ns=t)
+        else:
+            out += logic.on_joint_state(t + DT, [EL], [0.1], [V], arrival_ns=t)
+    return out
+
+
+@pytest.mark.parametrize('order', [['T1', 'I', 'J', 'T2'], ['T1', 'T2', 'I', 'J'], ['T2', 'T1', 'I', 'J'],
+                                   ['I', 'J', 'T1', 'T2'], ['I', 'T1', 'J', 'T2']])
+def test_a_sample_takes_the_temperature_at_its_stamp_whatever_the_arrival_order(order):
+    """Under load a later temperature can arrive before a sample's messages, an earlier one after them (issue:
+    live and replay paired the same sample with different temperatures). One publisher sends its temperatures in
+    stamp order."""
+    for wait in (1.0, 0.0):
+        logic = make(temperature_wait_s=wait)
+        t = warm(logic)
+        out = _one_sample(logic, order, t)
+        if wait == 0.0 and order.index('J') < order.index('T1'):
+            assert math.isnan(out[0].temperature_c)
+            continue     # no wait: decided before the temperature in force arrived
+        (m,) = out
+        assert m.stamp_ns == t and m.temperature_c == -40.0 and m.temperature_fresh
+
+
+def test_a_sample_waits_for_its_temperature_bounded_in_time_and_count_and_is_flushed_at_the_end():
+    logic = make(temperature_wait_s=1.0)
+    logic.on_temperature(-40.0, stamp_ns=S)
+    t = warm(logic)
+    assert logic.on_current(t, [EL], [0.06]) == []
+    assert logic.on_joint_state(t + DT, [EL], [0.1], [V]) == []   # paired, waiting for a later temperature
+    assert logic.held(EL) == 1
+    released = []
+    for k in range(2, 60):                           # no temperature comes: 1 s of stamps later it goes anyway
+        released += logic.on_joint_state(t + k * DT, [EL], [0.1], [V])
+        if released:
+            break
+    assert t + k * DT > t + S and t + (k - 1) * DT <= t + S
+    (m,) = released
+    assert m.temperature_c == -40.0 and m.temperature_fresh     # the one in force, 0.78 s old
+    # at the end of the input the held samples are released with what is known
+    logic.on_current(t + k * DT, [EL], [0.06])
+    logic.on_joint_state(t + (k + 1) * DT, [EL], [0.1], [V])
+    assert logic.held(EL) == 1
+    (m,) = logic.flush().records()
+    assert m.stamp_ns == t + k * DT and m.temperature_c == -40.0 and logic.held(EL) == 0
+    # the count bound: at 10 kHz, 1 s of stamps is more than TEMPERATURE_WAIT_STATES joint states
+    fast = make(temperature_wait_s=60.0, min_dwell_s=0.0)
+    fast.on_temperature(-40.0, stamp_ns=S)
+    dt = 100_000
+    for k in range(3):
+        fast.on_joint_state(2 * S + k * dt, [EL], [0.1], [V])
+    fast.on_current(2 * S + 2 * dt, [EL], [0.06])
+    got, k = [], 3
+    while not got and k < 3 * est.TEMPERATURE_WAIT_STATES:
+        got = fast.on_joint_state(2 * S + k * dt, [EL], [0.1], [V])
+        k += 1
+    (m,) = got
+    own = (m.stamp_ns - 2 * S) // dt                 # the index of the sample's joint state
+    assert k - 1 - own == est.TEMPERATURE_WAIT_STATES and m.temperature_c == -40.0
+
+
+def test_final_batch_releases_the_held_samples():
+    arrays = arrays_of(_TWO_JOINT_DATA)
+    s = EstimatorSettings(pairing_tolerance_s=0.003)
+    open_end = EstimatorLogic(TWO_AXES, s)
+    closed = EstimatorLogic(TWO_AXES, s)
+    a = open_end.feed(arrays)
+    b = closed.feed(arrays, final=True)
+    assert sum(open_end.held(j) for j in TWO_AXES) > 0
+    assert len(b) == len(a) + sum(open_end.held(j) for j in TWO_AXES)
+    assert sum(closed.held(j) for j in TWO_AXES) == 0
+    rest = open_end.flush()
+    assert len(rest) + len(a) == len(b)
 
 
 # ------------------------------------------------------------------------------------------------ statistics
@@ -382,7 +469,7 @@ def _working_motion(logic: EstimatorLogic, inertia: float, friction, n: int = 20
         stamp = S + int(round(t * 1e9))
         out += logic.on_joint_state(stamp, [EL], [0.0], [v + noise * 0.0])
         out += logic.on_current(stamp, [EL], [current])
-    return out
+    return out + logic.flush().records()     # the input ends: the samples waiting for a temperature
 
 
 @pytest.mark.slow
@@ -478,6 +565,7 @@ def assert_same_run(a, b) -> None:
         assert np.array_equal(np.asarray(x), np.asarray(y), equal_nan=np.asarray(x).dtype.kind == 'f'), name
     assert la.counters == lb.counters
     assert {j: la.pending(j) for j in la.order} == {j: lb.pending(j) for j in lb.order}
+    assert {j: la.held(j) for j in la.order} == {j: lb.held(j) for j in lb.order}
     for r, s in zip(la.statistics(), lb.statistics(), strict=True):
         for key in r:
             if isinstance(r[key], float):

@@ -127,7 +127,7 @@ def test_hostile_streams_never_break_the_estimator(plan, method):
 
 
 def test_one_far_future_stamp_restarts_the_stream_instead_of_locking_it():
-    logic = EstimatorLogic(AXES, EstimatorSettings(min_dwell_s=0.05))
+    logic = EstimatorLogic(AXES, EstimatorSettings(min_dwell_s=0.05, temperature_wait_s=0.0))
     t = T0
     for _ in range(30):
         t += 10 * MS
@@ -146,7 +146,7 @@ def test_one_far_future_stamp_restarts_the_stream_instead_of_locking_it():
 def test_a_replayed_loop_restarts_each_time():
     """chamber_replay loop:=true (or sim time restarting): the stamps jump back by the bag length (2 s here, more
     than stamp_reset_s) every lap."""
-    logic = EstimatorLogic(AXES, EstimatorSettings(min_dwell_s=0.05))
+    logic = EstimatorLogic(AXES, EstimatorSettings(min_dwell_s=0.05, temperature_wait_s=0.0))
     per_lap = []
     for _lap in range(3):
         t = T0
@@ -163,7 +163,7 @@ def test_a_replayed_loop_restarts_each_time():
 def test_current_against_the_motion_is_refused_not_published_with_the_wrong_sign(opposing_a, allowed_nm):
     """Every third current says friction pulls the other way: by 3.5 mN*m with no opposing torque allowed, by
     20 mN*m with the default allowance (``max_opposing_torque_nm``, 10 mN*m, kept for an unbalance)."""
-    settings = EstimatorSettings(min_dwell_s=0.05)
+    settings = EstimatorSettings(min_dwell_s=0.05, temperature_wait_s=0.0)
     if allowed_nm is not None:
         settings = dataclasses.replace(settings, max_opposing_torque_nm=allowed_nm)
     logic = EstimatorLogic(AXES, settings)
@@ -183,7 +183,7 @@ def test_current_against_the_motion_is_refused_not_published_with_the_wrong_sign
 def test_a_joint_named_twice_uses_the_first_entry_like_the_feedforward():
     """The two nodes once disagreed on ``name=[elevation, elevation]`` (last vs first entry)."""
     from gimbal_friction.feedforward.rule import Feedforward, FeedforwardSettings
-    logic = EstimatorLogic(AXES, EstimatorSettings(min_dwell_s=0.05))
+    logic = EstimatorLogic(AXES, EstimatorSettings(min_dwell_s=0.05, temperature_wait_s=0.0))
     t = T0
     out = []
     for _ in range(40):

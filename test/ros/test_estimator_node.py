@@ -184,6 +184,8 @@ def test_constant_speed_sweep_gives_eq23_friction_and_rejects_the_rest(spawn, pr
     assert len(accepted) > 250 and all(counts.values())
     for topic, msg in messages:
         link.send(topic, msg)
+    # a temperature stamped after the sweep: the last samples stop waiting for the one at their stamp (20 degC)
+    wait_temperature(link, 20.1, 1100 * NS)
     probe.spin_until(lambda: len(link.measured) >= len(accepted), what=f'{len(accepted)} measured samples')
 
     # every published sample is an expected one, with Eq. 23 friction, signed like the motion, never NaN
@@ -280,7 +282,7 @@ def test_live_node_matches_the_offline_logic(spawn, probe, monkeypatch):
             msg = Temperature(temperature=t_c)
             msg.header.stamp = stamp(int(data.temperature_stamp_ns[i]))
             sequence.append((TEMP, msg))
-            logic.on_temperature(t_c, int(data.temperature_stamp_ns[i]))
+            offline.extend(logic.on_temperature(t_c, int(data.temperature_stamp_ns[i])))   # releases samples
         elif k == 1:
             t = int(data.joint_stamp_ns[i])
             p, v = float(data.position_rad[i, 0]), float(data.velocity_rad_s[i, 0])
