@@ -5,7 +5,10 @@ subscriptions, parameters, learning service and diagnostics share the node's sta
 
 Subscribes ``/gimbal/temperature`` (sensor_msgs/Temperature, °C) and ``/joint_states`` (sensor_msgs/JointState);
 and ``/gimbal/reference_velocity`` (JointState, velocity = reference joint rate [rad/s]), used by ``velocity_source``
-``auto`` (the default: while fresh) and ``reference``.
+``auto`` (the default: while fresh) and ``reference``. Each input hears reliable and best-effort publishers (the
+temperature is best-effort; the others follow their publishers' reliability), every publisher and subscription
+takes ``qos_overrides.*`` parameters, and an input that delivers nothing is named on ``/diagnostics``
+(:mod:`gimbal_friction.nodes._qos`).
 Publishes, for each joint-state message (optionally rate-limited by ``max_rate_hz``):
 
 - ``/gimbal/friction/feedforward`` (JointState): effort = torque [N·m] the motor must add, sign of motion, for the

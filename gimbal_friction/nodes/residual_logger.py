@@ -25,9 +25,10 @@ started with the same folder), this run writes beside it in ``<output_dir>_<UTC 
 retried every ``retry_period_s``; the node stays up. ``/diagnostics`` also carries messages logged, bytes, current
 file and the residual RMS per axis and temperature bin.
 
-Inputs: reliable, depth 1000; the temperature follows its publishers (reliable, keep-all while every publisher is
-reliable: a full queue holds the publisher back instead of losing messages; best-effort, depth 1000 as soon as one
-is not, which a reliable subscription would not hear; ``temperature_qos`` on ``/diagnostics``). What is lost on the
+Inputs: depth 1000 (the temperature keep-all: a full queue holds a reliable publisher back instead of losing
+messages; ``temperature_qos`` on ``/diagnostics``), each following its publishers (:mod:`gimbal_friction.nodes._qos`):
+reliable while every publisher is, best-effort as soon as one is not, which a reliable subscription would not hear;
+an input that cannot deliver is named on ``/diagnostics``. What is lost on the
 way is counted per topic from the publishers' sequence numbers (``lost: <topic>``, a WARN naming it), and, for a
 publisher that says how many messages it sent (``chamber_replay``'s ``finished`` status on ``/diagnostics``), as
 sent − arrived: also the messages lost before the first or after the last one that arrived, which no sequence gap
