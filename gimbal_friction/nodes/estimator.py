@@ -4,11 +4,11 @@ the gimbal works (observer).
 Subscribes ``/gimbal/motor_current`` (sensor_msgs/JointState, effort = armature current [A] per joint),
 ``/joint_states`` (position [rad], velocity [rad/s] relative to the base) and ``/gimbal/temperature``
 (sensor_msgs/Temperature, °C, ``qos_profile_sensor_data``); the other inputs follow their publishers' reliability
-and every publisher and subscription takes ``qos_overrides.*`` (:mod:`gimbal_friction.nodes._qos`). The messages received are handed every
-``batch_period_s`` to :class:`gimbal_friction.estimation.estimator.EstimatorLogic` — the same code the offline
-``replay``
-runs over a whole bag; its result does not depend on the batching, so live and offline give the same numbers. The
-rules (pairing, steady-state and observer acceptance, stamps, rejections, statistics) are in that module.
+and every publisher and subscription takes ``qos_overrides.*`` (:mod:`gimbal_friction.nodes._qos`). The messages
+received are handed every ``batch_period_s`` to :class:`gimbal_friction.estimation.estimator.EstimatorLogic` —
+the same code the offline ``replay`` runs over a whole bag; its result does not depend on the batching, so live
+and offline give the same numbers. The rules (pairing, steady-state and observer acceptance, stamps, rejections,
+statistics) are in that module.
 
 Publishes:
 

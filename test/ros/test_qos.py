@@ -135,4 +135,4 @@ def test_an_override_the_nodes_cannot_take_is_refused_with_one_line(spawn):
                  'qos_overrides./joint_states.subscription.durability:=transient_local')
     rc, out = node.wait()
     assert rc == 1 and 'Traceback' not in out, out
-    assert "qos_overrides./joint_states.subscription.durability" in out and 'not overridable' in out, out
+    assert 'qos_overrides./joint_states.subscription.durability' in out and 'not overridable' in out, out
