@@ -326,6 +326,48 @@ def node_parameter_names(node: str, axes: Sequence[str]) -> frozenset[str]:
     return frozenset(names)
 
 
+#: the QoS policies every publisher and subscription of the nodes takes as a parameter
+#: ``qos_overrides.<topic>.<publisher|subscription>.<policy>`` (rclpy's default policies), with their allowed values
+#: (``depth``: a whole number >= 1). ``best_available`` on a subscription: follow the publishers' reliability.
+QOS_OVERRIDE_POLICIES: dict[str, tuple[str, ...]] = {
+    'history': ('keep_last', 'keep_all', 'system_default'),
+    'depth': (),
+    'reliability': ('reliable', 'best_effort', 'best_available', 'system_default'),
+}
+QOS_OVERRIDES = 'qos_overrides.'
+
+
+def check_qos_override(name: str, value: Any) -> None:
+    """Refuse a ``qos_overrides.*`` parameter the nodes would ignore or could not apply: not of the form
+    ``qos_overrides./<topic>.<publisher|subscription>.<policy>``, a policy other than
+    :data:`QOS_OVERRIDE_POLICIES`, or a value that policy does not take.
+
+    >>> check_qos_override('qos_overrides./joint_states.subscription.reliability', 'best_effort')
+    >>> check_qos_override('qos_overrides./joint_states.subscription.durability', 'volatile')
+    Traceback (most recent call last):
+    ...
+    gimbal_friction.common.errors.ConfigError: parameter 'qos_overrides./joint_states.subscription.durability' = \
+'volatile': not overridable (the nodes take history, depth, reliability)
+
+    Raises:
+        ConfigError: naming the parameter and the rule.
+    """
+    parts = name[len(QOS_OVERRIDES):].split('.') if name.startswith(QOS_OVERRIDES) else []
+    if len(parts) != 3 or parts[1] not in ('publisher', 'subscription'):
+        raise ConfigError(name, 'a QoS override is qos_overrides.<topic>.<publisher|subscription>.<policy>', value)
+    topic, _, policy = parts
+    if not topic.startswith('/'):
+        raise ConfigError(name, f'the topic must be fully qualified (/{topic}): rclpy matches the resolved name',
+                          value)
+    if policy not in QOS_OVERRIDE_POLICIES:
+        raise ConfigError(name, f'not overridable (the nodes take {", ".join(QOS_OVERRIDE_POLICIES)})', value)
+    allowed = QOS_OVERRIDE_POLICIES[policy]
+    if allowed and value not in allowed:
+        raise ConfigError(name, f'must be one of {", ".join(allowed)}', value)
+    if not allowed and (not isinstance(value, int) or isinstance(value, bool) or value < 1):
+        raise ConfigError(name, 'must be a whole number >= 1', value)
+
+
 def check_config_files(paths: Iterable[str | Path]) -> None:
     """Refuse a name in ``paths`` that no executable of the suite would read (a typo a tool would ignore).
 
@@ -386,6 +428,12 @@ def check_parameter_names(node: str, values: Mapping[str, Any], node_specific: I
         if name in own:
             continue
         origin = f' (from {sources[name]})' if name in sources else ''
+        if name.startswith(QOS_OVERRIDES):   # every node's publishers and subscriptions take them
+            try:
+                check_qos_override(name, values[name])
+            except ConfigError as err:
+                raise ConfigError(name, f'{err.rule}{origin}', values[name]) from None
+            continue
         owners = [other for other, names in others.items() if name in names]
         if owners and name not in specific:
             continue

@@ -310,7 +310,7 @@ _MESSAGE_WITH_INFO = inspect.Signature([inspect.Parameter('msg', inspect.Paramet
 
 
 def subscribe(node: Node, counter: InputCounter, msg_type: Any, topic: str, callback: Callable[[Any], None],
-              qos: Any, *, raw: bool = False) -> Any:
+              qos: Any, *, raw: bool = False, qos_overriding_options: Any = None) -> Any:
     """``node.create_subscription`` whose messages are counted by ``counter`` (received, lost) before
     ``callback(msg)`` runs (not for a message already received: see :meth:`InputCounter.count`).
 
@@ -328,7 +328,8 @@ def subscribe(node: Node, counter: InputCounter, msg_type: Any, topic: str, call
             callback(msg)
 
     on_message.__signature__ = _MESSAGE_WITH_INFO  # type: ignore[attr-defined]  # rclpy reads the callback's __signature__ to pass MessageInfo; functions declare no such attribute
-    return node.create_subscription(msg_type, topic, on_message, qos, raw=raw)
+    return node.create_subscription(msg_type, topic, on_message, qos, raw=raw,
+                                    qos_overriding_options=qos_overriding_options)
 
 
 def status(name: str, level: bytes, message: str, hardware_id: str, values: Mapping[str, Any]) -> DiagnosticStatus:

@@ -54,6 +54,7 @@ from gimbal_friction.nodes._common import (
     startup_overrides,
     status,
 )
+from gimbal_friction.nodes._qos import create_publisher
 from gimbal_friction.recording import topics
 from gimbal_friction.recording.bag import open_chamber_bag
 from gimbal_friction.streams.delivery import PUBLISHER_STATUS, STATE_FINISHED, STATE_PLAYING, Sent, publisher_values
@@ -152,12 +153,12 @@ class ChamberReplay(Node):
         self.topics, self.skipped = select_topics(available, [x for x in include if x], [x for x in exclude if x])
         self.pubs = {}
         for topic in self.topics:
-            self.pubs[topic] = self.create_publisher(message_class(available[topic]), topic, QoSProfile(depth=100))
+            self.pubs[topic] = create_publisher(self, message_class(available[topic]), topic, QoSProfile(depth=100))
         self.published = 0
         #: messages sent per topic [-]
         self.sent = dict.fromkeys(self.topics, 0)
         self.gids = {topic: self._own_gid(topic) for topic in self.topics}
-        self.pub_diag = self.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, QoSProfile(depth=10))
+        self.pub_diag = create_publisher(self, DiagnosticArray, topics.DIAGNOSTICS, QoSProfile(depth=10))
         self._last_status = -math.inf
 
     def _own_gid(self, topic: str) -> bytes | None:

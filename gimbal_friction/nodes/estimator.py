@@ -3,11 +3,12 @@ the gimbal works (observer).
 
 Subscribes ``/gimbal/motor_current`` (sensor_msgs/JointState, effort = armature current [A] per joint),
 ``/joint_states`` (position [rad], velocity [rad/s] relative to the base) and ``/gimbal/temperature``
-(sensor_msgs/Temperature, °C, ``qos_profile_sensor_data``). The messages received are handed every
-``batch_period_s`` to :class:`gimbal_friction.estimation.estimator.EstimatorLogic` — the same code the offline
-``replay``
-runs over a whole bag; its result does not depend on the batching, so live and offline give the same numbers. The
-rules (pairing, steady-state and observer acceptance, stamps, rejections, statistics) are in that module.
+(sensor_msgs/Temperature, °C, ``qos_profile_sensor_data``); the other inputs follow their publishers' reliability
+and every publisher and subscription takes ``qos_overrides.*`` (:mod:`gimbal_friction.nodes._qos`). The messages
+received are handed every ``batch_period_s`` to :class:`gimbal_friction.estimation.estimator.EstimatorLogic` —
+the same code the offline ``replay`` runs over a whole bag; its result does not depend on the batching, so live
+and offline give the same numbers. The rules (pairing, steady-state and observer acceptance, stamps, rejections,
+statistics) are in that module.
 
 Publishes:
 
@@ -50,7 +51,7 @@ from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rclpy.node import Node
 from rclpy.parameter import Parameter
-from rclpy.qos import QoSProfile, qos_profile_sensor_data
+from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import JointState, Temperature
 from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 
@@ -82,10 +83,11 @@ from gimbal_friction.nodes._common import (
     split_parameters,
     startup_model_error,
     status,
-    subscribe,
 )
+from gimbal_friction.nodes._qos import Inputs, create_publisher
 from gimbal_friction.recording import topics
 from gimbal_friction.streams.arrays import chamber_arrays
+from gimbal_friction.streams.input_health import SILENCE_TIMEOUT_S
 from gimbal_friction.streams.measurement import MEASUREMENT_FIELDS, METHOD_NAMES, MeasurementArrays, detail_matrix
 
 #: subscription depth: a burst of this many messages is buffered, not dropped
@@ -127,13 +129,16 @@ class FrictionEstimator(Node):
         self._bad_since_report: dict[str, int] = {}
         self._last_counts: dict[str, dict[str, int]] = {}
         self._last_warn: dict[str, float] = {}
-        self.pub_measured = self.create_publisher(JointState, topics.MEASURED, QoSProfile(depth=DEPTH))
-        self.pub_detail = self.create_publisher(Float64MultiArray, topics.MEASURED_DETAIL, QoSProfile(depth=DEPTH))
-        self.pub_diag = self.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, 10)
-        self.pub_stats = self.create_publisher(DiagnosticArray, topics.STATISTICS, 10)
-        subscribe(self, self.inputs, Temperature, topics.TEMPERATURE, self.on_temperature, qos_profile_sensor_data)
-        subscribe(self, self.inputs, JointState, topics.JOINT_STATES, self.on_joint_state, QoSProfile(depth=DEPTH))
-        subscribe(self, self.inputs, JointState, topics.MOTOR_CURRENT, self.on_current, QoSProfile(depth=DEPTH))
+        self.pub_measured = create_publisher(self, JointState, topics.MEASURED, DEPTH)
+        self.pub_detail = create_publisher(self, Float64MultiArray, topics.MEASURED_DETAIL, DEPTH)
+        self.pub_diag = create_publisher(self, DiagnosticArray, topics.DIAGNOSTICS, 10)
+        self.pub_stats = create_publisher(self, DiagnosticArray, topics.STATISTICS, 10)
+        # every input hears reliable and best-effort publishers (nodes/_qos.py); the temperature is best-effort
+        self.input_topics = ins = Inputs(self, self.inputs)
+        ins.add(Temperature, topics.TEMPERATURE, self.on_temperature, qos_profile_sensor_data, follow=False,
+                required=True, timeout_s=max(SILENCE_TIMEOUT_S, est_settings.temperature_timeout_s))
+        ins.add(JointState, topics.JOINT_STATES, self.on_joint_state, DEPTH, required=True)
+        ins.add(JointState, topics.MOTOR_CURRENT, self.on_current, DEPTH, required=True)
         self._batch_timer = self.create_timer(self.settings.batch_period_s, self.process)
         self._diag_timer = self.create_timer(self.settings.diagnostics_period_s, self.publish_diagnostics)
         self._stats_timer = self.create_timer(self.settings.statistics_period_s, self.publish_statistics)
@@ -254,7 +259,9 @@ class FrictionEstimator(Node):
                 if new_lost:
                     problems.append('messages lost on the way: '
                                     + ', '.join(f'{t} {n}' for t, n in sorted(new_lost.items())))
+                problems += self.input_topics.problems()   # an input that delivers nothing: topic and cause
                 values.update(self.inputs.values())
+                values.update(self.input_topics.values())
                 errors = callback_error_values(self)
                 values.update(errors)
                 previous_e = self._last_counts.get('errors', {})

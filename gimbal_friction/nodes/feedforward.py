@@ -5,7 +5,10 @@ subscriptions, parameters, learning service and diagnostics share the node's sta
 
 Subscribes ``/gimbal/temperature`` (sensor_msgs/Temperature, °C) and ``/joint_states`` (sensor_msgs/JointState);
 and ``/gimbal/reference_velocity`` (JointState, velocity = reference joint rate [rad/s]), used by ``velocity_source``
-``auto`` (the default: while fresh) and ``reference``.
+``auto`` (the default: while fresh) and ``reference``. Each input hears reliable and best-effort publishers (the
+temperature is best-effort; the others follow their publishers' reliability), every publisher and subscription
+takes ``qos_overrides.*`` parameters, and an input that delivers nothing is named on ``/diagnostics``
+(:mod:`gimbal_friction.nodes._qos`).
 Publishes, for each joint-state message (optionally rate-limited by ``max_rate_hz``):
 
 - ``/gimbal/friction/feedforward`` (JointState): effort = torque [N·m] the motor must add, sign of motion, for the
@@ -96,11 +99,12 @@ from gimbal_friction.nodes._common import (
     stamp_to_s,
     startup_model_error,
     status,
-    subscribe,
 )
+from gimbal_friction.nodes._qos import Inputs, create_publisher
 from gimbal_friction.physics.direction import direction_factors
 from gimbal_friction.recording import topics
 from gimbal_friction.recording.cdr import float64_multi_array_cdr, joint_state_cdr
+from gimbal_friction.streams.input_health import SILENCE_TIMEOUT_S
 from gimbal_friction.streams.inputs import effective_time
 from gimbal_friction.streams.measurement import MEASUREMENT_FIELDS, METHOD_NAMES
 
@@ -236,17 +240,17 @@ class FrictionFeedforward(Node):
         self._outputs = OutputBytes(len(self.ff.order))
         qos = QoSProfile(depth=100)
         # the outputs keep as many as a joint-state burst (a loaded subscriber catching up loses none)
-        self.pub_ff = self.create_publisher(JointState, topics.FEEDFORWARD, QoSProfile(depth=JOINT_STATE_DEPTH))
-        self.pub_cmd = self.create_publisher(Float64MultiArray, topics.FEEDFORWARD_COMMANDS,
-                                             QoSProfile(depth=JOINT_STATE_DEPTH))
-        self.pub_diag = self.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, 10)
-        subscribe(self, self.inputs, Temperature, topics.TEMPERATURE, self.on_temperature, qos_profile_sensor_data)
-        subscribe(self, self.inputs, JointState, topics.JOINT_STATES, self.on_joint_state,
-                  QoSProfile(depth=JOINT_STATE_DEPTH))
-        subscribe(self, self.inputs, JointState, REFERENCE_VELOCITY, self.on_reference, qos)
-        self.pub_correction = self.create_publisher(DiagnosticArray, CORRECTION, 10)
-        subscribe(self, self.inputs, Float64MultiArray, topics.MEASURED_DETAIL, self.on_measured_detail,
-                  QoSProfile(depth=JOINT_STATE_DEPTH))
+        self.pub_ff = create_publisher(self, JointState, topics.FEEDFORWARD, JOINT_STATE_DEPTH)
+        self.pub_cmd = create_publisher(self, Float64MultiArray, topics.FEEDFORWARD_COMMANDS, JOINT_STATE_DEPTH)
+        self.pub_diag = create_publisher(self, DiagnosticArray, topics.DIAGNOSTICS, 10)
+        # every input hears reliable and best-effort publishers (nodes/_qos.py); the temperature is best-effort
+        self.input_topics = ins = Inputs(self, self.inputs)
+        ins.add(Temperature, topics.TEMPERATURE, self.on_temperature, qos_profile_sensor_data, follow=False,
+                required=True, timeout_s=max(SILENCE_TIMEOUT_S, ff_settings.temperature_timeout_s))
+        ins.add(JointState, topics.JOINT_STATES, self.on_joint_state, JOINT_STATE_DEPTH, required=True)
+        ins.add(JointState, REFERENCE_VELOCITY, self.on_reference, qos)
+        self.pub_correction = create_publisher(self, DiagnosticArray, CORRECTION, 10)
+        ins.add(Float64MultiArray, topics.MEASURED_DETAIL, self.on_measured_detail, JOINT_STATE_DEPTH)
         self._diag_timer = self.create_timer(self.settings.diagnostics_period_s, self.publish_diagnostics)
         self._save_timer = self.create_timer(self.settings.learning_save_period_s, self.save_correction)
         self._correction_timer = self.create_timer(self.settings.correction_publish_period_s,
@@ -546,9 +550,13 @@ class FrictionFeedforward(Node):
         new_lost = self.inputs.new_losses()
         errors = callback_error_values(self)
         new_errors = self._new_since_report('errors', errors)
+        input_problems = self.input_topics.problems()
         statuses = []
         for axis in ff.order:
             level, problems = OK, []
+            if input_problems:   # an input that delivers nothing (the topic and the cause)
+                level = WARN
+                problems += input_problems
             if source != SOURCE_MEASURED:
                 level = ERROR if source == SOURCE_ZERO else WARN
                 problems.append(f'no fresh temperature: {SOURCE_NAMES[source]}')
@@ -590,6 +598,7 @@ class FrictionFeedforward(Node):
                 values[f'rejected_reference: {reason}'] = count
             values['velocity_source'] = s.velocity_source
             values.update(self.inputs.values())
+            values.update(self.input_topics.values())
             values.update(errors)
             statuses.append(status(f'gimbal_friction/feedforward/{axis}', level, '; '.join(problems) or 'ok',
                                    axis, values))

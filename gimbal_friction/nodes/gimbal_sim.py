@@ -60,6 +60,7 @@ from gimbal_friction.nodes._common import (
     ERROR,
     OK,
     WARN,
+    InputCounter,
     ModelParameters,
     _descriptor,
     _value,
@@ -70,6 +71,7 @@ from gimbal_friction.nodes._common import (
     run_node,
     status,
 )
+from gimbal_friction.nodes._qos import Inputs, create_publisher
 from gimbal_friction.recording import topics
 from gimbal_friction.sim.config import RealtimeSettings, SimConfig, parameter_specs
 from gimbal_friction.sim.realtime import RealtimeRun, TickOutput
@@ -107,13 +109,15 @@ class GimbalSim(Node):
         self._lock = threading.Lock()
         self._stop = threading.Event()
         qos = QoSProfile(depth=DEPTH)
-        self.pub_js = self.create_publisher(JointState, topics.JOINT_STATES, qos)
-        self.pub_cur = self.create_publisher(JointState, topics.MOTOR_CURRENT, qos)
-        self.pub_ref = self.create_publisher(JointState, REFERENCE_VELOCITY, qos)
-        self.pub_temp = self.create_publisher(Temperature, topics.TEMPERATURE, QoSProfile(depth=10))  # matches any
-        self.pub_los = self.create_publisher(JointState, LOS_ERROR, qos)
-        self.pub_diag = self.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, 10)
-        self.create_subscription(JointState, topics.FEEDFORWARD, self.on_feedforward, QoSProfile(depth=DEPTH))
+        self.pub_js = create_publisher(self, JointState, topics.JOINT_STATES, qos)
+        self.pub_cur = create_publisher(self, JointState, topics.MOTOR_CURRENT, qos)
+        self.pub_ref = create_publisher(self, JointState, REFERENCE_VELOCITY, qos)
+        self.pub_temp = create_publisher(self, Temperature, topics.TEMPERATURE, QoSProfile(depth=10))  # matches any
+        self.pub_los = create_publisher(self, JointState, LOS_ERROR, qos)
+        self.pub_diag = create_publisher(self, DiagnosticArray, topics.DIAGNOSTICS, 10)
+        # the feedforward follows its publishers' reliability (nodes/_qos.py)
+        self.input_topics = Inputs(self, InputCounter())
+        self.input_topics.add(JointState, topics.FEEDFORWARD, self.on_feedforward, DEPTH)
         self._msgs = {name: JointState() for name in ('js', 'cur', 'ref', 'los')}
         for msg in self._msgs.values():
             msg.name = [self.joint]

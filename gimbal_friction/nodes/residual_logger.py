@@ -25,9 +25,10 @@ started with the same folder), this run writes beside it in ``<output_dir>_<UTC 
 retried every ``retry_period_s``; the node stays up. ``/diagnostics`` also carries messages logged, bytes, current
 file and the residual RMS per axis and temperature bin.
 
-Inputs: reliable, depth 1000; the temperature follows its publishers (reliable, keep-all while every publisher is
-reliable: a full queue holds the publisher back instead of losing messages; best-effort, depth 1000 as soon as one
-is not, which a reliable subscription would not hear; ``temperature_qos`` on ``/diagnostics``). What is lost on the
+Inputs: depth 1000 (the temperature keep-all: a full queue holds a reliable publisher back instead of losing
+messages; ``temperature_qos`` on ``/diagnostics``), each following its publishers (:mod:`gimbal_friction.nodes._qos`):
+reliable while every publisher is, best-effort as soon as one is not, which a reliable subscription would not hear;
+an input that cannot deliver is named on ``/diagnostics``. What is lost on the
 way is counted per topic from the publishers' sequence numbers (``lost: <topic>``, a WARN naming it), and, for a
 publisher that says how many messages it sent (``chamber_replay``'s ``finished`` status on ``/diagnostics``), as
 sent − arrived: also the messages lost before the first or after the last one that arrived, which no sequence gap
@@ -49,7 +50,7 @@ import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.node import Node
 from rclpy.parameter import Parameter
-from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.qos import HistoryPolicy, QoSProfile
 from rclpy.serialization import deserialize_message
 from sensor_msgs.msg import JointState, Temperature
 from std_msgs.msg import Float64MultiArray
@@ -75,8 +76,8 @@ from gimbal_friction.nodes._common import (
     run_node,
     split_parameters,
     status,
-    subscribe,
 )
+from gimbal_friction.nodes._qos import Inputs, create_publisher
 from gimbal_friction.recording import topics
 from gimbal_friction.recording.cdr import float64_multi_array_cdr_rows, joint_state_cdr_rows, split_rows
 from gimbal_friction.recording.residual_log import ResidualLogWriter
@@ -88,8 +89,6 @@ from gimbal_friction.streams.residual_row import ResidualRows, residual_rows
 
 #: subscription depth: a burst of this many messages is buffered, not dropped
 DEPTH = 1000
-#: how often the temperature subscription's reliability is matched to the publishers' [s]
-QOS_CHECK_PERIOD_S = 0.2
 #: feedforward entries kept for pairing [-] (several seconds at 1 kHz with two joints)
 FEEDFORWARD_HORIZON = 16384
 #: the topics the logger subscribes (a publisher's count of what it sent is taken for these only)
@@ -164,58 +163,26 @@ class ResidualLogger(Node):
         self._ff_next = 0
         self._waiting: list[tuple[float, MeasurementArrays]] = []
         self._open_writer()
-        self.pub_diag = self.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, 10)
-        qos = QoSProfile(depth=DEPTH)
-        for msg_type, topic, type_name in (
-                (JointState, topics.JOINT_STATES, topics.JOINT_STATE_TYPE),
-                (JointState, topics.MOTOR_CURRENT, topics.JOINT_STATE_TYPE),
-                (JointState, topics.MEASURED, topics.JOINT_STATE_TYPE)):
-            subscribe(self, self.inputs, msg_type, topic, self._raw_logger(topic, type_name), qos, raw=True)
-        # temperature sensors often publish best-effort, which a reliable subscription would not hear: start
-        # best-effort (matches every publisher) with a deep queue, and go reliable while every publisher is
-        # (follow_temperature_publishers)
-        self._temperature_reliable = False
-        self._temperature_sub = self._subscribe_temperature(reliable=False)
-        self._temperature_next: Any = None
-        self._qos_timer = self.create_timer(QOS_CHECK_PERIOD_S, self.follow_temperature_publishers)
-        subscribe(self, self.inputs, JointState, topics.FEEDFORWARD, self.on_feedforward, qos, raw=True)
-        subscribe(self, self.inputs, Float64MultiArray, topics.MEASURED_DETAIL, self.on_measured_detail, qos,
-                  raw=True)
+        self.pub_diag = create_publisher(self, DiagnosticArray, topics.DIAGNOSTICS, 10)
+        # every input follows its publishers' reliability (nodes/_qos.py)
+        self.input_topics = ins = Inputs(self, self.inputs)
+        for topic in (topics.JOINT_STATES, topics.MOTOR_CURRENT, topics.MEASURED):
+            ins.add(JointState, topic, self._raw_logger(topic, topics.JOINT_STATE_TYPE), DEPTH, raw=True)
+        # the temperature: keep all while reliable (a full queue holds the publisher back: nothing lost); starts
+        # best-effort (temperature sensors often are), which hears every publisher
+        self._temperature = ins.add(Temperature, topics.TEMPERATURE,
+                                    self._raw_logger(topics.TEMPERATURE, topics.TEMPERATURE_TYPE),
+                                    QoSProfile(depth=DEPTH, history=HistoryPolicy.KEEP_ALL), raw=True,
+                                    start_reliable=False)
+        ins.add(JointState, topics.FEEDFORWARD, self.on_feedforward, DEPTH, raw=True)
+        ins.add(Float64MultiArray, topics.MEASURED_DETAIL, self.on_measured_detail, DEPTH, raw=True)
         # what publishers say they sent (chamber_replay): counted against what arrived
         self._sent_counts: list[tuple[float, Sent]] = []
-        subscribe(self, self.inputs, DiagnosticArray, topics.DIAGNOSTICS, self.on_diagnostics, QoSProfile(depth=100))
+        ins.add(DiagnosticArray, topics.DIAGNOSTICS, self.on_diagnostics, 100)
         self._pair_timer = self.create_timer(0.05, self.on_pair_timer)
         self._flush_timer = self.create_timer(self.settings.flush_period_s, self.on_flush_timer)
         self._diag_timer = self.create_timer(self.settings.diagnostics_period_s, self.publish_diagnostics)
         parameter_guard(self, self._validate_params, self._apply_params)
-
-    # ------------------------------------------------------------------ temperature QoS
-    def _subscribe_temperature(self, *, reliable: bool) -> Any:
-        if reliable:  # keep all: a full queue holds the publisher back (it resends) instead of dropping the oldest
-            qos = QoSProfile(depth=DEPTH, history=HistoryPolicy.KEEP_ALL, reliability=ReliabilityPolicy.RELIABLE)
-        else:
-            qos = QoSProfile(depth=DEPTH, reliability=ReliabilityPolicy.BEST_EFFORT)
-        return subscribe(self, self.inputs, Temperature, topics.TEMPERATURE,
-                         self._raw_logger(topics.TEMPERATURE, topics.TEMPERATURE_TYPE), qos, raw=True)
-
-    def follow_temperature_publishers(self) -> None:
-        """Make the temperature subscription reliable while every publisher of the topic is reliable (the
-        publisher then resends what the queue could not take: nothing is lost), best-effort as soon as one is not
-        (a reliable subscription would not hear it). The new subscription is made first and the old one dropped
-        once the new one hears every publisher; a message both deliver is logged once (publisher sequence
-        numbers, :meth:`InputCounter.count`)."""
-        infos = self.get_publishers_info_by_topic(topics.TEMPERATURE)
-        if self._temperature_next is not None:
-            if self._temperature_next.get_publisher_count() >= len(infos):
-                self.destroy_subscription(self._temperature_sub)
-                self._temperature_sub, self._temperature_next = self._temperature_next, None
-                self._temperature_reliable = not self._temperature_reliable
-            return
-        if not infos:
-            return
-        reliable = all(i.qos_profile.reliability == ReliabilityPolicy.RELIABLE for i in infos)
-        if reliable != self._temperature_reliable:
-            self._temperature_next = self._subscribe_temperature(reliable=reliable)
 
     # ------------------------------------------------------------------ log file lifecycle
     def _open_writer(self) -> None:
@@ -454,10 +421,11 @@ class ResidualLogger(Node):
         new_refused = {r: n - self._reported.get(r, 0) for r, n in self.refused.items() if n > self._reported.get(r, 0)}
         self._reported = dict(self.refused)
         new_lost = self.inputs.new_losses()
+        input_problems = self.input_topics.problems()   # an input that delivers nothing: the topic and the cause
         if self.error is not None:
             level, message = ERROR, f'not logging: {self.error}'
-        elif new_refused or new_lost:  # what happened since the previous report; totals stay in the values
-            level, parts = WARN, []
+        elif new_refused or new_lost or input_problems:  # what happened since the previous report (totals: values)
+            level, parts = WARN, list(input_problems)
             if new_refused:
                 parts.append('inputs refused: ' + ', '.join(f'{r} {c}x' for r, c in sorted(new_refused.items())))
             if new_lost:
@@ -474,11 +442,12 @@ class ResidualLogger(Node):
             'no_feedforward': self.no_feedforward,
             'waiting_for_feedforward': len(self._waiting),
             'dropped': self.dropped,
-            'temperature_qos': 'reliable' if self._temperature_reliable else 'best_effort',
+            'temperature_qos': 'reliable' if self._temperature.reliable else 'best_effort',
         }
         for reason, count in sorted(self.refused.items()):
             values[f'refused: {reason}'] = count
         values.update(self.inputs.values())
+        values.update(self.input_topics.values())
         errors = callback_error_values(self)
         values.update(errors)
         new_errors = {k: n for k, n in errors.items() if n > self._reported.get(k, 0)}

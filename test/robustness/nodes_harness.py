@@ -58,6 +58,8 @@ class InProcess:
         for name in list(vars(node)):
             if name.startswith('pub_'):
                 setattr(node, name, Recorder(getattr(node, name).msg_type))
+        for one in getattr(getattr(node, 'input_topics', None), 'inputs', {}).values():
+            one.watch.required = False   # callbacks are called directly: no publisher is on the graph, by design
         self.nodes.append(node)
         return node
 
