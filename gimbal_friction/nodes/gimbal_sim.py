@@ -61,15 +61,18 @@ from gimbal_friction.nodes._common import (
     OK,
     WARN,
     ModelParameters,
-    _descriptor,
     _value,
+    declare_typed,
     callback_error_values,
     callback_failed,
     diagnostic_array,
     parameter_guard,
     run_node,
     status,
+    typed_descriptor,
+    typed_value,
 )
+from gimbal_friction.config.parameter_rules import parameter_rule
 from gimbal_friction.recording import topics
 from gimbal_friction.sim.config import RealtimeSettings, SimConfig, parameter_specs
 from gimbal_friction.sim.realtime import RealtimeRun, TickOutput
@@ -84,10 +87,6 @@ _SIM_FIELDS = frozenset(f.name for f in dataclasses.fields(SimConfig))
 _NODE_FIELDS = frozenset(f.name for f in dataclasses.fields(RealtimeSettings))
 
 
-def _ros_default(value: Any) -> Any:
-    return list(value) if isinstance(value, tuple) else value
-
-
 class GimbalSim(Node):
     """The simulator node (thin adapter around :class:`RealtimeRun`)."""
 
@@ -95,8 +94,9 @@ class GimbalSim(Node):
         super().__init__('gimbal_sim', **kwargs)
         self.model = ModelParameters(self)
         for spec in parameter_specs(node=True):
-            self.declare_parameter(spec['name'], _ros_default(spec['default']),
-                                   _descriptor(spec['name'], spec['unit'], spec['description']))
+            declare_typed(self, spec['name'], typed_value(spec['default'], spec['default']),
+                          typed_descriptor(spec['name'], spec['unit'], spec['description'], spec['default'],
+                                           parameter_rule('gimbal_sim', spec['name'])))
         self.config, self.settings, self.joint = self._read({})
         self.axis = self.model.current()[self.joint]
         self._pending: tuple[SimConfig, RealtimeSettings, str] | None = None
