@@ -338,7 +338,7 @@ def field_default(node: str, name: str) -> object:
     classes = _settings_classes()
     for prefix, owner in NODE_SETTINGS.get(node, ()):
         if name.startswith(prefix):
-            for f in dataclasses.fields(classes[owner]):  # type: ignore[arg-type]  # a settings dataclass
+            for f in dataclasses.fields(classes[owner]):
                 if f.name == name[len(prefix):]:
                     return f.default
     return None

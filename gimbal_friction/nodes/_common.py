@@ -279,9 +279,19 @@ def declare_settings(node: Node, cls: type[T], prefix: str = '') -> T:
         declare_typed(node, prefix + f.name, typed_value(f.default, f.default),
                       _descriptor(prefix + f.name, meta.get('unit', ''), meta.get('description', ''),
                                   default=f.default, rule=rules.get(f.name)),
-                      lambda value, field=f.name: settings_from(cls, {field: value}))
+                      _settings_check(cls, f.name, prefix))
         values[f.name] = _value(node.get_parameter(prefix + f.name))
     return settings_from(cls, values)
+
+
+def _settings_check(cls: type, field: str, prefix: str) -> Callable[[Any], Any]:
+    """The validation of setting ``field`` of ``cls`` alone, its error naming the parameter (``prefix + field``)."""
+    def check(value: Any) -> None:
+        try:
+            settings_from(cls, {field: value})
+        except ConfigError as err:
+            raise ConfigError(prefix + err.parameter, err.rule, err.value) from None
+    return check
 
 
 def declare_typed(node: Node, name: str, default: Any, descriptor: ParameterDescriptor,

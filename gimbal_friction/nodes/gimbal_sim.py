@@ -56,15 +56,16 @@ from sensor_msgs.msg import JointState, Temperature
 
 from gimbal_friction.common.errors import ConfigError
 from gimbal_friction.common.units import split_stamp
+from gimbal_friction.config.parameter_rules import parameter_rule
 from gimbal_friction.nodes._common import (
     ERROR,
     OK,
     WARN,
     ModelParameters,
     _value,
-    declare_typed,
     callback_error_values,
     callback_failed,
+    declare_typed,
     diagnostic_array,
     parameter_guard,
     run_node,
@@ -72,7 +73,6 @@ from gimbal_friction.nodes._common import (
     typed_descriptor,
     typed_value,
 )
-from gimbal_friction.config.parameter_rules import parameter_rule
 from gimbal_friction.recording import topics
 from gimbal_friction.sim.config import RealtimeSettings, SimConfig, parameter_specs
 from gimbal_friction.sim.realtime import RealtimeRun, TickOutput
