@@ -21,6 +21,7 @@ import signal
 import sys
 import tempfile
 import threading
+import weakref
 from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from typing import Any, TypeVar
 
@@ -58,6 +59,10 @@ _TYPE_WORDS = {Parameter.Type.BOOL: 'true or false', Parameter.Type.INTEGER: 'an
                Parameter.Type.BOOL_ARRAY: 'a list of booleans', Parameter.Type.INTEGER_ARRAY: 'a list of integers',
                Parameter.Type.DOUBLE_ARRAY: 'a list of doubles (1.0, not 1)',
                Parameter.Type.STRING_ARRAY: 'a list of strings', Parameter.Type.NOT_SET: 'unset'}
+
+
+#: node -> parameter -> its fixed type, for the parameters declared dynamically typed because they start unset
+_EXPECTED_TYPES: weakref.WeakKeyDictionary[Node, dict[str, Parameter.Type]] = weakref.WeakKeyDictionary()
 
 
 def ros_type(default: Any) -> Parameter.Type:
@@ -185,13 +190,24 @@ class ModelParameters:
             for spec in self.specs:
                 name = spec['name']
                 default = (default_overrides.get(axis) or {}).get(name)
-                # unset unless given, yet of the field's type: declared with the type (read with get_parameter_or)
-                declare_typed(node, f'axis.{axis}.{name}',
-                              ros_type(spec['default']) if default is None else typed_value(spec['default'], default),
-                              _descriptor(f'axis.{axis}.{name}', spec['unit'],
-                                          f'override of model.{name} for joint {axis} (unset unless given)',
-                                          default=spec['default'], rule=model_rule(name)),
-                              _model_check(f'axis.{axis}.{name}', name))
+                full = f'axis.{axis}.{name}'
+                desc = _descriptor(full, spec['unit'], f'override of model.{name} for joint {axis} (unset unless '
+                                   'given)', default=spec['default'], rule=model_rule(name))
+                if default is None:  # unset unless given
+                    default = node.declare_parameter(full, None, ParameterDescriptor(dynamic_typing=True)).value
+                    node.undeclare_parameter(full)
+                if default is None:
+                    # A statically typed parameter without a value breaks GetParameters for every name asked with
+                    # it (rclpy answers nothing: ros2 param dump fails), so an unset override is declared
+                    # dynamically typed; its type is still fixed: a value of another type is refused
+                    # (:func:`wrong_type`), and once set it keeps the field's type.
+                    desc.dynamic_typing = True
+                    desc.type = Parameter.Type.NOT_SET.value
+                    _EXPECTED_TYPES.setdefault(node, {})[full] = ros_type(spec['default'])
+                    node.declare_parameter(full, None, desc)
+                else:
+                    declare_typed(node, full, typed_value(spec['default'], default), desc,
+                                  _model_check(full, name))
 
     def current(self, proposed: Mapping[str, Any] | None = None) -> dict[str, AxisParams]:
         """Validated parameters of every axis, with ``proposed`` (full parameter names) taking precedence.
@@ -354,9 +370,12 @@ def wrong_type(node: Node, param: Parameter[Any]) -> str | None:
     if not node.has_parameter(param.name) or param.type_ == Parameter.Type.NOT_SET:
         return None
     desc = node.describe_parameter(param.name)
-    if desc.dynamic_typing or param.type_.value == desc.type:
+    expected = _EXPECTED_TYPES.get(node, {}).get(param.name)
+    if desc.dynamic_typing and expected is None:
         return None
-    wanted = Parameter.Type(desc.type)
+    wanted = expected if desc.dynamic_typing and expected is not None else Parameter.Type(desc.type)
+    if param.type_ == wanted:
+        return None
     return (f'parameter {param.name!r} = {_value(param)!r}: must be {_TYPE_WORDS.get(wanted, wanted.name)}, '
             f'not {_TYPE_WORDS.get(param.type_, param.type_.name)} (its type is fixed: {wanted.name.lower()})')
 
