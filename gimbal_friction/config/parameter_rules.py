@@ -105,7 +105,8 @@ def from_bound(bound: Bound | None, choices: tuple[str, ...] | None) -> Rule | N
     return Rule(bound.low, bound.high, not bound.low_inclusive, not bound.high_inclusive)
 
 
-_T_MIN, _T_MAX = f'>= {MODEL_T_MIN_C:g}', f'<= {MODEL_T_MAX_C:g}'
+_T_MIN = f'>= {MODEL_T_MIN_C:g}'
+_T_ABOVE_MIN = f'({MODEL_T_MIN_C:g}, {MODEL_T_MAX_C:g}]'   # above temperature_min_c, itself >= the model's lowest
 _LAYOUT = 'layout of the learned cells: read at start only'
 
 #: settings class name -> parameter (field) name -> its rule; a field not named has no range (a bool, a path, a
@@ -116,9 +117,10 @@ SETTINGS_RULES: dict[str, dict[str, Rule]] = {
         'max_torque_nm': rule('(0, 100]'),
         'temperature_timeout_s': rule('(0, 86400]'),
         'stale_policy': rule(STALE_POLICIES),
-        'fallback_temperature_c': rule(_T_MIN + '', 'within [temperature_min_c, temperature_max_c]'),
+        'fallback_temperature_c': rule(f'[{MODEL_T_MIN_C:g}, {MODEL_T_MAX_C:g}]',
+                                       'within [temperature_min_c, temperature_max_c]'),
         'temperature_min_c': rule(_T_MIN),
-        'temperature_max_c': rule(_T_MAX, 'must exceed temperature_min_c'),
+        'temperature_max_c': rule(_T_ABOVE_MIN, 'must exceed temperature_min_c'),
         'table_step_c': rule('[0.001, 5]'),
         'velocity_source': rule(VELOCITY_SOURCES),
         'reference_timeout_s': rule('(0, 3600]'),
@@ -135,7 +137,7 @@ SETTINGS_RULES: dict[str, dict[str, Rule]] = {
         'floor_nm': rule('[0, 1]'),
         'max_independent_nm': rule('[0, 1]'),
         'min_speed_rad_s': rule('[1e-4, 10]', _LAYOUT),
-        'max_speed_rad_s': rule('<= 1000', 'must exceed correction_min_speed_rad_s'),
+        'max_speed_rad_s': rule('(1e-4, 1000]', 'must exceed correction_min_speed_rad_s'),
         'max_residual_relative': rule('(0, 1000]'),
         'max_residual_floor_nm': rule('[0, 100]'),
         'temperature_min_c': Rule(note=_LAYOUT),
@@ -146,7 +148,7 @@ SETTINGS_RULES: dict[str, dict[str, Rule]] = {
         'speed_smoothing': rule('(0, 1e6]'),
         'position_resolution_rad': rule('[1e-5, 0.05]', _LAYOUT),
         'ripple_periods_max': rule('[0, 16]'),
-        'ripple_period_max_rad': rule(f'<= {math.pi!r}', 'at least 8 x correction_position_resolution_rad'),
+        'ripple_period_max_rad': rule(f'[8e-5, {math.pi!r}]', 'at least 8 x correction_position_resolution_rad'),
         'ripple_min_z': rule('[2, 100]'),
         'ripple_min_relative': rule('[0, 1]'),
         'guard_min_samples': rule('[0, 1e9]'),
@@ -172,7 +174,7 @@ SETTINGS_RULES: dict[str, dict[str, Rule]] = {
         'temperature_bin_c': rule('[0.001, 1000]'),
         'temperature_timeout_s': rule('(0, 86400]'),
         'temperature_min_c': rule(_T_MIN),
-        'temperature_max_c': rule(_T_MAX, 'must exceed temperature_min_c'),
+        'temperature_max_c': rule(_T_ABOVE_MIN, 'must exceed temperature_min_c'),
         'ripple_bins': rule('[1, 10000]'),
         'stamp_reset_s': rule('(0, 1e6]'),
         'acceleration_window_s': rule('[1e-4, 10]'),
@@ -204,16 +206,16 @@ SETTINGS_RULES: dict[str, dict[str, Rule]] = {
         'current_loop_time_constant_s': rule('>= 0'),
         'current_noise_a': rule('>= 0'),
         'rate_loop_hz': rule('[10, 100000]'),
-        'rate_bandwidth_hz': rule('> 0', 'at most rate_loop_hz / 4'),
-        'rate_integral_hz': rule('>= 0', 'below rate_bandwidth_hz'),
-        'track_loop_hz': rule('> 0', 'at most rate_loop_hz'),
-        'track_bandwidth_hz': rule('>= 0', 'at most min(track_loop_hz, rate_bandwidth_hz) / 4'),
+        'rate_bandwidth_hz': rule('(0, 25000]', 'at most rate_loop_hz / 4'),
+        'rate_integral_hz': rule('[0, 25000)', 'below rate_bandwidth_hz'),
+        'track_loop_hz': rule('(0, 100000]', 'at most rate_loop_hz'),
+        'track_bandwidth_hz': rule('[0, 6250]', 'at most min(track_loop_hz, rate_bandwidth_hz) / 4'),
         'track_noise_rad': rule('>= 0'),
         'gyro_noise_rad_s': rule('>= 0'),
         'resolver_noise_rad': rule('>= 0'),
         'resolver_velocity_noise_rad_s': rule('>= 0'),
         'resolver_velocity_time_constant_s': rule('>= 0'),
-        'temperature_rate_hz': rule('> 0', 'at most rate_loop_hz'),
+        'temperature_rate_hz': rule('(0, 100000]', 'at most rate_loop_hz'),
         'temperature_noise_c': rule('>= 0'),
         'temperature_sensor_time_constant_s': rule('>= 0'),
         'thermal_time_constant_s': rule('>= 0'),
@@ -236,7 +238,7 @@ SETTINGS_RULES: dict[str, dict[str, Rule]] = {
         'tracking_reversal_s': rule('> 0', 'speed x tracking_reversal_s shorter than the travel'),
         'tracking_duration_s': rule('(0, 3600]'),
         'scan_amplitude_deg': rule('(0, 90]'),
-        'scan_frequency_hz': rule('> 0', 'at most rate_bandwidth_hz / 4'),
+        'scan_frequency_hz': rule('(0, 6250]', 'at most rate_bandwidth_hz / 4'),
         'scan_duration_s': rule('(0, 3600]'),
         'pointing_duration_s': rule('(0, 3600]'),
         'weave_duration_s': rule('(0, 3600]'),
