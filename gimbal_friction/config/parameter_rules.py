@@ -45,7 +45,7 @@ class Rule(NamedTuple):
         if self.choices:
             out = 'one of ' + ', '.join(self.choices)
         elif self.low is None and self.high is None:
-            out = 'any finite number'
+            return self.note or 'any finite value'
         elif self.high is None:
             out = f'{">" if self.low_open else ">="} {_num(self.low)}'
         elif self.low is None:
@@ -68,7 +68,8 @@ class Rule(NamedTuple):
 
 
 def _num(value: float | None) -> str:
-    return f'{value:g}'
+    """A bound as the docs write it: ``1e6``, ``1e-5``, ``0.05``, ``3.14159``."""
+    return f'{value:g}'.replace('e+0', 'e').replace('e+', 'e').replace('e-0', 'e-')
 
 
 _INTERVAL = re.compile(r'([\[(])\s*(\S+)\s*,\s*(\S+)\s*([\])])')

@@ -195,7 +195,9 @@ class ChamberReplay(Node):
         except Exception as err:  # rclpy's InvalidParameterTypeException / InvalidParameterValueException
             if type(err).__module__.startswith('rclpy') and 'Parameter' in type(err).__name__:
                 if rule is not None and 'Type' not in type(err).__name__:
-                    raise ConfigError(name, f'must be {rule.text(spec["unit"])}') from None
+                    # out of the descriptor's range: declared without it, the node's own checks word the refusal
+                    return self.declare_parameter(name, default, typed_descriptor(
+                        name, spec['unit'], spec['description'], default)).value
                 kind = _KINDS.get(type(default), type(default).__name__)
                 raise ConfigError(name, f'must be a {kind} ({str(err).splitlines()[0]})') from None
             raise
