@@ -19,7 +19,6 @@ from gimbal_friction.estimation.estimator import EstimatorSettings
 from gimbal_friction.feedforward.rule import FeedforwardSettings
 from gimbal_friction.physics.params import parameter_specs
 
-
 DOCS = Path(__file__).resolve().parents[1] / 'docs' / 'ros.md'
 
 

@@ -157,7 +157,7 @@ def test_the_rules_table_names_only_fields_and_agrees_with_every_validate():
                         problems.append(f'{owner}.{name} = {value!r}: {err}')
                 if accepted != allowed:
                     problems.append(f'{owner}.{name} = {value!r}: table says {allowed}, validate {accepted}')
-    assert problems == [], "\n".join(problems)
+    assert problems == [], '\n'.join(problems)
 
 
 def test_every_bounded_numeric_setting_has_its_range_in_the_table():
@@ -181,7 +181,7 @@ def test_every_bounded_numeric_setting_has_its_range_in_the_table():
                     if err.parameter == f.name and (rule is None or (getattr(rule, side) is None
                                                                     and not rule.note)):
                         missing.append(f'{owner}.{f.name}: no {side} bound in the table ({err.rule})')
-    assert missing == [], "\n".join(missing)
+    assert missing == [], '\n'.join(missing)
 
 
 def test_model_rules_are_the_model_bounds():
