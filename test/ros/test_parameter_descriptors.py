@@ -97,15 +97,19 @@ def range_problems(name: str, allowed: str, desc: Any) -> list[str]:
 
 @pytest.mark.slow
 def test_describe_parameters_answers_what_the_documentation_tables_say(spawn, probe, tmp_path):
-    """Every parameter of friction_feedforward, friction_estimator, residual_logger and gimbal_sim documented in a
-    table of docs/ros.md: DescribeParameters gives its documented type, fixed (not dynamic), and the documented
+    """Every parameter of friction_feedforward, friction_estimator, residual_logger, gimbal_sim and chamber_replay
+    documented in a table of docs/ros.md: DescribeParameters gives its documented type, fixed (not dynamic), and the documented
     range (a side without a bound: the largest finite value) and allowed values; every parameter a node declares
     from a settings table is documented (gimbal_sim's simulator parameters are in config/gimbal_sim.yaml)."""
     procs = {'friction_feedforward': spawn('friction_feedforward'),
              'friction_estimator': spawn('friction_estimator'),
              'residual_logger': spawn('residual_logger', '--ros-args', '-p', f'output_dir:={tmp_path / "log"}'),
              'gimbal_sim': spawn('gimbal_sim', '--ros-args', '-p', 'wait_for_subscribers:=100', '-p',
-                                 'start_timeout_s:=3600.0')}
+                                 'start_timeout_s:=3600.0'),
+             # waits for subscribers (its services answer meanwhile); rate:=2 is an integer for a double
+             'chamber_replay': spawn('chamber_replay', '--ros-args', '-p', f'bag:={ROOT / "bags" / "chamber_sample"}',
+                                     '-p', 'rate:=2', '-p', 'wait_for_subscribers:=100', '-p',
+                                     'wait_timeout_s:=3600.0')}
     docs = doc_rows()
     problems: list[str] = []
     checked = 0
@@ -134,6 +138,7 @@ def test_describe_parameters_answers_what_the_documentation_tables_say(spawn, pr
             problems += [f'{node}: {n} declared, not documented' for n in undocumented]
     assert problems == [], '\n'.join(problems)
     assert checked > 200
+    assert get_one(probe, 'chamber_replay', 'rate') == value(ParameterType.PARAMETER_DOUBLE, 2.0)
 
 
 def value(kind: int, v: Any) -> ParameterValue:
