@@ -78,13 +78,15 @@ def ros_type(default: Any) -> Parameter.Type:
 
 
 def typed_value(default: Any, value: Any) -> Any:
-    """``value`` as the ROS type of ``default`` where that loses nothing (an integer for a double, integers for a
-    list of doubles, a tuple as a list); anything else unchanged (rclpy then refuses it by type)."""
+    """``value`` as the ROS type of ``default`` where that loses nothing (an integer for a double, a whole double for
+    an integer, integers for a list of doubles, a tuple as a list); anything else unchanged (refused by type)."""
     kind = ros_type(default)
     if isinstance(value, tuple):
         value = list(value)
     if kind == Parameter.Type.DOUBLE and isinstance(value, int) and not isinstance(value, bool):
         return float(value)
+    if kind == Parameter.Type.INTEGER and isinstance(value, float) and math.isfinite(value) and value == int(value):
+        return int(value)
     if kind == Parameter.Type.DOUBLE_ARRAY and isinstance(value, list) and all(
             isinstance(v, (int, float)) and not isinstance(v, bool) for v in value):
         return [float(v) for v in value]
@@ -295,12 +297,12 @@ def declare_settings(node: Node, cls: type[T], prefix: str = '') -> T:
         declare_typed(node, prefix + f.name, typed_value(f.default, f.default),
                       _descriptor(prefix + f.name, meta.get('unit', ''), meta.get('description', ''),
                                   default=f.default, rule=rules.get(f.name)),
-                      _settings_check(cls, f.name, prefix))
+                      settings_check(cls, f.name, prefix))
         values[f.name] = _value(node.get_parameter(prefix + f.name))
     return settings_from(cls, values)
 
 
-def _settings_check(cls: type, field: str, prefix: str) -> Callable[[Any], Any]:
+def settings_check(cls: type, field: str, prefix: str) -> Callable[[Any], Any]:
     """The validation of setting ``field`` of ``cls`` alone, its error naming the parameter (``prefix + field``)."""
     def check(value: Any) -> None:
         try:
@@ -313,10 +315,10 @@ def _settings_check(cls: type, field: str, prefix: str) -> Callable[[Any], Any]:
 def declare_typed(node: Node, name: str, default: Any, descriptor: ParameterDescriptor,
                   check: Callable[[Any], Any] | None = None) -> Parameter[Any]:
     """``node.declare_parameter`` with a statically typed ``descriptor``. A value given at start-up (a parameter
-    override) that is a whole number for a double (or whole numbers for a list of doubles) is taken as that double,
-    as on the command line (:func:`startup_overrides`); one of another wrong type or outside the descriptor's range
-    is a ConfigError naming the parameter and the rule (one line), not rclpy's exception: ``check(value)`` (the
-    validation of the value alone) words it where it can."""
+    override) that is a whole number for a double (or whole numbers for a list of doubles, a whole double for an
+    integer) is taken as that value of the declared type, as on the command line (:func:`startup_overrides`); one
+    of another wrong type or outside the descriptor's range is a ConfigError naming the parameter and the rule (one
+    line), not rclpy's exception: ``check(value)`` (the validation of the value alone) words it where it can."""
     kind = Parameter.Type(descriptor.type)
     given: Any = None
     ignore = False
@@ -331,6 +333,8 @@ def declare_typed(node: Node, name: str, default: Any, descriptor: ParameterDesc
         node.undeclare_parameter(name)
         if 'type' in type(err).__name__.lower():
             typed = _as_type(kind, given)
+            if typed is None and check is not None:
+                check(given)   # a value the validation refuses: its own words ("must be a whole number")
             if typed is None:
                 given_kind = Parameter.Type.from_parameter_value(given)
                 raise ConfigError(name, f'must be {_TYPE_WORDS.get(kind, kind.name.lower())}, not '
@@ -348,10 +352,12 @@ def declare_typed(node: Node, name: str, default: Any, descriptor: ParameterDesc
 
 
 def _as_type(kind: Parameter.Type, value: Any) -> Any:
-    """``value`` as a parameter of type ``kind`` where that loses nothing (a whole number as a double, whole
-    numbers as doubles), else None."""
+    """``value`` as a parameter of type ``kind`` where that loses nothing (a whole number as a double or an integer,
+    whole numbers as doubles), else None."""
     if kind == Parameter.Type.DOUBLE and isinstance(value, int) and not isinstance(value, bool):
         return float(value)
+    if kind == Parameter.Type.INTEGER and isinstance(value, float) and math.isfinite(value) and value == int(value):
+        return int(value)
     if kind == Parameter.Type.DOUBLE_ARRAY and (isinstance(value, (list, tuple)) or type(value).__name__ == 'array'):
         items = list(value)
         if all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in items):
@@ -404,14 +410,14 @@ def name_undeclared_parameters(node: Node, check: Callable[[list[Parameter[Any]]
             return SetParametersResult(successful=False, reason=f'parameter {names}: not a parameter of '
                                        f'{node.get_name()}{hint}; ros2 param list {node.get_fully_qualified_name()} '
                                        'lists them')
-        for p in parameter_list:
-            reason = wrong_type(node, p)
-            if reason is not None:
-                return SetParametersResult(successful=False, reason=reason)
         if check is not None and not any(node.describe_parameter(p.name).read_only for p in parameter_list):
-            result = check(parameter_list)
+            result = check(parameter_list)   # first: a value the validation refuses is refused in its words
             if not result.successful:
                 return result
+        for p in parameter_list:
+            reason = wrong_type(node, p)   # then a value it would take but of another type (1 for a double)
+            if reason is not None:
+                return SetParametersResult(successful=False, reason=reason)
         return None
 
     def set_parameters_atomically(parameter_list: list[Parameter[Any]]) -> SetParametersResult:

@@ -69,6 +69,7 @@ from gimbal_friction.nodes._common import (
     diagnostic_array,
     parameter_guard,
     run_node,
+    settings_check,
     status,
     typed_descriptor,
     typed_value,
@@ -96,7 +97,9 @@ class GimbalSim(Node):
         for spec in parameter_specs(node=True):
             declare_typed(self, spec['name'], typed_value(spec['default'], spec['default']),
                           typed_descriptor(spec['name'], spec['unit'], spec['description'], spec['default'],
-                                           parameter_rule('gimbal_sim', spec['name'])))
+                                           parameter_rule('gimbal_sim', spec['name'])),
+                          settings_check(SimConfig if spec['name'] in _SIM_FIELDS else RealtimeSettings,
+                                         spec['name'], ''))
         self.config, self.settings, self.joint = self._read({})
         self.axis = self.model.current()[self.joint]
         self._pending: tuple[SimConfig, RealtimeSettings, str] | None = None
