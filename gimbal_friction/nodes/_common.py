@@ -65,6 +65,11 @@ _TYPE_WORDS = {Parameter.Type.BOOL: 'true or false', Parameter.Type.INTEGER: 'an
 _EXPECTED_TYPES: weakref.WeakKeyDictionary[Node, dict[str, Parameter.Type]] = weakref.WeakKeyDictionary()
 
 
+def _whole_int64(value: float) -> bool:
+    """A finite whole double that a ROS integer (int64) holds."""
+    return math.isfinite(value) and value == int(value) and -2.0**63 <= value < 2.0**63
+
+
 def ros_type(default: Any) -> Parameter.Type:
     """The fixed ROS parameter type of a parameter with this default (a settings field's: a float default is a
     double even where the packaged file writes it without a decimal point)."""
@@ -85,7 +90,7 @@ def typed_value(default: Any, value: Any) -> Any:
         value = list(value)
     if kind == Parameter.Type.DOUBLE and isinstance(value, int) and not isinstance(value, bool):
         return float(value)
-    if kind == Parameter.Type.INTEGER and isinstance(value, float) and math.isfinite(value) and value == int(value):
+    if kind == Parameter.Type.INTEGER and isinstance(value, float) and _whole_int64(value):
         return int(value)
     if kind == Parameter.Type.DOUBLE_ARRAY and isinstance(value, list) and all(
             isinstance(v, (int, float)) and not isinstance(v, bool) for v in value):
@@ -356,7 +361,7 @@ def _as_type(kind: Parameter.Type, value: Any) -> Any:
     whole numbers as doubles), else None."""
     if kind == Parameter.Type.DOUBLE and isinstance(value, int) and not isinstance(value, bool):
         return float(value)
-    if kind == Parameter.Type.INTEGER and isinstance(value, float) and math.isfinite(value) and value == int(value):
+    if kind == Parameter.Type.INTEGER and isinstance(value, float) and _whole_int64(value):
         return int(value)
     if kind == Parameter.Type.DOUBLE_ARRAY and (isinstance(value, (list, tuple)) or type(value).__name__ == 'array'):
         items = list(value)
