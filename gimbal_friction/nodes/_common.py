@@ -14,12 +14,14 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import inspect
+import math
 import os
 import re
 import signal
 import sys
 import tempfile
 import threading
+import weakref
 from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from typing import Any, TypeVar
 
@@ -36,6 +38,7 @@ from gimbal_friction.common.errors import ConfigError, GimbalFrictionError, Mode
 from gimbal_friction.common.settings import settings_from
 from gimbal_friction.common.text import did_you_mean
 from gimbal_friction.config.loader import AXES_DESCRIPTION, axis_names, check_parameter_names, load_parameters
+from gimbal_friction.config.parameter_rules import SETTINGS_RULES, Rule, model_rule
 from gimbal_friction.config.rcl import command_line_parameters
 from gimbal_friction.physics.params import AxisParams, parameter_specs
 from gimbal_friction.physics.table import FrictionTable
@@ -45,18 +48,91 @@ T = TypeVar('T')
 OK, WARN, ERROR = DiagnosticStatus.OK, DiagnosticStatus.WARN, DiagnosticStatus.ERROR
 
 
-def _descriptor(name: str, unit: str, description: str, *, bound: Any = None, read_only: bool = False,
-                dynamic: bool = True) -> ParameterDescriptor:
+#: the ends of a descriptor's range where the rule has no bound on that side: the largest finite values (a
+#: descriptor range cannot be half-open; the description and additional_constraints say "no bound")
+_DOUBLE_END = sys.float_info.max
+_INTEGER_END = 2**63 - 1
+#: parameter types in words, for a refusal
+_TYPE_WORDS = {Parameter.Type.BOOL: 'true or false', Parameter.Type.INTEGER: 'an integer',
+               Parameter.Type.DOUBLE: 'a double (a number with a decimal point: 1.0, not 1)',
+               Parameter.Type.STRING: 'a string', Parameter.Type.BYTE_ARRAY: 'a byte array',
+               Parameter.Type.BOOL_ARRAY: 'a list of booleans', Parameter.Type.INTEGER_ARRAY: 'a list of integers',
+               Parameter.Type.DOUBLE_ARRAY: 'a list of doubles (1.0, not 1)',
+               Parameter.Type.STRING_ARRAY: 'a list of strings', Parameter.Type.NOT_SET: 'unset'}
+
+
+#: node -> parameter -> its fixed type, for the parameters declared dynamically typed because they start unset
+_EXPECTED_TYPES: weakref.WeakKeyDictionary[Node, dict[str, Parameter.Type]] = weakref.WeakKeyDictionary()
+
+
+def _whole_int64(value: float) -> bool:
+    """A finite whole double that a ROS integer (int64) holds."""
+    return math.isfinite(value) and value == int(value) and -2.0**63 <= value < 2.0**63
+
+
+def ros_type(default: Any) -> Parameter.Type:
+    """The fixed ROS parameter type of a parameter with this default (a settings field's: a float default is a
+    double even where the packaged file writes it without a decimal point)."""
+    if isinstance(default, tuple):
+        default = list(default)
+    if isinstance(default, list) and default and all(isinstance(v, (int, float)) and not isinstance(v, bool)
+                                                    for v in default):
+        return Parameter.Type.DOUBLE_ARRAY if any(isinstance(v, float) for v in default) \
+            else Parameter.Type.INTEGER_ARRAY
+    return Parameter.Type.from_parameter_value(default)
+
+
+def typed_value(default: Any, value: Any) -> Any:
+    """``value`` as the ROS type of ``default`` where that loses nothing (an integer for a double, a whole double for
+    an integer, integers for a list of doubles, a tuple as a list); anything else unchanged (refused by type)."""
+    kind = ros_type(default)
+    if isinstance(value, tuple):
+        value = list(value)
+    if kind == Parameter.Type.DOUBLE and isinstance(value, int) and not isinstance(value, bool):
+        return float(value)
+    if kind == Parameter.Type.INTEGER and isinstance(value, float) and _whole_int64(value):
+        return int(value)
+    if kind == Parameter.Type.DOUBLE_ARRAY and isinstance(value, list) and all(
+            isinstance(v, (int, float)) and not isinstance(v, bool) for v in value):
+        return [float(v) for v in value]
+    return value
+
+
+def _descriptor(name: str, unit: str, description: str, *, default: Any, rule: Rule | None = None,
+                read_only: bool = False) -> ParameterDescriptor:
+    """The descriptor of a parameter: its fixed type (that of ``default``), description with the unit and the
+    allowed values, and the range of ``rule`` (a side without bound gets the largest finite value)."""
     unit_txt = '' if unit in ('', '-') else f' [{unit}]'
-    desc = ParameterDescriptor(name=name, description=f'{description}{unit_txt}', read_only=read_only,
-                               dynamic_typing=dynamic)
-    if bound is not None and bound.low is not None and bound.high is not None:
-        if isinstance(bound.low, int) and isinstance(bound.high, int):
-            desc.integer_range = [IntegerRange(from_value=bound.low, to_value=bound.high, step=1)]
-        else:
-            desc.floating_point_range = [FloatingPointRange(from_value=float(bound.low),
-                                                            to_value=float(bound.high), step=0.0)]
+    kind = ros_type(default)
+    text = f'{description}{unit_txt}'
+    desc = ParameterDescriptor(name=name, type=kind.value, read_only=read_only, dynamic_typing=False)
+    if rule is not None:
+        allowed = rule.text(unit)
+        open_side = not rule.choices and (rule.low is None) != (rule.high is None)
+        if kind in (Parameter.Type.INTEGER, Parameter.Type.DOUBLE) and (rule.low is not None
+                                                                       or rule.high is not None):
+            if kind == Parameter.Type.INTEGER:
+                low = -_INTEGER_END if rule.low is None else math.ceil(rule.low)
+                high = _INTEGER_END if rule.high is None else math.floor(rule.high)
+                desc.integer_range = [IntegerRange(from_value=low, to_value=high, step=1)]
+            else:
+                desc.floating_point_range = [FloatingPointRange(
+                    from_value=-_DOUBLE_END if rule.low is None else float(rule.low),
+                    to_value=_DOUBLE_END if rule.high is None else float(rule.high), step=0.0)]
+            if open_side:
+                allowed += ' (no bound on the other side: the range ends at the largest finite value)'
+            elif rule.low_open or rule.high_open:
+                allowed += ' (an excluded end of the range is refused)'
+        desc.additional_constraints = allowed
+        text += f'; allowed: {allowed}'
+    desc.description = text
     return desc
+
+
+def typed_descriptor(name: str, unit: str, description: str, default: Any, rule: Rule | None = None,
+                     read_only: bool = False) -> ParameterDescriptor:
+    """:func:`_descriptor` for a node module that declares its own parameters (gimbal_sim, chamber_replay)."""
+    return _descriptor(name, unit, description, default=default, rule=rule, read_only=read_only)
 
 
 def _value(param: Parameter[Any]) -> Any:
@@ -77,9 +153,24 @@ def declare_axes(node: Node, default: list[str] | None = None) -> list[str]:
     """
     if default is None:
         default = axis_names(load_parameters())
-    node.declare_parameter('axes', default, ParameterDescriptor(description=AXES_DESCRIPTION, read_only=True,
-                                                                dynamic_typing=True))
+    try:
+        node.declare_parameter('axes', default, _descriptor('axes', '', AXES_DESCRIPTION, default=default,
+                                                            read_only=True))
+    except Exception as err:  # rclpy's InvalidParameterTypeException: one line naming the parameter
+        if type(err).__module__.startswith('rclpy') and 'Parameter' in type(err).__name__:
+            raise ConfigError('axes', 'must be a non-empty list of joint names') from None
+        raise
     return axis_names({'axes': _value(node.get_parameter('axes'))})
+
+
+def _model_check(full: str, field: str) -> Callable[[Any], Any]:
+    """The validation of model parameter ``field`` alone, its error naming ``full``."""
+    def check(value: Any) -> None:
+        try:
+            AxisParams.from_mapping({field: value})
+        except ConfigError as err:
+            raise ConfigError(full, err.rule, err.value) from None
+    return check
 
 
 class ModelParameters:
@@ -99,17 +190,31 @@ class ModelParameters:
                               for k, v in (default_overrides.get(a) or {}).items()})
         for spec in self.specs:
             name = spec['name']
-            node.declare_parameter(f'model.{name}', model_defaults[name],
-                                   _descriptor(f'model.{name}', spec['unit'], spec['description'],
-                                               bound=spec['bound']))
+            declare_typed(node, f'model.{name}', typed_value(spec['default'], model_defaults[name]),
+                          _descriptor(f'model.{name}', spec['unit'], spec['description'], default=spec['default'],
+                                      rule=model_rule(name)), _model_check(f'model.{name}', name))
         for axis in self.axes:
             for spec in self.specs:
                 name = spec['name']
                 default = (default_overrides.get(axis) or {}).get(name)
-                node.declare_parameter(f'axis.{axis}.{name}', default,
-                                       _descriptor(f'axis.{axis}.{name}', spec['unit'],
-                                                   f'override of model.{name} for joint {axis}',
-                                                   bound=spec['bound']))
+                full = f'axis.{axis}.{name}'
+                desc = _descriptor(full, spec['unit'], f'override of model.{name} for joint {axis} (unset unless '
+                                   'given)', default=spec['default'], rule=model_rule(name))
+                if default is None:  # unset unless given
+                    default = node.declare_parameter(full, None, ParameterDescriptor(dynamic_typing=True)).value
+                    node.undeclare_parameter(full)
+                if default is None:
+                    # A statically typed parameter without a value breaks GetParameters for every name asked with
+                    # it (rclpy answers nothing: ros2 param dump fails), so an unset override is declared
+                    # dynamically typed; its type is still fixed: a value of another type is refused
+                    # (:func:`wrong_type`), and once set it keeps the field's type.
+                    desc.dynamic_typing = True
+                    desc.type = Parameter.Type.NOT_SET.value
+                    _EXPECTED_TYPES.setdefault(node, {})[full] = ros_type(spec['default'])
+                    node.declare_parameter(full, None, desc)
+                else:
+                    declare_typed(node, full, typed_value(spec['default'], default), desc,
+                                  _model_check(full, name))
 
     def current(self, proposed: Mapping[str, Any] | None = None) -> dict[str, AxisParams]:
         """Validated parameters of every axis, with ``proposed`` (full parameter names) taking precedence.
@@ -122,7 +227,7 @@ class ModelParameters:
         def get(full: str) -> Any:
             if full in proposed:
                 return proposed[full]
-            return _value(self.node.get_parameter(full))
+            return _value(self.node.get_parameter_or(full))
 
         model = {s['name']: get(f'model.{s["name"]}') for s in self.specs}
         try:
@@ -191,12 +296,78 @@ def retime(node: Node, timer: Any, old_period_s: float, new_period_s: float, cal
 def declare_settings(node: Node, cls: type[T], prefix: str = '') -> T:
     """Declare every field of the settings dataclass ``cls`` as a parameter and return the validated settings."""
     values = {}
+    rules = SETTINGS_RULES.get(cls.__name__, {})
     for f in dataclasses.fields(cls):  # type: ignore[arg-type]  # T is a settings dataclass: a TypeVar cannot be bound to "any dataclass"
         meta = f.metadata
-        node.declare_parameter(prefix + f.name, f.default,
-                               _descriptor(prefix + f.name, meta.get('unit', ''), meta.get('description', '')))
+        declare_typed(node, prefix + f.name, typed_value(f.default, f.default),
+                      _descriptor(prefix + f.name, meta.get('unit', ''), meta.get('description', ''),
+                                  default=f.default, rule=rules.get(f.name)),
+                      settings_check(cls, f.name, prefix))
         values[f.name] = _value(node.get_parameter(prefix + f.name))
     return settings_from(cls, values)
+
+
+def settings_check(cls: type, field: str, prefix: str) -> Callable[[Any], Any]:
+    """The validation of setting ``field`` of ``cls`` alone, its error naming the parameter (``prefix + field``)."""
+    def check(value: Any) -> None:
+        try:
+            settings_from(cls, {field: value})
+        except ConfigError as err:
+            raise ConfigError(prefix + err.parameter, err.rule, err.value) from None
+    return check
+
+
+def declare_typed(node: Node, name: str, default: Any, descriptor: ParameterDescriptor,
+                  check: Callable[[Any], Any] | None = None) -> Parameter[Any]:
+    """``node.declare_parameter`` with a statically typed ``descriptor``. A value given at start-up (a parameter
+    override) that is a whole number for a double (or whole numbers for a list of doubles, a whole double for an
+    integer) is taken as that value of the declared type, as on the command line (:func:`startup_overrides`); one
+    of another wrong type or outside the descriptor's range is a ConfigError naming the parameter and the rule (one
+    line), not rclpy's exception: ``check(value)`` (the validation of the value alone) words it where it can."""
+    kind = Parameter.Type(descriptor.type)
+    given: Any = None
+    ignore = False
+    try:
+        return node.declare_parameter(name, default, descriptor)
+    except Exception as err:  # rclpy's InvalidParameterTypeException / InvalidParameterValueException
+        if not (type(err).__module__.startswith('rclpy') and 'Parameter' in type(err).__name__):
+            raise
+        # read the value given (declared without type and range), then word the refusal or retype the value
+        loose = None if isinstance(default, Parameter.Type) else default
+        given = node.declare_parameter(name, loose, ParameterDescriptor(dynamic_typing=True)).value
+        node.undeclare_parameter(name)
+        if 'type' in type(err).__name__.lower():
+            typed = _as_type(kind, given)
+            if typed is None and check is not None:
+                check(given)   # a value the validation refuses: its own words ("must be a whole number")
+            if typed is None:
+                given_kind = Parameter.Type.from_parameter_value(given)
+                raise ConfigError(name, f'must be {_TYPE_WORDS.get(kind, kind.name.lower())}, not '
+                                  f'{_TYPE_WORDS.get(given_kind, given_kind.name.lower())}', given) from None
+            given, ignore = typed, True
+    if ignore:
+        try:
+            return node.declare_parameter(name, given, descriptor, ignore_override=True)
+        except Exception as err:
+            if not (type(err).__module__.startswith('rclpy') and 'Parameter' in type(err).__name__):
+                raise
+    if check is not None:
+        check(given)   # raises the validation's own ConfigError
+    raise ConfigError(name, f'allowed: {descriptor.additional_constraints}', given)
+
+
+def _as_type(kind: Parameter.Type, value: Any) -> Any:
+    """``value`` as a parameter of type ``kind`` where that loses nothing (a whole number as a double or an integer,
+    whole numbers as doubles), else None."""
+    if kind == Parameter.Type.DOUBLE and isinstance(value, int) and not isinstance(value, bool):
+        return float(value)
+    if kind == Parameter.Type.INTEGER and isinstance(value, float) and _whole_int64(value):
+        return int(value)
+    if kind == Parameter.Type.DOUBLE_ARRAY and (isinstance(value, (list, tuple)) or type(value).__name__ == 'array'):
+        items = list(value)
+        if all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in items):
+            return [float(v) for v in items]
+    return None
 
 
 def describe_request(params: Iterable[Parameter[Any]]) -> str:
@@ -204,27 +375,69 @@ def describe_request(params: Iterable[Parameter[Any]]) -> str:
     return ', '.join(f'{p.name} = {_value(p)!r}' for p in params)
 
 
-def name_undeclared_parameters(node: Node) -> None:
-    """Refuse a ``set_parameters`` request for a parameter ``node`` does not declare with a reason that names it
-    (rclpy's own refusal reads "Invalid access to undeclared parameter(s): []"), with the closest declared name.
+def wrong_type(node: Node, param: Parameter[Any]) -> str | None:
+    """The refusal of ``param`` for a declared, statically typed parameter of ``node`` when its type is not the
+    declared one (one line naming the parameter, the type wanted and the type given), else None."""
+    if not node.has_parameter(param.name) or param.type_ == Parameter.Type.NOT_SET:
+        return None
+    desc = node.describe_parameter(param.name)
+    expected = _EXPECTED_TYPES.get(node, {}).get(param.name)
+    if desc.dynamic_typing and expected is None:
+        return None
+    wanted = expected if desc.dynamic_typing and expected is not None else Parameter.Type(desc.type)
+    if param.type_ == wanted:
+        return None
+    return (f'parameter {param.name!r} = {_value(param)!r}: must be {_TYPE_WORDS.get(wanted, wanted.name)}, '
+            f'not {_TYPE_WORDS.get(param.type_, param.type_.name)} (its type is fixed: {wanted.name.lower()})')
 
-    The parameter services call :meth:`Node.set_parameters_atomically` (both ``set_parameters`` and
-    ``set_parameters_atomically``); this wraps that public method on the instance: a request naming an undeclared
-    parameter returns a refused :class:`SetParametersResult` instead of raising.
+
+def name_undeclared_parameters(node: Node, check: Callable[[list[Parameter[Any]]], SetParametersResult] | None
+                               = None) -> None:
+    """Refuse a ``set_parameters`` request in the node's own words before rclpy looks at it: a parameter ``node``
+    does not declare is named, with the closest declared name (rclpy's own refusal reads "Invalid access to
+    undeclared parameter(s): []"); a value of another type than the declared one is refused naming the parameter
+    and both types (rclpy's reads "Wrong parameter type, expected 'Type.DOUBLE' got 'Type.INTEGER'"); then
+    ``check`` (the node's validation: its reason, not rclpy's range message) runs.
+
+    Why on the instance: rclpy checks the descriptor (type, range) before any on-set callback, and offers no public
+    hook that runs first and may refuse (a pre-set callback may only change the list). The parameter services call
+    :meth:`Node.set_parameters_atomically`; in-process callers call :meth:`Node.set_parameters`. Both public methods
+    are wrapped on the instance; what passes goes on to rclpy's own checks and callbacks unchanged.
     """
-    original = node.set_parameters_atomically
+    original_atomically = node.set_parameters_atomically
+    original_each = node.set_parameters
+
+    def refusal(parameter_list: list[Parameter[Any]]) -> SetParametersResult | None:
+        undeclared = [p.name for p in parameter_list if not node.has_parameter(p.name)]
+        if undeclared:
+            hint = did_you_mean(undeclared[0], sorted(node.list_parameters([], 0).names))
+            names = ', '.join(repr(n) for n in undeclared)
+            return SetParametersResult(successful=False, reason=f'parameter {names}: not a parameter of '
+                                       f'{node.get_name()}{hint}; ros2 param list {node.get_fully_qualified_name()} '
+                                       'lists them')
+        if check is not None and not any(node.describe_parameter(p.name).read_only for p in parameter_list):
+            result = check(parameter_list)   # first: a value the validation refuses is refused in its words
+            if not result.successful:
+                return result
+        for p in parameter_list:
+            reason = wrong_type(node, p)   # then a value it would take but of another type (1 for a double)
+            if reason is not None:
+                return SetParametersResult(successful=False, reason=reason)
+        return None
 
     def set_parameters_atomically(parameter_list: list[Parameter[Any]]) -> SetParametersResult:
-        undeclared = [p.name for p in parameter_list if not node.has_parameter(p.name)]
-        if not undeclared:
-            return original(parameter_list)
-        hint = did_you_mean(undeclared[0], sorted(node.list_parameters([], 0).names))
-        names = ', '.join(repr(n) for n in undeclared)
-        return SetParametersResult(successful=False, reason=f'parameter {names}: not a parameter of '
-                                   f'{node.get_name()}{hint}; ros2 param list {node.get_fully_qualified_name()} '
-                                   'lists them')
+        refused = refusal(parameter_list)
+        return refused if refused is not None else original_atomically(parameter_list)
+
+    def set_parameters(parameter_list: list[Parameter[Any]]) -> list[SetParametersResult]:
+        results = []
+        for p in parameter_list:
+            refused = refusal([p])
+            results.extend([refused] if refused is not None else original_each([p]))
+        return results
 
     setattr(node, 'set_parameters_atomically', set_parameters_atomically)  # noqa: B010 - an instance's method
+    setattr(node, 'set_parameters', set_parameters)  # noqa: B010 - an instance's method
 
 
 def parameter_guard(node: Node, validate: Callable[[list[Parameter[Any]]], None],
@@ -233,10 +446,19 @@ def parameter_guard(node: Node, validate: Callable[[list[Parameter[Any]]], None]
     and stays in effect), ``apply`` runs after a successful set. A refusal's reason names the parameter: a
     ConfigError does itself, any other error is prefixed with the request (``model.walther_a = 1.0: the lubricant
     viscosity ...``). An unexpected exception refuses too (counted as a callback error) rather than leaving the
-    caller without an answer. A request for an undeclared parameter is refused naming it
+    caller without an answer. A request for an undeclared parameter or with a value of the wrong type is refused
+    naming it, and the validation runs before rclpy's range check, so its reason is the one given
     (:func:`name_undeclared_parameters`)."""
+    validated: list[tuple[tuple[str, int, str], ...]] = []  #: the request just validated by the pre-check
+
+    def key(params: list[Parameter[Any]]) -> tuple[tuple[str, int, str], ...]:
+        return tuple((p.name, p.type_.value, repr(_value(p))) for p in params)
 
     def on_set(params: list[Parameter[Any]]) -> SetParametersResult:
+        if validated and validated[-1] == key(params):  # the pre-check just validated this very request
+            validated.clear()
+            return SetParametersResult(successful=True)
+        validated.clear()
         unset = [p.name for p in params if p.type_ == Parameter.Type.NOT_SET and node.has_parameter(p.name)]
         if unset:  # rclpy would undeclare it: the node could not read it any more
             return SetParametersResult(successful=False, reason=f'parameter {unset[0]!r} cannot be unset (rclpy '
@@ -258,7 +480,15 @@ def parameter_guard(node: Node, validate: Callable[[list[Parameter[Any]]], None]
                                        f'{type(err).__name__}: {err}')
         return SetParametersResult(successful=True)
 
+    def pre_check(params: list[Parameter[Any]]) -> SetParametersResult:
+        validated.clear()
+        result = on_set(params)
+        if result.successful:
+            validated.append(key(params))
+        return result
+
     def post_set(params: list[Parameter[Any]]) -> None:
+        validated.clear()
         try:
             apply(params)
         except Exception as err:  # pragma: no cover - validated before
@@ -266,7 +496,7 @@ def parameter_guard(node: Node, validate: Callable[[list[Parameter[Any]]], None]
 
     node.add_on_set_parameters_callback(on_set)
     node.add_post_set_parameters_callback(post_set)
-    name_undeclared_parameters(node)
+    name_undeclared_parameters(node, pre_check)
 
 
 def check_model(axes: Mapping[str, AxisParams], t_min_c: float, t_max_c: float) -> None:
@@ -292,7 +522,7 @@ def startup_model_error(node: Node, err: GimbalFrictionError, defaults: Mapping[
     changed = []
     for name, default in defaults.items():
         if node.has_parameter(name):
-            value = _value(node.get_parameter(name))
+            value = _value(node.get_parameter_or(name))
             if value is not None and value != default:
                 changed.append(f'{name} = {value!r}')
     suffix = f' (set, not default: {", ".join(changed)})' if changed else ''
@@ -431,8 +661,9 @@ def check_other_nodes_values(node: str, values: Mapping[str, Any]) -> None:
 
 def startup_overrides(argv: Sequence[str], node_name: str) -> tuple[list[Parameter[Any]], dict[str, str]]:
     """Check the parameters the command line gives ``node_name`` and return the overrides rclpy must be given on
-    top of rcl's (the values the user wrote last where rcl would keep another type's value), and where each value
-    came from.
+    top of rcl's (the values the user wrote last where rcl would keep another type's value; a whole number given
+    for a double parameter, or whole numbers for a list of doubles, as doubles: the parameters' types are fixed),
+    and where each value came from.
 
     Raises:
         ConfigError: a name no node of the suite declares, an axis override of a joint not in ``axes``, a name of
@@ -448,7 +679,16 @@ def startup_overrides(argv: Sequence[str], node_name: str) -> tuple[list[Paramet
         if origin is None or 'from ' in err.rule:
             raise
         raise ConfigError(err.parameter, f'{err.rule} (from {origin})', err.value) from None
-    return [Parameter(name, value=cl.values[name]) for name in cl.ignored_by_rcl], cl.sources
+    from gimbal_friction.config.parameter_rules import field_default
+
+    overrides = {name: cl.values[name] for name in cl.ignored_by_rcl}
+    for name, value in cl.values.items():  # an integer for a double parameter (-p max_torque_nm:=1) is that double
+        default = field_default(node_name, name)
+        if default is not None and value is not None:
+            typed = typed_value(default, overrides.get(name, value))
+            if repr(typed) != repr(value):
+                overrides[name] = typed
+    return [Parameter(name, value=value) for name, value in overrides.items()], cl.sources
 
 
 def wants_help(argv: Sequence[str]) -> bool:

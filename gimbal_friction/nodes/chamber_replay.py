@@ -37,7 +37,6 @@ from typing import Any
 
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
-from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.duration import Duration
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
@@ -45,6 +44,7 @@ from rclpy.qos import QoSProfile
 
 from gimbal_friction.common.errors import ConfigError, GimbalFrictionError
 from gimbal_friction.config.loader import CHAMBER_REPLAY_SPECS
+from gimbal_friction.config.parameter_rules import parameter_rule
 from gimbal_friction.nodes._common import (
     OK,
     diagnostic_array,
@@ -53,6 +53,7 @@ from gimbal_friction.nodes._common import (
     print_help_if_asked,
     startup_overrides,
     status,
+    typed_descriptor,
 )
 from gimbal_friction.nodes._qos import create_publisher
 from gimbal_friction.recording import topics
@@ -188,12 +189,16 @@ class ChamberReplay(Node):
         is a ConfigError (one line), not an rclpy traceback."""
         spec = _SPECS[name]
         default = spec['default']
-        unit = '' if spec['unit'] in ('', '-') else f' [{spec["unit"]}]'
+        rule = parameter_rule('chamber_replay', name)
         try:
-            return self.declare_parameter(name, default, ParameterDescriptor(
-                description=f'{spec["description"]}{unit}')).value
+            return self.declare_parameter(name, default, typed_descriptor(
+                name, spec['unit'], spec['description'], default, rule)).value
         except Exception as err:  # rclpy's InvalidParameterTypeException / InvalidParameterValueException
             if type(err).__module__.startswith('rclpy') and 'Parameter' in type(err).__name__:
+                if rule is not None and 'Type' not in type(err).__name__:
+                    # out of the descriptor's range: declared without it, the node's own checks word the refusal
+                    return self.declare_parameter(name, default, typed_descriptor(
+                        name, spec['unit'], spec['description'], default)).value
                 kind = _KINDS.get(type(default), type(default).__name__)
                 raise ConfigError(name, f'must be a {kind} ({str(err).splitlines()[0]})') from None
             raise

@@ -56,20 +56,24 @@ from sensor_msgs.msg import JointState, Temperature
 
 from gimbal_friction.common.errors import ConfigError
 from gimbal_friction.common.units import split_stamp
+from gimbal_friction.config.parameter_rules import parameter_rule
 from gimbal_friction.nodes._common import (
     ERROR,
     OK,
     WARN,
     InputCounter,
     ModelParameters,
-    _descriptor,
     _value,
     callback_error_values,
     callback_failed,
+    declare_typed,
     diagnostic_array,
     parameter_guard,
     run_node,
+    settings_check,
     status,
+    typed_descriptor,
+    typed_value,
 )
 from gimbal_friction.nodes._qos import Inputs, create_publisher
 from gimbal_friction.recording import topics
@@ -86,10 +90,6 @@ _SIM_FIELDS = frozenset(f.name for f in dataclasses.fields(SimConfig))
 _NODE_FIELDS = frozenset(f.name for f in dataclasses.fields(RealtimeSettings))
 
 
-def _ros_default(value: Any) -> Any:
-    return list(value) if isinstance(value, tuple) else value
-
-
 class GimbalSim(Node):
     """The simulator node (thin adapter around :class:`RealtimeRun`)."""
 
@@ -97,8 +97,11 @@ class GimbalSim(Node):
         super().__init__('gimbal_sim', **kwargs)
         self.model = ModelParameters(self)
         for spec in parameter_specs(node=True):
-            self.declare_parameter(spec['name'], _ros_default(spec['default']),
-                                   _descriptor(spec['name'], spec['unit'], spec['description']))
+            declare_typed(self, spec['name'], typed_value(spec['default'], spec['default']),
+                          typed_descriptor(spec['name'], spec['unit'], spec['description'], spec['default'],
+                                           parameter_rule('gimbal_sim', spec['name'])),
+                          settings_check(SimConfig if spec['name'] in _SIM_FIELDS else RealtimeSettings,
+                                         spec['name'], ''))
         self.config, self.settings, self.joint = self._read({})
         self.axis = self.model.current()[self.joint]
         self._pending: tuple[SimConfig, RealtimeSettings, str] | None = None
