@@ -84,7 +84,7 @@ from __future__ import annotations
 
 import math
 from collections import deque
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any, NamedTuple
 
@@ -130,6 +130,7 @@ from gimbal_friction.estimation.gating import (
 from gimbal_friction.estimation.kt import friction_from_current_Eq23
 from gimbal_friction.estimation.plateaus import plateau_of
 from gimbal_friction.estimation.statistics import GroupStatistics
+from gimbal_friction.estimation.temperatures import TemperatureHistory
 from gimbal_friction.physics.params import AxisParams
 from gimbal_friction.streams.arrays import (
     ChamberArrays,
@@ -138,7 +139,6 @@ from gimbal_friction.streams.arrays import (
     chamber_arrays,
     single_message_arrays,
 )
-from gimbal_friction.estimation.temperatures import TemperatureHistory
 from gimbal_friction.streams.inputs import effective_time, is_fresh, temperature_valid
 from gimbal_friction.streams.measurement import METHOD_OBSERVER, METHOD_STEADY_STATE, Measurement, MeasurementArrays
 
@@ -657,7 +657,7 @@ class EstimatorLogic:
         at = release[go]
         value, time_s = self._temperatures.at(out.m.stamp_ns, at)
         fresh = is_fresh(out.m.stamp_ns / NS_PER_S, time_s, s.temperature_timeout_s, ARRAY) & np.isfinite(value)
-        cols = dict(zip(MeasurementArrays._fields, out.m, strict=True))
+        cols: dict[str, Any] = dict(zip(MeasurementArrays._fields, out.m, strict=True))
         cols.update(temperature_c=value, temperature_fresh=np.asarray(fresh, dtype=bool))
         return _Emitted(at, out.entry, MeasurementArrays(**cols))
 

@@ -88,10 +88,10 @@ class EstimatorSettings:
                                        '(plateau = round(t/bin)*bin)')
     temperature_timeout_s: float = setting(5.0, 's', "a temperature whose stamp differs from the sample's by more "
                                            'than this is stale: sample kept, plateau "unknown"')
-    temperature_wait_s: float = setting(5.0, 's', "a sample waits for a temperature stamped at or after its own "
-                                        "(so that its temperature is the one at its stamp whatever the arrival "
-                                        "order) for at most this much joint-state time, and at most "
-                                        f"{TEMPERATURE_WAIT_STATES} joint states (0: no wait)")
+    temperature_wait_s: float = setting(5.0, 's', 'a sample waits for a temperature stamped at or after its own '
+                                        '(so that its temperature is the one at its stamp whatever the arrival '
+                                        'order) for at most this much joint-state time, and at most '
+                                        f'{TEMPERATURE_WAIT_STATES} joint states (0: no wait)')
     temperature_min_c: float = setting(-60.0, 'degC', 'lowest credible bearing temperature (lower ones are '
                                        'rejected)')
     temperature_max_c: float = setting(120.0, 'degC', 'highest credible bearing temperature')

@@ -513,6 +513,7 @@ def test_both_methods_prefer_steady_state():
     for k in range(100):
         out += logic.on_joint_state(S + k * DT, [EL], [0.0], [V])
         out += logic.on_current(S + k * DT, [EL], [0.05])
+    out += logic.flush().records()       # no temperature comes: the input ends
     assert out and {m.method for m in out} == {METHOD_STEADY_STATE}
 
 
