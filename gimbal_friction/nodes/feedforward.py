@@ -127,6 +127,27 @@ _STAMP_SEC, _STAMP_NANOSEC, _POSITION, _VELOCITY, _FRESH, _FRICTION, _METHOD = (
                                           'temperature_fresh', 'friction_nm', 'method'))
 
 
+#: what /gimbal/friction/correction says, in place of a number, of a figure nothing has scored yet (never NaN)
+NOT_SCORED = 'not scored'
+
+
+def cell_values(rec: dict[str, Any]) -> dict[str, Any]:
+    """The values of one cell's status on ``/gimbal/friction/correction`` from its record
+    (:meth:`~gimbal_friction.feedforward.correction.learner.Learner.cells`): only finite numbers are published; a
+    figure that is not a finite number (``rms_model_nm``, ``rms_with_nm`` of a cell no sample has scored yet, a
+    ``z_<term>``) says :data:`NOT_SCORED`, a ``std_error_nm`` of a single sample ``none``."""
+    def finite(x: Any) -> Any:
+        return NOT_SCORED if isinstance(x, float) and not math.isfinite(x) else x
+    values = {key: finite(rec[key]) for key in _CELL_KEYS}
+    values['held_back'] = rec['held_back'] or 'no'
+    values['terms'] = ','.join(rec['terms']) or 'none'
+    se = rec['std_error_nm']
+    values['std_error_nm'] = se if se is not None and math.isfinite(se) else 'none'
+    values['speed_profile_nm'] = ' '.join(f'{x:.4g}' if math.isfinite(x) else NOT_SCORED for x in rec['speed_nm'])
+    values |= {f'z_{t}': finite(z) for t, z in rec['z'].items()}
+    return values
+
+
 def prefixed_settings(cls: type[Any], prefix: str, values: dict[str, Any], base: Any = None) -> Any:
     """Settings of ``cls`` from parameters named ``prefix + field``; a ConfigError names the parameter."""
     try:
@@ -466,13 +487,8 @@ class FrictionFeedforward(Node):
             statuses.append(status(f'gimbal_friction/correction/{joint}', level, state, joint, values))
             for rec in learner.cells(joint):
                 name = f'gimbal_friction/correction/{joint}/{rec["direction"]}/{rec["centre_c"]:g}'
-                values = {key: rec[key] for key in _CELL_KEYS}
-                values['held_back'] = rec['held_back'] or 'no'
-                values['terms'] = ','.join(rec['terms']) or 'none'
-                values['std_error_nm'] = rec['std_error_nm'] if rec['std_error_nm'] is not None else 'none'
-                values['speed_profile_nm'] = ' '.join(f'{x:.4g}' for x in rec['speed_nm'])
-                values |= {f'z_{t}': z for t, z in rec['z'].items()}
-                statuses.append(status(name, WARN if rec['saturated'] else OK, rec['state'], joint, values))
+                statuses.append(status(name, WARN if rec['saturated'] else OK, rec['state'], joint,
+                                       cell_values(rec)))
         self.pub_correction.publish(diagnostic_array(self, statuses))
 
     # ------------------------------------------------------------------ callbacks
