@@ -101,6 +101,7 @@ from gimbal_friction.nodes._common import (
 from gimbal_friction.physics.direction import direction_factors
 from gimbal_friction.recording import topics
 from gimbal_friction.recording.cdr import float64_multi_array_cdr, joint_state_cdr
+from gimbal_friction.streams.delivery import lost_key, received_key
 from gimbal_friction.streams.inputs import effective_time
 from gimbal_friction.streams.measurement import MEASUREMENT_FIELDS, METHOD_NAMES
 
@@ -406,6 +407,7 @@ class FrictionFeedforward(Node):
         """One sample the estimator accepted: learned (if learning is on) against the model at the node's
         temperature for the sample's stamp."""
         if not self.settings.learning_enabled:
+            self._refuse('learning off')   # (counted: received = used + refused)
             return
         label = msg.layout.dim[0].label if msg.layout.dim else ''
         if len(msg.data) != len(MEASUREMENT_FIELDS) or not label:
@@ -634,8 +636,10 @@ class FrictionFeedforward(Node):
             refused[reason] = refused.get(reason, 0) + n
         values: dict[str, Any] = {
             'state': state, 'use_correction': self.settings.use_correction,
+            received_key(topics.MEASURED_DETAIL): self.inputs.received.get(topics.MEASURED_DETAIL, 0),
+            lost_key(topics.MEASURED_DETAIL): self.inputs.values().get(lost_key(topics.MEASURED_DETAIL), 0),
             'samples_used': learner.accepted, 'samples_refused': sum(refused.values()),
-            **{f'refused: {r}': n for r, n in sorted(refused.items())},
+            **{f'refused: {r}': n for r, n in sorted(refused.items())}, 'samples_discarded': learner.discarded,
             'cells_with_data': summary['cells_with_data'], 'samples_in_correction': summary['samples'],
             'saturated_cells': summary['saturated_cells'], 'max_abs_correction_nm': summary['max_abs_correction_nm'],
             'cells_applied': summary['cells_applied'], 'cells_held_back': summary['cells_held_back'],

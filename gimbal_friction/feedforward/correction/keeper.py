@@ -100,6 +100,7 @@ class CorrectionKeeper:
 
     def replace(self, c: Correction) -> None:
         """Learn on from ``c`` (learner state and counters kept)."""
+        self.learner.discard_pending()                              # (counted: accepted, never learned)
         self.learner.correction = c
         self.learner._pending = {j: [] for j in c.identity.joints}  # a new correction, new buffers
         self.load_error = self._refused_path = None
