@@ -651,6 +651,8 @@ class FrictionFeedforward(Node):
             'last_save_time': (time.strftime('%Y-%m-%dT%H:%M:%SZ', time.gmtime(k.last_save_time))
                                if k.last_save_time is not None else 'never'),
             'last_save_error': k.last_save_error or 'none',
+            'last_save_duration_s': k.last_save_duration_s if k.last_save_duration_s is not None else 'never',
+            'unsaved_learning_s': k.unsaved_s(),   # what a crash now would lose
         }
         return status('gimbal_friction/feedforward/learning', level, '; '.join(problems), 'learning', values)
 
