@@ -227,7 +227,7 @@ def _fmt(x: Any, scale: float, digits: int = 3) -> str:
 
 #: Title of the learning run's table (:func:`table_text`): it is not a scored case.
 LEARNING_RUN_TITLE = ('learning run (not a scored case: case learned while it learns, on the service history, another '
-                      "seed and motions whose slews dominate its RMS; judged only by learning_cost): LOS rate error "
+                      'seed and motions whose slews dominate its RMS; judged only by learning_cost): LOS rate error '
                       'RMS [mrad/s] (peak position error at reversals [mrad])')
 
 

@@ -359,7 +359,8 @@ def test_every_measured_detail_received_is_counted_used_or_refused(in_process: A
     feed(400)
     pending = int(learning()['samples_pending'])
     assert pending > 0
-    assert node.set_parameters([Parameter('model.walther_a', value=8.7)])[0].successful   # another model: a new correction
+    # another model: a new correction
+    assert node.set_parameters([Parameter('model.walther_a', value=8.7)])[0].successful
     v = learning()
     assert int(v['samples_discarded']) == int(first['samples_pending']) + pending and v['samples_pending'] == '0'
     refused = {k: int(x) for k, x in v.items() if k.startswith('refused: ')}

@@ -25,7 +25,6 @@ from sensor_msgs.msg import JointState, Temperature
 from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 
 from gimbal_friction.streams.measurement import MEASUREMENT_FIELDS
-
 from robustness.nodes_harness import hostile_details
 
 pytestmark = pytest.mark.ros
