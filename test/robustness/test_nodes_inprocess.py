@@ -367,3 +367,14 @@ def test_every_measured_detail_received_is_counted_used_or_refused(in_process: A
     assert refused['refused: learning off'] == 40 and sum(refused.values()) == int(v['samples_refused'])
     assert int(v['samples_used']) + int(v['samples_refused']) == fed, v
     assert not getattr(node, 'callback_errors', {})
+    # what the hostile stream left is published on /gimbal/friction/correction as finite numbers only
+    feed(800)
+    node.keeper.learner.flush()                                  # (learned: the cells have data, none scored yet)
+    node.pub_correction.clear()
+    node.publish_correction()
+    (arr,) = node.pub_correction.messages
+    cells = [s for s in arr.status if s.name.count('/') == 4]
+    assert cells and any(values(s)['rms_model_nm'] == 'not scored' for s in cells)
+    for s in arr.status:
+        for kv in s.values:
+            assert 'nan' not in kv.value.lower() and 'inf' not in kv.value.lower(), (s.name, kv.key, kv.value)
