@@ -114,19 +114,23 @@ def add_parser(sub: Any) -> None:
 
 class StageProgress:
     """The study's progress on stderr: a bar on a terminal; otherwise (a log, a pipe) one short line as each stage
-    starts, with the time since ``t0`` [s] and the share of the study done, so minutes of work are never silent."""
+    starts and every ``every_s`` [s] within a long one, with the time since ``t0`` [s] (``clock``'s) and the share of
+    the study done, so minutes of work are never silent."""
 
-    def __init__(self, t0: float, stream: Any = None) -> None:
-        self.t0, self.stream, self._stage = t0, stream, ''
+    def __init__(self, t0: float, stream: Any = None, every_s: float = 30.0,
+                 clock: Any = time.perf_counter) -> None:
+        self.t0, self.stream, self.every_s, self.clock = t0, stream, every_s, clock
+        self._stage, self._last = '', -math.inf
 
     def __call__(self, stage: str, frac: float) -> None:
         out = self.stream if self.stream is not None else sys.stderr
         if out.isatty():
             progress(int(frac * 1000), 1000, f'loop-study {stage[:44]:<44}', stream=out)
-        elif stage != self._stage:
-            self._stage = stage
-            print(f'loop-study: {stage} ({time.perf_counter() - self.t0:.0f} s, {100 * frac:.0f} % done)',
-                  file=out, flush=True)
+            return
+        now = self.clock()
+        if stage != self._stage or now - self._last >= self.every_s:
+            self._stage, self._last = stage, now
+            print(f'loop-study: {stage} ({now - self.t0:.0f} s, {100 * frac:.0f} % done)', file=out, flush=True)
 
 
 def _names(text: str, option: str, allowed: tuple[str, ...]) -> list[str]:

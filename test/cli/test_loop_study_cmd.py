@@ -216,7 +216,22 @@ def test_without_a_terminal_each_stage_is_one_line_on_stderr(capsys):
     stages = [line for line in err if line.startswith('loop-study: ')]
     assert any(line.startswith('loop-study: tracking (none, feedforward) (') for line in stages), err
     assert stages[-1].startswith('loop-study: done (') and stages[-1].endswith('100 % done)'), err
-    assert len(stages) == len(set(stages)) == 2, err          # one line per stage, not one per report
+
+
+def test_progress_lines_come_at_each_stage_and_every_so_often_within_a_long_one():
+    import io
+
+    from gimbal_friction.cli.loop_study_cmd import StageProgress
+    now = [100.0]
+    out = io.StringIO()
+    show = StageProgress(100.0, stream=out, every_s=30.0, clock=lambda: now[0])
+    for t, stage, frac in ((101, 'history', 0.01), (110, 'history', 0.1), (131, 'history', 0.3),
+                           (140, 'history', 0.4), (141, 'tracking', 0.6), (150, 'done', 1.0)):
+        now[0] = float(t)
+        show(stage, frac)
+    assert out.getvalue().splitlines() == [
+        'loop-study: history (1 s, 1 % done)', 'loop-study: history (31 s, 30 % done)',   # (and not at 110, 140 s)
+        'loop-study: tracking (41 s, 60 % done)', 'loop-study: done (50 s, 100 % done)']
 
 
 def _record(case: str, profile: str, t_c: float, rms: float) -> dict:
