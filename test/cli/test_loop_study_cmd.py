@@ -256,3 +256,12 @@ def test_the_table_labels_the_learning_run_and_explains_the_goal_names_it_prints
     # every goal name printed is explained there
     assert '  d_near_e_cold: refit <= 1.2 x ideal at -40 degC' in lines
     assert any(line.startswith('  c_vs_a_cold: feedforward cuts') for line in lines)
+
+
+def test_the_truths_table_explains_its_goal_names():
+    from gimbal_friction.runs.truth_study import truths_text
+    frac = {'met': 1, 'cells': 2, 'fraction': 0.5, 'truths_all_met': 0, 'worst': 1.2,
+            'worst_at': {'seed': 3, 'profile': 'tracking', 'temperature_c': -40.0}}
+    text = truths_text({'n': 1, 'first_seed': 3, 'short': True, 'fractions': {'learned_vs_ff': frac},
+                        'truths': [{'describe': 'truth 3', 'goals': [{'goal': 'learned_vs_ff', 'met': False}]}]})
+    assert '  learned_vs_ff: learned <= 1.05 x the plain feedforward' in text.splitlines(), text
