@@ -112,6 +112,27 @@ def add_parser(sub: Any) -> None:
     parser.set_defaults(func=run)
 
 
+class StageProgress:
+    """The study's progress on stderr: a bar on a terminal; otherwise (a log, a pipe) one short line as each stage
+    starts and every ``every_s`` [s] within a long one, with the time since ``t0`` [s] (``clock``'s) and the share of
+    the study done, so minutes of work are never silent."""
+
+    def __init__(self, t0: float, stream: Any = None, every_s: float = 30.0,
+                 clock: Any = time.perf_counter) -> None:
+        self.t0, self.stream, self.every_s, self.clock = t0, stream, every_s, clock
+        self._stage, self._last = '', -math.inf
+
+    def __call__(self, stage: str, frac: float) -> None:
+        out = self.stream if self.stream is not None else sys.stderr
+        if out.isatty():
+            progress(int(frac * 1000), 1000, f'loop-study {stage[:44]:<44}', stream=out)
+            return
+        now = self.clock()
+        if stage != self._stage or now - self._last >= self.every_s:
+            self._stage, self._last = stage, now
+            print(f'loop-study: {stage} ({now - self.t0:.0f} s, {100 * frac:.0f} % done)', file=out, flush=True)
+
+
 def _names(text: str, option: str, allowed: tuple[str, ...]) -> list[str]:
     names = [x.strip() for x in text.split(',') if x.strip()]
     if not names:
@@ -214,10 +235,8 @@ def run(args: argparse.Namespace) -> int:
     inputs = load_study_inputs(args.config, args.axis, latency_s=args.latency_s, seed=args.seed,
                                truth_path=args.truth)
 
-    def show(stage: str, frac: float) -> None:
-        progress(int(frac * 1000), 1000, f'loop-study {stage[:44]:<44}')
-
     t0 = time.perf_counter()
+    show = StageProgress(t0)
     learn = _learn_setup(args)
     if args.truths is not None:
         return _run_truths(args, inputs, temperatures, profiles, cases, learn, show, t0)

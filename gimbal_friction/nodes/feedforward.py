@@ -104,6 +104,7 @@ from gimbal_friction.nodes._qos import Inputs, create_publisher
 from gimbal_friction.physics.direction import direction_factors
 from gimbal_friction.recording import topics
 from gimbal_friction.recording.cdr import float64_multi_array_cdr, joint_state_cdr
+from gimbal_friction.streams.delivery import lost_key, received_key
 from gimbal_friction.streams.input_health import SILENCE_TIMEOUT_S
 from gimbal_friction.streams.inputs import effective_time
 from gimbal_friction.streams.measurement import MEASUREMENT_FIELDS, METHOD_NAMES
@@ -129,6 +130,27 @@ _LEARNING_FIELDS = frozenset(_LEARNING_PREFIX + n for n in field_names(LearningS
 _STAMP_SEC, _STAMP_NANOSEC, _POSITION, _VELOCITY, _FRESH, _FRICTION, _METHOD = (
     MEASUREMENT_FIELDS.index(f) for f in ('stamp_sec', 'stamp_nanosec', 'position_rad', 'velocity_rad_s',
                                           'temperature_fresh', 'friction_nm', 'method'))
+
+
+#: what /gimbal/friction/correction says, in place of a number, of a figure nothing has scored yet (never NaN)
+NOT_SCORED = 'not scored'
+
+
+def cell_values(rec: dict[str, Any]) -> dict[str, Any]:
+    """The values of one cell's status on ``/gimbal/friction/correction`` from its record
+    (:meth:`~gimbal_friction.feedforward.correction.learner.Learner.cells`): only finite numbers are published; a
+    figure that is not a finite number (``rms_model_nm``, ``rms_with_nm`` of a cell no sample has scored yet, a
+    ``z_<term>``) says :data:`NOT_SCORED`, a ``std_error_nm`` of a single sample ``none``."""
+    def finite(x: Any) -> Any:
+        return NOT_SCORED if isinstance(x, float) and not math.isfinite(x) else x
+    values = {key: finite(rec[key]) for key in _CELL_KEYS}
+    values['held_back'] = rec['held_back'] or 'no'
+    values['terms'] = ','.join(rec['terms']) or 'none'
+    se = rec['std_error_nm']
+    values['std_error_nm'] = se if se is not None and math.isfinite(se) else 'none'
+    values['speed_profile_nm'] = ' '.join(f'{x:.4g}' if math.isfinite(x) else NOT_SCORED for x in rec['speed_nm'])
+    values |= {f'z_{t}': finite(z) for t, z in rec['z'].items()}
+    return values
 
 
 def prefixed_settings(cls: type[Any], prefix: str, values: dict[str, Any], base: Any = None) -> Any:
@@ -391,6 +413,7 @@ class FrictionFeedforward(Node):
         """One sample the estimator accepted: learned (if learning is on) against the model at the node's
         temperature for the sample's stamp."""
         if not self.settings.learning_enabled:
+            self._refuse('learning off')   # (counted: received = used + refused)
             return
         label = msg.layout.dim[0].label if msg.layout.dim else ''
         if len(msg.data) != len(MEASUREMENT_FIELDS) or not label:
@@ -472,13 +495,8 @@ class FrictionFeedforward(Node):
             statuses.append(status(f'gimbal_friction/correction/{joint}', level, state, joint, values))
             for rec in learner.cells(joint):
                 name = f'gimbal_friction/correction/{joint}/{rec["direction"]}/{rec["centre_c"]:g}'
-                values = {key: rec[key] for key in _CELL_KEYS}
-                values['held_back'] = rec['held_back'] or 'no'
-                values['terms'] = ','.join(rec['terms']) or 'none'
-                values['std_error_nm'] = rec['std_error_nm'] if rec['std_error_nm'] is not None else 'none'
-                values['speed_profile_nm'] = ' '.join(f'{x:.4g}' for x in rec['speed_nm'])
-                values |= {f'z_{t}': z for t, z in rec['z'].items()}
-                statuses.append(status(name, WARN if rec['saturated'] else OK, rec['state'], joint, values))
+                statuses.append(status(name, WARN if rec['saturated'] else OK, rec['state'], joint,
+                                       cell_values(rec)))
         self.pub_correction.publish(diagnostic_array(self, statuses))
 
     # ------------------------------------------------------------------ callbacks
@@ -629,8 +647,10 @@ class FrictionFeedforward(Node):
             refused[reason] = refused.get(reason, 0) + n
         values: dict[str, Any] = {
             'state': state, 'use_correction': self.settings.use_correction,
+            received_key(topics.MEASURED_DETAIL): self.inputs.received.get(topics.MEASURED_DETAIL, 0),
+            lost_key(topics.MEASURED_DETAIL): self.inputs.values().get(lost_key(topics.MEASURED_DETAIL), 0),
             'samples_used': learner.accepted, 'samples_refused': sum(refused.values()),
-            **{f'refused: {r}': n for r, n in sorted(refused.items())},
+            **{f'refused: {r}': n for r, n in sorted(refused.items())}, 'samples_discarded': learner.discarded,
             'cells_with_data': summary['cells_with_data'], 'samples_in_correction': summary['samples'],
             'saturated_cells': summary['saturated_cells'], 'max_abs_correction_nm': summary['max_abs_correction_nm'],
             'cells_applied': summary['cells_applied'], 'cells_held_back': summary['cells_held_back'],
@@ -642,6 +662,8 @@ class FrictionFeedforward(Node):
             'last_save_time': (time.strftime('%Y-%m-%dT%H:%M:%SZ', time.gmtime(k.last_save_time))
                                if k.last_save_time is not None else 'never'),
             'last_save_error': k.last_save_error or 'none',
+            'last_save_duration_s': k.last_save_duration_s if k.last_save_duration_s is not None else 'never',
+            'unsaved_learning_s': k.unsaved_s(),   # what a crash now would lose
         }
         return status('gimbal_friction/feedforward/learning', level, '; '.join(problems), 'learning', values)
 

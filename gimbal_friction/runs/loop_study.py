@@ -50,6 +50,7 @@ from gimbal_friction.sim.study import (
     StudyResult,
     explain_misses,
     goal_checks,
+    goal_legend,
     run_study,
     study_settings,
 )
@@ -224,6 +225,24 @@ def _fmt(x: Any, scale: float, digits: int = 3) -> str:
     return '-' if x is None or (isinstance(x, float) and not math.isfinite(x)) else f'{x * scale:.{digits}f}'
 
 
+#: Title of the learning run's table (:func:`table_text`): it is not a scored case.
+LEARNING_RUN_TITLE = ('learning run (not a scored case: case learned while it learns, on the service history, another '
+                      'seed and motions whose slews dominate its RMS; judged only by learning_cost): LOS rate error '
+                      'RMS [mrad/s] (peak position error at reversals [mrad])')
+
+
+def _case_table(records: list[dict[str, Any]], temps: list[float], order: dict[str, int]) -> str:
+    """One row per case (report order), one column per temperature: RMS rate error (reversal peak)."""
+    from gimbal_friction.common.text import format_table
+    rows = []
+    for c in sorted({r['case'] for r in records}, key=lambda c: order.get(c, 99)):
+        by_t = {r['temperature_c']: r for r in records if r['case'] == c}
+        cells = [f'{_fmt(by_t[t]["rate_error_rms_rad_s"], 1e3)} '
+                 f'({_fmt(by_t[t]["reversal_error_peak_rad"], 1e3, 2)})' if t in by_t else '' for t in temps]
+        rows.append([c, *cells])
+    return format_table(rows, ['case'] + [f'{t:+g} degC' for t in temps])
+
+
 def table_text(doc: dict[str, Any]) -> str:
     """The study as text: per profile, the LOS rate error RMS [mrad/s] with the reversal peak [mrad] per case and
     temperature; the goals not met; the refit; live vs offline; notes."""
@@ -233,15 +252,15 @@ def table_text(doc: dict[str, Any]) -> str:
     offline = [r for r in records if r.get('mode', 'offline') == 'offline']
     temps = sorted({r['temperature_c'] for r in offline})
     order = {c: i for i, c in enumerate(REPORT_ORDER)}
-    for p in dict.fromkeys(r['profile'] for r in offline):
-        rows = []
-        for c in sorted({r['case'] for r in offline if r['profile'] == p}, key=lambda c: order.get(c, 99)):
-            by_t = {r['temperature_c']: r for r in offline if r['profile'] == p and r['case'] == c}
-            cells = [f'{_fmt(by_t[t]["rate_error_rms_rad_s"], 1e3)} '
-                     f'({_fmt(by_t[t]["reversal_error_peak_rad"], 1e3, 2)})' if t in by_t else '' for t in temps]
-            rows.append([c, *cells])
+    scored = [r for r in offline if r['case'] != 'learning']
+    learning = [r for r in offline if r['case'] == 'learning']
+    for p in dict.fromkeys(r['profile'] for r in scored):
         out.append(f'{p}: LOS rate error RMS [mrad/s] (peak position error at reversals [mrad])')
-        out.append(format_table(rows, ['case'] + [f'{t:+g} degC' for t in temps]))
+        out.append(_case_table([r for r in scored if r['profile'] == p], temps, order))
+        out.append('')
+    if learning:   # the learning run is not a scored case: its own table, said so
+        out.append(LEARNING_RUN_TITLE)
+        out.append(_case_table(learning, temps, order))
         out.append('')
     missed = [g for g in doc['goals'] if not g['met']]
     met = len(doc['goals']) - len(missed)
@@ -263,6 +282,10 @@ def table_text(doc: dict[str, Any]) -> str:
                       f'; no single truth term is responsible (short runs: {short:.3f}, no removal lowers it)')
         out.append(f'  missed {g["goal"]} ({g["profile"]}, {g["temperature_c"]:+g} degC): {g["value"]:.3f} '
                    f'(target {g["target"]:g}){reason}')
+    named = [g['goal'] for g in missed if g['goal'] not in LEARNING_GOALS]   # (learning goals: described above)
+    if named:
+        out.append('goals missed above: what each checks')
+        out.extend(goal_legend(named))
     refit = doc.get('refit')
     if refit:
         out.append(f'refit (case d): {refit["rows"]} residual rows ({refit["accepted_by_method"]["observer"]} '

@@ -17,7 +17,7 @@ from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 from typing import Any
 
-from gimbal_friction.sim.study import LEARNING_GOALS, LearnSetup, goal_checks
+from gimbal_friction.sim.study import LEARNING_GOALS, LearnSetup, goal_checks, goal_legend
 from gimbal_friction.sim.truths import draw_truth, truth_mapping
 
 __all__ = ['fractions', 'truths_study', 'truths_text', 'write_truth_files']
@@ -103,7 +103,8 @@ def truths_text(doc: dict[str, Any]) -> str:
                                    f'{f["worst_at"]["temperature_c"]:+g} degC')] for g, f in doc['fractions'].items()]
     out = [(f'loop study over {doc["n"]} generated truths (seeds {doc["first_seed"]}..'
             f'{doc["first_seed"] + doc["n"] - 1}, {"short" if doc["short"] else "full"} profiles): learning goals'),
-           format_table(rows, ['goal', 'cells met', 'fraction', 'truths all met', 'worst', 'where']), '']
+           format_table(rows, ['goal', 'cells met', 'fraction', 'truths all met', 'worst', 'where']),
+           'goals: what each checks', *goal_legend(list(doc['fractions'])), '']
     for t in doc['truths']:
         missed = [g for g in t['goals'] if not g['met']]
         out.append(f'{t["describe"]}: {len(t["goals"]) - len(missed)} of {len(t["goals"])} met'

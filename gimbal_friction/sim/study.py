@@ -115,6 +115,7 @@ __all__ = [
     'REPORT_ORDER',
     'SHORT_DURATIONS',
     'STUDY_CORRECTION',
+    'STUDY_GOALS',
     'STUDY_LEARNING',
     'TRUTH_TERMS',
     'ChamberHook',
@@ -126,6 +127,7 @@ __all__ = [
     'estimator_rows',
     'explain_misses',
     'goal_checks',
+    'goal_legend',
     'refit_rows',
     'run_study',
     'study_settings',
@@ -756,6 +758,30 @@ LEARNING_GOALS = {
     'ff_vs_constant': 'feedforward <= 1.05 x constant',
     'refit_vs_ff': 'refit (out of sample) <= feedforward',
 }
+
+
+#: The study's goals on the compensation cases (name, what): evaluated by :func:`goal_checks` (and
+#: ``d_share_of_ideal_cold`` by :func:`gimbal_friction.runs.loop_study.study_document`). The letters are the cases:
+#: (a) none, (b) constant, (c) feedforward, (d) refit, (e) ideal.
+STUDY_GOALS = {
+    'c_vs_a_cold': 'feedforward cuts the LOS rate error RMS of none by >= 60 % at -40 and -20 degC',
+    'c_vs_a_all': 'feedforward cuts the LOS rate error RMS of none by >= 30 % at every plateau',
+    'c_vs_b_cold': 'feedforward cuts the LOS rate error RMS of constant by >= 30 % at -40 degC',
+    'd_near_e_cold': 'refit <= 1.2 x ideal at -40 degC',
+    'c_reversal': 'feedforward peak error at reversals <= none',
+    'd_share_of_ideal_cold': 'refit reaches >= 80 % of the improvement of ideal over none at -40 degC',
+}
+
+
+def goal_legend(names: Sequence[str]) -> list[str]:
+    """One line per goal name in ``names`` (first appearance order) saying what it checks (:data:`STUDY_GOALS`,
+    :data:`LEARNING_GOALS`).
+
+    >>> goal_legend(['d_near_e_cold', 'd_near_e_cold'])
+    ['  d_near_e_cold: refit <= 1.2 x ideal at -40 degC']
+    """
+    goals = STUDY_GOALS | LEARNING_GOALS
+    return [f'  {n}: {goals.get(n, "(no description)")}' for n in dict.fromkeys(names)]
 
 
 def goal_checks(records: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:

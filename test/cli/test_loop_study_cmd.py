@@ -206,3 +206,62 @@ def test_the_study_over_generated_truths_reports_the_goal_fractions(tmp_path, ca
              if r['case'] != 'learned' and r['profile'] != 'history'}
     again = {(r['case'], r['temperature_c']): r['rate_error_rms_rad_s'] for r in alone['records']}
     assert again == pytest.approx(first, rel=1e-9)
+
+
+def test_without_a_terminal_each_stage_is_one_line_on_stderr(capsys):
+    """Minutes of work are never silent: stderr that is not a terminal (a log, a pipe) gets one short line per stage
+    with the time so far."""
+    assert main([*SHORT, '--temperatures', '20', '--cases', 'none,feedforward']) == 0
+    err = capsys.readouterr().err.splitlines()
+    stages = [line for line in err if line.startswith('loop-study: ')]
+    assert any(line.startswith('loop-study: tracking (none, feedforward) (') for line in stages), err
+    assert stages[-1].startswith('loop-study: done (') and stages[-1].endswith('100 % done)'), err
+
+
+def test_progress_lines_come_at_each_stage_and_every_so_often_within_a_long_one():
+    import io
+
+    from gimbal_friction.cli.loop_study_cmd import StageProgress
+    now = [100.0]
+    out = io.StringIO()
+    show = StageProgress(100.0, stream=out, every_s=30.0, clock=lambda: now[0])
+    for t, stage, frac in ((101, 'history', 0.01), (110, 'history', 0.1), (131, 'history', 0.3),
+                           (140, 'history', 0.4), (141, 'tracking', 0.6), (150, 'done', 1.0)):
+        now[0] = float(t)
+        show(stage, frac)
+    assert out.getvalue().splitlines() == [
+        'loop-study: history (1 s, 1 % done)', 'loop-study: history (31 s, 30 % done)',   # (and not at 110, 140 s)
+        'loop-study: tracking (41 s, 60 % done)', 'loop-study: done (50 s, 100 % done)']
+
+
+def _record(case: str, profile: str, t_c: float, rms: float) -> dict:
+    return {'case': case, 'profile': profile, 'temperature_c': t_c, 'rate_error_rms_rad_s': rms,
+            'reversal_error_peak_rad': 1e-4, 'mode': 'offline'}
+
+
+def test_the_table_labels_the_learning_run_and_explains_the_goal_names_it_prints():
+    from gimbal_friction.runs.loop_study import LEARNING_RUN_TITLE, table_text
+    doc = {'records': [_record('none', 'tracking', -40.0, 4e-3), _record('refit', 'tracking', -40.0, 1e-3),
+                       _record('ideal', 'tracking', -40.0, 2e-4), _record('learning', 'history', -40.0, 0.452)],
+           'goals': [{'goal': 'd_near_e_cold', 'profile': 'tracking', 'temperature_c': -40.0, 'value': 5.0,
+                      'target': 1.2, 'met': False},
+                     {'goal': 'c_vs_a_cold', 'profile': 'tracking', 'temperature_c': -40.0, 'value': 0.1,
+                      'target': 0.6, 'met': False}]}
+    lines = table_text(doc).splitlines()
+    # the learning run is in a table of its own whose title says it is not a scored case
+    title = lines.index(LEARNING_RUN_TITLE)
+    assert 'not a scored case' in LEARNING_RUN_TITLE
+    rows = [i for i, line in enumerate(lines) if line.split()[:1] == ['learning'] and i != title]
+    assert rows == [title + 3] and '452.000 (0.10)' in lines[title + 3]   # (title, header, rule, the row)
+    # every goal name printed is explained there
+    assert '  d_near_e_cold: refit <= 1.2 x ideal at -40 degC' in lines
+    assert any(line.startswith('  c_vs_a_cold: feedforward cuts') for line in lines)
+
+
+def test_the_truths_table_explains_its_goal_names():
+    from gimbal_friction.runs.truth_study import truths_text
+    frac = {'met': 1, 'cells': 2, 'fraction': 0.5, 'truths_all_met': 0, 'worst': 1.2,
+            'worst_at': {'seed': 3, 'profile': 'tracking', 'temperature_c': -40.0}}
+    text = truths_text({'n': 1, 'first_seed': 3, 'short': True, 'fractions': {'learned_vs_ff': frac},
+                        'truths': [{'describe': 'truth 3', 'goals': [{'goal': 'learned_vs_ff', 'met': False}]}]})
+    assert '  learned_vs_ff: learned <= 1.05 x the plain feedforward' in text.splitlines(), text

@@ -103,3 +103,43 @@ def diag_statuses(msgs: list[Any]) -> list[Any]:
 
 def diag_values(status: Any) -> dict[str, str]:
     return {kv.key: kv.value for kv in status.values}
+
+
+#: the speed of the learnable measured_detail samples [rad/s] (1/3 rpm)
+V_DETAIL = 2 * math.pi / 180
+
+
+def hostile_details(n: int, sec: int) -> list[Any]:
+    """``n`` measured_detail messages (std_msgs/Float64MultiArray) stamped ``sec`` for the learning: 5 in 8 of
+    them unusable, each kind for another reason the node or the learner refuses, the rest learnable."""
+    from std_msgs.msg import Float64MultiArray, MultiArrayDimension
+
+    from gimbal_friction.streams.measurement import MEASUREMENT_FIELDS
+    width = len(MEASUREMENT_FIELDS)
+    stamp, method = MEASUREMENT_FIELDS.index('stamp_sec'), MEASUREMENT_FIELDS.index('method')
+    velocity, friction = MEASUREMENT_FIELDS.index('velocity_rad_s'), MEASUREMENT_FIELDS.index('friction_nm')
+    fresh = MEASUREMENT_FIELDS.index('temperature_fresh')
+    out = []
+    for k in range(n):
+        data = [0.0] * width
+        data[stamp], data[velocity], data[friction], data[fresh], data[method] = sec, V_DETAIL, 3.3e-3, 1.0, 1.0
+        label = 'elevation'
+        kind = k % 8
+        if kind == 0:
+            data = data[:5]                                   # not of the layout's width
+        elif kind == 1:
+            label = 'bogus'                                   # unknown joint
+        elif kind == 2:
+            data[method] = 7.0                                # unknown method
+        elif kind == 3:
+            data[velocity] = math.nan                         # non-finite
+        elif kind == 4:
+            data[friction] = 1e154                            # implausible friction
+        elif kind == 5:
+            data[stamp] = 0.0                                 # stale temperature
+        msg = Float64MultiArray(data=data)
+        if kind != 6 or k % 16 == 6:                          # half of kind 6: no joint label at all
+            msg.layout.dim = [MultiArrayDimension(label=label, size=1, stride=1)]
+        out.append(msg)
+    return out
+

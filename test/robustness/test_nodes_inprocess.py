@@ -318,3 +318,63 @@ def test_logger_survives_hostile_publisher_counts(logger, statuses_in):
     for value in logger.inputs.values().values():
         assert value == 'unknown' or int(value) >= 0
     assert not getattr(logger, 'callback_errors', {})
+
+
+# ------------------------------------------------------------------------------------------------ learning counts
+def test_every_measured_detail_received_is_counted_used_or_refused(in_process: Any):
+    """received = samples_used + samples_refused (per reason) whatever happens: hostile messages, messages while
+    learning is off, a reset and a model change with samples still pending (discarded, counted)."""
+    from rclpy.parameter import Parameter
+
+    from gimbal_friction.nodes.feedforward import FrictionFeedforward
+    from robustness.nodes_harness import hostile_details
+    node = in_process.make(FrictionFeedforward, learning_enabled=True, learning_step_period_s=3600.0)
+    now = node.get_clock().now()
+    temp = Temperature(temperature=-40.0)
+    temp.header.stamp = now.to_msg()
+    node.on_temperature(temp)
+    sec = now.nanoseconds // 10**9
+    fed = 0
+
+    def feed(n: int) -> None:
+        nonlocal fed
+        for msg in hostile_details(n, sec):
+            node.on_measured_detail(msg)
+        fed += n
+
+    def learning() -> dict[str, str]:
+        (st,) = [s for s in statuses(node) if s.name == 'gimbal_friction/feedforward/learning']
+        return values(st)
+
+    feed(800)
+    first = learning()
+    assert 0 < int(first['samples_pending']) == int(first['samples_used']) < fed    # waiting for the next step
+    node.reset_learning()                                        # the pending samples: discarded, still counted
+    v = learning()
+    assert v['samples_used'] == first['samples_used'] and v['samples_discarded'] == first['samples_pending']
+    assert v['samples_pending'] == '0'
+    assert node.set_parameters([Parameter('learning_enabled', value=False)])[0].successful
+    feed(40)
+    assert node.set_parameters([Parameter('learning_enabled', value=True)])[0].successful
+    feed(400)
+    pending = int(learning()['samples_pending'])
+    assert pending > 0
+    # another model: a new correction
+    assert node.set_parameters([Parameter('model.walther_a', value=8.7)])[0].successful
+    v = learning()
+    assert int(v['samples_discarded']) == int(first['samples_pending']) + pending and v['samples_pending'] == '0'
+    refused = {k: int(x) for k, x in v.items() if k.startswith('refused: ')}
+    assert refused['refused: learning off'] == 40 and sum(refused.values()) == int(v['samples_refused'])
+    assert int(v['samples_used']) + int(v['samples_refused']) == fed, v
+    assert not getattr(node, 'callback_errors', {})
+    # what the hostile stream left is published on /gimbal/friction/correction as finite numbers only
+    feed(800)
+    node.keeper.learner.flush()                                  # (learned: the cells have data, none scored yet)
+    node.pub_correction.clear()
+    node.publish_correction()
+    (arr,) = node.pub_correction.messages
+    cells = [s for s in arr.status if s.name.count('/') == 4]
+    assert cells and any(values(s)['rms_model_nm'] == 'not scored' for s in cells)
+    for s in arr.status:
+        for kv in s.values:
+            assert 'nan' not in kv.value.lower() and 'inf' not in kv.value.lower(), (s.name, kv.key, kv.value)

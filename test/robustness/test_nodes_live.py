@@ -25,6 +25,7 @@ from sensor_msgs.msg import JointState, Temperature
 from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 
 from gimbal_friction.streams.measurement import MEASUREMENT_FIELDS
+from robustness.nodes_harness import hostile_details
 
 pytestmark = pytest.mark.ros
 ROOT = Path(__file__).resolve().parents[2]
@@ -359,3 +360,32 @@ def test_the_logger_refuses_what_the_others_refuse_and_names_an_undeclared_param
     assert _set(probe, 'residual_logger', 'flush_period_s', 0.5).successful
     rc, out = node.stop()
     assert rc == 0, out
+
+
+@pytest.mark.slow
+def test_feedforward_learning_counts_every_measured_detail_it_received(spawn, probe):
+    """received = used + refused (per reason) for the learning's measured_detail, on /diagnostics, and received +
+    lost = sent: no message goes missing from the counts, however hostile the stream."""
+    node = start(spawn, 'friction_feedforward', '-p', 'learning_enabled:=true', '-p', 'temperature_timeout_s:=600.0')
+    link = Link(probe, {DETAIL: Float64MultiArray, TEMP: Temperature}, {'/diagnostics': DiagnosticArray})
+    link.wait_ready(node, ['/diagnostics'])
+    learning = 'gimbal_friction/feedforward/learning'
+    probe.spin_until(lambda: (link.send(TEMP, temperature(100, -40.0)), link.status(learning) is not None)[1],
+                     what='the learning status')
+    for msg in hostile_details(3000, 100):
+        link.send(DETAIL, msg, pace=False)
+    sent = link.count[DETAIL]
+
+    def accounted(st: Any) -> bool:
+        v = values(st)
+        received = int(v.get(f'received: {DETAIL}', -1))
+        refused = sum(int(x) for k, x in v.items() if k.startswith('refused: '))
+        return (received + int(v.get(f'lost: {DETAIL}', 0)) == sent and int(v['samples_refused']) == refused
+                and int(v['samples_used']) + refused == received)
+    st = link.wait_status(learning, accounted, f'received = used + refused, received + lost = {sent} sent')
+    v = values(st)
+    for reason in ('measured_detail not of 13 values with a joint label', 'unknown joint', 'unknown method',
+                   'non-finite', 'implausible friction', 'stale temperature'):
+        assert int(v[f'refused: {reason}']) > 0, (reason, v)
+    rc, out = node.stop()
+    assert rc == 0 and 'Traceback' not in out and 'callback failed' not in out

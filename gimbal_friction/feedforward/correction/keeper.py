@@ -55,6 +55,11 @@ class CorrectionKeeper:
         self.last_save_time: float | None = None   #: wall-clock time of the last save [s since the epoch]
         self.last_save_path = ''
         self.last_save_error: str | None = None
+        #: wall-clock time of the snapshot the last completed save holds: what a crash loses is what came after
+        #: it (None: nothing saved yet) [s since the epoch]
+        self.saved_state_time: float | None = None
+        self.last_save_duration_s: float | None = None   #: snapshot to the file renamed in place, last save [s]
+        self._started = time.time()
         self._writer: threading.Thread | None = None
 
     @property
@@ -100,6 +105,7 @@ class CorrectionKeeper:
 
     def replace(self, c: Correction) -> None:
         """Learn on from ``c`` (learner state and counters kept)."""
+        self.learner.discard_pending()                              # (counted: accepted, never learned)
         self.learner.correction = c
         self.learner._pending = {j: [] for j in c.identity.joints}  # a new correction, new buffers
         self.load_error = self._refused_path = None
@@ -140,23 +146,37 @@ class CorrectionKeeper:
                 return False
             self._writer.join()
         self.dirty = False
+        taken = time.time()
         snapshot = self.learner.snapshot()
         if not background:
-            return self._write(snapshot, path)
-        self._writer = threading.Thread(target=self._write, args=(snapshot, path), name='correction_save',
+            return self._write(snapshot, path, taken)
+        self._writer = threading.Thread(target=self._write, args=(snapshot, path, taken), name='correction_save',
                                         daemon=True)
         self._writer.start()
         return True
 
-    def _write(self, c: Correction, path: str) -> bool:
+    def _write(self, c: Correction, path: str, taken: float) -> bool:
         try:
             save(c, path)
         except CorrectionError as err:
             self.last_save_error, self.dirty = str(err), True
             return False
+        done = time.time()
         self.saves, self.last_save_error = self.saves + 1, None
-        self.last_save_time, self.last_save_path = time.time(), path
+        self.last_save_time, self.last_save_path = done, path
+        self.saved_state_time, self.last_save_duration_s = taken, done - taken
         return True
+
+    def unsaved_s(self, now: float | None = None) -> float:
+        """What a crash at ``now`` (wall clock, default now) would lose [s]: the time since the snapshot the last
+        completed save holds (since start when nothing was saved yet); 0 when nothing changed since it. A save
+        still being written protects nothing until its file is renamed in place."""
+        now = time.time() if now is None else now
+        writing = self._writer is not None and self._writer.is_alive()
+        if not (self.dirty or self.learner.pending or writing):
+            return 0.0
+        since = self.saved_state_time if self.saved_state_time is not None else self._started
+        return max(0.0, now - since)
 
     def wait(self) -> None:
         """Wait for a background save to finish."""

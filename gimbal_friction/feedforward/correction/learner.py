@@ -88,8 +88,10 @@ class Learner:
         settings.validate()
         self.correction, self.settings = correction, settings
         self.frozen = False
-        self.accepted = 0                      #: samples learned [-]
+        self.accepted = 0                      #: samples accepted (learned, pending or discarded) [-]
         self.rejected: dict[str, int] = {}     #: samples refused, per reason [-]
+        #: samples accepted but cleared before a step learned them (a reset, a new correction) [-]
+        self.discarded = 0
         self._last_step_s: float | None = None
         self._pending: dict[str, list[list[float]]] = {j: [] for j in correction.identity.joints}
 
@@ -193,12 +195,18 @@ class Learner:
             self.flush()
         self.frozen = frozen
 
-    def reset(self) -> None:
-        """Back to the pure model at once: an empty correction (the counters of refused samples stay)."""
+    def discard_pending(self) -> None:
+        """Clear the pending samples unlearned, counted in :attr:`discarded` (so accepted = learned + pending +
+        discarded holds)."""
+        self.discarded += self.pending
         for rows in self._pending.values():
             rows.clear()
+
+    def reset(self) -> None:
+        """Back to the pure model at once: an empty correction (the counters stay: the pending samples are
+        :attr:`discarded`)."""
+        self.discard_pending()
         self.correction.reset()
-        self.accepted = 0
 
     def snapshot(self) -> Correction:
         """An independent copy of the correction with every accepted sample learned, to save or publish."""
