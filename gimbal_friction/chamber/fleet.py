@@ -208,6 +208,8 @@ def unit_stats_from_bag(path: str, config_paths: Sequence[str], direction: str,
     for window in open_chamber_bag(path, axes=list(axes)).iter_arrays(window_messages):  # none of them: refused
         measured = logic.feed(window)   # the refit's samples of these rows, as from a residual log
         accumulate_rows(residual_rows(measured, np.full(len(measured), np.nan)), stats, direction=direction)
+    measured = logic.flush()            # the bag has ended: the samples waiting for a later temperature
+    accumulate_rows(residual_rows(measured, np.full(len(measured), np.nan)), stats, direction=direction)
     return stats
 
 

@@ -44,6 +44,7 @@ from __future__ import annotations
 
 import math
 import sys
+import time
 from collections.abc import Sequence
 from typing import Any
 
@@ -92,6 +93,8 @@ from gimbal_friction.streams.measurement import MEASUREMENT_FIELDS, METHOD_NAMES
 
 #: subscription depth: a burst of this many messages is buffered, not dropped
 DEPTH = 1000
+#: no message for this long [s, wall clock]: the input has ended, the samples waiting for a temperature go out
+IDLE_RELEASE_S = 1.0
 _Msg = tuple[int, int, list[str], list[float], list[float], list[float]]
 
 
@@ -139,6 +142,7 @@ class FrictionEstimator(Node):
                 required=True, timeout_s=max(SILENCE_TIMEOUT_S, est_settings.temperature_timeout_s))
         ins.add(JointState, topics.JOINT_STATES, self.on_joint_state, DEPTH, required=True)
         ins.add(JointState, topics.MOTOR_CURRENT, self.on_current, DEPTH, required=True)
+        self._last_input = time.monotonic()
         self._batch_timer = self.create_timer(self.settings.batch_period_s, self.process)
         self._diag_timer = self.create_timer(self.settings.diagnostics_period_s, self.publish_diagnostics)
         self._stats_timer = self.create_timer(self.settings.statistics_period_s, self.publish_statistics)
@@ -199,9 +203,15 @@ class FrictionEstimator(Node):
                                list(msg.name), [], [], list(msg.effort)))
 
     def process(self) -> None:
-        """Hand the buffered messages to the logic and publish what it accepted."""
+        """Hand the buffered messages to the logic and publish what it accepted. When no message has come for
+        :data:`IDLE_RELEASE_S` the input has ended (a bag played out, a test stand stopped): the samples still waiting
+        for a later temperature are published with the one in force at their stamp."""
+        now = time.monotonic()
         if not (self._temps or self._joint_states or self._currents):
+            if now - self._last_input > IDLE_RELEASE_S and any(self.logic.held(j) for j in self.logic.order):
+                self._publish(self.logic.flush())
             return
+        self._last_input = now
         batch, js_counts, cur_counts = chamber_arrays(self._temps, self._joint_states, self._currents,
                                                        configured=self.logic.order)
         self._temps, self._joint_states, self._currents = [], [], []

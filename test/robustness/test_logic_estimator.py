@@ -114,6 +114,7 @@ def test_hostile_streams_never_break_the_estimator(plan, method):
     for _ in range(120):
         t += 10 * MS
         tail += run(logic, t, sign, sign * 0.06)
+    tail += logic.on_temperature(-20.0, t + MS, arrival_ns=t + MS)   # stamped after: the samples' one is known
     check(tail, logic)
     assert tail, logic.counters.as_dict()
     for m in accepted + tail:   # Eq. 23 with the joint's K_T and I_0 (minus J alpha for observer samples)
