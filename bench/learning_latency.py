@@ -38,7 +38,7 @@ from typing import Any
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-import feedforward_latency as fl  # noqa: E402  (the driver and the measurement of the latency benchmark)
+import feedforward_latency as fl
 
 KINDS = ('plain', 'learning', 'inline')
 RIPPLE_PERIOD_RAD = math.radians(2.2)
@@ -65,7 +65,7 @@ def correction_file(path: Path, n: int, seed: int = 1) -> None:
 
 def node_command(kind: str, log_dir: Path | None = None) -> list[str]:
     """The feedforward with the benchmark's correction (a copy per run: learning writes to it)."""
-    assert log_dir is not None
+    log_dir = log_dir or Path(tempfile.gettempdir())
     exe = fl.BIN / 'friction_feedforward'
     cmd = [str(exe)] if exe.exists() else [sys.executable, '-m', 'gimbal_friction.nodes.feedforward']
     own = log_dir / f'correction_{kind}_{len(list(log_dir.glob("correction_*.yaml")))}.yaml'
@@ -119,6 +119,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument('--kinds', default='plain,learning', help='comma-separated, of plain, learning, inline; '
                         'plain (the baseline) is required (default plain,learning)')
     parser.add_argument('--json', action='store_true', help='print one JSON document instead of the table')
+    parser.add_argument('--logs', type=Path, default=None, help="keep the nodes' logs and files in this folder")
     args = parser.parse_args(argv)
     kinds = [k.strip() for k in args.kinds.split(',') if k.strip()]
     if 'plain' not in kinds or len(kinds) < 2 or not set(kinds) <= set(KINDS) or len(set(kinds)) != len(kinds):
@@ -131,7 +132,8 @@ def main(argv: list[str] | None = None) -> int:
     from domain_coordinator import domain_id
 
     with domain_id() as did, tempfile.TemporaryDirectory(prefix='learning_latency_') as tmp:
-        log_dir = Path(tmp)
+        log_dir = Path(tmp) if args.logs is None else args.logs
+        log_dir.mkdir(parents=True, exist_ok=True)
         correction_file(log_dir / 'correction.yaml', args.rows_samples)
         env = dict(os.environ, ROS_DOMAIN_ID=str(did), ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST',
                    ROS_LOG_DIR=str(log_dir / 'roslog'), PYTHONUNBUFFERED='1')
@@ -153,7 +155,7 @@ def main(argv: list[str] | None = None) -> int:
             return 1
         config['loadavg_end'] = os.getloadavg()
     deadline_us = 1e3 * args.deadline_ms
-    runs = [{'kind': r.kind, 'round': r.round, 'sent': r.sent, 'lost': r.lost, 'p50_us': r.p50_us,
+    runs: list[dict[str, Any]] = [{'kind': r.kind, 'round': r.round, 'sent': r.sent, 'lost': r.lost, 'p50_us': r.p50_us,
              'p99_us': r.p99_us, 'max_us': r.max_us, 'timed_out': timed_out(r, deadline_us),
              'node_cpu_pct': r.node_cpu_pct, 'disturbed': r.disturbed} for r in results]
     pooled = {}

@@ -17,7 +17,6 @@ from collections.abc import Mapping
 from gimbal_friction.feedforward.correction.core import Correction
 from gimbal_friction.feedforward.correction.file import exists, load_file, remove_stale_temporaries, save
 from gimbal_friction.feedforward.correction.learner import Learner
-from gimbal_friction.feedforward.correction.worker import BackgroundLearner
 from gimbal_friction.feedforward.correction.settings import (
     LAYOUT,
     CorrectionError,
@@ -25,6 +24,7 @@ from gimbal_friction.feedforward.correction.settings import (
     LearningSettings,
     ModelIdentity,
 )
+from gimbal_friction.feedforward.correction.worker import BackgroundLearner
 from gimbal_friction.physics.params import AxisParams
 
 __all__ = ['CorrectionKeeper']
@@ -123,7 +123,8 @@ class CorrectionKeeper:
         if identity == self.identity:
             return False
         self.model = model
-        had = bool(self.learner.correction_summary()['samples']) or self.learner.pending > 0 or self.load_error is not None
+        had = (bool(self.learner.correction_summary()['samples']) or self.learner.pending > 0
+               or self.load_error is not None)
         self.identity = identity
         self.replace(Correction(self.settings, identity))
         self.loaded_from = self.load_note = None

@@ -17,8 +17,8 @@ from typing import Any, NamedTuple
 from gimbal_friction.common.errors import GimbalFrictionError, check_rules
 from gimbal_friction.common.settings import setting
 
-__all__ = ['DIRECTIONS', 'FIT_WORKERS', 'LAYOUT', 'RETIRED', 'CorrectionError', 'CorrectionSettings', 'LearningSettings',
-           'ModelIdentity', 'model_identity']
+__all__ = ['DIRECTIONS', 'FIT_WORKERS', 'LAYOUT', 'RETIRED', 'CorrectionError', 'CorrectionSettings',
+           'LearningSettings', 'ModelIdentity', 'model_identity']
 
 #: the two directions of motion: ``cw`` (v > 0, the paper's clockwise) and ``ccw`` (v < 0)
 DIRECTIONS = ('cw', 'ccw')

@@ -144,7 +144,7 @@ def serve(conn: Any, nice: int = 0) -> None:
             return
         try:
             master, res = run_job(master, job)
-        except Exception:   # noqa: BLE001  (answered, counted by the caller)
+        except Exception:
             master, res = None, Result(job.generation, error=traceback.format_exc(limit=-3).strip())
         try:
             conn.send(res)
@@ -235,6 +235,8 @@ class BackgroundLearner(Learner):
         self._sent_at = 0.0
         self._timed_out = False
         self._report: tuple[dict[str, Any], dict[str, list[dict[str, Any]]]] | None = None
+        #: this side's reports until the worker's come (made once per generation: ~0.1 s for a large correction)
+        self._own: tuple[int, dict[str, Any], dict[str, list[dict[str, Any]]]] | None = None
 
     # ------------------------------------------------------------------ state
     @property
@@ -265,13 +267,15 @@ class BackgroundLearner(Learner):
 
     def _ready(self) -> bool:
         self.start()
-        assert self._worker is not None
-        return self._worker.check_ready()
+        return self._worker is not None and self._worker.check_ready()
 
     def step(self, now_s: float) -> bool:
         """Send the step's job to the worker (the samples stay pending while a job is in flight or the worker
         starts); never waits, so never True: :meth:`poll` takes the result in."""
         if self.busy or not self._ready():
+            return False
+        if self._sync:   # (first the correction alone: its reports come back at once, not after a long refit)
+            self._send(self.take_pending(), None)
             return False
         job = self.take_step(now_s)
         if job is not None:
@@ -284,7 +288,8 @@ class BackgroundLearner(Learner):
         """Nothing here: the pending samples go to the worker with the next job (:meth:`drain` waits for them)."""
 
     def _send(self, rows: dict[str, Array], limit_nm: float | None) -> None:
-        assert self._worker is not None
+        if self._worker is None:
+            return
         job = Job(self._generation, rows, limit_nm, self.correction if self._sync else None, self._settings_change,
                   self._save_path)
         try:
@@ -354,8 +359,8 @@ class BackgroundLearner(Learner):
             if new is not None:
                 new.saturations = 0
             c.lookups[j] = new
-        assert res.summary is not None
-        self._report = (res.summary, res.cells)
+        if res.summary is not None:
+            self._report = (res.summary, res.cells)
         return res.changed
 
     def _lost(self, reason: str, timeout: bool) -> None:
@@ -391,7 +396,7 @@ class BackgroundLearner(Learner):
         """Other settings of the same layout: this side's copy now, the worker's with the next job."""
         self.correction = self.correction.with_settings(settings)
         self._settings_change = None if self._sync else settings
-        self._report = None
+        self._report = self._own = None
 
     def _changed_here(self) -> None:
         """This side's correction is the whole truth again (a file loaded, a reset): the worker is given it with
@@ -443,11 +448,18 @@ class BackgroundLearner(Learner):
     def correction_summary(self) -> dict[str, Any]:
         """The summary the worker made with the last fit (this side's until one came), with this side's count of
         clipped lookups."""
-        if self._report is None:
-            return super().correction_summary()
-        return {**self._report[0], 'lookup_saturations': self.correction.lookup_saturations}
+        summary = self._report[0] if self._report is not None else self._own_report()[1]
+        return {**summary, 'lookup_saturations': self.correction.lookup_saturations}
 
     def correction_cells(self, joint: str) -> list[dict[str, Any]]:
-        if self._report is None:
-            return super().correction_cells(joint)
-        return self._report[1][joint]
+        if self._report is not None:
+            return self._report[1][joint]
+        cells = self._own_report()[2]
+        if joint not in cells:
+            cells[joint] = super().correction_cells(joint)
+        return cells[joint]
+
+    def _own_report(self) -> tuple[int, dict[str, Any], dict[str, list[dict[str, Any]]]]:
+        if self._own is None or self._own[0] != self._generation:
+            self._own = (self._generation, super().correction_summary(), {})
+        return self._own
