@@ -274,13 +274,11 @@ class BackgroundLearner(Learner):
         starts); never waits, so never True: :meth:`poll` takes the result in."""
         if self.busy or not self._ready():
             return False
-        if self._sync:   # (first the correction alone: its reports come back at once, not after a long refit)
-            self._send(self.take_pending(), None)
-            return False
         job = self.take_step(now_s)
         if job is not None:
             self._send(*job)
-        elif self.frozen and (self.pending or self._save_path):
+        elif self._sync or self._save_path or (self.frozen and self.pending):
+            # (at the first step, the correction alone: its reports come back at once, not after a long refit)
             self._send(self.take_pending(), None)
         return False
 
