@@ -225,6 +225,8 @@ class FrictionFeedforward(Node):
         self.keeper = CorrectionKeeper(model_identity(axes), correction_settings, learning_settings, background=True)
         self.keeper.start(self.settings.correction_file)
         self.keeper.learner.freeze(self.settings.learning_frozen)
+        if self.settings.learning_enabled:   # (the worker imports its modules while the node starts)
+            self.keeper.learner.start()
         self._refused: dict[str, int] = {}  #: measured_detail messages not usable, per reason
         self._logged_save_error: str | None = None
         self._logged_fit_error: str | None = None

@@ -265,6 +265,9 @@ class Learner:
         self.correction = correction
         self._pending = {j: [] for j in correction.identity.joints}
 
+    def start(self) -> None:
+        """Start the worker refits run in (here: none)."""
+
     def poll(self) -> bool:
         """Take a finished refit in (here: none, :meth:`step` refits at once); True if an applied term changed."""
         return False

@@ -7,8 +7,9 @@ samples and the step's rate limit. The expensive part (scoring and keeping the s
 ripple periods, the summary and the cells a status reports, the save of the file) runs in a worker, one job at a time:
 
 - ``process`` (the default): a child process started with the ``spawn`` context, at a lower priority
-  (:func:`lower_priority`); it holds the whole correction (its rows) and the caller only a copy of what the feedforward
-  reads (the applied terms and their lookups);
+  (:func:`~gimbal_friction.feedforward.low_priority.lower_priority`, before its imports); it holds the whole
+  correction (its rows) and the caller only a copy of what the feedforward reads (the applied terms and their
+  lookups);
 - ``thread``: the same worker loop in a thread of the caller's process (shares the caller's interpreter lock);
 - ``inline``: no worker (the plain :class:`Learner`).
 
@@ -49,8 +50,9 @@ from gimbal_friction.feedforward.correction.core import Correction
 from gimbal_friction.feedforward.correction.file import save
 from gimbal_friction.feedforward.correction.learner import Learner, learn_rows, learn_step
 from gimbal_friction.feedforward.correction.settings import CorrectionError, CorrectionSettings, LearningSettings
+from gimbal_friction.feedforward.low_priority import run_fit_worker
 
-__all__ = ['NICE', 'BackgroundLearner', 'Job', 'Result', 'lower_priority', 'run_job']
+__all__ = ['NICE', 'BackgroundLearner', 'Job', 'Result', 'run_job', 'serve']
 
 Array = NDArray[np.float64]
 #: how much lower the child process's priority is than the caller's (``os.nice``) [-]
@@ -124,27 +126,10 @@ def run_job(master: Correction | None, job: Job) -> tuple[Correction, Result]:
     return master, res
 
 
-def lower_priority(nice: int) -> None:
-    """This process at ``nice`` [-] below its parent, where the OS allows: its own session (under Linux's
-    autogroup scheduling a nice value counts only within a session, so a worker in the node's would take from the
-    node's share of the CPU) with that session's nice raised, its own nice raised, and the batch policy (never
-    preempting the node on a wake-up)."""
-    with contextlib.suppress(OSError):
-        os.setsid()
-    with contextlib.suppress(OSError), open('/proc/self/autogroup', 'w', encoding='ascii') as f:
-        f.write(str(nice))
-    with contextlib.suppress(OSError):
-        os.nice(nice)
-    with contextlib.suppress(OSError, AttributeError):
-        os.sched_setscheduler(0, os.SCHED_BATCH, os.sched_param(0))
-
-
-def serve(conn: Any, nice: int = 0) -> None:
+def serve(conn: Any) -> None:
     """The worker's loop: says it is ready (with its pid and whether rclpy is loaded), then answers jobs until
     ``None`` or the other end closes. A job that raises is answered with the error (the worker then needs a
     ``sync``)."""
-    if nice:
-        lower_priority(nice)
     if threading.current_thread() is threading.main_thread():
         signal.signal(signal.SIGINT, signal.SIG_IGN)   # (the node's Ctrl-C is the node's to handle)
     conn.send(('ready', os.getpid(), 'rclpy' in sys.modules))
@@ -190,7 +175,8 @@ class _Worker:
         if mode == 'process':
             ctx = multiprocessing.get_context('spawn')
             self.conn, child = ctx.Pipe()
-            self.proc: Any = ctx.Process(target=serve, args=(child, NICE), name='correction_fit', daemon=True)
+            self.proc: Any = ctx.Process(target=run_fit_worker, args=(child, NICE), name='correction_fit',
+                                         daemon=True)
             with _bare_main():
                 self.proc.start()
             child.close()
