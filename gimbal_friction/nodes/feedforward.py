@@ -671,7 +671,8 @@ class FrictionFeedforward(Node):
                 'samples_in_fit': getattr(learner, 'in_flight', 0),
                 'last_fit_s': (learner.last_fit_s if math.isfinite(getattr(learner, 'last_fit_s', math.nan))
                                else 'none'),
-                'last_fit_error': getattr(learner, 'last_fit_error', None) or 'none'}
+                'last_fit_error': getattr(learner, 'last_fit_error', None) or 'none',
+                'fit_worker_pid': getattr(learner, 'worker_pid', None) or 'none'}
 
 
 def main(args: Sequence[str] | None = None) -> None:
