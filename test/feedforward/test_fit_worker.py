@@ -278,9 +278,17 @@ def test_a_keeper_in_the_background_saves_through_its_worker_and_loads_a_reset_i
         path = tmp_path / 'c.yaml'
         assert k.save(str(path)) and k.saves == 1 and k.last_save_error is None
         assert load(path).summary()['samples'] == 600
+        # other settings of the same layout reach the worker's correction (and its file)
+        k.set_settings(CorrectionSettings(guard_min_samples=0, guard_z=1.5))
+        assert k.learner.correction.settings.guard_z == 1.5
+        feed([k.learner], rng, n=50)
+        k.learner.step(2.0)
+        until(lambda: (k.poll(), k.learner.busy)[1] is False, 'the fit')
+        k.dirty = True
+        assert k.save(str(path)) and load(path).settings.guard_z == 1.5 and load(path).summary()['samples'] == 700
         k.learner.reset()
         k.dirty = True
-        assert k.save(str(path)) and k.saves == 2
+        assert k.save(str(path)) and k.saves == 3
         assert load(path).summary()['samples'] == 0 and k.learner.correction_summary()['samples'] == 0
     finally:
         k.close()
