@@ -25,6 +25,7 @@ import re
 from typing import NamedTuple
 
 from gimbal_friction.estimation.gating import METHODS
+from gimbal_friction.feedforward.correction.settings import FIT_WORKERS
 from gimbal_friction.feedforward.rule import STALE_POLICIES, VELOCITY_SOURCES
 from gimbal_friction.physics.params import MODEL_T_MAX_C, MODEL_T_MIN_C, Bound, parameter_specs
 from gimbal_friction.sim.config import PRESLIDING_MODELS, PROFILES
@@ -160,6 +161,8 @@ SETTINGS_RULES: dict[str, dict[str, Rule]] = {
     'LearningSettings': {
         'max_rate_nm_per_min': rule('(0, 1]'),
         'step_period_s': rule('(0, 3600]'),
+        'fit_worker': rule(FIT_WORKERS, 'read at start only'),
+        'fit_timeout_s': rule('(0, 3600]'),
     },
     'EstimatorSettings': {
         'method': rule(METHODS),

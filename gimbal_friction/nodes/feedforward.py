@@ -112,6 +112,8 @@ from gimbal_friction.streams.measurement import MEASUREMENT_FIELDS, METHOD_NAMES
 REFERENCE_VELOCITY = topics.REFERENCE_VELOCITY
 #: the learned correction (diagnostic_msgs/DiagnosticArray): one status per joint and per cell with data
 CORRECTION = topics.CORRECTION
+#: period of the timer that takes a refit finished by the learning's worker in (it never waits for one) [s]
+FIT_POLL_PERIOD_S = 0.02
 #: subscription depth of the joint states: a burst of this many messages is buffered, not dropped
 JOINT_STATE_DEPTH = 1000
 _STAMP = struct.Struct('<iI')  #: builtin_interfaces/Time in CDR (int32 sec, uint32 nanosec), after the 4-byte header
@@ -245,11 +247,15 @@ class FrictionFeedforward(Node):
                 self.get_logger().warning(f'parameter {name} = {value!r} is retired and has no effect: {why}')
         axes = self.model.current()
         self.ff = self._build(axes, ff_settings, startup=True)
-        self.keeper = CorrectionKeeper(model_identity(axes), correction_settings, learning_settings)
+        # (refits, the reports and saves of the correction run in the learning_fit_worker, off this executor)
+        self.keeper = CorrectionKeeper(model_identity(axes), correction_settings, learning_settings, background=True)
         self.keeper.start(self.settings.correction_file)
         self.keeper.learner.freeze(self.settings.learning_frozen)
+        if self.settings.learning_enabled:   # (the worker imports its modules while the node starts)
+            self.keeper.learner.start()
         self._refused: dict[str, int] = {}  #: measured_detail messages not usable, per reason
         self._logged_save_error: str | None = None
+        self._logged_fit_error: str | None = None
         self._use_correction()
         self._candidate: tuple[Feedforward | None, NodeSettings, dict[str, Any]] | None = None
         self._last_publish = -math.inf
@@ -278,6 +284,7 @@ class FrictionFeedforward(Node):
         self._correction_timer = self.create_timer(self.settings.correction_publish_period_s,
                                                    self.publish_correction)
         self._step_timer = self.create_timer(learning_settings.step_period_s, self.step_learning)
+        self._fit_timer = self.create_timer(FIT_POLL_PERIOD_S, self.poll_learning)
         self._reset_timer: Any = None
         parameter_guard(self, self._validate_params, self._apply_params)
         if self.settings.learning_reset:
@@ -335,6 +342,9 @@ class FrictionFeedforward(Node):
             extra['correction'] = cs
         if learn:
             extra['learning'] = prefixed_settings(LearningSettings, _LEARNING_PREFIX, learn, k.learner.settings)
+            if extra['learning'].fit_worker != k.learner.settings.fit_worker:
+                raise ConfigError(_LEARNING_PREFIX + 'fit_worker', 'cannot change while the node runs: restart with '
+                                  'it', extra['learning'].fit_worker)
         path = node_settings.correction_file
         if path != self.settings.correction_file and path and Path(path).exists():
             probe = CorrectionKeeper(model_identity(axes), extra.get('correction', k.settings), k.learner.settings)
@@ -453,6 +463,16 @@ class FrictionFeedforward(Node):
         if self.settings.learning_enabled and self.keeper.learner.step(self._now_s()):
             self.keeper.dirty = True
 
+    def poll_learning(self) -> None:
+        """Take a refit the worker finished in whole (never waits for one); a timed-out or failed one is logged
+        (and counted on /diagnostics)."""
+        k = self.keeper
+        k.poll()
+        error = getattr(k.learner, 'last_fit_error', None)
+        if error is not None and error != self._logged_fit_error:
+            self.get_logger().error(f'learning: {error} (the feedforward keeps its correction)')
+        self._logged_fit_error = error
+
     def save_correction(self, background: bool = True) -> None:
         """Save the correction if it changed (atomic, by a thread; errors in /diagnostics and the log)."""
         k = self.keeper
@@ -465,6 +485,7 @@ class FrictionFeedforward(Node):
         """At shutdown (SIGINT/SIGTERM): save what was learned (waiting for it)."""
         self.save_correction(background=False)
         self.keeper.wait()
+        self.keeper.close()
         if self.keeper.last_save_error is not None:
             self.get_logger().error(self.keeper.last_save_error)
         elif self.keeper.saves:
@@ -481,7 +502,7 @@ class FrictionFeedforward(Node):
         """``/gimbal/friction/correction``: per joint its summary, then one status per cell with data."""
         k = self.keeper
         learner, state = k.learner, self.learning_state()
-        summary = learner.correction.summary()
+        summary = learner.correction_summary()
         statuses = []
         for joint in k.identity.joints:
             js = dict(summary['joints'][joint])
@@ -627,7 +648,7 @@ class FrictionFeedforward(Node):
         """``gimbal_friction/feedforward/learning``: state, samples used and refused, file, last save."""
         k = self.keeper
         learner, state = k.learner, self.learning_state()
-        summary = learner.correction.summary()
+        summary = learner.correction_summary()
         level, problems = OK, [f'learning {state}']
         if not self.settings.use_correction:
             problems.append('correction not used (pure model)')
@@ -665,7 +686,26 @@ class FrictionFeedforward(Node):
             'last_save_duration_s': k.last_save_duration_s if k.last_save_duration_s is not None else 'never',
             'unsaved_learning_s': k.unsaved_s(),   # what a crash now would lose
         }
+        fits = self._fit_values(learner)
+        new_fit = self._new_since_report('fit', {key: fits[key] for key in ('fit_timeouts', 'fit_failures')})
+        if new_fit:
+            level = WARN
+            problems.append('refits ' + ', '.join(f'{n} new {key[4:]}' for key, n in sorted(new_fit.items()))
+                            + f': {fits["last_fit_error"]} (the feedforward keeps its correction)')
+        values |= fits
         return status('gimbal_friction/feedforward/learning', level, '; '.join(problems), 'learning', values)
+
+    def _fit_values(self, learner: Any) -> dict[str, Any]:
+        """Where the refits run and how they went (counts [-], the last fit's duration [s])."""
+        return {'fit_worker': learner.settings.fit_worker if hasattr(learner, 'fits') else 'inline',
+                'fits': getattr(learner, 'fits', 0), 'fit_timeouts': getattr(learner, 'fit_timeouts', 0),
+                'fit_failures': getattr(learner, 'fit_failures', 0),
+                'samples_lost': getattr(learner, 'samples_lost', 0),
+                'samples_in_fit': getattr(learner, 'in_flight', 0),
+                'last_fit_s': (learner.last_fit_s if math.isfinite(getattr(learner, 'last_fit_s', math.nan))
+                               else 'none'),
+                'last_fit_error': getattr(learner, 'last_fit_error', None) or 'none',
+                'fit_worker_pid': getattr(learner, 'worker_pid', None) or 'none'}
 
 
 def main(args: Sequence[str] | None = None) -> None:

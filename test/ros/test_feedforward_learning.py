@@ -193,6 +193,8 @@ def test_learns_gates_bounds_freezes_resets_saves_and_resumes(spawn, probe, monk
     st = wait_status(probe, lambda s: s.get('refused: stale temperature') == '7'
                      and s.get('refused: near reversal') == '5', 'refusals counted')
     assert st['samples_used'] == '90' and st['state'] == 'active' and st['message'].startswith('learning active')
+    # the refits ran in the default worker, a child process, none timed out or failed
+    assert st['fit_worker'] == 'process' and int(st['fits']) > 0 and st['fit_timeouts'] == st['fit_failures'] == '0'
 
     # periodic save: the file holds what was learned
     probe.spin_until(lambda: path.exists() and load(path).summary()['samples'] == 90, what='periodic save')
@@ -395,3 +397,38 @@ def test_a_hostile_correction_file_never_stops_the_node(spawn, probe, monkeypatc
         rc, out = node.stop()
         assert rc == 0 and 'Traceback' not in out, (name, out)
         probe.received['/diagnostics'].clear()
+
+
+@pytest.mark.slow
+def test_a_fit_worker_that_dies_is_reported_and_the_feedforward_keeps_its_correction(spawn, probe, monkeypatch,
+                                                                                      tmp_path):
+    """The refits run in a child process of the node; killed, the failure is counted and warned about on
+    /diagnostics, the feedforward keeps the correction it had, and a new worker learns on."""
+    import os
+
+    monkeypatch.chdir(ROOT)
+    node = start(spawn, probe, '-p', 'learning_enabled:=true', '-p', f'learning_output_file:={tmp_path / "c.yaml"}',
+                 '-p', 'correction_prior_samples:=5.0', '-p', 'learning_max_rate_nm_per_min:=1.0',
+                 '-p', 'learning_step_period_s:=0.1', '-p', 'correction_guard_min_samples:=0',
+                 '-p', 'correction_guard_z:=0.0')
+    sec = temperature_in_use(probe, 100)
+    pure = request(probe, ['elevation'], [V_TEST], sec).effort[0]
+    model = model_nm(T_C, V_TEST)
+    send_samples(probe, sec, 45, V_TEST, 1.2 * model)
+    send_samples(probe, sec, 45, -V_TEST, -model)
+    probe.spin_until(lambda: (c := cells(probe)) is not None and CELL_CW in c and int(c[CELL_CW]['samples']) == 45,
+                     what='the correction learned')
+    st = wait_status(probe, lambda s: s['fit_worker_pid'] != 'none', 'the worker running')
+    pid = int(st['fit_worker_pid'])
+    assert pid != node.proc.pid and st['fit_failures'] == '0'
+    learned = request(probe, ['elevation'], [V_TEST], sec + 1).effort[0]
+    assert learned > pure * 1.1
+
+    os.kill(pid, signal.SIGKILL)
+    send_samples(probe, sec, 6, V_TEST, 1.2 * model)     # (the next step finds the worker gone)
+    st = wait_status(probe, lambda s: s['fit_failures'] == '1', 'the failure reported')
+    assert st['level'] == b'\x01' and 'refits 1 new failures' in st['message'] and 'died' in st['last_fit_error']
+    assert request(probe, ['elevation'], [V_TEST], sec + 2).effort[0] == learned   # the correction it had
+    send_samples(probe, sec, 6, V_TEST, 1.2 * model)
+    st = wait_status(probe, lambda s: s['fit_worker_pid'] not in ('none', str(pid)) and int(s['fits']) > 0
+                     and s['samples_in_fit'] == '0' and s['fit_failures'] == '1', 'a new worker at work')

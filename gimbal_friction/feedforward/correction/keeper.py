@@ -24,6 +24,7 @@ from gimbal_friction.feedforward.correction.settings import (
     LearningSettings,
     ModelIdentity,
 )
+from gimbal_friction.feedforward.correction.worker import BackgroundLearner
 from gimbal_friction.physics.params import AxisParams
 
 __all__ = ['CorrectionKeeper']
@@ -40,11 +41,15 @@ class CorrectionKeeper:
     """
 
     def __init__(self, identity: ModelIdentity, settings: CorrectionSettings, learning: LearningSettings,
-                 model: Mapping[str, AxisParams] | None = None) -> None:
+                 model: Mapping[str, AxisParams] | None = None, background: bool = False) -> None:
         self.identity, self.settings = identity, settings
         #: the model's parameters per joint (of ``identity``): a file read is checked against them (None: its identity)
         self.model = model
-        self.learner = Learner(Correction(settings, identity), learning)
+        #: with ``background``, refits, reports and saves run in the worker ``learning.fit_worker`` names
+        #: (:class:`~gimbal_friction.feedforward.correction.worker.BackgroundLearner`; ``inline``: in the step)
+        self.learner: Learner = (BackgroundLearner(Correction(settings, identity), learning, learning.fit_worker)
+                                 if background and learning.fit_worker != 'inline' else
+                                 Learner(Correction(settings, identity), learning))
         self.load_error: str | None = None
         self.load_note: str | None = None
         self.loaded_from: str | None = None
@@ -105,15 +110,16 @@ class CorrectionKeeper:
 
     def replace(self, c: Correction) -> None:
         """Learn on from ``c`` (learner state and counters kept)."""
-        self.learner.discard_pending()                              # (counted: accepted, never learned)
-        self.learner.correction = c
-        self.learner._pending = {j: [] for j in c.identity.joints}  # a new correction, new buffers
+        self.learner.replace(c)  # (a new correction, new buffers)
         self.load_error = self._refused_path = None
 
     def set_settings(self, settings: CorrectionSettings) -> None:
         """New bound, prior, gate or guard (same layout): the rows are kept, the targets follow."""
-        self.learner.flush()
         self.settings = settings
+        if isinstance(self.learner, BackgroundLearner):
+            self.learner.set_settings(settings)
+            return
+        self.learner.flush()
         self.learner.correction = self.adopt(self.correction)
 
     def set_identity(self, identity: ModelIdentity, model: Mapping[str, AxisParams] | None = None) -> bool:
@@ -122,7 +128,8 @@ class CorrectionKeeper:
         if identity == self.identity:
             return False
         self.model = model
-        had = bool(self.correction.summary()['samples']) or self.learner.pending > 0 or self.load_error is not None
+        had = (bool(self.learner.correction_summary()['samples']) or self.learner.pending > 0
+               or self.load_error is not None)
         self.identity = identity
         self.replace(Correction(self.settings, identity))
         self.loaded_from = self.load_note = None
@@ -141,6 +148,12 @@ class CorrectionKeeper:
             self.last_save_error = (f'not saved: {path} was refused at load and is not overwritten; delete it or '
                                     'set another file')
             return False
+        if isinstance(self.learner, BackgroundLearner):   # (the worker holds the rows: it writes the file)
+            self.dirty = False
+            self.learner.request_save(path)
+            if not background:
+                self.learner.drain()
+            return self.collect() if not background else True
         if self._writer is not None and self._writer.is_alive():
             if background:
                 return False
@@ -182,3 +195,33 @@ class CorrectionKeeper:
         """Wait for a background save to finish."""
         if self._writer is not None:
             self._writer.join()
+        if isinstance(self.learner, BackgroundLearner):
+            self.learner.drain()
+            self.collect()
+
+    def poll(self) -> bool:
+        """Take a refit finished in the background in (never waits) and the outcome of its save; True if an
+        applied term changed (then :attr:`dirty`)."""
+        changed = self.learner.poll()
+        if changed:
+            self.dirty = True
+        self.collect()
+        return changed
+
+    def collect(self) -> bool:
+        """Record the saves a background worker made or failed (:attr:`saves`, :attr:`last_save_error`, ...); True
+        if the last of them was written."""
+        outcomes = getattr(self.learner, 'save_outcomes', None)
+        ok = False
+        while outcomes:
+            path, error, when = outcomes.pop(0)
+            if error is not None:
+                self.last_save_error, self.dirty, ok = error, True, False
+            else:
+                self.saves, self.last_save_error, ok = self.saves + 1, None, True
+                self.last_save_time, self.last_save_path = when, path
+        return ok
+
+    def close(self) -> None:
+        """Stop a background worker (never waits)."""
+        self.learner.close()

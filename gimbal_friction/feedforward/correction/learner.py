@@ -30,7 +30,7 @@ from gimbal_friction.feedforward.correction.fit import Params
 from gimbal_friction.feedforward.correction.settings import LearningSettings
 from gimbal_friction.feedforward.correction.stats import REASONS, gate_code
 
-__all__ = ['R_FROZEN', 'R_UNKNOWN', 'Learner', 'move_towards']
+__all__ = ['R_FROZEN', 'R_UNKNOWN', 'Learner', 'learn_rows', 'learn_step', 'move_towards']
 
 Array = NDArray[np.float64]
 R_FROZEN, R_UNKNOWN = 'frozen', 'unknown joint'
@@ -76,6 +76,41 @@ def move_towards(applied: Params, target: Params, limit_nm: float, model_nm: Arr
         out_c.append(new)
     ripple = np.stack(out_c, axis=1) if out_c else np.zeros((nt, 0, 2))
     return Params(speed, np.asarray(out_p, dtype=float), ripple, trend)
+
+
+def learn_rows(c: Correction, rows: dict[str, Array]) -> None:
+    """Score ``rows`` (per joint, as :meth:`Learner.take_pending` gives them) by ``c``'s candidate, then keep them
+    in its rows (test, then train; the gate already passed)."""
+    for joint, a in rows.items():
+        t, v, p, r, m = a.T
+        c.score(joint, t, v, p, r, m)
+        c._keep(c.joint(joint), t, v, p, r, m)
+
+
+def learn_step(c: Correction, rows: dict[str, Array], limit_nm: float) -> bool:
+    """The expensive part of :meth:`Learner.step`, on ``c`` in place: learn ``rows`` (:func:`learn_rows`), refit
+    every joint with samples (ripple periods searched again as the data grows) and move its applied terms towards
+    the target by at most ``limit_nm`` [N·m]; True if an applied term changed."""
+    learn_rows(c, rows)
+    changed = False
+    for j in c.identity.joints:
+        if c.stats(j).samples() == 0:
+            continue
+        fit = c.refit(j)
+        has = c.has_data(j)
+        paired = has[0] & has[1]
+        model = np.maximum(fit.model_nm.max(axis=0), c.settings.floor_nm)
+        old = c.applied(j)
+        new = move_towards(old, c.target(j), limit_nm, model, paired)
+        bound = applied_bound_nm(c.stats(j))        # (rows' means move as samples arrive)
+        np.clip(new.speed_nm, -bound[None, :, None], bound[None, :, None], out=new.speed_nm)
+        np.clip(new.trend_nm, -10.0 * bound[:, None], 10.0 * bound[:, None], out=new.trend_nm)
+        if not (np.array_equal(new.speed_nm, old.speed_nm) and np.array_equal(new.trend_nm, old.trend_nm)
+                and np.array_equal(new.periods_rad, old.periods_rad) and np.array_equal(new.ripple, old.ripple)):
+            c.joint(j).applied = new
+            c.rebuild(j)
+            changed = True
+    return changed
 
 
 class Learner:
@@ -147,46 +182,34 @@ class Learner:
 
     def flush(self) -> None:
         """Score the pending samples by the candidate, then keep them (test, then train)."""
-        c = self.correction
+        learn_rows(self.correction, self.take_pending())
+
+    def take_pending(self) -> dict[str, Array]:
+        """The pending samples per joint (rows of temperature [°C], velocity [rad/s], position [rad], residual
+        [N·m], model [N·m]), taken: they are no longer pending."""
+        out = {}
         for joint, rows in self._pending.items():
-            if not rows:
-                continue
-            a = np.asarray(rows, dtype=float)
-            rows.clear()
-            t, v, p, r, m = a.T
-            c.score(joint, t, v, p, r, m)
-            c._keep(c.joint(joint), t, v, p, r, m)  # the gate already passed
+            if rows:
+                out[joint] = np.asarray(rows, dtype=float)
+                rows.clear()
+        return out
 
     # ------------------------------------------------------------------ step
+    def take_step(self, now_s: float) -> tuple[dict[str, Array], float] | None:
+        """The cheap part of :meth:`step` at ``now_s`` [s]: the pending samples (taken) and the step's rate limit
+        [N·m], or None when nothing moves (frozen, the first step, time running backwards)."""
+        last, self._last_step_s = self._last_step_s, now_s
+        if self.frozen or last is None or not now_s > last:
+            return None
+        limit = self.settings.max_rate_nm_per_min * min(now_s - last, self.settings.step_period_s) / 60.0
+        return self.take_pending(), limit
+
     def step(self, now_s: float) -> bool:
         """Learn the pending samples, refit the candidate and move the applied terms towards the target for the time
         since the last step (at most ``step_period_s``) [s]; True if an applied term changed. Nothing moves while
         frozen or when time runs backwards."""
-        last, self._last_step_s = self._last_step_s, now_s
-        if self.frozen or last is None or not now_s > last:
-            return False
-        self.flush()
-        c = self.correction
-        limit = self.settings.max_rate_nm_per_min * min(now_s - last, self.settings.step_period_s) / 60.0
-        changed = False
-        for j in c.identity.joints:
-            if c.stats(j).samples() == 0:
-                continue
-            fit = c.refit(j)
-            has = c.has_data(j)
-            paired = has[0] & has[1]
-            model = np.maximum(fit.model_nm.max(axis=0), c.settings.floor_nm)
-            old = c.applied(j)
-            new = move_towards(old, c.target(j), limit, model, paired)
-            bound = applied_bound_nm(c.stats(j))        # (rows' means move as samples arrive)
-            np.clip(new.speed_nm, -bound[None, :, None], bound[None, :, None], out=new.speed_nm)
-            np.clip(new.trend_nm, -10.0 * bound[:, None], 10.0 * bound[:, None], out=new.trend_nm)
-            if not (np.array_equal(new.speed_nm, old.speed_nm) and np.array_equal(new.trend_nm, old.trend_nm)
-                    and np.array_equal(new.periods_rad, old.periods_rad) and np.array_equal(new.ripple, old.ripple)):
-                c.joint(j).applied = new
-                c.rebuild(j)
-                changed = True
-        return changed
+        job = self.take_step(now_s)
+        return job is not None and learn_step(self.correction, *job)
 
     def freeze(self, frozen: bool = True) -> None:
         """Stop (or, with False, resume) learning; the applied correction stays as it is (pending samples are
@@ -218,13 +241,13 @@ class Learner:
         """``frozen``, ``saturated`` (a cell's learned value is clipped by the bound) or ``active``."""
         if self.frozen:
             return 'frozen'
-        return 'saturated' if self.correction.summary()['saturated_cells'] else 'active'
+        return 'saturated' if self.correction_summary()['saturated_cells'] else 'active'
 
     def cells(self, joint: str) -> list[dict[str, Any]]:
         """The correction's cells with each cell's ``state``: ``frozen``, ``saturated``, ``held back`` or
         ``active``."""
         out = []
-        for rec in self.correction.cells(joint):
+        for rec in self.correction_cells(joint):
             state = ('frozen' if self.frozen else 'saturated' if rec['saturated'] else
                      'active' if rec['applied'] else 'held back')
             out.append({**rec, 'state': state})
@@ -233,7 +256,37 @@ class Learner:
     def summary(self) -> dict[str, Any]:
         """The correction's summary with the state and the accepted/refused sample counts (status, diagnostics)."""
         return {'state': self.state, 'accepted': self.accepted, 'rejected': dict(self.rejected),
-                'pending': self.pending, **self.correction.summary()}
+                'pending': self.pending, **self.correction_summary()}
+
+    def correction_summary(self) -> dict[str, Any]:
+        """The correction's :meth:`~gimbal_friction.feedforward.correction.core.Correction.summary` (a learner whose
+        refits run elsewhere gives the one its worker made with the last fit)."""
+        return self.correction.summary()
+
+    def correction_cells(self, joint: str) -> list[dict[str, Any]]:
+        """The correction's :meth:`~gimbal_friction.feedforward.correction.core.Correction.cells` of ``joint`` (as
+        :meth:`correction_summary`)."""
+        return self.correction.cells(joint)
+
+    def replace(self, correction: Correction) -> None:
+        """Learn on from ``correction`` (the counters kept; the pending samples cleared, counted as discarded)."""
+        self.discard_pending()
+        self.correction = correction
+        self._pending = {j: [] for j in correction.identity.joints}
+
+    def start(self) -> None:
+        """Start the worker refits run in (here: none)."""
+
+    def poll(self) -> bool:
+        """Take a finished refit in (here: none, :meth:`step` refits at once); True if an applied term changed."""
+        return False
+
+    def drain(self) -> None:
+        """Learn every accepted sample (waiting for a refit in progress elsewhere)."""
+        self.flush()
+
+    def close(self) -> None:
+        """Release what the learner holds (here: nothing)."""
 
 
 _ = math

