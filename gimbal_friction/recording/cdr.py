@@ -237,8 +237,10 @@ def _layout(builder: _Builder, fields: dict[str, tuple[str, int]]) -> _Layout:
 
 
 def _rows(layout: _Layout, n: int) -> tuple[NDArray[np.uint8], np.ndarray]:
-    raw = np.empty((n, layout.template.shape[0]), dtype=np.uint8)
-    raw[:] = layout.template
+    width = layout.template.shape[0]
+    raw = np.empty((n, width), dtype=np.uint8)
+    if width:   # one row copy per message through a void view (a uint8 broadcast copies byte by byte: 60x slower)
+        raw.view(f'V{width}')[:] = layout.template.view(f'V{width}')
     return raw, raw.reshape(-1).view(layout.dtype)
 
 

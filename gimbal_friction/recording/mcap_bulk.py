@@ -130,6 +130,8 @@ class BulkChunk:
         log_time: NDArray[np.int64],
         datas: Sequence[bytes],
         record_offsets: NDArray[np.int64],
+        *,
+        groups: Sequence[tuple[int, NDArray[np.bool_], int]] | None = None,
     ) -> None:
         """Append message records ``k`` (channel id, sequence, log time = publish time [ns], ``datas[k]``).
 
@@ -140,6 +142,8 @@ class BulkChunk:
             datas: m serialized messages.
             record_offsets: (m + 1,) offset of each record from the first, then the end of the last [B]
                 (cumulative ``len(data) + MESSAGE_OVERHEAD``).
+            groups: ``(channel id, mask of its messages, their count)`` per channel of the run, in order of first
+                appearance, if the caller has them (else computed here from ``channel``).
 
         Raises:
             OSError: the chunk buffer could not be written.
@@ -168,17 +172,19 @@ class BulkChunk:
         positions = record_offsets[:-1] + start
         indices = builder.message_indices  # type: ignore[attr-defined]  # mcap's ChunkBuilder and Statistics internals carry no type hints
         counts = stats.channel_message_counts  # type: ignore[attr-defined]  # mcap's ChunkBuilder and Statistics internals carry no type hints
-        present, first = np.unique(channel, return_index=True)
-        for channel_id in present[np.argsort(first)].tolist():  # in order of first appearance, as add_message
-            mask = channel == channel_id
+        if groups is None:
+            present, first = np.unique(channel, return_index=True)
+            groups = [(c, mask, int(mask.sum())) for c in present[np.argsort(first)].tolist()
+                      for mask in [channel == c]]
+        for channel_id, mask, count in groups:  # in order of first appearance, as add_message
             index = indices.get(channel_id)
             if not isinstance(index, _PackedMessageIndex):  # new, or begun by add_message (same place in the dict)
                 index = indices[channel_id] = _PackedMessageIndex(channel_id, [] if index is None else index.records)
-            entries = np.empty((int(mask.sum()), 2), dtype='<u8')
+            entries = np.empty((count, 2), dtype='<u8')
             entries[:, 0] = log_time[mask]
             entries[:, 1] = positions[mask]
             index.add_packed(entries.tobytes())
-            counts[channel_id] = counts.get(channel_id, 0) + int(mask.sum())
+            counts[channel_id] = counts.get(channel_id, 0) + count
         log_min, log_max = int(log_time.min()), int(log_time.max())
         if builder.num_messages == 0:  # type: ignore[attr-defined]  # mcap's ChunkBuilder and Statistics internals carry no type hints
             builder.message_start_time = log_min  # type: ignore[attr-defined]  # mcap's ChunkBuilder and Statistics internals carry no type hints
