@@ -333,6 +333,12 @@ def float64_multi_array_cdr_rows(
     return raw
 
 
+def row_blobs(rows: NDArray[np.uint8]) -> NDArray[np.void]:
+    """The rows of an (n, L) uint8 array as n void scalars of L bytes (``L >= 1``): assigned into an object array,
+    each becomes one ``bytes`` (as :func:`split_rows`, without the list in between)."""
+    return np.ascontiguousarray(rows).view(f'V{rows.shape[1]}').reshape(rows.shape[0])
+
+
 def split_rows(rows: NDArray[np.uint8]) -> list[bytes]:
     """One ``bytes`` per row of an (n, L) uint8 array."""
     n = rows.shape[0]
