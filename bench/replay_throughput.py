@@ -16,7 +16,8 @@ cold machine):
 - ``replay --no-inputs`` (with ``--no-inputs``): the same without copying the input topics;
 - ``replay before`` (with ``--before DIR``): the replay of another checkout of the package (e.g. the code before a
   change: ``git worktree add /tmp/old COMMIT``), run in a child process with ``PYTHONPATH=DIR`` in the same rounds
-  (timed inside the child, so interpreter start-up is not counted).
+  (timed inside the child, so interpreter start-up is not counted). With ``--isolate`` the replay of this checkout
+  runs in a child process the same way, so that neither side inherits the heap of the decode runs.
 
 Throughput = bag messages / wall time [msg/s] (the same numerator for every workload); the median over the rounds
 is reported, and replay / decode of those medians and the median over the rounds of each round's replay / decode
@@ -134,7 +135,8 @@ def bench_bag(bag: Path, args: argparse.Namespace) -> dict[str, Any]:
     """Every workload on one bag, ``args.repeat`` interleaved rounds: the medians, ratios and stages."""
     workloads: list[tuple[str, Workload]] = [
         ('decode', lambda work: (*run_decode(bag), {})),
-        ('replay', lambda work: run_replay(bag, work, True)),
+        ('replay', (lambda work: run_before(bag, work, ROOT)) if args.isolate
+         else (lambda work: run_replay(bag, work, True))),
     ]
     if args.no_inputs:
         workloads.append(('replay_no_inputs', lambda work: run_replay(bag, work, False)))
@@ -217,6 +219,9 @@ def main(argv: Sequence[str] | None = None) -> int:
                         help='also time the replay without copying the input topics (replay --no-inputs)')
     parser.add_argument('--before', type=Path, metavar='DIR',
                         help='also time the replay of the package checked out at DIR (PYTHONPATH=DIR)')
+    parser.add_argument('--isolate', action='store_true',
+                        help='run each replay of this checkout in a child process too, as --before runs its own '
+                        '(a fresh interpreter and heap for both sides of the comparison)')
     parser.add_argument('--target', type=float, default=1.5, help='target replay / decode ratio (default 1.5)')
     parser.add_argument('--json', action='store_true', help='print one JSON document instead of the tables')
     parser.add_argument('--child-replay', type=Path, help=argparse.SUPPRESS)

@@ -738,7 +738,7 @@ class ResidualLogWriter:
             self._topic_types[topic] = msgtype
             self._topic_counts[topic] = self._topic_counts.get(topic, 0) + count
         try:
-            bulk.append(channel, sequence, logs, datas, offsets, groups=groups)
+            bulk.append(channel, sequence, logs, datas, offsets, groups)
         except (OSError, ValueError) as err:   # (ValueError: lengths given that are not the messages')
             self._fail(current.path, 'writing', err)
         log_min, log_max = int(logs.min()), int(logs.max())
