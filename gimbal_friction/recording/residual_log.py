@@ -699,7 +699,7 @@ class ResidualLogWriter:
             self._finish_pending(self._file, bulk)
 
     def _finish_pending(self, current: _OpenFile, bulk: mcap_bulk.BulkChunk) -> None:
-        """Write out the chunk being compressed in the worker thread, if any."""
+        """Write out the chunks being compressed in the worker thread, if any."""
         try:
             bulk.finish_pending()
             current.last_tell = current.stream.tell()
