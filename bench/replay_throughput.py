@@ -16,7 +16,8 @@ cold machine):
 - ``replay --no-inputs`` (with ``--no-inputs``): the same without copying the input topics;
 - ``replay before`` (with ``--before DIR``): the replay of another checkout of the package (e.g. the code before a
   change: ``git worktree add /tmp/old COMMIT``), run in a child process with ``PYTHONPATH=DIR`` in the same rounds
-  (timed inside the child, so interpreter start-up is not counted).
+  (timed inside the child, so interpreter start-up is not counted). With ``--isolate`` the replay of this checkout
+  runs in a child process the same way, so that neither side inherits the heap of the decode runs.
 
 Throughput = bag messages / wall time [msg/s] (the same numerator for every workload); the median over the rounds
 is reported, and replay / decode of those medians and the median over the rounds of each round's replay / decode
@@ -58,6 +59,8 @@ BIG_BAG_OPTIONS = ('--joint-rate-hz', '1000')
 #: residual log outweighs the bag: 7.06 M messages written for 2.19 M read; about 80 s to write)
 LONG_BAG = Path(tempfile.gettempdir()) / 'gimbal_friction_bench' / 'chamber_long_holds'
 LONG_BAG_OPTIONS = ('--seed', '5', '--hold-s', '600', '--soak-s', '60', '--joint-rate-hz', '250', '--storage', 'mcap')
+CPU_MAIN = 'CPU, main thread'       #: reported beside the stages: CPU seconds of the replay's thread
+CPU_ALL = 'CPU, all threads'        #: ... and of the process (the chunk-compressing worker thread included)
 STAGE_ORDER = ('setup', 'reading bag', 'nodes', 'summary', 'serializing log', 'writing residual log')
 
 Workload = Callable[[Path], tuple[float, int, dict[str, float]]]
@@ -103,15 +106,20 @@ def run_replay(bag: Path, work: Path, log_inputs: bool) -> tuple[float, int, dic
             events.append((stage, time.perf_counter()))
 
     try:
+        c0, p0 = time.thread_time(), time.process_time()
         t0 = time.perf_counter()
         result = replay_bag(bag, out, log_inputs=log_inputs, progress=progress)
         t1 = time.perf_counter()
+        c1, p1 = time.thread_time(), time.process_time()
     finally:
         shutil.rmtree(out, ignore_errors=True)
     stages: dict[str, float] = {}
     marks = [('setup', t0), *events, ('end', t1)]
     for (stage, start), (_, stop) in zip(marks, marks[1:]):
         stages[stage] = stages.get(stage, 0.0) + stop - start
+    # CPU seconds (not stages: less sensitive than wall time to what else runs on the machine)
+    stages[CPU_MAIN] = c1 - c0
+    stages[CPU_ALL] = p1 - p0
     return t1 - t0, result.messages_in, stages
 
 
@@ -134,7 +142,8 @@ def bench_bag(bag: Path, args: argparse.Namespace) -> dict[str, Any]:
     """Every workload on one bag, ``args.repeat`` interleaved rounds: the medians, ratios and stages."""
     workloads: list[tuple[str, Workload]] = [
         ('decode', lambda work: (*run_decode(bag), {})),
-        ('replay', lambda work: run_replay(bag, work, True)),
+        ('replay', (lambda work: run_before(bag, work, ROOT)) if args.isolate
+         else (lambda work: run_replay(bag, work, True))),
     ]
     if args.no_inputs:
         workloads.append(('replay_no_inputs', lambda work: run_replay(bag, work, False)))
@@ -191,7 +200,19 @@ def print_table(doc: dict[str, Any]) -> None:
         total = doc['results'][name]['median_s']
         print(f'stages of {name} (median s, share of the median total):')
         for stage, seconds in per_stage.items():
+            if stage in (CPU_MAIN, CPU_ALL):
+                continue
             print(f'  {stage:<22} {seconds:8.3f}  {100 * seconds / total:5.1f} %')
+        cpu = [f'{key} {per_stage[key]:.3f} s' for key in (CPU_MAIN, CPU_ALL) if key in per_stage]
+        if cpu:
+            print(f'  ({", ".join(cpu)}: medians)')
+    names = [name for name, per_stage in doc['stages_s'].items() if CPU_MAIN in per_stage]
+    if len(names) > 1:
+        base = doc['stages_s'][names[0]]
+        for name in names[1:]:
+            other = doc['stages_s'][name]
+            print(f'{name} / {names[0]} CPU (medians): main thread {other[CPU_MAIN] / base[CPU_MAIN]:.3f}, '
+                  f'all threads {other[CPU_ALL] / base[CPU_ALL]:.3f}')
 
 
 def child_replay(bag: Path, work: Path) -> int:
@@ -217,6 +238,9 @@ def main(argv: Sequence[str] | None = None) -> int:
                         help='also time the replay without copying the input topics (replay --no-inputs)')
     parser.add_argument('--before', type=Path, metavar='DIR',
                         help='also time the replay of the package checked out at DIR (PYTHONPATH=DIR)')
+    parser.add_argument('--isolate', action='store_true',
+                        help='run each replay of this checkout in a child process too, as --before runs its own '
+                        '(a fresh interpreter and heap for both sides of the comparison)')
     parser.add_argument('--target', type=float, default=1.5, help='target replay / decode ratio (default 1.5)')
     parser.add_argument('--json', action='store_true', help='print one JSON document instead of the tables')
     parser.add_argument('--child-replay', type=Path, help=argparse.SUPPRESS)

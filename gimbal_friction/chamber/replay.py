@@ -45,7 +45,7 @@ from gimbal_friction.feedforward.rule import (
 from gimbal_friction.physics.params import AxisParams
 from gimbal_friction.recording import topics
 from gimbal_friction.recording.bag import ChamberBag, RawBatch, default_typestore, open_chamber_bag
-from gimbal_friction.recording.cdr import float64_multi_array_cdr_rows, joint_state_cdr_rows, split_rows
+from gimbal_friction.recording.cdr import float64_multi_array_cdr_rows, joint_state_cdr_rows, row_blobs
 from gimbal_friction.recording.errors import EmptyInputError, RecordingError
 from gimbal_friction.recording.residual_log import ResidualLogWriter
 from gimbal_friction.streams.arrays import ChamberArrays
@@ -278,84 +278,79 @@ def _check_cdr_heads(batch: RawBatch) -> None:
         raise RecordingError(msg)
 
 
-def _by_layout(keys: NDArray[np.int64], serialize: Callable[[NDArray[np.int64], int], NDArray[np.uint8]]
-               ) -> tuple[list[bytes], NDArray[np.int64]]:
-    """``serialize(rows, key)`` per distinct key (one CDR layout each: an (n, L) matrix), put back in the order of
-    ``keys`` as one ``bytes`` each, and their lengths [B]."""
+def _by_layout(keys: NDArray[np.int64], serialize: Callable[[NDArray[np.int64], int], NDArray[np.uint8]],
+               out: NDArray[np.object_]) -> NDArray[np.int64]:
+    """``serialize(rows, key)`` per distinct key (one CDR layout each: an (n, L) matrix), put into ``out`` in the
+    order of ``keys`` as one ``bytes`` each; their lengths [B]."""
     uniq = np.unique(keys)
     sizes = np.zeros(keys.shape[0], dtype=np.int64)
     if uniq.size == 1:
         matrix = serialize(np.arange(keys.shape[0], dtype=np.int64), int(uniq[0]))
         sizes[:] = matrix.shape[1]
-        return split_rows(matrix), sizes
-    out: list[bytes] = [b''] * keys.shape[0]
+        out[:] = row_blobs(matrix)
+        return sizes
     for key in uniq.tolist():
         rows = np.flatnonzero(keys == key)
         matrix = serialize(rows, key)
         sizes[rows] = matrix.shape[1]
-        for k, data in zip(rows.tolist(), split_rows(matrix), strict=True):
-            out[k] = data
-    return out, sizes
+        out[rows] = row_blobs(matrix)
+    return sizes
 
 
 def _log_stream(ff: BagTorques, measured: MeasurementArrays, measured_log: NDArray[np.int64], rows: ResidualRows,
                 raw: _RawInputs | None) -> tuple[list[tuple[str, str]], NDArray[np.int64], NDArray[np.int64],
                                                  list[bytes], NDArray[np.int64]]:
     """Every message of the residual log in log-time order (ties: feedforward, measurement, its detail, residual,
-    its detail, then inputs): topics, topic ids, log times [ns], CDR bytes and their lengths [B]."""
-    joints = np.asarray(ff.joints)
-    patterns = ff.present @ (1 << np.arange(len(ff.joints), dtype=np.int64)) if len(ff) else np.empty(0, np.int64)
-    ff_datas, ff_lengths = _by_layout(patterns, lambda r, _: joint_state_cdr_rows(
-        ff.stamp_ns[r], joints[ff.present[r[0]]].tolist(), effort=ff.commands_nm[r][:, ff.present[r[0]]]))
+    its detail, then inputs): topics, topic ids, log times [ns], CDR bytes and their lengths [B].
+
+    The serialized rows go straight into one object array (a ``bytes`` each, in the order feedforward,
+    measurements' four messages, inputs), which one take puts in log-time order: no list per topic in between."""
+    n_ff = len(ff)
     n = len(measured)
-    joints = measured.joint.tolist()
+    n_raw = 0 if raw is None else len(raw.datas)
+    pool = np.empty(n_ff + 4 * n + n_raw, dtype=object)
+    joints = np.asarray(ff.joints)
+    patterns = ff.present @ (1 << np.arange(len(ff.joints), dtype=np.int64)) if n_ff else np.empty(0, np.int64)
+    ff_lengths = _by_layout(patterns, lambda r, _: joint_state_cdr_rows(
+        ff.stamp_ns[r], joints[ff.present[r[0]]].tolist(), effort=ff.commands_nm[r][:, ff.present[r[0]]]),
+        pool[:n_ff])
     stamps = np.asarray(measured.stamp_ns, dtype=np.int64)
     m_detail = detail_matrix(measured)
     r_detail = rows.matrix()
+    m_pool = pool[n_ff: n_ff + 4 * n].reshape(n, 4)   # a view: row k holds measurement k's four messages
+    m_sizes = np.zeros((n, 4), dtype=np.int64)        # [B]
 
-    m_lengths = [0, 0, 0, 0]   # [B] of the 4 messages of a measurement (one joint: one layout each)
-
-    def measured_rows(r: NDArray[np.int64], joint: str) -> list[bytes]:
-        out: list[bytes] = [b''] * (4 * r.shape[0])
+    def measured_rows(r: NDArray[np.int64] | slice, joint: str) -> None:
         pos, vel = measured.position_rad[r], measured.velocity_rad_s[r]
         for q, matrix in enumerate((
                 joint_state_cdr_rows(stamps[r], [joint], pos, vel, measured.friction_nm[r]),
                 float64_multi_array_cdr_rows(m_detail[r], joint),
                 joint_state_cdr_rows(stamps[r], [joint], pos, vel, rows.residual_nm[r]),
                 float64_multi_array_cdr_rows(r_detail[r], joint))):
-            out[q::4] = split_rows(matrix)
-            m_lengths[q] = matrix.shape[1]
-        return out
+            m_pool[r, q] = row_blobs(matrix)
+            m_sizes[r, q] = matrix.shape[1]
 
-    names = sorted(set(joints))
+    names = sorted(set(measured.joint.tolist()))
     if len(names) == 1:
-        m_datas = measured_rows(np.arange(n, dtype=np.int64), names[0])
+        measured_rows(slice(None), names[0])
     else:
-        m_datas = [b''] * (4 * n)
         for joint in names:
-            sel = np.flatnonzero(measured.joint == joint)
-            datas = measured_rows(sel, joint)
-            for q, k in enumerate(sel.tolist()):
-                m_datas[4 * k: 4 * k + 4] = datas[4 * q: 4 * q + 4]
+            measured_rows(np.flatnonzero(measured.joint == joint), joint)
     log_topics = list(_GENERATED_TOPICS)
-    ids = [np.zeros(len(ff_datas), dtype=np.int64), np.tile(np.arange(1, 5, dtype=np.int64), n)]
+    ids = [np.zeros(n_ff, dtype=np.int64), np.tile(np.arange(1, 5, dtype=np.int64), n)]
     logs = [np.asarray(ff.log_time_ns, dtype=np.int64), np.repeat(measured_log, 4)]
     # the lengths of what this serialized (its rows; the bag's as recorded), so the writer need not measure them
-    sizes = [ff_lengths, np.tile(np.asarray(m_lengths, dtype=np.int64), n) if len(names) == 1
-             else np.fromiter(map(len, m_datas), dtype=np.int64, count=len(m_datas))]
-    datas = ff_datas + m_datas
+    sizes = [ff_lengths, m_sizes.reshape(-1)]
     if raw is not None:
         shift = len(log_topics)
         log_topics += raw.topics
         ids.append(raw.ids + shift)
         logs.append(raw.log_time_ns)
         sizes.append(raw.lengths)
-        datas += raw.datas
+        pool[n_ff + 4 * n:] = raw.datas
     all_ids = np.concatenate(ids)
     all_logs = np.concatenate(logs)
     order = np.argsort(all_logs, kind='stable')
-    pool = np.empty(len(datas), dtype=object)  # a take on an object array: no Python loop per message
-    pool[:] = datas
     return log_topics, all_ids[order], all_logs[order], pool[order].tolist(), np.concatenate(sizes)[order]
 
 

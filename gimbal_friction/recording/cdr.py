@@ -237,8 +237,10 @@ def _layout(builder: _Builder, fields: dict[str, tuple[str, int]]) -> _Layout:
 
 
 def _rows(layout: _Layout, n: int) -> tuple[NDArray[np.uint8], np.ndarray]:
-    raw = np.empty((n, layout.template.shape[0]), dtype=np.uint8)
-    raw[:] = layout.template
+    width = layout.template.shape[0]
+    raw = np.empty((n, width), dtype=np.uint8)
+    if width:   # one row copy per message through a void view (a uint8 broadcast copies byte by byte: 60x slower)
+        raw.view(f'V{width}')[:] = layout.template.view(f'V{width}')
     return raw, raw.reshape(-1).view(layout.dtype)
 
 
@@ -329,6 +331,12 @@ def float64_multi_array_cdr_rows(
     if k:
         rec['data'] = arr
     return raw
+
+
+def row_blobs(rows: NDArray[np.uint8]) -> NDArray[np.void]:
+    """The rows of an (n, L) uint8 array as n void scalars of L bytes (``L >= 1``): assigned into an object array,
+    each becomes one ``bytes`` (as :func:`split_rows`, without the list in between)."""
+    return np.ascontiguousarray(rows).view(f'V{rows.shape[1]}').reshape(rows.shape[0])
 
 
 def split_rows(rows: NDArray[np.uint8]) -> list[bytes]:

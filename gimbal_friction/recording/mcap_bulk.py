@@ -18,6 +18,7 @@ Times: log times [ns]. Sizes in bytes [B].
 
 from __future__ import annotations
 
+import collections
 import io
 import itertools
 import struct
@@ -114,8 +115,9 @@ class BulkChunk:
         self._writer = writer
         self._builder = builder
         self._stats = stats
-        self._pending: tuple[Future[tuple[str, bytes, int, int]], tuple[int, int], dict[int, MessageIndex]] | None
-        self._pending = None
+        #: chunks handed to the worker thread, oldest first (written out in this order)
+        self._pending: collections.deque[tuple[Future[tuple[str, bytes, int, int]], tuple[int, int],
+                                               dict[int, MessageIndex]]] = collections.deque()
         #: the writer has what :meth:`maybe_finalize_pipelined` uses (set by :func:`bulk_chunk`)
         self.pipelined = False
 
@@ -130,6 +132,7 @@ class BulkChunk:
         log_time: NDArray[np.int64],
         datas: Sequence[bytes],
         record_offsets: NDArray[np.int64],
+        groups: Sequence[tuple[int, NDArray[np.bool_], int]],
     ) -> None:
         """Append message records ``k`` (channel id, sequence, log time = publish time [ns], ``datas[k]``).
 
@@ -140,6 +143,8 @@ class BulkChunk:
             datas: m serialized messages.
             record_offsets: (m + 1,) offset of each record from the first, then the end of the last [B]
                 (cumulative ``len(data) + MESSAGE_OVERHEAD``).
+            groups: ``(channel id, (m,) mask of its messages, their count)`` per channel of the run, in order of
+                first appearance (the order ``add_message`` would have met them in).
 
         Raises:
             OSError: the chunk buffer could not be written.
@@ -168,17 +173,15 @@ class BulkChunk:
         positions = record_offsets[:-1] + start
         indices = builder.message_indices  # type: ignore[attr-defined]  # mcap's ChunkBuilder and Statistics internals carry no type hints
         counts = stats.channel_message_counts  # type: ignore[attr-defined]  # mcap's ChunkBuilder and Statistics internals carry no type hints
-        present, first = np.unique(channel, return_index=True)
-        for channel_id in present[np.argsort(first)].tolist():  # in order of first appearance, as add_message
-            mask = channel == channel_id
+        for channel_id, mask, count in groups:  # in order of first appearance, as add_message
             index = indices.get(channel_id)
             if not isinstance(index, _PackedMessageIndex):  # new, or begun by add_message (same place in the dict)
                 index = indices[channel_id] = _PackedMessageIndex(channel_id, [] if index is None else index.records)
-            entries = np.empty((int(mask.sum()), 2), dtype='<u8')
+            entries = np.empty((count, 2), dtype='<u8')
             entries[:, 0] = log_time[mask]
             entries[:, 1] = positions[mask]
             index.add_packed(entries.tobytes())
-            counts[channel_id] = counts.get(channel_id, 0) + int(mask.sum())
+            counts[channel_id] = counts.get(channel_id, 0) + count
         log_min, log_max = int(log_time.min()), int(log_time.max())
         if builder.num_messages == 0:  # type: ignore[attr-defined]  # mcap's ChunkBuilder and Statistics internals carry no type hints
             builder.message_start_time = log_min  # type: ignore[attr-defined]  # mcap's ChunkBuilder and Statistics internals carry no type hints
@@ -203,8 +206,9 @@ class BulkChunk:
         The chunk is closed (statistics counted, the builder emptied) now and written out by the next call that
         closes a chunk, or by :meth:`finish_pending`, which the caller must call before anything else writes to the
         file (``add_message``, ``flush``, ``finish``): the records then follow each other as
-        ``Writer.__finalize_chunk`` writes them, byte for byte. At most one chunk is in flight. True if a chunk
-        was closed.
+        ``Writer.__finalize_chunk`` writes them, byte for byte. At most :data:`PIPELINE_DEPTH` chunks are in
+        flight (more than one: each hand-over to the worker and back waits for the GIL, up to a switch interval
+        each way, which one chunk in flight turned into waiting). True if a chunk was closed.
         """
         writer = self._writer
         builder = self._builder
@@ -214,7 +218,8 @@ class BulkChunk:
             return bool(before) and builder.num_messages == 0  # type: ignore[attr-defined]  # mcap's ChunkBuilder and Statistics internals carry no type hints
         if builder.count <= writer._Writer__chunk_size:  # type: ignore[attr-defined]  # mcap's private writer state (name-mangled, no hints)
             return False
-        self.finish_pending()
+        while self._pending and (len(self._pending) >= PIPELINE_DEPTH or self._pending[0][0].done()):
+            self._write_oldest()
         if builder.num_messages == 0:  # type: ignore[attr-defined]  # mcap's ChunkBuilder and Statistics internals carry no type hints
             return False
         self._stats.chunk_count += 1  # type: ignore[attr-defined]  # mcap's ChunkBuilder and Statistics internals carry no type hints
@@ -223,17 +228,19 @@ class BulkChunk:
         indices = dict(builder.message_indices)  # type: ignore[attr-defined]  # mcap's ChunkBuilder and Statistics internals carry no type hints
         compression = writer._Writer__compression  # type: ignore[attr-defined]  # mcap's private writer state (name-mangled, no hints)
         crcs = bool(writer._Writer__enable_crcs)  # type: ignore[attr-defined]  # mcap's private writer state (name-mangled, no hints)
-        self._pending = (_executor().submit(_compress, data, compression, crcs), span, indices)
+        self._pending.append((_executor().submit(_compress, data, compression, crcs), span, indices))
         builder.reset()  # type: ignore[attr-defined]  # mcap's ChunkBuilder and Statistics internals carry no type hints
         return True
 
     def finish_pending(self) -> None:
-        """Write out the chunk handed to the worker thread, if any (as ``Writer.__finalize_chunk`` would have);
-        OSError propagates."""
-        if self._pending is None:
-            return
-        future, (start, end), indices = self._pending
-        self._pending = None
+        """Write out the chunks handed to the worker thread, if any, in order (as ``Writer.__finalize_chunk``
+        would have); OSError propagates."""
+        while self._pending:
+            self._write_oldest()
+
+    def _write_oldest(self) -> None:
+        """Write out the oldest chunk handed to the worker thread (waiting for it); OSError propagates."""
+        future, (start, end), indices = self._pending.popleft()
         name, compressed, size, crc = future.result()
         writer = self._writer
         flush = writer._Writer__flush  # type: ignore[attr-defined]  # mcap's private writer state (name-mangled, no hints)
@@ -259,6 +266,8 @@ class BulkChunk:
         writer._Writer__chunk_indices.append(chunk_index)  # type: ignore[attr-defined]  # mcap's private writer state (name-mangled, no hints)
 
 
+#: chunks compressed in the worker thread at most while the caller builds the next one
+PIPELINE_DEPTH = 4
 _EXECUTOR: ThreadPoolExecutor | None = None
 
 

@@ -639,7 +639,8 @@ class ResidualLogWriter:
                 self._finish_pending(current, bulk)
             try:
                 self._channel(current, topic, msgtype)
-                tell = current.stream.tell()
+                # (pipelined: unused, and a tell per run is a system call that hands the GIL to the worker)
+                tell = 0 if pipelined else current.stream.tell()
             except OSError as err:
                 self._fail(current.path, 'writing', err)
             if bulk is None:
@@ -698,7 +699,7 @@ class ResidualLogWriter:
             self._finish_pending(self._file, bulk)
 
     def _finish_pending(self, current: _OpenFile, bulk: mcap_bulk.BulkChunk) -> None:
-        """Write out the chunk being compressed in the worker thread, if any."""
+        """Write out the chunks being compressed in the worker thread, if any."""
         try:
             bulk.finish_pending()
             current.last_tell = current.stream.tell()
@@ -719,12 +720,17 @@ class ResidualLogWriter:
         m = ids.shape[0]
         channel = np.zeros(m, dtype=np.int64)
         sequence = np.zeros(m, dtype=np.int64)
-        present, first = np.unique(ids, return_index=True)
-        for t in present[np.argsort(first)].tolist():
+        # the topics of the run in order of first appearance, as add_message meets them (a bincount and one mask
+        # per topic: a few topics in runs of thousands of messages, where np.unique sorts the run)
+        tally = np.bincount(ids, minlength=len(pairs))
+        masks = {t: ids == t for t in np.flatnonzero(tally).tolist()}
+        groups: list[tuple[int, NDArray[np.bool_], int]] = []   # (channel id, its messages, their count)
+        for t in sorted(masks, key=lambda t: int(masks[t].argmax())):
             topic, msgtype = pairs[t]
             channel_id = current.channel_ids[topic]
-            mask = ids == t
-            count = int(mask.sum())
+            mask = masks[t]
+            count = int(tally[t])
+            groups.append((channel_id, mask, count))
             base = current.sequence[channel_id]
             channel[mask] = channel_id
             sequence[mask] = (base + np.arange(1, count + 1, dtype=np.int64)) & 0xFFFFFFFF
@@ -732,7 +738,7 @@ class ResidualLogWriter:
             self._topic_types[topic] = msgtype
             self._topic_counts[topic] = self._topic_counts.get(topic, 0) + count
         try:
-            bulk.append(channel, sequence, logs, datas, offsets)
+            bulk.append(channel, sequence, logs, datas, offsets, groups)
         except (OSError, ValueError) as err:   # (ValueError: lengths given that are not the messages')
             self._fail(current.path, 'writing', err)
         log_min, log_max = int(logs.min()), int(logs.max())

@@ -17,6 +17,7 @@ from gimbal_friction.recording.cdr import (
     make_float64_multi_array,
     make_joint_state,
     make_temperature,
+    row_blobs,
     split_rows,
     temperature_from_cdr,
     temperature_rows,
@@ -144,6 +145,20 @@ def test_rows_keep_nan_payloads_bit_for_bit():
     for i, raw in enumerate(split_rows(rows)):
         assert raw == ref_joint_state(i + 1, ['a'], effort=nan_bits[i : i + 1])
         assert raw[-8:] == nan_bits[i : i + 1].tobytes()
+
+
+def test_row_blobs_in_an_object_array_are_the_rows_bytes_trailing_nuls_included():
+    # a multi-array row ends in its last double: zeros give rows ending in NUL bytes, which a bytes dtype would drop
+    data = np.zeros((5, 3))
+    data[1, 2] = 1.5
+    rows = float64_multi_array_cdr_rows(data, 'elevation')
+    pool = np.empty((5, 2), dtype=object)
+    pool[:, 1] = row_blobs(rows)
+    pool[np.array([3, 0]), 0] = row_blobs(rows[[3, 0]])
+    assert pool[:, 1].tolist() == split_rows(rows) == [ref_multi_array(row, 'elevation') for row in data]
+    assert pool[0, 0] == pool[0, 1] and pool[3, 0] == pool[3, 1] and pool[1, 0] is None
+    assert all(type(x) is bytes for x in pool[:, 1].tolist())
+    assert pool[0, 1].endswith(bytes(8))
 
 
 def test_empty_batches():

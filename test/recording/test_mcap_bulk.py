@@ -3,6 +3,7 @@ same files, byte for byte, as write_raw per message (the public mcap API); the f
 
 from __future__ import annotations
 
+import threading
 from pathlib import Path
 
 import numpy as np
@@ -274,3 +275,30 @@ def test_lengths_given_by_the_caller_write_the_same_files(tmp_path):
             writer.write_raw_many(TOPICS, ids, logs, datas, lengths=wrong)
         with pytest.raises(RecordingError):   # and the writer refuses what follows
             writer.write_raw_many(TOPICS, ids, logs, datas)
+
+
+def test_several_chunks_in_flight_give_the_same_files(tmp_path, monkeypatch):
+    """Up to PIPELINE_DEPTH full chunks are compressed in the worker thread while the next is built (one in flight
+    made the writer wait for each hand-over); they are written out in order: the files of write_raw, byte for byte.
+    The worker is held until the writer first waits for a chunk, so that the pipeline fills deterministically."""
+    gate = threading.Event()
+    original_compress = mcap_bulk._compress
+    original_write = mcap_bulk.BulkChunk._write_oldest
+    waited_with: list[int] = []
+
+    def held_compress(*args):
+        gate.wait()
+        return original_compress(*args)
+
+    def write_oldest(self):
+        waited_with.append(len(self._pending))
+        gate.set()
+        return original_write(self)
+
+    monkeypatch.setattr(mcap_bulk, '_compress', held_compress)
+    monkeypatch.setattr(mcap_bulk.BulkChunk, '_write_oldest', write_oldest)
+    rng = np.random.default_rng(32)
+    batches = [make_batch(rng, 3000)]
+    one, many = write_both(tmp_path, batches, chunk_size=4000, compression='zstd', flush_interval_s=None)
+    assert waited_with[0] == mcap_bulk.PIPELINE_DEPTH > 1
+    assert one == many
