@@ -358,6 +358,7 @@ class Feedforward:
             self.set_correction(correction)
         #: :func:`temperature_used` of the latest valid temperature when stale and when fresh (index: fresh)
         self._used: tuple[tuple[float, int], tuple[float, int]] = ((math.nan, SOURCE_ZERO),) * 2
+        self._used_c: tuple[float, float] = (math.nan, math.nan)
         self.last_temperature_c = math.nan   #: latest valid temperature [°C] (NaN: none)
         self.last_temperature_time_s = math.nan  #: its time [s]
 
@@ -371,6 +372,8 @@ class Feedforward:
         self._last_temperature_c = value
         self._used = tuple((float(t), int(source)) for t, source in  # type: ignore[assignment]
                            (temperature_used(value, fresh, self.settings, SCALAR) for fresh in (False, True)))
+        #: the temperatures of ``_used`` alone [°C] (the scalar call's index: fresh)
+        self._used_c = (self._used[0][0], self._used[1][0])
 
     def take_state(self, old: Feedforward) -> None:
         """Continue from ``old`` after a parameter change: its counters and its latest valid temperature (if that
@@ -528,13 +531,43 @@ class Feedforward:
                   position_rad: float = math.nan) -> float:
         """Feedforward torque [N·m] of ``joint`` at ``velocity_rad_s`` [rad/s], ``temperature_c`` [°C] (NaN:
         zero policy, 0 N·m) and position ``position_rad`` [rad] (the learned correction's position map; NaN: none).
-        Non-finite velocity gives 0 N·m. Counts saturation.
+        Non-finite velocity gives 0 N·m. Counts saturation. (:meth:`torque_nm` with the temperature given.)"""
+        return self.torque_nm(joint, velocity_rad_s, math.nan, position_rad, temperature_c)
 
-        The scalar fast path: :meth:`rule` on floats (``xp`` = SCALAR) with its operations written out in one
-        function, in the same order on the same values (the same torque to the last bit; test/feedforward/
-        test_feedforward_fast_path.py compares them): what depends on temperature only (the table's terms, both
-        direction factors, the correction's lists at that temperature, :meth:`Lookup.scalar_terms
-        <gimbal_friction.feedforward.correction.lookup.Lookup.scalar_terms>`) is kept per joint between calls."""
+    def _terms_at(self, joint: str, temperature_c: float, lut: Lookup | None) -> _ScalarPlan:
+        """What :meth:`torque_at` reads of ``joint`` at ``temperature_c`` [°C] (finite) with the correction's lookup
+        ``lut`` (None: the model), kept for the next scalar calls at the same temperature and lookup: (temperature
+        [°C], the lookup, the table's contact torque [N·m], its viscous coefficient [N·m], ν × rpm per rad/s, k_+
+        [-], k_- [-], the lookup's :meth:`~gimbal_friction.feedforward.correction.lookup.Lookup.scalar_terms` or
+        None)."""
+        terms = self.tables[joint].temperature_terms(temperature_c, SCALAR)
+        k_positive, k_negative = direction_factors(self.axes[joint], temperature_c, SCALAR)
+        plan: _ScalarPlan = (temperature_c, lut, terms.contact_nm, terms.viscous_nm, terms.nu_rpm_per_rad_s,
+                             k_positive, k_negative, None if lut is None else lut.scalar_terms(temperature_c))
+        self._scalar_terms[joint] = plan
+        return plan
+
+    def torque_nm(self, joint: str, velocity_rad_s: float, time_s: float, position_rad: float = math.nan,
+                  temperature_c: float | None = None) -> float:
+        """Feedforward torque [N·m] of ``joint`` for a velocity [rad/s] relative to the base at time ``time_s``
+        [s], with the temperature rules (or at ``temperature_c`` [°C] when given, ``time_s`` then unused: NaN is
+        the zero policy's 0 N·m); ``position_rad`` [rad] is where a learned correction's position map is looked up
+        (pass the reference position with a reference velocity; NaN: no position map). Non-finite velocity gives
+        0 N·m; saturation is counted. The in-process controller call.
+
+        The scalar fast path: :meth:`temperature` and :meth:`rule` on floats (``xp`` = SCALAR) with their
+        operations written out in one function, in the same order on the same values (the same torque to the last
+        bit; test/feedforward/test_feedforward_fast_path.py compares them); what depends on temperature only (the
+        table's terms, both direction factors, the correction's lists at that temperature,
+        :meth:`Lookup.scalar_terms <gimbal_friction.feedforward.correction.lookup.Lookup.scalar_terms>`) is kept
+        per joint between calls (:meth:`_terms_at`).
+
+        Raises:
+            KeyError: ``joint`` is not configured.
+        """
+        if temperature_c is None:   # (self.temperature(time_s)[0] with is_fresh written out)
+            age_s = time_s - self.last_temperature_time_s
+            temperature_c = self._used_c[(age_s if age_s >= 0.0 else -age_s) <= self._timeout_s]
         v = velocity_rad_s
         if v - v != 0.0 or temperature_c != temperature_c:  # v not finite, or NaN °C
             return 0.0
@@ -561,8 +594,7 @@ class Feedforward:
             if model_nm - model_nm != 0.0:   # (an absurd speed's infinite model: no correction)
                 odd = even = 0.0
             else:
-                (odd_l, even_l, rip, todd, teven, hi, vmin, positions, grid0, inv_step, last, rel, floor_nm,
-                 independent_nm) = cterms
+                odd_l, even_l, hi, vmin, rel, floor_nm, independent_nm, position_terms = cterms
                 if hi > 0:
                     y = _log2(a / vmin) - 0.5 if a > vmin else -1.0
                     if y <= 0.0:
@@ -578,7 +610,8 @@ class Feedforward:
                 else:
                     odd, even = odd_l[0], even_l[0]
                 m = model_nm if model_nm >= 0.0 else -model_nm
-                if positions and position_rad == position_rad:
+                if position_terms is not None and position_rad == position_rad:
+                    rip, todd, teven, grid0, inv_step, last = position_terms
                     y = (position_rad - grid0) * inv_step
                     if y <= 0.0:
                         j, h = 0, 0.0
@@ -608,38 +641,12 @@ class Feedforward:
                     even = bound if even > 0.0 else -bound
             x = _tanh(v / self._v_th) * (model_nm + odd) + even
         max_nm = self._max_torque_nm
-        torque = -max_nm if x < -max_nm else (max_nm if max_nm < x else x)   # clip
+        if -max_nm < x < max_nm:
+            return x
+        torque = -max_nm if x < -max_nm else (max_nm if max_nm < x else x)   # clip (NaN stays NaN)
         if torque >= max_nm or torque <= -max_nm:   # (abs(torque) >= max_nm)
             self.counters.add(self.counters.saturated, joint)
         return torque
-
-    def _terms_at(self, joint: str, temperature_c: float, lut: Lookup | None) -> _ScalarPlan:
-        """What :meth:`torque_at` reads of ``joint`` at ``temperature_c`` [°C] (finite) with the correction's lookup
-        ``lut`` (None: the model), kept for the next scalar calls at the same temperature and lookup: (temperature
-        [°C], the lookup, the table's contact torque [N·m], its viscous coefficient [N·m], ν × rpm per rad/s, k_+
-        [-], k_- [-], the lookup's :meth:`~gimbal_friction.feedforward.correction.lookup.Lookup.scalar_terms` or
-        None)."""
-        terms = self.tables[joint].temperature_terms(temperature_c, SCALAR)
-        k_positive, k_negative = direction_factors(self.axes[joint], temperature_c, SCALAR)
-        plan: _ScalarPlan = (temperature_c, lut, terms.contact_nm, terms.viscous_nm, terms.nu_rpm_per_rad_s,
-                             k_positive, k_negative, None if lut is None else lut.scalar_terms(temperature_c))
-        self._scalar_terms[joint] = plan
-        return plan
-
-    def torque_nm(self, joint: str, velocity_rad_s: float, time_s: float, position_rad: float = math.nan) -> float:
-        """Feedforward torque [N·m] of ``joint`` for a velocity [rad/s] relative to the base at time ``time_s``
-        [s], with the temperature rules; ``position_rad`` [rad] is where a learned correction's position map is
-        looked up (pass the reference position with a reference velocity; NaN: no position map). The in-process
-        controller call (under 1 µs: what depends on temperature only is computed once per temperature, see
-        :meth:`torque_at`).
-
-        Raises:
-            KeyError: ``joint`` is not configured.
-        """
-        # (self.temperature(time_s)[0] with is_fresh written out: two calls less)
-        age_s = time_s - self.last_temperature_time_s
-        return self.torque_at(joint, velocity_rad_s,
-                              self._used[(age_s if age_s >= 0.0 else -age_s) <= self._timeout_s][0], position_rad)
 
     # ------------------------------------------------------------------ one message (the node)
     def message(self, names: Sequence[str], velocities: Sequence[float], time_s: float,
@@ -666,10 +673,11 @@ class Feedforward:
                 return None
             c.add(bucket, J_UNKNOWN, idx.unknown)
             c.add(bucket, J_DUPLICATE, idx.duplicate)
-        # (self.temperature(time_s), one call less)
-        temperature, source = self._used[is_fresh(time_s, self.last_temperature_time_s, self._timeout_s, SCALAR)]
+        # (self.temperature(time_s) with is_fresh written out, two calls less)
+        age_s = time_s - self.last_temperature_time_s
+        temperature, source = self._used[(age_s if age_s >= 0.0 else -age_s) <= self._timeout_s]
         measured = self._velocity_source == 'measured'
-        torque_at = self.torque_at
+        torque_nm = self.torque_nm   # (torque_at without its call)
         # the correction's lookup lists per joint (None: no learned value, the model's torque and no position)
         luts = None if self._correction is None else self._correction.lookups
         if luts is not None and (positions is None or len(positions) != len(names)):
@@ -686,9 +694,9 @@ class Feedforward:
                 continue
             if luts is not None and luts[joint] is not None:
                 p = math.nan if positions is None else float(positions[i])
-                torque = torque_at(joint, v, temperature, p if measured else self.position(joint, p, time_s))
+                torque = torque_nm(joint, v, time_s, p if measured else self.position(joint, p, time_s), temperature)
             else:
-                torque = torque_at(joint, v, temperature)
+                torque = torque_nm(joint, v, time_s, math.nan, temperature)
             out_names.append(joint)
             torques.append(torque)
             commands[j] = torque
