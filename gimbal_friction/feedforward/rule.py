@@ -64,8 +64,8 @@ from gimbal_friction.common.units import NS_PER_S
 from gimbal_friction.common.xp import ARRAY, SCALAR, BoolOrArray, Namespace, X
 from gimbal_friction.feedforward.correction import Correction, CorrectionError, ModelIdentity, model_identity
 from gimbal_friction.feedforward.correction.lookup import Lookup, ScalarTerms
-from gimbal_friction.physics.friction import PALMGREN_THRESHOLD_CST_RPM
 from gimbal_friction.physics.direction import direction_factors, select_direction
+from gimbal_friction.physics.friction import PALMGREN_THRESHOLD_CST_RPM
 from gimbal_friction.physics.params import MODEL_T_MAX_C, MODEL_T_MIN_C, AxisParams
 from gimbal_friction.physics.table import FrictionTable, TemperatureTerms, magnitude_from_terms
 from gimbal_friction.physics.validity import ValidityRange, validity_range
@@ -94,7 +94,7 @@ VELOCITY_SOURCES = ('measured', 'reference', 'auto')
 NON_FINITE_VELOCITY = 'non-finite velocity'
 _NO_REFERENCE = (math.nan, math.nan)  # (velocity [rad/s], time [s]) of a joint without a reference yet
 _tanh, _log2, _cbrt = math.tanh, math.log2, SCALAR.cbrt   # (module globals: one lookup each on the scalar path)
-#: what :meth:`Feedforward.torque_at` keeps per joint (:meth:`Feedforward._terms_at`)
+#: what the scalar call :meth:`Feedforward.torque_nm` keeps per joint (:meth:`Feedforward._terms_at`)
 _ScalarPlan = tuple[float, Lookup | None, float, float, float, float, float, ScalarTerms | None]
 
 
@@ -535,11 +535,11 @@ class Feedforward:
         return self.torque_nm(joint, velocity_rad_s, math.nan, position_rad, temperature_c)
 
     def _terms_at(self, joint: str, temperature_c: float, lut: Lookup | None) -> _ScalarPlan:
-        """What :meth:`torque_at` reads of ``joint`` at ``temperature_c`` [°C] (finite) with the correction's lookup
-        ``lut`` (None: the model), kept for the next scalar calls at the same temperature and lookup: (temperature
-        [°C], the lookup, the table's contact torque [N·m], its viscous coefficient [N·m], ν × rpm per rad/s, k_+
-        [-], k_- [-], the lookup's :meth:`~gimbal_friction.feedforward.correction.lookup.Lookup.scalar_terms` or
-        None)."""
+        """What the scalar call (:meth:`torque_nm`) reads of ``joint`` at ``temperature_c`` [°C] (finite) with the
+        correction's lookup ``lut`` (None: the model), kept for the next scalar calls at the same temperature and
+        lookup: (temperature [°C], the lookup, the table's contact torque [N·m], its viscous coefficient [N·m], ν ×
+        rpm per rad/s, k_+ [-], k_- [-], the lookup's
+        :meth:`~gimbal_friction.feedforward.correction.lookup.Lookup.scalar_terms` or None)."""
         terms = self.tables[joint].temperature_terms(temperature_c, SCALAR)
         k_positive, k_negative = direction_factors(self.axes[joint], temperature_c, SCALAR)
         plan: _ScalarPlan = (temperature_c, lut, terms.contact_nm, terms.viscous_nm, terms.nu_rpm_per_rad_s,
@@ -634,7 +634,7 @@ class Feedforward:
                 if not (-bound <= odd <= bound):
                     lut.saturations += 1   # type: ignore[union-attr]  # (cterms is set with lut)
                     odd = bound if odd > 0.0 else -bound
-                if bound < independent_nm:   # max(bound, independent)
+                if bound < independent_nm:   # noqa: PLR1730  # max(bound, independent): the builtin costs ~0.1 µs
                     bound = independent_nm
                 if not (-bound <= even <= bound):
                     lut.saturations += 1   # type: ignore[union-attr]
@@ -643,7 +643,7 @@ class Feedforward:
         max_nm = self._max_torque_nm
         if -max_nm < x < max_nm:
             return x
-        torque = -max_nm if x < -max_nm else (max_nm if max_nm < x else x)   # clip (NaN stays NaN)
+        torque = -max_nm if x < -max_nm else (max_nm if max_nm < x else x)   # noqa: FURB136  # clip (NaN stays NaN)
         if torque >= max_nm or torque <= -max_nm:   # (abs(torque) >= max_nm)
             self.counters.add(self.counters.saturated, joint)
         return torque

@@ -120,7 +120,7 @@ def test_the_scalar_call_with_a_learned_correction_is_one_function():
     ff.message(['elevation', 'azimuth'], [0.03, -0.02], 0.001, [0.1, 0.2])
     calls: list[str] = []
 
-    def profile(frame, event, arg):   # noqa: ARG001
+    def profile(frame, event, arg):
         if event == 'call':
             calls.append(frame.f_code.co_name)
 
