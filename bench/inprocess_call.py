@@ -7,7 +7,8 @@ the same run: one scalar ``numpy.interp`` on a 1801-point table (the cheapest lo
 numpy). Goals (issue 22): one axis ≤ 1.0 µs per call and below ``numpy.interp`` in the same run; a two-axis
 message ≤ 3 µs. The same calls are also measured with a learned correction (issue 21): an empty one (goal: at most
 ~0.1 µs more than without), and one learned over every temperature bin and both directions, without and with a
-position map (16 bins), looked up at the position passed.
+position map (16 bins), looked up at the position passed. Goal (issue 33): with the learned correction loaded, one
+axis at most ``numpy.interp``'s scalar call in the same run.
 
 A benchmark, not a test: the machine is shared, so only the ratios measured in one run compare. Median of
 ``--repeat`` rounds of ``--calls`` calls each.
@@ -125,11 +126,12 @@ def main(argv: list[str] | None = None) -> int:
     one = med['Feedforward.torque_nm, one axis']
     message = med['Feedforward.message, two axes']
     extra = med['torque_nm, empty correction'] - one
+    learned = med['torque_nm, learned correction']
     doc = {'per_call_us': med, 'ratio_to_numpy_interp': {k: v / base for k, v in med.items()},
            'target_us': TARGET_US, 'target_message_us': TARGET_MESSAGE_US,
            'empty_correction_extra_us': extra, 'target_empty_correction_extra_us': TARGET_EMPTY_EXTRA_US,
            'pass': one <= TARGET_US and one < base, 'pass_message': message <= TARGET_MESSAGE_US,
-           'pass_empty_correction': extra <= TARGET_EMPTY_EXTRA_US}
+           'pass_empty_correction': extra <= TARGET_EMPTY_EXTRA_US, 'pass_learned_correction': learned <= base}
     if args.json:
         print(json.dumps(doc, indent=1))
         return 0
@@ -144,6 +146,9 @@ def main(argv: list[str] | None = None) -> int:
     verdict = 'PASS' if doc['pass_empty_correction'] else 'MISS'
     print(f'an empty correction adds {extra:+.3f} us per scalar call, target <= {TARGET_EMPTY_EXTRA_US:g} us: '
           f'{verdict}')
+    verdict = 'PASS' if doc['pass_learned_correction'] else 'MISS'
+    print(f'with a learned correction: {learned:.2f} us ({learned / base:.2f} x numpy.interp), target <= 1.0 x '
+          f'numpy.interp: {verdict}')
     return 0
 
 

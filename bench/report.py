@@ -109,12 +109,15 @@ def inprocess_rows(doc: dict[str, Any]) -> list[list[str]]:
     base = us['numpy.interp scalar (baseline)']
     one = us['Feedforward.torque_nm, one axis']
     msg = us['Feedforward.message, two axes']
+    learned = us['torque_nm, learned correction']
     return [
         ['in-process `Feedforward.torque_nm`, one axis', f'{one:.2f} µs', f'scalar numpy.interp {base:.2f} µs',
          f'{one / base:.2f}×', f'≤ {doc["target_us"]:g} µs and < numpy.interp',
          yes(one <= doc['target_us'] and one < base)],
         ['in-process `Feedforward.message`, two axes', f'{msg:.2f} µs', f'scalar numpy.interp {base:.2f} µs',
          f'{msg / base:.2f}×', f'≤ {doc["target_message_us"]:g} µs', yes(msg <= doc['target_message_us'])],
+        ['in-process `Feedforward.torque_nm`, one axis, learned correction', f'{learned:.2f} µs',
+         f'scalar numpy.interp {base:.2f} µs', f'{learned / base:.2f}×', '≤ numpy.interp', yes(learned <= base)],
     ]
 
 

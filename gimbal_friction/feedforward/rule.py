@@ -63,7 +63,9 @@ from gimbal_friction.common.settings import setting
 from gimbal_friction.common.units import NS_PER_S
 from gimbal_friction.common.xp import ARRAY, SCALAR, BoolOrArray, Namespace, X
 from gimbal_friction.feedforward.correction import Correction, CorrectionError, ModelIdentity, model_identity
+from gimbal_friction.feedforward.correction.lookup import Lookup, ScalarTerms
 from gimbal_friction.physics.direction import direction_factors, select_direction
+from gimbal_friction.physics.friction import PALMGREN_THRESHOLD_CST_RPM
 from gimbal_friction.physics.params import MODEL_T_MAX_C, MODEL_T_MIN_C, AxisParams
 from gimbal_friction.physics.table import FrictionTable, TemperatureTerms, magnitude_from_terms
 from gimbal_friction.physics.validity import ValidityRange, validity_range
@@ -91,6 +93,9 @@ SOURCE_NAMES = ('measured', 'hold_last', 'fallback_temperature', 'zero')
 VELOCITY_SOURCES = ('measured', 'reference', 'auto')
 NON_FINITE_VELOCITY = 'non-finite velocity'
 _NO_REFERENCE = (math.nan, math.nan)  # (velocity [rad/s], time [s]) of a joint without a reference yet
+_tanh, _log2, _cbrt = math.tanh, math.log2, SCALAR.cbrt   # (module globals: one lookup each on the scalar path)
+#: what the scalar call :meth:`Feedforward.torque_nm` keeps per joint (:meth:`Feedforward._terms_at`)
+_ScalarPlan = tuple[float, Lookup | None, float, float, float, float, float, ScalarTerms | None]
 
 
 @dataclass(frozen=True)
@@ -341,10 +346,9 @@ class Feedforward:
         #: repeated names)
         self._index_cache: dict[tuple[tuple[str, ...], int],
                                 tuple[JointIndex, tuple[tuple[int, str, int], ...], bool]] = {}
-        #: per joint, the terms of the rule at the last temperature of a scalar call: (temperature [°C], the
-        #: table's temperature terms, k_+ [-], k_- [-]) (the temperature changes at the sensor's rate, not the
-        #: joints')
-        self._scalar_terms: dict[str, tuple[float, TemperatureTerms[float], float, float]] = {}
+        #: per joint, what the scalar call reads at the last temperature of a scalar call (:meth:`_terms_at`; the
+        #: temperature changes at the sensor's rate, not the joints')
+        self._scalar_terms: dict[str, _ScalarPlan] = {}
         #: latest reference joint velocity per joint: (velocity [rad/s], time [s])
         self._reference: dict[str, tuple[float, float]] = {}
         #: the reference position [rad] of the same message as ``_reference`` (NaN: none)
@@ -354,6 +358,7 @@ class Feedforward:
             self.set_correction(correction)
         #: :func:`temperature_used` of the latest valid temperature when stale and when fresh (index: fresh)
         self._used: tuple[tuple[float, int], tuple[float, int]] = ((math.nan, SOURCE_ZERO),) * 2
+        self._used_c: tuple[float, float] = (math.nan, math.nan)
         self.last_temperature_c = math.nan   #: latest valid temperature [°C] (NaN: none)
         self.last_temperature_time_s = math.nan  #: its time [s]
 
@@ -367,6 +372,8 @@ class Feedforward:
         self._last_temperature_c = value
         self._used = tuple((float(t), int(source)) for t, source in  # type: ignore[assignment]
                            (temperature_used(value, fresh, self.settings, SCALAR) for fresh in (False, True)))
+        #: the temperatures of ``_used`` alone [°C] (the scalar call's index: fresh)
+        self._used_c = (self._used[0][0], self._used[1][0])
 
     def take_state(self, old: Feedforward) -> None:
         """Continue from ``old`` after a parameter change: its counters and its latest valid temperature (if that
@@ -524,50 +531,122 @@ class Feedforward:
                   position_rad: float = math.nan) -> float:
         """Feedforward torque [N·m] of ``joint`` at ``velocity_rad_s`` [rad/s], ``temperature_c`` [°C] (NaN:
         zero policy, 0 N·m) and position ``position_rad`` [rad] (the learned correction's position map; NaN: none).
-        Non-finite velocity gives 0 N·m. Counts saturation."""
-        if velocity_rad_s - velocity_rad_s != 0.0 or temperature_c != temperature_c:  # v not finite, or NaN °C
-            return 0.0
-        cached = self._scalar_terms.get(joint)
-        if cached is None or cached[0] != temperature_c:
-            cached = self._terms_at(joint, temperature_c)
-        _, terms, k_positive, k_negative = cached
-        correction = self._correction
-        torque: float
-        # (every configured joint is in the correction: set_correction checks; no learned value: the model, as rule)
-        lut = None if correction is None else correction.lookups[joint]
-        if lut is None:
-            torque = feedforward_torque_nm(terms, k_positive, k_negative, velocity_rad_s, self._v_th,
-                                           self._max_torque_nm, SCALAR)
-        else:   # (the joint's lookup at once: Correction.split_nm is this call behind one more)
-            model_nm = model_friction_nm(terms, k_positive, k_negative, velocity_rad_s, SCALAR)
-            odd_nm, even_nm = lut.split_nm(temperature_c, velocity_rad_s, position_rad, model_nm)
-            torque = corrected_torque_nm(model_nm, odd_nm, even_nm, velocity_rad_s, self._v_th, self._max_torque_nm,
-                                         SCALAR)
-        if abs(torque) >= self._max_torque_nm:
-            self.counters.add(self.counters.saturated, joint)
-        return torque
+        Non-finite velocity gives 0 N·m. Counts saturation. (:meth:`torque_nm` with the temperature given.)"""
+        return self.torque_nm(joint, velocity_rad_s, math.nan, position_rad, temperature_c)
 
-    def _terms_at(self, joint: str, temperature_c: float) -> tuple[float, TemperatureTerms[float], float, float]:
-        """:meth:`rule`'s temperature terms of ``joint`` at ``temperature_c`` [°C] (finite), kept for the next scalar
-        calls at the same temperature: (temperature [°C], the table's terms, k_+ [-], k_- [-])."""
-        cached = (temperature_c, self.tables[joint].temperature_terms(temperature_c, SCALAR),
-                  *direction_factors(self.axes[joint], temperature_c, SCALAR))
-        self._scalar_terms[joint] = cached
-        return cached
+    def _terms_at(self, joint: str, temperature_c: float, lut: Lookup | None) -> _ScalarPlan:
+        """What the scalar call (:meth:`torque_nm`) reads of ``joint`` at ``temperature_c`` [°C] (finite) with the
+        correction's lookup ``lut`` (None: the model), kept for the next scalar calls at the same temperature and
+        lookup: (temperature [°C], the lookup, the table's contact torque [N·m], its viscous coefficient [N·m], ν ×
+        rpm per rad/s, k_+ [-], k_- [-], the lookup's
+        :meth:`~gimbal_friction.feedforward.correction.lookup.Lookup.scalar_terms` or None)."""
+        terms = self.tables[joint].temperature_terms(temperature_c, SCALAR)
+        k_positive, k_negative = direction_factors(self.axes[joint], temperature_c, SCALAR)
+        plan: _ScalarPlan = (temperature_c, lut, terms.contact_nm, terms.viscous_nm, terms.nu_rpm_per_rad_s,
+                             k_positive, k_negative, None if lut is None else lut.scalar_terms(temperature_c))
+        self._scalar_terms[joint] = plan
+        return plan
 
-    def torque_nm(self, joint: str, velocity_rad_s: float, time_s: float, position_rad: float = math.nan) -> float:
+    def torque_nm(self, joint: str, velocity_rad_s: float, time_s: float, position_rad: float = math.nan,
+                  temperature_c: float | None = None) -> float:
         """Feedforward torque [N·m] of ``joint`` for a velocity [rad/s] relative to the base at time ``time_s``
-        [s], with the temperature rules; ``position_rad`` [rad] is where a learned correction's position map is
-        looked up (pass the reference position with a reference velocity; NaN: no position map). The in-process
-        controller call (under 1 µs: what depends on temperature only is computed once per temperature, see
-        :meth:`torque_at`).
+        [s], with the temperature rules (or at ``temperature_c`` [°C] when given, ``time_s`` then unused: NaN is
+        the zero policy's 0 N·m); ``position_rad`` [rad] is where a learned correction's position map is looked up
+        (pass the reference position with a reference velocity; NaN: no position map). Non-finite velocity gives
+        0 N·m; saturation is counted. The in-process controller call.
+
+        The scalar fast path: :meth:`temperature` and :meth:`rule` on floats (``xp`` = SCALAR) with their
+        operations written out in one function, in the same order on the same values (the same torque to the last
+        bit; test/feedforward/test_feedforward_fast_path.py compares them); what depends on temperature only (the
+        table's terms, both direction factors, the correction's lists at that temperature,
+        :meth:`Lookup.scalar_terms <gimbal_friction.feedforward.correction.lookup.Lookup.scalar_terms>`) is kept
+        per joint between calls (:meth:`_terms_at`).
 
         Raises:
             KeyError: ``joint`` is not configured.
         """
-        # (self.temperature(time_s)[0], one call less)
-        used = self._used[is_fresh(time_s, self.last_temperature_time_s, self._timeout_s, SCALAR)]
-        return self.torque_at(joint, velocity_rad_s, used[0], position_rad)
+        if temperature_c is None:   # (self.temperature(time_s)[0] with is_fresh written out)
+            age_s = time_s - self.last_temperature_time_s
+            temperature_c = self._used_c[(age_s if age_s >= 0.0 else -age_s) <= self._timeout_s]
+        v = velocity_rad_s
+        if v - v != 0.0 or temperature_c != temperature_c:  # v not finite, or NaN °C
+            return 0.0
+        correction = self._correction
+        # (every configured joint is in the correction: set_correction checks; no learned value: the model, as rule)
+        lut = None if correction is None else correction.lookups[joint]
+        plan = self._scalar_terms.get(joint)
+        if plan is None or plan[0] != temperature_c or plan[1] is not lut:
+            plan = self._terms_at(joint, temperature_c, lut)
+        _, _, contact_nm, viscous_nm, nu_rpm, k_positive, k_negative, cterms = plan
+        # magnitude_from_terms (viscous_torque_from_coefficient: Palmgren's Eq. 9 above its threshold, else 160)
+        a = v if v >= 0.0 else -v
+        vn = nu_rpm * a
+        if vn >= PALMGREN_THRESHOLD_CST_RPM:
+            c = _cbrt(vn)
+            magnitude_nm = contact_nm + viscous_nm * (c * c)
+        else:
+            magnitude_nm = contact_nm + viscous_nm * 160.0
+        k_dir = k_positive if v >= 0.0 else k_negative   # select_direction
+        if cterms is None:   # feedforward_torque_nm
+            x = _tanh(v / self._v_th) * k_dir * magnitude_nm
+        else:                # model_friction_nm, Lookup.split_nm, corrected_torque_nm
+            model_nm = k_dir * magnitude_nm
+            if model_nm - model_nm != 0.0:   # (an absurd speed's infinite model: no correction)
+                odd = even = 0.0
+            else:
+                odd_l, even_l, hi, vmin, rel, floor_nm, independent_nm, position_terms = cterms
+                if hi > 0:
+                    y = _log2(a / vmin) - 0.5 if a > vmin else -1.0
+                    if y <= 0.0:
+                        odd, even = odd_l[0], even_l[0]
+                    elif y >= hi:
+                        odd, even = odd_l[hi], even_l[hi]
+                    else:
+                        k = int(y)
+                        f = y - k
+                        o0, e0 = odd_l[k], even_l[k]
+                        odd = o0 + f * (odd_l[k + 1] - o0)
+                        even = e0 + f * (even_l[k + 1] - e0)
+                else:
+                    odd, even = odd_l[0], even_l[0]
+                m = model_nm if model_nm >= 0.0 else -model_nm
+                if position_terms is not None and position_rad == position_rad:
+                    rip, todd, teven, grid0, inv_step, last = position_terms
+                    y = (position_rad - grid0) * inv_step
+                    if y <= 0.0:
+                        j, h = 0, 0.0
+                    elif y >= last:
+                        j, h = last - 1, 1.0
+                    else:
+                        j = int(y)
+                        h = y - j
+                    if rip is not None:
+                        r0 = rip[j]
+                        odd += (r0 + h * (rip[j + 1] - r0)) * m
+                    if todd is not None and teven is not None:
+                        a0 = todd[j]
+                        odd += a0 + h * (todd[j + 1] - a0)
+                        b0 = teven[j]
+                        even += b0 + h * (teven[j + 1] - b0)
+                if a < vmin:
+                    odd *= a / vmin
+                bound = rel * m + floor_nm
+                if not (-bound <= odd <= bound):
+                    lut.saturations += 1   # type: ignore[union-attr]  # (cterms is set with lut)
+                    odd = bound if odd > 0.0 else -bound
+                if bound < independent_nm:   # noqa: PLR1730  # max(bound, independent): the builtin costs ~0.1 µs
+                    bound = independent_nm
+                if not (-bound <= even <= bound):
+                    lut.saturations += 1   # type: ignore[union-attr]
+                    even = bound if even > 0.0 else -bound
+            x = _tanh(v / self._v_th) * (model_nm + odd) + even
+        max_nm = self._max_torque_nm
+        if -max_nm < x < max_nm:
+            return x
+        torque = -max_nm if x < -max_nm else (max_nm if max_nm < x else x)   # noqa: FURB136  # clip (NaN stays NaN)
+        if torque >= max_nm or torque <= -max_nm:   # (abs(torque) >= max_nm)
+            self.counters.add(self.counters.saturated, joint)
+        return torque
 
     # ------------------------------------------------------------------ one message (the node)
     def message(self, names: Sequence[str], velocities: Sequence[float], time_s: float,
@@ -594,10 +673,11 @@ class Feedforward:
                 return None
             c.add(bucket, J_UNKNOWN, idx.unknown)
             c.add(bucket, J_DUPLICATE, idx.duplicate)
-        # (self.temperature(time_s), one call less)
-        temperature, source = self._used[is_fresh(time_s, self.last_temperature_time_s, self._timeout_s, SCALAR)]
+        # (self.temperature(time_s) with is_fresh written out, two calls less)
+        age_s = time_s - self.last_temperature_time_s
+        temperature, source = self._used[(age_s if age_s >= 0.0 else -age_s) <= self._timeout_s]
         measured = self._velocity_source == 'measured'
-        torque_at = self.torque_at
+        torque_nm = self.torque_nm   # (torque_at without its call)
         # the correction's lookup lists per joint (None: no learned value, the model's torque and no position)
         luts = None if self._correction is None else self._correction.lookups
         if luts is not None and (positions is None or len(positions) != len(names)):
@@ -614,9 +694,9 @@ class Feedforward:
                 continue
             if luts is not None and luts[joint] is not None:
                 p = math.nan if positions is None else float(positions[i])
-                torque = torque_at(joint, v, temperature, p if measured else self.position(joint, p, time_s))
+                torque = torque_nm(joint, v, time_s, p if measured else self.position(joint, p, time_s), temperature)
             else:
-                torque = torque_at(joint, v, temperature)
+                torque = torque_nm(joint, v, time_s, math.nan, temperature)
             out_names.append(joint)
             torques.append(torque)
             commands[j] = torque

@@ -44,9 +44,16 @@ from numpy.typing import NDArray
 from gimbal_friction.feedforward.correction.fit import Params
 from gimbal_friction.feedforward.correction.settings import CorrectionSettings
 
-__all__ = ['Lookup', 'held_params']
+__all__ = ['Lookup', 'PositionTerms', 'ScalarTerms', 'held_params']
 
 Array = NDArray[np.float64]
+#: :data:`ScalarTerms`' position terms: (ripple, trend odd, trend even) lists of one temperature (None when absent),
+#: the position grid's origin [rad], its inverse step [1/rad] and its last index
+PositionTerms = tuple[list[float] | None, list[float] | None, list[float] | None, float, float, int]
+#: :meth:`Lookup.scalar_terms`: the (odd, even) speed lists of one temperature [N·m], the highest speed node,
+#: ``min_speed_rad_s`` [rad/s], ``max_relative`` [-], ``floor_nm`` [N·m], ``max_independent_nm`` [N·m] and the
+#: :data:`PositionTerms` (None: no position terms)
+ScalarTerms = tuple[list[float], list[float], int, float, float, float, float, PositionTerms | None]
 
 
 def held_params(p: Params, has: NDArray[np.bool_]) -> Params:
@@ -196,6 +203,16 @@ class Lookup:
                 self._cache.clear()
             self._cache[t] = at
         return at
+
+    def scalar_terms(self, t: float) -> ScalarTerms:
+        """What :meth:`split_nm` reads at temperature ``t`` [°C], flat (:data:`ScalarTerms`: the lists of
+        :meth:`at_temperature` and this lookup's constants), for a caller that inlines :meth:`split_nm`'s operations
+        on its per-call path (the feedforward's scalar call: one tuple per temperature instead of about twenty
+        attribute reads per call)."""
+        at = self.at_temperature(t)
+        position_terms = ((at.rip, at.todd, at.teven, self.grid0, self.inv_step, self.n_grid - 1) if self.positions
+                          else None)
+        return at.odd, at.even, self.ns - 1, self.vmin, self.rel, self.floor, self.independent, position_terms
 
     # ------------------------------------------------------------------ floats
     def split_nm(self, temperature_c: float, velocity_rad_s: float, position_rad: float, model_nm: float
