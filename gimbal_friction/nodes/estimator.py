@@ -49,7 +49,6 @@ from typing import Any
 
 from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import JointState, Temperature
@@ -84,6 +83,7 @@ from gimbal_friction.nodes._common import (
     startup_model_error,
     status,
 )
+from gimbal_friction.nodes._lifecycle import ManagedNode
 from gimbal_friction.nodes._qos import Inputs, create_publisher
 from gimbal_friction.recording import topics
 from gimbal_friction.streams.arrays import chamber_arrays
@@ -105,11 +105,16 @@ def _num(value: float) -> str:
     return repr(float(value))
 
 
-class FrictionEstimator(Node):
-    """The estimator node (thin adapter around :class:`EstimatorLogic`)."""
+class FrictionEstimator(ManagedNode):
+    """The estimator node (thin adapter around :class:`EstimatorLogic`), a lifecycle node
+    (:mod:`gimbal_friction.nodes._lifecycle`): with ``autostart`` (the default) configured and active once built."""
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__('friction_estimator', **kwargs)
+
+    def configure_node(self) -> None:
+        """The lifecycle's configure: parameters read and validated (the shared model must build), the estimator,
+        subscriptions, publishers and timers made."""
         self.model = ModelParameters(self)
         est_settings = declare_settings(self, EstimatorSettings)
         self.settings = declare_settings(self, NodeSettings)
@@ -131,7 +136,7 @@ class FrictionEstimator(Node):
         self._last_warn: dict[str, float] = {}
         self.pub_measured = create_publisher(self, JointState, topics.MEASURED, DEPTH)
         self.pub_detail = create_publisher(self, Float64MultiArray, topics.MEASURED_DETAIL, DEPTH)
-        self.pub_diag = create_publisher(self, DiagnosticArray, topics.DIAGNOSTICS, 10)
+        self.pub_diag = create_publisher(self, DiagnosticArray, topics.DIAGNOSTICS, 10, managed=False)
         self.pub_stats = create_publisher(self, DiagnosticArray, topics.STATISTICS, 10)
         # every input hears reliable and best-effort publishers (nodes/_qos.py); the temperature is best-effort
         self.input_topics = ins = Inputs(self, self.inputs)
