@@ -585,10 +585,11 @@ def status(name: str, level: bytes, message: str, hardware_id: str, values: Mapp
 
 
 def diagnostic_array(node: Node, statuses: Sequence[DiagnosticStatus]) -> DiagnosticArray:
-    state = getattr(node, 'lifecycle_state', None)   # a managed node: every status says its state
+    state = getattr(node, 'lifecycle_state', None)   # a managed node: its first status says its state
     if state is not None:
+        if statuses:
+            statuses[0].values.append(KeyValue(key='lifecycle_state', value=str(state)))
         for one in statuses:
-            one.values.append(KeyValue(key='lifecycle_state', value=str(state)))
             if state != 'active' and not one.message.startswith(f'{state}:'):   # (not publishing its output)
                 one.message = f'{state}: {one.message}'
     msg = DiagnosticArray()
