@@ -1,6 +1,9 @@
 """``friction_estimator``: measured friction torque from motor current (paper Eq. 23), in steady state or while
 the gimbal works (observer).
 
+A lifecycle node (``/<node>/change_state``, ``get_state``; docs/ros.md, Lifecycle): ``autostart`` (default true)
+configures and activates it at start-up; ``autostart:=false`` waits for a lifecycle manager.
+
 Subscribes ``/gimbal/motor_current`` (sensor_msgs/JointState, effort = armature current [A] per joint),
 ``/joint_states`` (position [rad], velocity [rad/s] relative to the base) and ``/gimbal/temperature``
 (sensor_msgs/Temperature, °C, ``qos_profile_sensor_data``); the other inputs follow their publishers' reliability

@@ -1,5 +1,8 @@
 """``friction_feedforward``: model-predicted friction torque of every configured joint as a feedforward term.
 
+A lifecycle node (``/<node>/change_state``, ``get_state``; docs/ros.md, Lifecycle): ``autostart`` (default true)
+configures and activates it at start-up; ``autostart:=false`` waits for a lifecycle manager.
+
 One job in one module: the ROS wrapper of :class:`~gimbal_friction.feedforward.rule.Feedforward` (its
 subscriptions, parameters, learning service and diagnostics share the node's state).
 

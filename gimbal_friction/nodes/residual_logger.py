@@ -1,5 +1,8 @@
 """``residual_logger``: logs inputs, predictions, measurements and residuals to MCAP for the viscosity refit.
 
+A lifecycle node (``/<node>/change_state``, ``get_state``; docs/ros.md, Lifecycle): ``autostart`` (default true)
+configures and activates it at start-up; ``autostart:=false`` waits for a lifecycle manager.
+
 Subscribes ``/gimbal/temperature``, ``/joint_states``, ``/gimbal/motor_current``, ``/gimbal/friction/feedforward``,
 ``/gimbal/friction/measured`` and ``/gimbal/friction/measured_detail``. Every received message is logged as it
 arrived (raw CDR, log time = receive time; ``log_inputs``). What the estimator measured arrives complete on
