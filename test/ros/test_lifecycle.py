@@ -206,3 +206,46 @@ def test_logger_opens_the_log_on_activate_and_closes_it_on_deactivate(spawn, pro
     code, out = proc.stop()
     assert code == 0, out
     assert (siblings[0] / 'metadata.yaml').exists()   # closed at the end of the process (shutdown from active)
+
+
+def test_an_unexpected_error_goes_through_error_processing_back_to_unconfigured(probe, ros_env):
+    """An exception that is not a refusal (a bug, a lost disk) in configure: the transition answers ERROR (not an
+    exception), error processing releases what configure had made, the reason (its type and text) is logged and on
+    /diagnostics, and the node is unconfigured again (get_state over the real service)."""
+    import threading
+
+    import rclpy
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.parameter import Parameter
+
+    from gimbal_friction.nodes._lifecycle import ManagedNode
+
+    class Broken(ManagedNode):
+        def configure_node(self) -> None:
+            self.create_timer(1.0, lambda: None)
+            self.create_subscription(Temperature, topics.TEMPERATURE, lambda m: None, 10)
+            raise RuntimeError('disk on fire')
+
+    probe.subscribe(DiagnosticArray, '/diagnostics', 100)
+    context = rclpy.Context()
+    rclpy.init(context=context, domain_id=ros_env[0])
+    node = Broken('broken', context=context, parameter_overrides=[Parameter('autostart', value=False)])
+    executor = SingleThreadedExecutor(context=context)
+    executor.add_node(node)
+    spinner = threading.Thread(target=executor.spin, daemon=True)
+    spinner.start()
+    try:
+        probe.spin_until(lambda: node.count_subscribers('/diagnostics') > 0, what='the probe on /diagnostics')
+        assert state(probe, 'broken') == 'unconfigured'
+        assert not change(probe, 'broken', Transition.TRANSITION_CONFIGURE)
+        assert state(probe, 'broken') == 'unconfigured'
+        message, values = wait_diag(probe, 'gimbal_friction/broken/lifecycle', lambda m, v: True, 'the reason')
+        assert message == 'unconfigured: configure failed: RuntimeError: disk on fire', message
+        assert node.lifecycle_error == 'configure failed: RuntimeError: disk on fire'
+        assert values['transition'] == 'configure' and values['lifecycle_state'] == 'unconfigured'
+        assert not list(node.timers) and not [s for s in node.subscriptions if s.topic_name == topics.TEMPERATURE]
+    finally:
+        executor.shutdown()
+        node.destroy_node()
+        context.try_shutdown()
+        spinner.join(10)
