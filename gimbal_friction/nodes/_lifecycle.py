@@ -46,6 +46,10 @@ from gimbal_friction.recording import topics
 #: the primary states (lifecycle_msgs/msg/State labels)
 UNCONFIGURED, INACTIVE, ACTIVE, FINALIZED = 'unconfigured', 'inactive', 'active', 'finalized'
 
+#: a failed transition's status is published again this often [s] until a transition succeeds (a diagnostics
+#: aggregator or a late `ros2 topic echo /diagnostics` sees it)
+REPEAT_PERIOD_S = 1.0
+
 SUCCESS, FAILURE, ERROR_RETURN = (TransitionCallbackReturn.SUCCESS, TransitionCallbackReturn.FAILURE,
                                   TransitionCallbackReturn.ERROR)
 
@@ -83,6 +87,8 @@ class ManagedNode(LifecycleNode):
         self._last_exception: BaseException | None = None
         # the lifecycle's own /diagnostics publisher (a plain one: it reports a refusal while not active)
         self._lifecycle_diag = self.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, 10)
+        self._lifecycle_status: Any = None   #: the failed transition's status, repeated while the failure stands
+        self._lifecycle_timer = self.create_timer(REPEAT_PERIOD_S, self._repeat_status)
         self.autostart = bool(self.declare_parameter('autostart', True, ParameterDescriptor(
             name='autostart', type=Parameter.Type.BOOL.value, description=AUTOSTART_DESCRIPTION,
             read_only=True)).value)
@@ -152,12 +158,20 @@ class ManagedNode(LifecycleNode):
         self._last_exception = err
         if not (self._starting and is_refusal(err)):
             self.get_logger().error(self.lifecycle_error)
+        self._lifecycle_status = (transition, reason)
         try:
-            self._lifecycle_diag.publish(diagnostic_array(self, [status(
-                f'gimbal_friction/{self.get_name()}/lifecycle', ERROR, self.lifecycle_error, self.get_name(),
-                {'lifecycle_state': self.lifecycle_state, 'transition': transition, 'reason': reason})]))
+            self._repeat_status()
         except Exception as publish_err:  # (a context already shut down): the log has it
             self.get_logger().error(f'/diagnostics not published: {publish_err}')
+
+    def _repeat_status(self) -> None:
+        """Publish the failed transition's status (ERROR, its reason, the state now), if one failed last."""
+        if self._lifecycle_status is None or self.lifecycle_error is None:
+            return
+        transition, reason = self._lifecycle_status
+        self._lifecycle_diag.publish(diagnostic_array(self, [status(
+            f'gimbal_friction/{self.get_name()}/lifecycle', ERROR, self.lifecycle_error, self.get_name(),
+            {'transition': transition, 'reason': reason})]))
 
     def _run(self, transition: str, body: Callable[[], None], then: str, refusal: Any = FAILURE) -> Any:
         """Run a transition's ``body``: SUCCESS (state ``then``), or ``refusal`` for a refusal and ERROR for an
@@ -169,6 +183,7 @@ class ManagedNode(LifecycleNode):
             return refusal if is_refusal(err) else ERROR_RETURN
         self.lifecycle_state = then
         self.lifecycle_error = None
+        self._lifecycle_status = None
         self._last_exception = None
         return SUCCESS
 

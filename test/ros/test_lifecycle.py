@@ -145,6 +145,8 @@ def test_configure_with_a_bad_parameter_fails_and_the_node_stays_unconfigured(sp
     level = [st.level for arr in probe.received['/diagnostics'] for st in arr.status
              if st.name == f'gimbal_friction/{node}/lifecycle'][-1]
     assert level == DiagnosticStatus.ERROR
+    lifecycle = f'gimbal_friction/{node}/lifecycle'
+    probe.spin_until(lambda: len(diag_values(probe, lifecycle)) >= 2, what='the refusal repeated on /diagnostics')
     assert not change(probe, node, Transition.TRANSITION_CONFIGURE)
     assert state(probe, node) == 'unconfigured' and proc.alive(), proc.output()
     assert 'configure failed' in proc.output() and 'max_torque_nm' in proc.output()
@@ -230,6 +232,7 @@ def test_an_unexpected_error_goes_through_error_processing_back_to_unconfigured(
     context = rclpy.Context()
     rclpy.init(context=context, domain_id=ros_env[0])
     node = Broken('broken', context=context, parameter_overrides=[Parameter('autostart', value=False)])
+    timers = len(list(node.timers))   # (the node's own, made before any configure)
     executor = SingleThreadedExecutor(context=context)
     executor.add_node(node)
     spinner = threading.Thread(target=executor.spin, daemon=True)
@@ -243,7 +246,7 @@ def test_an_unexpected_error_goes_through_error_processing_back_to_unconfigured(
         assert message == 'unconfigured: configure failed: RuntimeError: disk on fire', message
         assert node.lifecycle_error == 'configure failed: RuntimeError: disk on fire'
         assert values['transition'] == 'configure' and values['lifecycle_state'] == 'unconfigured'
-        assert not list(node.timers) and not [s for s in node.subscriptions if s.topic_name == topics.TEMPERATURE]
+        assert len(list(node.timers)) == timers and not [s for s in node.subscriptions if s.topic_name == topics.TEMPERATURE]
     finally:
         executor.shutdown()
         node.destroy_node()
