@@ -246,7 +246,8 @@ def test_an_unexpected_error_goes_through_error_processing_back_to_unconfigured(
         assert message == 'unconfigured: configure failed: RuntimeError: disk on fire', message
         assert node.lifecycle_error == 'configure failed: RuntimeError: disk on fire'
         assert values['transition'] == 'configure' and values['lifecycle_state'] == 'unconfigured'
-        assert len(list(node.timers)) == timers and not [s for s in node.subscriptions if s.topic_name == topics.TEMPERATURE]
+        assert len(list(node.timers)) == timers   # released: the timer and the subscription configure made
+        assert not [s for s in node.subscriptions if s.topic_name == topics.TEMPERATURE]
     finally:
         executor.shutdown()
         node.destroy_node()
