@@ -235,6 +235,14 @@ CHAMBER_REPLAY_SPECS: tuple[dict[str, Any], ...] = (
 CHAMBER_REPLAY_PARAMETERS = tuple(spec['name'] for spec in CHAMBER_REPLAY_SPECS)
 #: the read-only ``axes`` parameter of the nodes that know joints
 AXES_DESCRIPTION = 'configured gimbal axes = joint names in /joint_states (read-only)'
+#: the ``autostart`` parameter of the managed (lifecycle) nodes (gimbal_friction.nodes._lifecycle)
+AUTOSTART_DESCRIPTION = ('configure and activate the node at start-up (read-only; false: wait unconfigured for a '
+                         'lifecycle manager)')
+#: the executables that are lifecycle nodes, and their lifecycle parameter
+MANAGED_NODES = ('friction_feedforward', 'friction_estimator', 'residual_logger')
+LIFECYCLE_SPECS: tuple[dict[str, Any], ...] = (
+    {'name': 'autostart', 'default': True, 'unit': '', 'description': AUTOSTART_DESCRIPTION},
+)
 #: parameters every rclpy node declares itself
 ROS_PARAMETERS = ('use_sim_time', 'start_type_description_service')
 MODEL_PARAMETERS = tuple(f.name for f in dataclasses.fields(AxisParams))
@@ -284,6 +292,7 @@ def node_parameter_specs(node: str) -> list[dict[str, Any]]:
     from gimbal_friction.physics.params import parameter_specs
 
     packaged_axes, flat = _packaged_flat()
+    managed = [dict(spec) for spec in LIFECYCLE_SPECS]
 
     def fields(*classes: Any) -> list[dict[str, Any]]:
         return [{'name': f.name, 'default': flat.get(f.name, f.default), 'unit': f.metadata.get('unit', ''),
@@ -300,11 +309,11 @@ def node_parameter_specs(node: str) -> list[dict[str, Any]]:
                     for prefix, cls in FEEDFORWARD_PREFIXED for f in dataclasses.fields(cls)]
         retired = [{'name': name, 'default': RETIRED_DEFAULTS[name], 'unit': '-', 'retired': True,
                     'description': f'retired, no effect: {why}'} for name, why in RETIRED_PARAMETERS.items()]
-        return axes + model + fields(FeedforwardSettings, FeedforwardNodeSettings) + prefixed + retired
+        return axes + model + fields(FeedforwardSettings, FeedforwardNodeSettings) + prefixed + retired + managed
     if node == 'friction_estimator':
-        return axes + model + fields(EstimatorSettings, EstimatorNodeSettings)
+        return axes + model + fields(EstimatorSettings, EstimatorNodeSettings) + managed
     if node == 'residual_logger':
-        return axes + fields(LoggerSettings)
+        return axes + fields(LoggerSettings) + managed
     if node == 'chamber_replay':
         return [dict(spec) for spec in CHAMBER_REPLAY_SPECS]
     if node == 'gimbal_sim':

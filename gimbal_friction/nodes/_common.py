@@ -153,6 +153,8 @@ def declare_axes(node: Node, default: list[str] | None = None) -> list[str]:
     """
     if default is None:
         default = axis_names(load_parameters())
+    if node.has_parameter('axes'):   # (declared by an earlier configure: read again)
+        return axis_names({'axes': _value(node.get_parameter('axes'))})
     try:
         node.declare_parameter('axes', default, _descriptor('axes', '', AXES_DESCRIPTION, default=default,
                                                             read_only=True))
@@ -198,6 +200,8 @@ class ModelParameters:
                 name = spec['name']
                 default = (default_overrides.get(axis) or {}).get(name)
                 full = f'axis.{axis}.{name}'
+                if node.has_parameter(full):   # (declared by an earlier configure of a lifecycle node)
+                    continue
                 desc = _descriptor(full, spec['unit'], f'override of model.{name} for joint {axis} (unset unless '
                                    'given)', default=spec['default'], rule=model_rule(name))
                 if default is None:  # unset unless given
@@ -324,6 +328,8 @@ def declare_typed(node: Node, name: str, default: Any, descriptor: ParameterDesc
     integer) is taken as that value of the declared type, as on the command line (:func:`startup_overrides`); one
     of another wrong type or outside the descriptor's range is a ConfigError naming the parameter and the rule (one
     line), not rclpy's exception: ``check(value)`` (the validation of the value alone) words it where it can."""
+    if node.has_parameter(name):   # declared by an earlier configure of a lifecycle node: its current value
+        return node.get_parameter(name)
     kind = Parameter.Type(descriptor.type)
     given: Any = None
     ignore = False
@@ -449,12 +455,17 @@ def parameter_guard(node: Node, validate: Callable[[list[Parameter[Any]]], None]
     caller without an answer. A request for an undeclared parameter or with a value of the wrong type is refused
     naming it, and the validation runs before rclpy's range check, so its reason is the one given
     (:func:`name_undeclared_parameters`)."""
+    if node.__dict__.get('_parameter_guard') is not None:   # installed by an earlier configure (same callbacks)
+        return
+    node.__dict__['_parameter_guard'] = (validate, apply)
     validated: list[tuple[tuple[str, int, str], ...]] = []  #: the request just validated by the pre-check
 
     def key(params: list[Parameter[Any]]) -> tuple[tuple[str, int, str], ...]:
         return tuple((p.name, p.type_.value, repr(_value(p))) for p in params)
 
     def on_set(params: list[Parameter[Any]]) -> SetParametersResult:
+        if not getattr(node, 'configured', True):   # a lifecycle node not configured: its configure validates
+            return SetParametersResult(successful=True)
         if validated and validated[-1] == key(params):  # the pre-check just validated this very request
             validated.clear()
             return SetParametersResult(successful=True)
@@ -489,6 +500,8 @@ def parameter_guard(node: Node, validate: Callable[[list[Parameter[Any]]], None]
 
     def post_set(params: list[Parameter[Any]]) -> None:
         validated.clear()
+        if not getattr(node, 'configured', True):
+            return
         try:
             apply(params)
         except Exception as err:  # pragma: no cover - validated before
@@ -572,6 +585,13 @@ def status(name: str, level: bytes, message: str, hardware_id: str, values: Mapp
 
 
 def diagnostic_array(node: Node, statuses: Sequence[DiagnosticStatus]) -> DiagnosticArray:
+    state = getattr(node, 'lifecycle_state', None)   # a managed node: its first status says its state
+    if state is not None:
+        if statuses:
+            statuses[0].values.append(KeyValue(key='lifecycle_state', value=str(state)))
+        for one in statuses:
+            if state != 'active' and not one.message.startswith(f'{state}:'):   # (not publishing its output)
+                one.message = f'{state}: {one.message}'
     msg = DiagnosticArray()
     msg.header.stamp = node.get_clock().now().to_msg()
     msg.status = list(statuses)

@@ -31,6 +31,7 @@ from collections.abc import Callable
 from typing import Any
 
 from rcl_interfaces.msg import ParameterDescriptor
+from rclpy.lifecycle import LifecycleNode
 from rclpy.node import Node
 from rclpy.qos import QoSCompatibility, QoSPolicyKind, QoSProfile, ReliabilityPolicy, qos_check_compatible
 from rclpy.qos_overriding_options import QoSOverridingOptions
@@ -47,10 +48,14 @@ SWITCH_TIMEOUT_S = 2.0
 FOLLOW = 'best_available'
 
 
-def create_publisher(node: Node, msg_type: Any, topic: str, qos: QoSProfile | int) -> Any:
+def create_publisher(node: Node, msg_type: Any, topic: str, qos: QoSProfile | int, managed: bool = True) -> Any:
     """``node.create_publisher`` with the ``qos_overrides.<topic>.publisher.*`` parameters (history, depth,
-    reliability)."""
+    reliability); of a lifecycle node, unless not ``managed``, a ``LifecyclePublisher`` (publishes only while the
+    node is active)."""
     profile = QoSProfile(depth=qos) if isinstance(qos, int) else copy.copy(qos)  # (rclpy overrides it in place)
+    if isinstance(node, LifecycleNode) and managed:   # publishes only while the node is active
+        return node.create_lifecycle_publisher(msg_type, topic, profile,
+                                               qos_overriding_options=QoSOverridingOptions.with_default_policies())
     return node.create_publisher(msg_type, topic, profile,
                                  qos_overriding_options=QoSOverridingOptions.with_default_policies())
 
@@ -93,7 +98,8 @@ class Input:
         self.following = False
         if follow:
             name = f'qos_overrides.{self.topic}.subscription.reliability'
-            value: Any = node.declare_parameter(name, FOLLOW, ParameterDescriptor(
+            value: Any = node.get_parameter(name).value if node.has_parameter(name) else node.declare_parameter(
+                name, FOLLOW, ParameterDescriptor(
                 description=f'reliability for subscription `{self.topic}`: {FOLLOW} = follow the publishers '
                 '(reliable while every publisher is), reliable, best_effort', read_only=True)).value
             check_qos_override(name, value)

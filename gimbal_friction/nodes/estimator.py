@@ -1,6 +1,9 @@
 """``friction_estimator``: measured friction torque from motor current (paper Eq. 23), in steady state or while
 the gimbal works (observer).
 
+A lifecycle node (``/<node>/change_state``, ``get_state``; docs/ros.md, Lifecycle): ``autostart`` (default true)
+configures and activates it at start-up; ``autostart:=false`` waits for a lifecycle manager.
+
 Subscribes ``/gimbal/motor_current`` (sensor_msgs/JointState, effort = armature current [A] per joint),
 ``/joint_states`` (position [rad], velocity [rad/s] relative to the base) and ``/gimbal/temperature``
 (sensor_msgs/Temperature, °C, ``qos_profile_sensor_data``); the other inputs follow their publishers' reliability
@@ -50,7 +53,6 @@ from typing import Any
 
 from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import JointState, Temperature
@@ -85,6 +87,7 @@ from gimbal_friction.nodes._common import (
     startup_model_error,
     status,
 )
+from gimbal_friction.nodes._lifecycle import ManagedNode
 from gimbal_friction.nodes._qos import Inputs, create_publisher
 from gimbal_friction.recording import topics
 from gimbal_friction.streams.arrays import chamber_arrays
@@ -108,11 +111,16 @@ def _num(value: float) -> str:
     return repr(float(value))
 
 
-class FrictionEstimator(Node):
-    """The estimator node (thin adapter around :class:`EstimatorLogic`)."""
+class FrictionEstimator(ManagedNode):
+    """The estimator node (thin adapter around :class:`EstimatorLogic`), a lifecycle node
+    (:mod:`gimbal_friction.nodes._lifecycle`): with ``autostart`` (the default) configured and active once built."""
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__('friction_estimator', **kwargs)
+
+    def configure_node(self) -> None:
+        """The lifecycle's configure: parameters read and validated (the shared model must build), the estimator,
+        subscriptions, publishers and timers made."""
         self.model = ModelParameters(self)
         est_settings = declare_settings(self, EstimatorSettings)
         self.settings = declare_settings(self, NodeSettings)
@@ -134,7 +142,7 @@ class FrictionEstimator(Node):
         self._last_warn: dict[str, float] = {}
         self.pub_measured = create_publisher(self, JointState, topics.MEASURED, DEPTH)
         self.pub_detail = create_publisher(self, Float64MultiArray, topics.MEASURED_DETAIL, DEPTH)
-        self.pub_diag = create_publisher(self, DiagnosticArray, topics.DIAGNOSTICS, 10)
+        self.pub_diag = create_publisher(self, DiagnosticArray, topics.DIAGNOSTICS, 10, managed=False)
         self.pub_stats = create_publisher(self, DiagnosticArray, topics.STATISTICS, 10)
         # every input hears reliable and best-effort publishers (nodes/_qos.py); the temperature is best-effort
         self.input_topics = ins = Inputs(self, self.inputs)

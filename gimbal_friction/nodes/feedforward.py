@@ -1,5 +1,8 @@
 """``friction_feedforward``: model-predicted friction torque of every configured joint as a feedforward term.
 
+A lifecycle node (``/<node>/change_state``, ``get_state``; docs/ros.md, Lifecycle): ``autostart`` (default true)
+configures and activates it at start-up; ``autostart:=false`` waits for a lifecycle manager.
+
 One job in one module: the ROS wrapper of :class:`~gimbal_friction.feedforward.rule.Feedforward` (its
 subscriptions, parameters, learning service and diagnostics share the node's state).
 
@@ -50,7 +53,6 @@ from typing import Any
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray
 from rcl_interfaces.msg import ParameterDescriptor
-from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import QoSProfile, qos_profile_sensor_data
 from sensor_msgs.msg import JointState, Temperature
@@ -100,6 +102,7 @@ from gimbal_friction.nodes._common import (
     startup_model_error,
     status,
 )
+from gimbal_friction.nodes._lifecycle import ManagedNode
 from gimbal_friction.nodes._qos import Inputs, create_publisher
 from gimbal_friction.physics.direction import direction_factors
 from gimbal_friction.recording import topics
@@ -230,17 +233,24 @@ class OutputBytes:
         return layout
 
 
-class FrictionFeedforward(Node):
-    """The feedforward node (thin adapter around :class:`Feedforward`)."""
+class FrictionFeedforward(ManagedNode):
+    """The feedforward node (thin adapter around :class:`Feedforward`), a lifecycle node
+    (:mod:`gimbal_friction.nodes._lifecycle`): with ``autostart`` (the default) configured and active once built."""
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__('friction_feedforward', **kwargs)
+
+    def configure_node(self) -> None:
+        """The lifecycle's configure: parameters read and validated, the correction file loaded, the feedforward,
+        subscriptions, publishers and timers made (a ConfigError or ModelDomainError refuses)."""
         self.model = ModelParameters(self)
         ff_settings = declare_settings(self, FeedforwardSettings)
         self.settings = declare_settings(self, NodeSettings)
         correction_settings = declare_settings(self, CorrectionSettings, _CORRECTION_PREFIX)
         learning_settings = declare_settings(self, LearningSettings, _LEARNING_PREFIX)
         for name, why in RETIRED_PARAMETERS.items():   # (an old parameter file still loads; its value does nothing)
+            if self.has_parameter(name):   # (declared by an earlier configure)
+                continue
             value: Any = self.declare_parameter(name, RETIRED_DEFAULTS[name], ParameterDescriptor(
                 name=name, description=f'retired, no effect: {why}', read_only=True, dynamic_typing=True)).value
             if value != RETIRED_DEFAULTS[name]:
@@ -270,7 +280,7 @@ class FrictionFeedforward(Node):
         # the outputs keep as many as a joint-state burst (a loaded subscriber catching up loses none)
         self.pub_ff = create_publisher(self, JointState, topics.FEEDFORWARD, JOINT_STATE_DEPTH)
         self.pub_cmd = create_publisher(self, Float64MultiArray, topics.FEEDFORWARD_COMMANDS, JOINT_STATE_DEPTH)
-        self.pub_diag = create_publisher(self, DiagnosticArray, topics.DIAGNOSTICS, 10)
+        self.pub_diag = create_publisher(self, DiagnosticArray, topics.DIAGNOSTICS, 10, managed=False)
         # every input hears reliable and best-effort publishers (nodes/_qos.py); the temperature is best-effort
         self.input_topics = ins = Inputs(self, self.inputs)
         ins.add(Temperature, topics.TEMPERATURE, self.on_temperature, qos_profile_sensor_data, follow=False,
@@ -481,8 +491,24 @@ class FrictionFeedforward(Node):
         self._logged_save_error = k.last_save_error
         k.save(self._save_path(), background=background)
 
-    def close(self) -> None:
-        """At shutdown (SIGINT/SIGTERM): save what was learned (waiting for it)."""
+    def stop_output(self) -> None:
+        """The lifecycle's deactivate: one zero feedforward for every configured joint (the motor command is left
+        without friction torque, not with the last one), then the learned correction saved."""
+        zero = JointState()
+        zero.header.stamp = self.get_clock().now().to_msg()
+        zero.name = list(self.ff.order)
+        zero.effort = [0.0] * len(self.ff.order)
+        self.pub_ff.publish(zero)
+        self.pub_cmd.publish(self._outputs.commands([0.0] * len(self.ff.order)))
+        self.save_at_stop()
+
+    def release_node(self) -> None:
+        """The lifecycle's cleanup and shutdown: what was learned saved (a configure that failed made nothing)."""
+        if 'keeper' in vars(self):
+            self.save_at_stop()
+
+    def save_at_stop(self) -> None:
+        """At deactivate, cleanup and shutdown (SIGINT/SIGTERM): save what was learned (waiting for it)."""
         self.save_correction(background=False)
         self.keeper.wait()
         self.keeper.close()
@@ -543,6 +569,8 @@ class FrictionFeedforward(Node):
             self._warn('reference', f'reference_velocity message refused: {reason}')
 
     def on_joint_state(self, msg: JointState) -> None:
+        if not self.active:   # (inactive: no output at all, as a lifecycle node)
+            return
         if self.settings.max_rate_hz > 0.0:
             now = self._now_s()
             if now - self._last_publish < 1.0 / self.settings.max_rate_hz:

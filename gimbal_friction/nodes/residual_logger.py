@@ -1,5 +1,8 @@
 """``residual_logger``: logs inputs, predictions, measurements and residuals to MCAP for the viscosity refit.
 
+A lifecycle node (``/<node>/change_state``, ``get_state``; docs/ros.md, Lifecycle): ``autostart`` (default true)
+configures and activates it at start-up; ``autostart:=false`` waits for a lifecycle manager.
+
 Subscribes ``/gimbal/temperature``, ``/joint_states``, ``/gimbal/motor_current``, ``/gimbal/friction/feedforward``,
 ``/gimbal/friction/measured`` and ``/gimbal/friction/measured_detail``. Every received message is logged as it
 arrived (raw CDR, log time = receive time; ``log_inputs``). What the estimator measured arrives complete on
@@ -48,7 +51,6 @@ from typing import Any
 
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray
-from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import HistoryPolicy, QoSProfile
 from rclpy.serialization import deserialize_message
@@ -77,6 +79,7 @@ from gimbal_friction.nodes._common import (
     split_parameters,
     status,
 )
+from gimbal_friction.nodes._lifecycle import ManagedNode
 from gimbal_friction.nodes._qos import Inputs, create_publisher
 from gimbal_friction.recording import topics
 from gimbal_friction.recording.cdr import float64_multi_array_cdr_rows, joint_state_cdr_rows, split_rows
@@ -136,11 +139,17 @@ def open_own_folder(wanted: Path, open_writer: Callable[[Path], ResidualLogWrite
     raise GimbalFrictionError(msg)
 
 
-class ResidualLogger(Node):
-    """The residual logger node (adapter around the core's pairing and rows, and ResidualLogWriter)."""
+class ResidualLogger(ManagedNode):
+    """The residual logger node (adapter around the core's pairing and rows, and ResidualLogWriter), a lifecycle
+    node (:mod:`gimbal_friction.nodes._lifecycle`): with ``autostart`` (the default) configured and active (logging)
+    once built. Each activation writes one complete log (its own folder); deactivation closes it."""
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__('residual_logger', **kwargs)
+
+    def configure_node(self) -> None:
+        """The lifecycle's configure: parameters read and validated, subscriptions, publishers and timers made (the
+        log is opened on activate)."""
         self.axes = declare_axes(self)
         self._axes_set = frozenset(self.axes)
         self.settings = declare_settings(self, LoggerSettings)
@@ -162,8 +171,7 @@ class ResidualLogger(Node):
         self._ff_torque = np.full(FEEDFORWARD_HORIZON, np.nan)
         self._ff_next = 0
         self._waiting: list[tuple[float, MeasurementArrays]] = []
-        self._open_writer()
-        self.pub_diag = create_publisher(self, DiagnosticArray, topics.DIAGNOSTICS, 10)
+        self.pub_diag = create_publisher(self, DiagnosticArray, topics.DIAGNOSTICS, 10, managed=False)
         # every input follows its publishers' reliability (nodes/_qos.py)
         self.input_topics = ins = Inputs(self, self.inputs)
         for topic in (topics.JOINT_STATES, topics.MOTOR_CURRENT, topics.MEASURED):
@@ -207,6 +215,8 @@ class ResidualLogger(Node):
         self.error = text
 
     def _write(self, fn: str, *args: Any) -> None:
+        if not self.active:   # (not logging: nothing to write to, nothing dropped)
+            return
         if self.writer is None:
             self.dropped += 1
             return
@@ -228,8 +238,16 @@ class ResidualLogger(Node):
                 writer.close()
         self._last_retry = time.monotonic()
 
-    def close(self) -> None:
-        """Finish the log (footer, metadata.yaml); called on shutdown by run_node."""
+    def start_output(self) -> None:
+        """The lifecycle's activate: the log opened (an error is reported and retried, as a write error)."""
+        self._open_writer()
+
+    def stop_output(self) -> None:
+        """The lifecycle's deactivate (and shutdown): the waiting measurements logged, the log finished."""
+        self.close_log()
+
+    def close_log(self) -> None:
+        """Finish the log (footer, metadata.yaml); on deactivate and shutdown (run_node's close)."""
         if self.writer is not None:
             try:  # the measurements still waiting are logged without a prediction; nothing may stop the close
                 self.pair(final=True)
@@ -384,6 +402,8 @@ class ResidualLogger(Node):
         self.residuals_logged += n
 
     def on_flush_timer(self) -> None:
+        if not self.active:
+            return
         if self.writer is None:
             if time.monotonic() - self._last_retry >= self.settings.retry_period_s:
                 self._last_retry = time.monotonic()
@@ -416,7 +436,7 @@ class ResidualLogger(Node):
         w = self.writer
         stats = w.stats if w is not None else None
         level = OK
-        message = 'logging'
+        message = 'logging' if self.active else 'not logging'
         self.take_sent_counts()
         new_refused = {r: n - self._reported.get(r, 0) for r, n in self.refused.items() if n > self._reported.get(r, 0)}
         self._reported = dict(self.refused)

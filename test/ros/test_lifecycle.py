@@ -1,0 +1,255 @@
+"""The managed nodes through the real lifecycle services: each node started with ``autostart:=false`` as its own
+process, its transitions driven by ``/<node>/change_state`` and read back by ``/<node>/get_state``
+(lifecycle_msgs/srv/ChangeState, GetState), its outputs checked in each state."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import pytest
+from builtin_interfaces.msg import Time
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+from lifecycle_msgs.msg import Transition
+from lifecycle_msgs.srv import ChangeState, GetState
+from rosbags.highlevel import AnyReader
+from sensor_msgs.msg import JointState, Temperature
+from std_msgs.msg import Float64MultiArray
+
+from gimbal_friction.recording import topics
+from gimbal_friction.recording.bag import default_typestore
+from gimbal_friction.streams.delivery import received_key
+
+pytestmark = [pytest.mark.ros, pytest.mark.slow]
+V = 0.05  #: joint rate of the test's joint states [rad/s]
+
+
+def call(probe: Any, srv: Any, name: str, request: Any) -> Any:
+    client = probe.node.create_client(srv, name)
+    probe.spin_until(client.service_is_ready, what=f'the service {name}')
+    future = client.call_async(request)
+    probe.spin_until(future.done, what=f'an answer of {name}')
+    return future.result()
+
+
+def state(probe: Any, node: str) -> str:
+    return str(call(probe, GetState, f'/{node}/get_state', GetState.Request()).current_state.label)
+
+
+def change(probe: Any, node: str, transition: int) -> bool:
+    request = ChangeState.Request()
+    request.transition.id = transition
+    return bool(call(probe, ChangeState, f'/{node}/change_state', request).success)
+
+
+def diag_values(probe: Any, name: str) -> list[tuple[str, dict[str, str]]]:
+    """(message, values) of every status ``name`` (or ``name/...``) received on /diagnostics, oldest first."""
+    return [(st.message, {kv.key: kv.value for kv in st.values}) for arr in probe.received['/diagnostics']
+            for st in arr.status if st.name == name or st.name.startswith(name + '/')]
+
+
+def wait_diag(probe: Any, name: str, cond: Any, what: str) -> tuple[str, dict[str, str]]:
+    found: list[tuple[str, dict[str, str]]] = []
+
+    def seen() -> bool:
+        found[:] = [one for one in diag_values(probe, name) if cond(*one)]
+        return bool(found)
+    probe.spin_until(seen, what=what)
+    return found[-1]
+
+
+def joint_state(sec: int) -> JointState:
+    msg = JointState(name=['elevation'], position=[0.01], velocity=[V], effort=[0.0])
+    msg.header.stamp = Time(sec=sec, nanosec=0)
+    return msg
+
+
+def test_feedforward_publishes_only_while_active_and_leaves_a_zero_behind(spawn, probe):
+    """unconfigured -> inactive: nothing published for the joint states received; active: one feedforward per
+    joint state; deactivate: exactly one zero feedforward for every joint (and zero commands), then nothing while
+    inactive; cleanup releases the subscriptions; shutdown finalizes; SIGINT ends the process cleanly."""
+    node = 'friction_feedforward'
+    proc = spawn(node, '--ros-args', '-p', 'autostart:=false', '-p', 'diagnostics_period_s:=0.1')
+    status_name = 'gimbal_friction/feedforward/elevation'
+    probe.subscribe(JointState, topics.FEEDFORWARD, 1000)
+    probe.subscribe(Float64MultiArray, topics.FEEDFORWARD_COMMANDS, 1000)
+    probe.subscribe(DiagnosticArray, '/diagnostics', 1000)
+    probe.publisher(Temperature, topics.TEMPERATURE)
+    js = probe.publisher(JointState, topics.JOINT_STATES)
+    assert state(probe, node) == 'unconfigured'
+    assert js.get_subscription_count() == 0   # nothing made before configure
+    assert change(probe, node, Transition.TRANSITION_CONFIGURE)
+    assert state(probe, node) == 'inactive'
+    probe.wait_matched(topics.JOINT_STATES)
+    probe.pubs[topics.TEMPERATURE].publish(Temperature(temperature=-20.0))
+
+    def send_and_wait_received(secs: range, total: int, lifecycle: str) -> None:
+        for sec in secs:
+            js.publish(joint_state(sec))
+        wait_diag(probe, status_name, lambda m, v: v.get(received_key(topics.JOINT_STATES)) == str(total)
+                  and v.get('lifecycle_state') == lifecycle, f'{total} joint states received while {lifecycle}')
+
+    send_and_wait_received(range(100, 110), 10, 'inactive')   # inactive: received, not answered
+    message, _ = diag_values(probe, status_name)[-1]
+    assert message.startswith('inactive:'), message
+    assert change(probe, node, Transition.TRANSITION_ACTIVATE)
+    assert state(probe, node) == 'active'
+    for sec in range(200, 210):
+        js.publish(joint_state(sec))
+    ff = probe.received[topics.FEEDFORWARD]
+    probe.spin_until(lambda: len(ff) >= 10, what='10 feedforwards while active')
+    assert [m.header.stamp.sec for m in ff] == list(range(200, 210))   # none of the inactive ones came late
+    assert all(m.effort[0] > 0.0 for m in ff)   # moving positive: a positive torque
+    assert change(probe, node, Transition.TRANSITION_DEACTIVATE)
+    assert state(probe, node) == 'inactive'
+    probe.spin_until(lambda: len(ff) >= 11, what='the zero feedforward of the deactivation')
+    zero = ff[10]
+    assert list(zero.name) == ['elevation'] and list(zero.effort) == [0.0]
+    cmd = probe.received[topics.FEEDFORWARD_COMMANDS]
+    probe.spin_until(lambda: len(cmd) >= 11, what='the zero commands of the deactivation')
+    assert list(cmd[10].data) == [0.0]
+    send_and_wait_received(range(300, 310), 30, 'inactive')   # inactive again: nothing more
+    assert change(probe, node, Transition.TRANSITION_ACTIVATE)
+    for sec in range(400, 405):
+        js.publish(joint_state(sec))
+    probe.spin_until(lambda: len(ff) >= 16, what='feedforwards after the second activation')
+    assert [m.header.stamp.sec for m in ff[11:]] == list(range(400, 405))   # nothing of the inactive time
+    assert len(ff) == 16
+    assert change(probe, node, Transition.TRANSITION_DEACTIVATE)
+    probe.spin_until(lambda: len(ff) >= 17, what='the second zero feedforward')
+    assert list(ff[16].effort) == [0.0]
+    assert change(probe, node, Transition.TRANSITION_CLEANUP)
+    assert state(probe, node) == 'unconfigured'
+    probe.spin_until(lambda: js.get_subscription_count() == 0, what='the subscriptions released by cleanup')
+    assert change(probe, node, Transition.TRANSITION_UNCONFIGURED_SHUTDOWN)
+    assert state(probe, node) == 'finalized'
+    assert proc.alive(), proc.output()
+    code, out = proc.stop()
+    assert code == 0, out
+    assert len(ff) == 17
+
+
+def test_configure_with_a_bad_parameter_fails_and_the_node_stays_unconfigured(spawn, probe):
+    """A value configure refuses: the transition fails (FAILURE), the reason is on /diagnostics (ERROR, naming the
+    parameter), the node stays unconfigured and keeps running; a second try fails the same way. The same value
+    with autostart (the default) stops the process with the reason, as before."""
+    node = 'friction_feedforward'
+    probe.subscribe(DiagnosticArray, '/diagnostics', 100)
+    proc = spawn(node, '--ros-args', '-p', 'autostart:=false', '-p', 'max_torque_nm:=-1.0')
+    assert state(probe, node) == 'unconfigured'
+    assert not change(probe, node, Transition.TRANSITION_CONFIGURE)
+    assert state(probe, node) == 'unconfigured'
+    message, values = wait_diag(probe, f'gimbal_friction/{node}/lifecycle', lambda m, v: True,
+                                'the refusal on /diagnostics')
+    assert 'max_torque_nm' in message and values['lifecycle_state'] == 'unconfigured', (message, values)
+    level = [st.level for arr in probe.received['/diagnostics'] for st in arr.status
+             if st.name == f'gimbal_friction/{node}/lifecycle'][-1]
+    assert level == DiagnosticStatus.ERROR
+    lifecycle = f'gimbal_friction/{node}/lifecycle'
+    probe.spin_until(lambda: len(diag_values(probe, lifecycle)) >= 2, what='the refusal repeated on /diagnostics')
+    assert not change(probe, node, Transition.TRANSITION_CONFIGURE)
+    assert state(probe, node) == 'unconfigured' and proc.alive(), proc.output()
+    assert 'configure failed' in proc.output() and 'max_torque_nm' in proc.output()
+    autostarted = spawn(node, '--ros-args', '-p', 'max_torque_nm:=-1.0')
+    code, out = autostarted.wait()
+    assert code == 1 and 'max_torque_nm' in out, out
+
+
+def test_estimator_transitions_and_diagnostics_say_the_state(spawn, probe):
+    """friction_estimator through configure, activate, deactivate, cleanup and shutdown: each answered SUCCESS,
+    get_state following, its /diagnostics (published while inactive too) saying the state; its outputs are
+    LifecyclePublishers (none while inactive)."""
+    node = 'friction_estimator'
+    probe.subscribe(DiagnosticArray, '/diagnostics', 100)
+    proc = spawn(node, '--ros-args', '-p', 'autostart:=false', '-p', 'diagnostics_period_s:=0.1')
+    name = 'gimbal_friction/estimator'
+    assert state(probe, node) == 'unconfigured'
+    assert change(probe, node, Transition.TRANSITION_CONFIGURE) and state(probe, node) == 'inactive'
+    wait_diag(probe, name, lambda m, v: v.get('lifecycle_state') == 'inactive', 'diagnostics saying inactive')
+    assert change(probe, node, Transition.TRANSITION_ACTIVATE) and state(probe, node) == 'active'
+    wait_diag(probe, name, lambda m, v: v.get('lifecycle_state') == 'active', 'diagnostics saying active')
+    assert change(probe, node, Transition.TRANSITION_DEACTIVATE) and state(probe, node) == 'inactive'
+    assert change(probe, node, Transition.TRANSITION_CLEANUP) and state(probe, node) == 'unconfigured'
+    assert change(probe, node, Transition.TRANSITION_CONFIGURE) and state(probe, node) == 'inactive'
+    assert change(probe, node, Transition.TRANSITION_INACTIVE_SHUTDOWN) and state(probe, node) == 'finalized'
+    code, out = proc.stop()
+    assert code == 0, out
+
+
+def test_logger_opens_the_log_on_activate_and_closes_it_on_deactivate(spawn, probe, tmp_path: Path):
+    """Configure opens nothing; activate opens the log; deactivate closes it cleanly (metadata.yaml written, the
+    folder readable by rosbags while the node still runs, holding what arrived while active); a second activation
+    writes a log of its own beside it."""
+    node = 'residual_logger'
+    folder = tmp_path / 'log'
+    probe.subscribe(DiagnosticArray, '/diagnostics', 100)
+    temp = probe.publisher(Temperature, topics.TEMPERATURE)
+    proc = spawn(node, '--ros-args', '-p', 'autostart:=false', '-p', f'output_dir:={folder}', '-p',
+                 'diagnostics_period_s:=0.1', '-p', 'flush_period_s:=0.1')
+    name = 'gimbal_friction/residual_logger'
+    assert change(probe, node, Transition.TRANSITION_CONFIGURE) and state(probe, node) == 'inactive'
+    message, _ = wait_diag(probe, name, lambda m, v: v.get('lifecycle_state') == 'inactive', 'inactive')
+    assert message == 'inactive: not logging' and not folder.exists(), message
+    assert change(probe, node, Transition.TRANSITION_ACTIVATE)
+    wait_diag(probe, name, lambda m, v: v.get('current_file', 'none') != 'none', 'the log open')
+    probe.wait_matched(topics.TEMPERATURE)
+    for i in range(20):
+        temp.publish(Temperature(temperature=float(i)))
+    wait_diag(probe, name, lambda m, v: int(v.get('messages_logged', 0)) >= 20, '20 temperatures logged')
+    assert not (folder / 'metadata.yaml').exists()   # open: not finished yet
+    assert change(probe, node, Transition.TRANSITION_DEACTIVATE)
+    assert (folder / 'metadata.yaml').exists() and proc.alive()
+    with AnyReader([folder], default_typestore=default_typestore()) as reader:
+        logged = [c for c in reader.connections if c.topic == topics.TEMPERATURE]
+        assert sum(1 for _ in reader.messages(connections=logged)) == 20
+    assert change(probe, node, Transition.TRANSITION_ACTIVATE)
+    siblings = [p for p in tmp_path.iterdir() if p.name.startswith('log_')]
+    assert len(siblings) == 1, list(tmp_path.iterdir())
+    code, out = proc.stop()
+    assert code == 0, out
+    assert (siblings[0] / 'metadata.yaml').exists()   # closed at the end of the process (shutdown from active)
+
+
+def test_an_unexpected_error_goes_through_error_processing_back_to_unconfigured(probe, ros_env):
+    """An exception that is not a refusal (a bug, a lost disk) in configure: the transition answers ERROR (not an
+    exception), error processing releases what configure had made, the reason (its type and text) is logged and on
+    /diagnostics, and the node is unconfigured again (get_state over the real service)."""
+    import threading
+
+    import rclpy
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.parameter import Parameter
+
+    from gimbal_friction.nodes._lifecycle import ManagedNode
+
+    class Broken(ManagedNode):
+        def configure_node(self) -> None:
+            self.create_timer(1.0, lambda: None)
+            self.create_subscription(Temperature, topics.TEMPERATURE, lambda m: None, 10)
+            raise RuntimeError('disk on fire')
+
+    probe.subscribe(DiagnosticArray, '/diagnostics', 100)
+    context = rclpy.Context()
+    rclpy.init(context=context, domain_id=ros_env[0])
+    node = Broken('broken', context=context, parameter_overrides=[Parameter('autostart', value=False)])
+    timers = len(list(node.timers))   # (the node's own, made before any configure)
+    executor = SingleThreadedExecutor(context=context)
+    executor.add_node(node)
+    spinner = threading.Thread(target=executor.spin, daemon=True)
+    spinner.start()
+    try:
+        probe.spin_until(lambda: node.count_subscribers('/diagnostics') > 0, what='the probe on /diagnostics')
+        assert state(probe, 'broken') == 'unconfigured'
+        assert not change(probe, 'broken', Transition.TRANSITION_CONFIGURE)
+        assert state(probe, 'broken') == 'unconfigured'
+        message, values = wait_diag(probe, 'gimbal_friction/broken/lifecycle', lambda m, v: True, 'the reason')
+        assert message == 'unconfigured: configure failed: RuntimeError: disk on fire', message
+        assert node.lifecycle_error == 'configure failed: RuntimeError: disk on fire'
+        assert values['transition'] == 'configure' and values['lifecycle_state'] == 'unconfigured'
+        assert len(list(node.timers)) == timers   # released: the timer and the subscription configure made
+        assert not [s for s in node.subscriptions if s.topic_name == topics.TEMPERATURE]
+    finally:
+        executor.shutdown()
+        node.destroy_node()
+        context.try_shutdown()
+        spinner.join(10)
