@@ -161,7 +161,7 @@ def test_misspelled_and_foreign_names(tmp_path):
         check_parameter_names(FF, values)
     with pytest.raises(ConfigError, match=r"did you mean 'stale_policy'.*from f\.yaml"):
         check_parameter_names(FF, {'stale_polcy': 'zero'}, sources={'stale_polcy': 'f.yaml'})
-    with pytest.raises(ConfigError, match='a QoS override is qos_overrides.<topic>.<publisher|subscription>'):
+    with pytest.raises(ConfigError, match=r'a QoS override is qos_overrides\.<topic>\.<publisher\|subscription>'):
         check_parameter_names('residual_logger', {'qos_overrides./x.depth': 5})   # (the form, not a name)
     with pytest.raises(ConfigError, match="axis 'azimuth' is not configured"):
         check_parameter_names(FF, {'axis.azimuth.interference_mm': 0.004})
