@@ -6,8 +6,8 @@ configures and activates it at start-up; ``autostart:=false`` waits for a lifecy
 
 Subscribes ``/gimbal/motor_current`` (sensor_msgs/JointState, effort = armature current [A] per joint),
 ``/joint_states`` (position [rad], velocity [rad/s] relative to the base) and ``/gimbal/temperature``
-(sensor_msgs/Temperature, °C, ``qos_profile_sensor_data``); the other inputs follow their publishers' reliability
-and every publisher and subscription takes ``qos_overrides.*`` (:mod:`gimbal_friction.nodes._qos`). The messages
+(sensor_msgs/Temperature, °C); every input follows its publishers' reliability (the temperature starts best
+effort) and every publisher and subscription takes ``qos_overrides.*`` (:mod:`gimbal_friction.nodes._qos`). The messages
 received are handed every ``batch_period_s`` to :class:`gimbal_friction.estimation.estimator.EstimatorLogic` —
 the same code the offline ``replay`` runs over a whole bag; its result does not depend on the batching, so live
 and offline give the same numbers. The rules (pairing, steady-state and observer acceptance, stamps, rejections,
@@ -54,7 +54,6 @@ from typing import Any
 from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rclpy.parameter import Parameter
-from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import JointState, Temperature
 from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 
@@ -144,10 +143,12 @@ class FrictionEstimator(ManagedNode):
         self.pub_detail = create_publisher(self, Float64MultiArray, topics.MEASURED_DETAIL, DEPTH)
         self.pub_diag = create_publisher(self, DiagnosticArray, topics.DIAGNOSTICS, 10, managed=False)
         self.pub_stats = create_publisher(self, DiagnosticArray, topics.STATISTICS, 10)
-        # every input hears reliable and best-effort publishers (nodes/_qos.py); the temperature is best-effort
+        # every input hears reliable and best-effort publishers (nodes/_qos.py). The temperature starts best-effort
+        # (it hears every publisher) and turns reliable when all its publishers are: a temperature dropped by a full
+        # best-effort queue would give the samples of its period the previous one (live no longer equal to replay)
         self.input_topics = ins = Inputs(self, self.inputs)
-        ins.add(Temperature, topics.TEMPERATURE, self.on_temperature, qos_profile_sensor_data, follow=False,
-                required=True, timeout_s=max(SILENCE_TIMEOUT_S, est_settings.temperature_timeout_s))
+        ins.add(Temperature, topics.TEMPERATURE, self.on_temperature, DEPTH, start_reliable=False, required=True,
+                timeout_s=max(SILENCE_TIMEOUT_S, est_settings.temperature_timeout_s))
         ins.add(JointState, topics.JOINT_STATES, self.on_joint_state, DEPTH, required=True)
         ins.add(JointState, topics.MOTOR_CURRENT, self.on_current, DEPTH, required=True)
         self._last_input = time.monotonic()

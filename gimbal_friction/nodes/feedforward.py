@@ -54,7 +54,7 @@ import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray
 from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.parameter import Parameter
-from rclpy.qos import QoSProfile, qos_profile_sensor_data
+from rclpy.qos import QoSProfile
 from sensor_msgs.msg import JointState, Temperature
 from std_msgs.msg import Float64MultiArray
 
@@ -281,10 +281,11 @@ class FrictionFeedforward(ManagedNode):
         self.pub_ff = create_publisher(self, JointState, topics.FEEDFORWARD, JOINT_STATE_DEPTH)
         self.pub_cmd = create_publisher(self, Float64MultiArray, topics.FEEDFORWARD_COMMANDS, JOINT_STATE_DEPTH)
         self.pub_diag = create_publisher(self, DiagnosticArray, topics.DIAGNOSTICS, 10, managed=False)
-        # every input hears reliable and best-effort publishers (nodes/_qos.py); the temperature is best-effort
+        # every input hears reliable and best-effort publishers (nodes/_qos.py); the temperature starts best-effort
+        # (it hears every publisher) and turns reliable when all its publishers are, as the estimator's
         self.input_topics = ins = Inputs(self, self.inputs)
-        ins.add(Temperature, topics.TEMPERATURE, self.on_temperature, qos_profile_sensor_data, follow=False,
-                required=True, timeout_s=max(SILENCE_TIMEOUT_S, ff_settings.temperature_timeout_s))
+        ins.add(Temperature, topics.TEMPERATURE, self.on_temperature, 100, start_reliable=False, required=True,
+                timeout_s=max(SILENCE_TIMEOUT_S, ff_settings.temperature_timeout_s))
         ins.add(JointState, topics.JOINT_STATES, self.on_joint_state, JOINT_STATE_DEPTH, required=True)
         ins.add(JointState, REFERENCE_VELOCITY, self.on_reference, qos)
         self.pub_correction = create_publisher(self, DiagnosticArray, CORRECTION, 10)
