@@ -45,7 +45,7 @@ ROSDEP_KEYS = {'python3-numpy', 'python3-scipy', 'python3-yaml', 'python3-matplo
                'mcap-ros2-support', 'python3-pytest', 'python3-hypothesis'}
 #: ROS packages (resolved by rosdep from the distribution index)
 ROS_PACKAGES = {'rclpy', 'std_msgs', 'sensor_msgs', 'diagnostic_msgs', 'builtin_interfaces', 'rcl_interfaces',
-                'launch', 'launch_ros'}
+                'lifecycle_msgs', 'launch', 'launch_ros'}
 
 
 def test_package_xml_names_only_real_rosdep_keys() -> None:

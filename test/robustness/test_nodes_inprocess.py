@@ -328,7 +328,9 @@ def test_every_measured_detail_received_is_counted_used_or_refused(in_process: A
 
     from gimbal_friction.nodes.feedforward import FrictionFeedforward
     from robustness.nodes_harness import hostile_details
-    node = in_process.make(FrictionFeedforward, learning_enabled=True, learning_step_period_s=3600.0)
+    # (the refits in this process: the test steps the learner itself and reads its cells at once)
+    node = in_process.make(FrictionFeedforward, learning_enabled=True, learning_step_period_s=3600.0,
+                           learning_fit_worker='inline')
     now = node.get_clock().now()
     temp = Temperature(temperature=-40.0)
     temp.header.stamp = now.to_msg()

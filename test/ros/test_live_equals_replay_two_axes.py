@@ -1,8 +1,8 @@
-"""Live = replay with two axes: one two-axis chamber bag through the live nodes (chamber_replay at 20x, the three
+"""Live = replay with two axes: one two-axis chamber bag through the live nodes (chamber_replay at 10x, the three
 nodes and the residual logger as their own processes) and through ``gimbal-friction replay`` gives residual logs
 with the same topics and message types, the same layouts (one feedforward message naming both joints in the
 configured order; one measurement, detail, residual and residual detail per sample) and the same values, message
-for message where the transport delivered both (a message DDS dropped at 20x is missing; a torque computed with a
+for message where the transport delivered both (a message DDS dropped is missing; a torque computed with a
 neighbouring temperature sample, because DDS does not order topics against each other, is counted and bounded)."""
 
 from __future__ import annotations
@@ -106,7 +106,9 @@ def test_live_and_replay_logs_are_the_same(two_axis_runs, spawn, ros_env, load) 
             assert all(n.alive() for n in nodes), [n.output() for n in nodes if not n.alive()]
             assert time.monotonic() < deadline, 'the nodes did not connect'
             watcher.spin(0.1)
-        rate = 20.0 if load == 'quiet' else 5.0     # beside a CPU-bound process: slower, so DDS drops few
+        # (10x: the test suite runs beside it on the other core; beside a CPU-bound process slower still, so that
+        # few messages are dropped by the transport: the test is about equal numbers, not throughput)
+        rate = 10.0 if load == 'quiet' else 4.0
         player = spawn('chamber_replay', '--ros-args', '-p', f'bag:={root / "bag"}', '-p', f'rate:={rate}',
                        '-p', 'wait_for_subscribers:=3')
         while player.alive():

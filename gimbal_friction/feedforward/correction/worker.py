@@ -294,7 +294,7 @@ class BackgroundLearner(Learner):
             self._worker.conn.send(job)
         except (OSError, ValueError) as err:
             self._job = job
-            self._lost(f'fit worker gone: {err}', timeout=False)
+            self._lost(f'fit worker died ({err})', timeout=False)
             return
         self._sync, self._settings_change, self._save_path = False, None, None
         self._job, self._sent_at, self._timed_out = job, time.monotonic(), False
