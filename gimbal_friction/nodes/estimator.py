@@ -143,11 +143,11 @@ class FrictionEstimator(ManagedNode):
         self.pub_detail = create_publisher(self, Float64MultiArray, topics.MEASURED_DETAIL, DEPTH)
         self.pub_diag = create_publisher(self, DiagnosticArray, topics.DIAGNOSTICS, 10, managed=False)
         self.pub_stats = create_publisher(self, DiagnosticArray, topics.STATISTICS, 10)
-        # every input hears reliable and best-effort publishers (nodes/_qos.py). The temperature starts best-effort
-        # (it hears every publisher) and turns reliable when all its publishers are: a temperature dropped by a full
-        # best-effort queue would give the samples of its period the previous one (live no longer equal to replay)
+        # every input hears reliable and best-effort publishers (nodes/_qos.py). The temperature too, with a deep
+        # queue: a temperature dropped by a full best-effort queue of 5 gave the samples of its period the previous
+        # one (live no longer equal to replay)
         self.input_topics = ins = Inputs(self, self.inputs)
-        ins.add(Temperature, topics.TEMPERATURE, self.on_temperature, DEPTH, start_reliable=False, required=True,
+        ins.add(Temperature, topics.TEMPERATURE, self.on_temperature, DEPTH, required=True,
                 timeout_s=max(SILENCE_TIMEOUT_S, est_settings.temperature_timeout_s))
         ins.add(JointState, topics.JOINT_STATES, self.on_joint_state, DEPTH, required=True)
         ins.add(JointState, topics.MOTOR_CURRENT, self.on_current, DEPTH, required=True)

@@ -281,10 +281,9 @@ class FrictionFeedforward(ManagedNode):
         self.pub_ff = create_publisher(self, JointState, topics.FEEDFORWARD, JOINT_STATE_DEPTH)
         self.pub_cmd = create_publisher(self, Float64MultiArray, topics.FEEDFORWARD_COMMANDS, JOINT_STATE_DEPTH)
         self.pub_diag = create_publisher(self, DiagnosticArray, topics.DIAGNOSTICS, 10, managed=False)
-        # every input hears reliable and best-effort publishers (nodes/_qos.py); the temperature starts best-effort
-        # (it hears every publisher) and turns reliable when all its publishers are, as the estimator's
+        # every input hears reliable and best-effort publishers (nodes/_qos.py), the temperature too
         self.input_topics = ins = Inputs(self, self.inputs)
-        ins.add(Temperature, topics.TEMPERATURE, self.on_temperature, 100, start_reliable=False, required=True,
+        ins.add(Temperature, topics.TEMPERATURE, self.on_temperature, 100, required=True,
                 timeout_s=max(SILENCE_TIMEOUT_S, ff_settings.temperature_timeout_s))
         ins.add(JointState, topics.JOINT_STATES, self.on_joint_state, JOINT_STATE_DEPTH, required=True)
         ins.add(JointState, REFERENCE_VELOCITY, self.on_reference, qos)
