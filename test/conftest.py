@@ -142,6 +142,14 @@ class Probe:
             self.pubs[topic] = self.node.create_publisher(msg_type, topic, depth)
         return self.pubs[topic]
 
+    def call(self, srv: Any, name: str, request: Any) -> Any:
+        """Call the service ``name`` (type ``srv``) once it is ready; its answer."""
+        client = self.node.create_client(srv, name)
+        self.spin_until(client.service_is_ready, what=f'the service {name}')
+        future = client.call_async(request)
+        self.spin_until(future.done, what=f'an answer of {name}')
+        return future.result()
+
     def spin_until(self, cond: Callable[[], bool], timeout: float = TIMEOUT, what: str = 'condition') -> None:
         deadline = time.monotonic() + timeout
         while time.monotonic() < deadline:

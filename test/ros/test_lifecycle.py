@@ -24,22 +24,14 @@ pytestmark = [pytest.mark.ros, pytest.mark.slow]
 V = 0.05  #: joint rate of the test's joint states [rad/s]
 
 
-def call(probe: Any, srv: Any, name: str, request: Any) -> Any:
-    client = probe.node.create_client(srv, name)
-    probe.spin_until(client.service_is_ready, what=f'the service {name}')
-    future = client.call_async(request)
-    probe.spin_until(future.done, what=f'an answer of {name}')
-    return future.result()
-
-
 def state(probe: Any, node: str) -> str:
-    return str(call(probe, GetState, f'/{node}/get_state', GetState.Request()).current_state.label)
+    return str(probe.call(GetState, f'/{node}/get_state', GetState.Request()).current_state.label)
 
 
 def change(probe: Any, node: str, transition: int) -> bool:
     request = ChangeState.Request()
     request.transition.id = transition
-    return bool(call(probe, ChangeState, f'/{node}/change_state', request).success)
+    return bool(probe.call(ChangeState, f'/{node}/change_state', request).success)
 
 
 def diag_values(probe: Any, name: str) -> list[tuple[str, dict[str, str]]]:

@@ -49,17 +49,9 @@ def doc_rows() -> dict[str, dict[str, dict[str, str]]]:
     return out
 
 
-def call(probe: Any, srv: Any, name: str, request: Any) -> Any:
-    client = probe.node.create_client(srv, name)
-    probe.spin_until(client.service_is_ready, what=f'the service {name}')
-    future = client.call_async(request)
-    probe.spin_until(future.done, what=f'an answer of {name}')
-    return future.result()
-
-
 def describe_all(probe: Any, node: str) -> dict[str, Any]:
-    names = call(probe, ListParameters, f'/{node}/list_parameters', ListParameters.Request()).result.names
-    answer = call(probe, DescribeParameters, f'/{node}/describe_parameters',
+    names = probe.call(ListParameters, f'/{node}/list_parameters', ListParameters.Request()).result.names
+    answer = probe.call(DescribeParameters, f'/{node}/describe_parameters',
                   DescribeParameters.Request(names=list(names)))
     return {d.name: d for d in answer.descriptors}
 
@@ -151,13 +143,13 @@ def value(kind: int, v: Any) -> ParameterValue:
 
 
 def set_one(probe: Any, node: str, name: str, pv: ParameterValue) -> Any:
-    answer = call(probe, SetParameters, f'/{node}/set_parameters',
+    answer = probe.call(SetParameters, f'/{node}/set_parameters',
                   SetParameters.Request(parameters=[ParameterMsg(name=name, value=pv)]))
     return answer.results[0]
 
 
 def get_one(probe: Any, node: str, name: str) -> ParameterValue:
-    return call(probe, GetParameters, f'/{node}/get_parameters', GetParameters.Request(names=[name])).values[0]
+    return probe.call(GetParameters, f'/{node}/get_parameters', GetParameters.Request(names=[name])).values[0]
 
 
 @pytest.mark.slow
