@@ -142,13 +142,23 @@ class Probe:
             self.pubs[topic] = self.node.create_publisher(msg_type, topic, depth)
         return self.pubs[topic]
 
-    def call(self, srv: Any, name: str, request: Any) -> Any:
-        """Call the service ``name`` (type ``srv``) once it is ready; its answer."""
+    def call(self, srv: Any, name: str, request: Any, resend_s: float | None = None) -> Any:
+        """Call the service ``name`` (type ``srv``) once it is ready; its answer. ``resend_s``: for a request that
+        may be repeated (a query), ask again after this long without an answer (a response to a client whose reader
+        the server had not matched yet is lost: discovery is not symmetric in time)."""
         client = self.node.create_client(srv, name)
         self.spin_until(client.service_is_ready, what=f'the service {name}')
-        future = client.call_async(request)
-        self.spin_until(future.done, what=f'an answer of {name}')
-        return future.result()
+        futures = [client.call_async(request)]
+        sent = [time.monotonic()]
+
+        def answered() -> bool:
+            if resend_s is not None and time.monotonic() - sent[0] > resend_s:
+                futures.append(client.call_async(request))
+                sent[0] = time.monotonic()
+            return any(f.done() for f in futures)
+
+        self.spin_until(answered, what=f'an answer of {name}')
+        return next(f for f in futures if f.done()).result()
 
     def spin_until(self, cond: Callable[[], bool], timeout: float = TIMEOUT, what: str = 'condition') -> None:
         deadline = time.monotonic() + timeout

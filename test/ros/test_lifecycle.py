@@ -25,7 +25,7 @@ V = 0.05  #: joint rate of the test's joint states [rad/s]
 
 
 def state(probe: Any, node: str) -> str:
-    return str(probe.call(GetState, f'/{node}/get_state', GetState.Request()).current_state.label)
+    return str(probe.call(GetState, f'/{node}/get_state', GetState.Request(), resend_s=2.0).current_state.label)
 
 
 def change(probe: Any, node: str, transition: int) -> bool:
