@@ -3,6 +3,7 @@
     ros2 launch gimbal_friction closed_loop.launch.py [params_file:=/path/extra.yaml] [axis:=elevation]
         [work_dir:=/tmp/loop] [temperature_c:=-40.0] [profile:=tracking] [duration_s:=30.0]
         [use_feedforward:=true] [realtime_factor:=1.0] [publish_every_ticks:=2] [exit_when_done:=true]
+        [autostart:=true]
 
 The wiring is :mod:`gimbal_friction.runs.loop_wiring`'s, the one ``gimbal-friction loop-study --live`` starts
 its processes with: ``friction_feedforward``, ``friction_estimator`` (method ``observer``) and
@@ -16,6 +17,9 @@ feedforward settings, the simulator's ``gimbal_sim`` section), all built from th
 ``params_file`` layered over them (like ``loop-study --config``). With ``exit_when_done`` (the default) the
 launch shuts down once the run is done. ``work_dir`` defaults to ``$ROS_HOME/gimbal_friction/closed_loop``
 (ROS_HOME defaulting to ``~/.ros``); a relative one is taken from the folder ``ros2 launch`` runs in.
+``autostart`` (default true) is passed to the three managed (lifecycle) nodes: false, they come up unconfigured
+and the loop starts once a lifecycle manager has configured and activated them (``gimbal_sim`` waits for their
+subscriptions and the feedforward's publisher).
 
 Without a ROS install (PyPI wheels: no ``launch``) the same loop runs with ``gimbal-friction loop-study --live``.
 """
@@ -49,6 +53,8 @@ ARGUMENTS = {
     'realtime_factor': ('1.0', 'simulated seconds per wall second [-]'),
     'publish_every_ticks': ('2', 'gimbal_sim publishes its topics every N controller ticks (2: 500 Hz)'),
     'exit_when_done': ('true', 'end gimbal_sim after the run, and with it the launch'),
+    'autostart': ('true', ('the managed nodes (friction_feedforward, friction_estimator, residual_logger) '
+                           'configure and activate themselves; false: they wait for a lifecycle manager')),
 }
 
 
@@ -71,6 +77,7 @@ def launch_loop(context: LaunchContext) -> list[Action]:
     work folder printed; ``gimbal_sim`` ending shuts the launch down when ``exit_when_done``."""
     from pathlib import Path
 
+    from gimbal_friction.config.loader import MANAGED_NODES
     from gimbal_friction.runs.loop_study import load_study_inputs
     from gimbal_friction.runs.loop_wiring import SimRun, closed_loop, write_parameter_files
 
@@ -83,6 +90,7 @@ def launch_loop(context: LaunchContext) -> list[Action]:
     duration = config.get('duration_s', '')
     use = _flag(config.get('use_feedforward', 'true'), 'use_feedforward')
     done = _flag(config.get('exit_when_done', 'true'), 'exit_when_done')
+    autostart = _flag(config.get('autostart', 'true'), 'autostart')
     run = SimRun(duration_s=float(duration) if duration else inputs.sim.profile_duration_s(profile),
                  use_feedforward=use, temperature_c=float(config.get('temperature_c', '-40.0')), profile=profile,
                  realtime_factor=float(config.get('realtime_factor', '1.0')),
@@ -92,8 +100,9 @@ def launch_loop(context: LaunchContext) -> list[Action]:
                                      f'{run.temperature_c:+g} degC for {run.duration_s:g} s; parameter files, '
                                      f'residual log and run record in {work}')]
     nodes = [Node(package='gimbal_friction', executable=spec.executable, name=spec.name, output='screen',
-                  parameters=[*spec.parameter_files, dict(spec.parameters)], remappings=list(spec.remappings),
-                  emulate_tty=True)
+                  parameters=[*spec.parameter_files, dict(spec.parameters),
+                              *([{'autostart': autostart}] if spec.executable in MANAGED_NODES else [])],
+                  remappings=list(spec.remappings), emulate_tty=True)
              for spec in closed_loop(files, work / 'residuals', run)]
     actions += nodes
     if done:

@@ -104,7 +104,7 @@ def test_launch_file_describes_the_suite(monkeypatch):
     first, and gimbal_sim only on sim:=true. (On a full ROS 2 install `ros2 launch gimbal_friction
     gimbal_friction.launch.py` runs the same.)"""
     declared, started, _ = _run_launch_file(monkeypatch, {})
-    assert {'params_file', 'log_dir', 'sim', 'sim_params_file'} <= set(declared)
+    assert {'params_file', 'log_dir', 'sim', 'sim_params_file', 'autostart'} <= set(declared)
     setup = (ROOT / 'setup.py').read_text()
     assert set(started) == {'friction_feedforward', 'friction_estimator', 'residual_logger', 'gimbal_sim'}
     packaged = '/share/gimbal_friction/config/gimbal_friction.yaml'
@@ -124,12 +124,28 @@ def test_launch_file_layers_a_user_file_once_and_resolves_the_log_folder(monkeyp
     _, started, logged = _run_launch_file(monkeypatch, {'log_dir': 'runs/today', 'params_file': 'extra.yaml'})
     folder = str(tmp_path / 'runs' / 'today')
     assert {'output_dir': folder} in started['residual_logger']['parameters']
-    assert started['friction_estimator']['parameters'] == [packaged, 'extra.yaml']
+    assert started['friction_estimator']['parameters'] == [packaged, 'extra.yaml', {'autostart': True}]
     assert len(logged) == 1 and folder in logged[0] and 'extra.yaml' in logged[0]
     _, started, logged = _run_launch_file(monkeypatch, {'params_file': packaged})
     default = str(tmp_path / 'ros_home' / 'gimbal_friction' / 'residuals')
     assert {'output_dir': default} in started['residual_logger']['parameters'] and default in logged[0]
-    assert started['friction_feedforward']['parameters'] == [packaged]
+    assert started['friction_feedforward']['parameters'] == [packaged, {'autostart': True}]
+
+
+def test_launch_file_passes_autostart_to_the_managed_nodes_only(monkeypatch):
+    """autostart (default true) reaches the three managed nodes as a bool, last (over the files); gimbal_sim, a
+    plain node, does not get it; a value that is not true or false stops the launch naming the argument."""
+    from gimbal_friction.config.loader import MANAGED_NODES
+
+    for text, value in (('true', True), ('false', False), ('False', False), ('1', True)):
+        declared, started, logged = _run_launch_file(monkeypatch, {'autostart': text})
+        assert declared['autostart'] == 'true'
+        for exe in MANAGED_NODES:
+            assert started[exe]['parameters'][-1] == {'autostart': value}, (exe, text)
+        assert not any('autostart' in p for p in started['gimbal_sim']['parameters'] if isinstance(p, dict))
+        assert ('lifecycle manager' in logged[0]) == (not value), logged
+    with pytest.raises(ValueError, match='autostart'):
+        _run_launch_file(monkeypatch, {'autostart': 'maybe'})
 
 
 class _StandInModule(types.ModuleType):
@@ -190,7 +206,8 @@ def test_closed_loop_launch_file_starts_the_loop_as_loop_study_live(monkeypatch,
     work = tmp_path / 'loop'
     declared, actions, made = _load_launch_file(monkeypatch, 'closed_loop.launch.py', {'work_dir': str(work)})
     assert {'params_file', 'axis', 'work_dir', 'temperature_c', 'profile', 'duration_s', 'use_feedforward',
-            'realtime_factor', 'publish_every_ticks', 'exit_when_done'} == set(declared)
+            'realtime_factor', 'publish_every_ticks', 'exit_when_done', 'autostart'} == set(declared)
+    assert declared['autostart'] == 'true'
     nodes = [a.kwargs for a in actions if type(a).__name__ == 'Node']
     inputs = load_study_inputs([])
     files = write_parameter_files(inputs, tmp_path / 'expected')
@@ -204,9 +221,10 @@ def test_closed_loop_launch_file_starts_the_loop_as_loop_study_live(monkeypatch,
     assert [n['name'] for n in nodes] == ['friction_feedforward', 'friction_estimator', 'residual_logger',
                                           'gimbal_sim']
     for node, spec in zip(nodes, specs, strict=True):
-        assert node['parameters'] == [*map(str, launched), dict(spec.parameters)], spec.name
+        managed = [{'autostart': True}] if spec.name != 'gimbal_sim' else []   # the managed nodes get autostart
+        assert node['parameters'] == [*map(str, launched), dict(spec.parameters), *managed], spec.name
         assert node['remappings'] == list(spec.remappings) == [], spec.name
-    assert nodes[2]['parameters'][-1] == {'output_dir': str(work / 'residuals')}
+    assert nodes[2]['parameters'][-2] == {'output_dir': str(work / 'residuals')}
     sim = nodes[3]['parameters'][-1]
     assert sim == {'environment_temperature_c': -40.0, 'profile': 'tracking',
                    'duration_s': inputs.sim.profile_duration_s('tracking'), 'exit_when_done': True,
@@ -233,6 +251,11 @@ def test_closed_loop_launch_arguments_reach_the_nodes(monkeypatch, tmp_path):
     assert sim['record_path'] == str(tmp_path / 'rel' / 'run_none.npz')
     assert 'scan_duration_s: 7.5' in (tmp_path / 'rel' / 'params' / 'study.yaml').read_text()
     assert 'OnProcessExit' not in made   # without exit_when_done the launch keeps running
+    _, actions, _ = _load_launch_file(monkeypatch, 'closed_loop.launch.py', {'work_dir': 'rel', 'autostart': 'false'})
+    nodes = {a.kwargs['name']: a.kwargs for a in actions if type(a).__name__ == 'Node'}
+    for name in ('friction_feedforward', 'friction_estimator', 'residual_logger'):
+        assert nodes[name]['parameters'][-1] == {'autostart': False}, name
+    assert 'autostart' not in nodes['gimbal_sim']['parameters'][-1]
 
 
 @pytest.mark.slow
