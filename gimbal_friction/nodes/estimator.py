@@ -2,7 +2,8 @@
 the gimbal works (observer).
 
 A lifecycle node (``/<node>/change_state``, ``get_state``; docs/ros.md, Lifecycle): ``autostart`` (default true)
-configures and activates it at start-up; ``autostart:=false`` waits for a lifecycle manager.
+configures and activates it at start-up; ``autostart:=false`` waits for a lifecycle manager. Deactivate and
+shutdown first publish the samples still waiting for a later temperature (with the one in force at their stamp).
 
 Subscribes ``/gimbal/motor_current`` (sensor_msgs/JointState, effort = armature current [A] per joint),
 ``/joint_states`` (position [rad], velocity [rad/s] relative to the base) and ``/gimbal/temperature``
@@ -159,6 +160,13 @@ class FrictionEstimator(ManagedNode):
         kt = ', '.join(f'{j} K_T={p.torque_constant_nm_per_a:g} N*m/A I_0={p.no_load_current_a:g} A'
                        for j, p in self.logic.axes.items())
         self.get_logger().info(f'friction_estimator ({est_settings.method}): {kt}')
+
+    def stop_output(self) -> None:
+        """The lifecycle's deactivate (and shutdown from active), before the publishers stop: the messages
+        received so far processed, then the samples still waiting for a later temperature published with the one
+        in force at their stamp (:meth:`EstimatorLogic.flush`), so nothing measured while active is lost."""
+        self.process()
+        self._publish(self.logic.flush())
 
     # ------------------------------------------------------------------ parameters
     def _validate_params(self, params: list[Parameter[Any]]) -> None:

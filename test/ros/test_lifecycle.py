@@ -245,3 +245,72 @@ def test_an_unexpected_error_goes_through_error_processing_back_to_unconfigured(
         node.destroy_node()
         context.try_shutdown()
         spinner.join(10)
+
+
+def test_estimator_publishes_the_samples_waiting_for_a_temperature_on_deactivate_and_shutdown(spawn, probe):
+    """Samples paired while active but waiting for a later temperature (``temperature_wait_s``, 60 s of stamps) are published when
+    the node is deactivated, and again when it is shut down from active, with the temperature in force at their
+    stamp: nothing measured while active is lost. (Inputs keep arriving throughout, so the idle release of a
+    silent input does not publish them first; without the flush they went to a publisher already stopped.)"""
+    node = 'friction_estimator'
+    proc = spawn(node, '--ros-args', '-p', 'autostart:=false', '-p', 'diagnostics_period_s:=0.1',
+                 '-p', 'min_dwell_s:=0.0', '-p', 'temperature_wait_s:=60.0')
+    measured: list[JointState] = []
+    detail: list[Float64MultiArray] = []
+    probe.node.create_subscription(JointState, topics.MEASURED, measured.append, 1000)
+    probe.node.create_subscription(Float64MultiArray, topics.MEASURED_DETAIL, detail.append, 1000)
+    probe.subscribe(DiagnosticArray, '/diagnostics', 1000)
+    temp = probe.publisher(Temperature, topics.TEMPERATURE)
+    js = probe.publisher(JointState, topics.JOINT_STATES)
+    cur = probe.publisher(JointState, topics.MOTOR_CURRENT)
+    assert change(probe, node, Transition.TRANSITION_CONFIGURE)
+    assert change(probe, node, Transition.TRANSITION_ACTIVATE) and state(probe, node) == 'active'
+    for topic in (topics.TEMPERATURE, topics.JOINT_STATES, topics.MOTOR_CURRENT):
+        probe.wait_matched(topic)
+    # another joint's states keep the input alive (no idle release) until the node is shut down
+    keepalive = JointState(name=['not_configured'], position=[0.0], velocity=[0.0])
+    probe.node.create_timer(0.1, lambda: js.publish(keepalive))
+    sent_t = [0]
+
+    def temperature_known() -> bool:   # (resent, stamped a millisecond later, until the node has it)
+        msg = Temperature(temperature=-20.0)
+        msg.header.stamp = Time(sec=100, nanosec=sent_t[0] * 1_000_000)
+        sent_t[0] += 1
+        temp.publish(msg)
+        return any(v.get('temperature_c') == '-20' for _, v in diag_values(probe, 'gimbal_friction/estimator'))
+    probe.spin_until(temperature_known, what='the temperature in the diagnostics')
+    v = 2 * 3.141592653589793 / 180   # the commanded speed, 1/3 rpm [rad/s]
+
+    def send_samples(start_s: int) -> int:
+        for k in range(20):
+            stamp = Time(sec=start_s + (k * 20) // 1000, nanosec=((k * 20) % 1000) * 1_000_000)
+            state_msg = JointState(name=['elevation'], position=[0.1 + v * k * 0.02], velocity=[v])
+            state_msg.header.stamp = stamp
+            current = JointState(name=['elevation'], effort=[0.06])
+            current.header.stamp = stamp
+            cur.publish(current)
+            js.publish(state_msg)
+        found = wait_diag(probe, 'gimbal_friction/estimator/elevation',
+                          lambda m, vals: int(vals.get('waiting_for_temperature', 0)) >= 10,
+                          'samples waiting for a later temperature')
+        return int(found[1]['waiting_for_temperature'])
+
+    def since(sec: int) -> list[JointState]:
+        return [m for m in measured if m.header.stamp.sec >= sec]
+
+    waiting = send_samples(101)
+    assert measured == []   # held: none published while active
+    assert change(probe, node, Transition.TRANSITION_DEACTIVATE) and state(probe, node) == 'inactive'
+    probe.spin_until(lambda: len(measured) >= waiting, what=f'the {waiting} waiting samples on deactivate')
+    assert all(m.header.stamp.sec == 101 and list(m.name) == ['elevation'] for m in measured)
+    from gimbal_friction.streams.measurement import MEASUREMENT_FIELDS
+    t_index = MEASUREMENT_FIELDS.index('temperature_c')
+    probe.spin_until(lambda: len(detail) >= waiting, what='the details of the waiting samples')
+    assert all(d.data[t_index] == -20.0 for d in detail)   # the temperature in force at their stamp
+    assert change(probe, node, Transition.TRANSITION_ACTIVATE)
+    waiting = send_samples(103)
+    assert since(103) == []
+    assert change(probe, node, Transition.TRANSITION_ACTIVE_SHUTDOWN) and state(probe, node) == 'finalized'
+    probe.spin_until(lambda: len(since(103)) >= waiting, what='the waiting samples on shutdown')
+    code, out = proc.stop()
+    assert code == 0, out
