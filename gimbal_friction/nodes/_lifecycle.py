@@ -8,7 +8,9 @@ do (:meth:`ManagedNode.configure_node`, :meth:`~ManagedNode.start_output`, :meth
 The states and transitions are ROS 2's (``rclpy.lifecycle``, the standard ``/<node>/change_state`` and
 ``/<node>/get_state`` services of ``lifecycle_msgs``):
 
-- *configure* (unconfigured → inactive) declares and reads the parameters, validates them and the files they name,
+- construction declares the parameters (:meth:`ManagedNode.parameter_steps`), so an unconfigured node can be
+  listed, described and set like any node.
+- *configure* (unconfigured → inactive) reads the parameters, validates them and the files they name,
   and builds the node's objects, subscriptions, publishers and timers. A refusal (an invalid parameter, a model
   that does not build) is FAILURE: the reason is logged and published on ``/diagnostics``, everything configure
   had made is released and the node stays unconfigured.
@@ -92,6 +94,7 @@ class ManagedNode(LifecycleNode):
         self.autostart = bool(self.declare_parameter('autostart', True, ParameterDescriptor(
             name='autostart', type=Parameter.Type.BOOL.value, description=AUTOSTART_DESCRIPTION,
             read_only=True)).value)
+        self._declare_parameters()
         self._own = self._entities()
         self._starting = self.autostart   #: a refusal is raised to the caller, which reports it (not logged too)
         if self.autostart:
@@ -105,7 +108,23 @@ class ManagedNode(LifecycleNode):
                     raise GimbalFrictionError(f'{name}: {self.lifecycle_error or "cannot start"}')
         self._starting = False
 
+    def _declare_parameters(self) -> None:
+        """Declare the node's parameters at construction, as nav2's nodes do: ``ros2 param list / get / set /
+        describe`` work on an unconfigured node (``autostart:=false``), and the next configure reads what was set.
+        A step that refuses (a value given at start-up of the wrong type or outside its range) is left undeclared
+        here: configure declares it again and fails with the reason, as a lifecycle manager expects."""
+        for step in self.parameter_steps():
+            try:
+                step()
+            except Exception as err:  # (configure repeats the step and reports it: FAILURE or ERROR)
+                self.get_logger().debug(f'parameters declared by configure: {type(err).__name__}: {err}')
+
     # ------------------------------------------------------------------ the node's hooks
+    def parameter_steps(self) -> list[Callable[[], object]]:
+        """The declarations of the node's parameters, each a step that may refuse alone (configure makes the same
+        calls: a parameter already declared keeps its value)."""
+        return []
+
     def configure_node(self) -> None:
         """Declare and read the parameters, validate them, build everything (raises to refuse)."""
 

@@ -49,7 +49,7 @@ from __future__ import annotations
 import math
 import sys
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import Any
 
 from builtin_interfaces.msg import Time
@@ -117,6 +117,11 @@ class FrictionEstimator(ManagedNode):
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__('friction_estimator', **kwargs)
+
+    def parameter_steps(self) -> list[Callable[[], object]]:
+        """The model, the estimator's and the node's settings (declared at construction and by configure)."""
+        return [lambda: ModelParameters(self), lambda: declare_settings(self, EstimatorSettings),
+                lambda: declare_settings(self, NodeSettings)]
 
     def configure_node(self) -> None:
         """The lifecycle's configure: parameters read and validated (the shared model must build), the estimator,

@@ -46,7 +46,7 @@ import math
 import struct
 import sys
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -240,6 +240,23 @@ class FrictionFeedforward(ManagedNode):
     def __init__(self, **kwargs: Any) -> None:
         super().__init__('friction_feedforward', **kwargs)
 
+    def parameter_steps(self) -> list[Callable[[], object]]:
+        """The model, every settings group and the retired names (declared at construction and by configure)."""
+        return [lambda: ModelParameters(self), lambda: declare_settings(self, FeedforwardSettings),
+                lambda: declare_settings(self, NodeSettings),
+                lambda: declare_settings(self, CorrectionSettings, _CORRECTION_PREFIX),
+                lambda: declare_settings(self, LearningSettings, _LEARNING_PREFIX), self._declare_retired]
+
+    def _declare_retired(self) -> None:
+        """The retired parameters: an old parameter file still loads; its value does nothing (a warning)."""
+        for name, why in RETIRED_PARAMETERS.items():
+            if self.has_parameter(name):   # (declared at construction or by an earlier configure)
+                continue
+            value: Any = self.declare_parameter(name, RETIRED_DEFAULTS[name], ParameterDescriptor(
+                name=name, description=f'retired, no effect: {why}', read_only=True, dynamic_typing=True)).value
+            if value != RETIRED_DEFAULTS[name]:
+                self.get_logger().warning(f'parameter {name} = {value!r} is retired and has no effect: {why}')
+
     def configure_node(self) -> None:
         """The lifecycle's configure: parameters read and validated, the correction file loaded, the feedforward,
         subscriptions, publishers and timers made (a ConfigError or ModelDomainError refuses)."""
@@ -248,13 +265,7 @@ class FrictionFeedforward(ManagedNode):
         self.settings = declare_settings(self, NodeSettings)
         correction_settings = declare_settings(self, CorrectionSettings, _CORRECTION_PREFIX)
         learning_settings = declare_settings(self, LearningSettings, _LEARNING_PREFIX)
-        for name, why in RETIRED_PARAMETERS.items():   # (an old parameter file still loads; its value does nothing)
-            if self.has_parameter(name):   # (declared by an earlier configure)
-                continue
-            value: Any = self.declare_parameter(name, RETIRED_DEFAULTS[name], ParameterDescriptor(
-                name=name, description=f'retired, no effect: {why}', read_only=True, dynamic_typing=True)).value
-            if value != RETIRED_DEFAULTS[name]:
-                self.get_logger().warning(f'parameter {name} = {value!r} is retired and has no effect: {why}')
+        self._declare_retired()
         axes = self.model.current()
         self.ff = self._build(axes, ff_settings, startup=True)
         # (refits, the reports and saves of the correction run in the learning_fit_worker, off this executor)

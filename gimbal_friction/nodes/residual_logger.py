@@ -147,6 +147,10 @@ class ResidualLogger(ManagedNode):
     def __init__(self, **kwargs: Any) -> None:
         super().__init__('residual_logger', **kwargs)
 
+    def parameter_steps(self) -> list[Callable[[], object]]:
+        """``axes`` and the logger's settings (declared at construction and by configure)."""
+        return [lambda: declare_axes(self), lambda: declare_settings(self, LoggerSettings)]
+
     def configure_node(self) -> None:
         """The lifecycle's configure: parameters read and validated, subscriptions, publishers and timers made (the
         log is opened on activate)."""

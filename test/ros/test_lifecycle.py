@@ -314,3 +314,44 @@ def test_estimator_publishes_the_samples_waiting_for_a_temperature_on_deactivate
     probe.spin_until(lambda: len(since(103)) >= waiting, what='the waiting samples on shutdown')
     code, out = proc.stop()
     assert code == 0, out
+
+
+def test_an_unconfigured_node_has_its_parameters_declared_and_configure_reads_what_was_set(spawn, probe):
+    """With autostart:=false every parameter is declared at construction (as nav2's nodes are): ``ros2 param
+    list / describe / set`` work before configure (the type is fixed: an integer for a double is refused), and
+    configure reads the values set then: a valid one is kept, an invalid pair (temperature_max_c below
+    temperature_min_c) makes configure fail naming it."""
+    from rcl_interfaces.msg import Parameter as ParameterMsg
+    from rcl_interfaces.msg import ParameterType, ParameterValue
+    from rcl_interfaces.srv import DescribeParameters, GetParameters, ListParameters, SetParameters
+
+    def set_one(node: str, name: str, value: ParameterValue) -> Any:
+        request = SetParameters.Request(parameters=[ParameterMsg(name=name, value=value)])
+        return probe.call(SetParameters, f'/{node}/set_parameters', request).results[0]
+
+    def double(x: float) -> ParameterValue:
+        return ParameterValue(type=ParameterType.PARAMETER_DOUBLE, double_value=x)
+
+    for node, name in (('friction_estimator', 'min_dwell_s'), ('friction_feedforward', 'max_torque_nm'),
+                       ('residual_logger', 'flush_period_s')):
+        proc = spawn(node, '--ros-args', '-p', 'autostart:=false')
+        assert state(probe, node) == 'unconfigured'
+        names = set(probe.call(ListParameters, f'/{node}/list_parameters', ListParameters.Request()).result.names)
+        assert {name, 'axes', 'autostart'} <= names, sorted(names)
+        if node != 'residual_logger':
+            assert 'model.ball_count' in names
+        (desc,) = probe.call(DescribeParameters, f'/{node}/describe_parameters',
+                             DescribeParameters.Request(names=[name])).descriptors
+        assert desc.type == ParameterType.PARAMETER_DOUBLE and not desc.dynamic_typing
+        assert not set_one(node, name, ParameterValue(type=ParameterType.PARAMETER_INTEGER,
+                                                      integer_value=1)).successful
+        assert set_one(node, name, double(0.25)).successful
+        assert change(probe, node, Transition.TRANSITION_CONFIGURE), proc.output()
+        (value,) = probe.call(GetParameters, f'/{node}/get_parameters', GetParameters.Request(names=[name])).values
+        assert value.double_value == 0.25
+        proc.stop()
+    node = 'friction_estimator'
+    proc = spawn(node, '--ros-args', '-p', 'autostart:=false')
+    assert set_one(node, 'temperature_max_c', double(-100.0)).successful   # (checked by configure)
+    assert not change(probe, node, Transition.TRANSITION_CONFIGURE)
+    assert state(probe, node) == 'unconfigured' and 'temperature_max_c' in proc.output(), proc.output()
