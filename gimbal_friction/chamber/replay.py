@@ -9,7 +9,8 @@ The same objects and functions the live nodes run, fed with the whole bag at onc
 - ``friction_estimator``: :meth:`~gimbal_friction.estimation.estimator.EstimatorLogic.feed` (the node feeds the
 messages of
   each timer tick; the result does not depend on the batching);
-- ``residual_logger``: :func:`~gimbal_friction.estimation.residuals.match_predictions` and
+- ``residual_logger``: :func:`~gimbal_friction.estimation.residuals.pair_residuals` (the rule of its pairing
+  buffer) and
   :func:`~gimbal_friction.streams.residual_row.residual_rows`.
 
 Times follow the one rule of :mod:`gimbal_friction.streams.inputs`: message stamps, with the log time where a stamp is
@@ -32,7 +33,7 @@ from gimbal_friction.chamber.summary import replay_summary
 from gimbal_friction.common.settings import settings_from_parameters
 from gimbal_friction.config.loader import all_axis_params, check_config_files, load_parameters
 from gimbal_friction.estimation.estimator import EstimatorCounters, EstimatorLogic, EstimatorSettings
-from gimbal_friction.estimation.residuals import match_predictions
+from gimbal_friction.estimation.residuals import pair_residuals
 from gimbal_friction.feedforward.correction import Correction, model_identity
 from gimbal_friction.feedforward.correction import load as load_correction
 from gimbal_friction.feedforward.rule import (
@@ -51,7 +52,7 @@ from gimbal_friction.recording.residual_log import ResidualLogWriter
 from gimbal_friction.streams.arrays import ChamberArrays
 from gimbal_friction.streams.inputs import effective_time
 from gimbal_friction.streams.measurement import MEASUREMENT_FIELDS, MeasurementArrays, detail_matrix
-from gimbal_friction.streams.residual_row import RESIDUAL_FIELDS, ResidualRows, residual_rows
+from gimbal_friction.streams.residual_row import RESIDUAL_FIELDS, ResidualRows
 
 Progress = Callable[[str, float], None]
 
@@ -122,8 +123,7 @@ def replay_arrays(arrays: ChamberArrays, axes: dict[str, AxisParams], ff_setting
     est_logic = EstimatorLogic(axes, est_settings)
     measured, measured_log = est_logic.feed_timed(arrays, final=True)   # the bag is the whole input
     ff_joint, ff_stamp, ff_torque = _flat_feedforward(ff)
-    predicted = match_predictions(measured.joint, measured.stamp_ns, ff_joint, ff_stamp, ff_torque)
-    return ff, ff_logic, measured, measured_log, est_logic, residual_rows(measured, predicted)
+    return ff, ff_logic, measured, measured_log, est_logic, pair_residuals(measured, ff_joint, ff_stamp, ff_torque)
 
 
 def _flat_feedforward(ff: BagTorques) -> tuple[NDArray[np.str_], NDArray[np.int64], NDArray[np.float64]]:

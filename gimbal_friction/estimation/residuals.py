@@ -2,8 +2,10 @@
 
 A measured sample (stamped with the joint-state stamp of its sample) pairs with the feedforward published for the
 same joint and the same joint-state stamp (:func:`match_predictions`); the row itself is
-:func:`gimbal_friction.streams.residual_row.residual_rows`. ``residual_logger`` (live, a few samples per timer tick)
-and ``gimbal-friction replay`` (offline, a whole bag) call the same functions. All torques in [N·m].
+:func:`gimbal_friction.streams.residual_row.residual_rows`. One pairing, in two forms: :func:`pair_residuals` over
+a whole input at once (``gimbal-friction replay`` over a bag, the loop study over a simulated run) and
+:class:`ResidualPairing`, the same rule as a buffer fed a few messages at a time (``residual_logger``: a
+measurement waits for its feedforward at most a timeout). All torques in [N·m].
 """
 
 from __future__ import annotations
@@ -18,12 +20,15 @@ from numpy.typing import ArrayLike, NDArray
 from gimbal_friction.common.units import nmm_from_nm
 from gimbal_friction.estimation.plateaus import plateau_bins, plateau_of, steady_samples, usable_samples
 from gimbal_friction.estimation.statistics import GroupStatistics
-from gimbal_friction.streams.residual_row import ResidualRows
+from gimbal_friction.streams.measurement import MeasurementArrays
+from gimbal_friction.streams.residual_row import ResidualRows, residual_rows
 
 #: residual or torque magnitudes above this are not credible for a gimbal bearing and are not logged [N·m]
 MAX_CREDIBLE_TORQUE_NM = 100.0
 #: bearing temperatures above this are not credible [°C]
 MAX_CREDIBLE_TEMPERATURE_C = 1000.0
+#: feedforward entries a :class:`ResidualPairing` keeps [-] (several seconds at 1 kHz with two joints)
+FEEDFORWARD_HORIZON = 16384
 
 
 def match_predictions(joint: NDArray[np.str_], stamp_ns: NDArray[np.int64], ff_joint: NDArray[np.str_],
@@ -50,6 +55,64 @@ def match_predictions(joint: NDArray[np.str_], stamp_ns: NDArray[np.int64], ff_j
         hit = (k >= 0) & (stamps[np.maximum(k, 0)] == want)
         out[rows[hit]] = np.asarray(ff_torque_nm, dtype=np.float64)[cand[k[hit]]]
     return out
+
+
+def pair_residuals(measured: MeasurementArrays, ff_joint: ArrayLike, ff_stamp_ns: ArrayLike,
+                   ff_torque_nm: ArrayLike) -> ResidualRows:
+    """The residual row of every measurement of ``measured``, paired with the feedforward [N·m] published for its
+    joint and joint-state stamp [ns] among ``(ff_joint, ff_stamp_ns, ff_torque_nm)`` (the prediction NaN where
+    none was). Rows are not checked for credibility (:func:`credible_rows`: the caller counts what it refuses)."""
+    predicted = match_predictions(measured.joint, np.asarray(measured.stamp_ns, dtype=np.int64),
+                                  np.asarray(ff_joint, dtype=str), np.asarray(ff_stamp_ns, dtype=np.int64),
+                                  np.asarray(ff_torque_nm, dtype=np.float64))
+    with np.errstate(invalid='ignore', over='ignore'):  # non-finite rows: credible_rows refuses them
+        return residual_rows(measured, predicted)
+
+
+class ResidualPairing:
+    """:func:`pair_residuals` as a buffer fed a few messages at a time (``residual_logger``): the last ``horizon``
+    feedforward entries (one per joint of each message) are kept, and a measurement waits until the feedforward
+    of its joint and stamp has arrived, or at most ``timeout_s`` [s] of the caller's clock (then its row has the
+    prediction NaN), or until the input ends (``final``)."""
+
+    def __init__(self, horizon: int = FEEDFORWARD_HORIZON) -> None:
+        self._joint = np.full(horizon, '', dtype=object)
+        self._stamp = np.zeros(horizon, dtype=np.int64)
+        self._torque = np.full(horizon, np.nan)
+        self._next = 0
+        #: measurements waiting, each with the time it arrived [s, the caller's clock]
+        self._waiting: list[tuple[NDArray[np.float64], MeasurementArrays]] = []
+
+    @property
+    def waiting(self) -> int:
+        """Measurements waiting for their feedforward [-]."""
+        return sum(len(m) for _, m in self._waiting)
+
+    def add_feedforward(self, joint: str, stamp_ns: int, torque_nm: float) -> None:
+        """One joint's entry of a feedforward message (effective stamp [ns], torque [N·m]); the oldest entry goes
+        once ``horizon`` are kept."""
+        k = self._next % self._joint.shape[0]
+        self._joint[k], self._stamp[k], self._torque[k] = joint, int(stamp_ns), float(torque_nm)
+        self._next += 1
+
+    def add_measurement(self, measured: MeasurementArrays, now_s: float) -> None:
+        """Measurements received at ``now_s`` [s, the caller's clock], to be paired."""
+        if len(measured):
+            self._waiting.append((np.full(len(measured), float(now_s)), measured))
+
+    def take(self, now_s: float, timeout_s: float, final: bool = False) -> ResidualRows:
+        """The rows of the measurements whose feedforward has arrived, that have waited ``timeout_s`` [s] or more
+        by ``now_s``, or all of them (``final``), in the order they arrived; the others keep waiting."""
+        if not self._waiting:
+            return ResidualRows.concatenate([])
+        batch = MeasurementArrays.concatenate([m for _, m in self._waiting])
+        since = np.concatenate([t for t, _ in self._waiting])
+        predicted = match_predictions(batch.joint, batch.stamp_ns, self._joint.astype(str), self._stamp,
+                                      self._torque)
+        done = ~np.isnan(predicted) | (now_s - since >= timeout_s) | final
+        self._waiting = [(since[~done], batch.select(~done))] if not done.all() else []
+        with np.errstate(invalid='ignore', over='ignore'):  # non-finite rows: credible_rows refuses them
+            return residual_rows(batch.select(done), predicted[done])
 
 
 def credible_torque(torque_nm: ArrayLike) -> NDArray[np.bool_]:

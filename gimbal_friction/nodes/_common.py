@@ -42,6 +42,7 @@ from gimbal_friction.config.parameter_rules import SETTINGS_RULES, Rule, model_r
 from gimbal_friction.config.rcl import command_line_parameters
 from gimbal_friction.physics.params import AxisParams, parameter_specs
 from gimbal_friction.physics.table import FrictionTable
+from gimbal_friction.streams import diagnostics
 from gimbal_friction.streams.delivery import InputCounter as InputCounter  # noqa: PLC0414 - re-exported (mypy)
 
 T = TypeVar('T')
@@ -405,10 +406,16 @@ def name_undeclared_parameters(node: Node, check: Callable[[list[Parameter[Any]]
     and both types (rclpy's reads "Wrong parameter type, expected 'Type.DOUBLE' got 'Type.INTEGER'"); then
     ``check`` (the node's validation: its reason, not rclpy's range message) runs.
 
-    Why on the instance: rclpy checks the descriptor (type, range) before any on-set callback, and offers no public
-    hook that runs first and may refuse (a pre-set callback may only change the list). The parameter services call
-    :meth:`Node.set_parameters_atomically`; in-process callers call :meth:`Node.set_parameters`. Both public methods
-    are wrapped on the instance; what passes goes on to rclpy's own checks and callbacks unchanged.
+    Why on the instance, not through rclpy's callbacks (checked against Kilted's ``rclpy/node.py``): rclpy's
+    ``_set_parameters_atomically`` runs the pre-set callbacks, then raises ``ParameterNotDeclaredException`` for an
+    undeclared name, then applies the descriptors (type, range, read-only: refused in rclpy's words), and only then
+    calls the on-set callbacks (:func:`parameter_guard` installs one: it does validate the whole request at once,
+    but after rclpy has refused what it refuses). A pre-set callback (``add_pre_set_parameters_callback``) may only
+    return a changed list; an empty one is refused with rclpy's own reason ("parameter list cannot be empty ...").
+    No public hook runs first and may refuse with a reason, so the two public methods every caller goes through
+    are wrapped on the instance: the parameter services call :meth:`Node.set_parameters_atomically` (one parameter
+    at a time for ``set_parameters``), in-process callers :meth:`Node.set_parameters`. What passes goes on to
+    rclpy's own checks and callbacks unchanged.
     """
     original_atomically = node.set_parameters_atomically
     original_each = node.set_parameters
@@ -575,26 +582,30 @@ def subscribe(node: Node, counter: InputCounter, msg_type: Any, topic: str, call
                                     qos_overriding_options=qos_overriding_options)
 
 
+def to_msg(one: diagnostics.Status) -> DiagnosticStatus:
+    """A :class:`gimbal_friction.streams.diagnostics.Status` as the message."""
+    return DiagnosticStatus(level=one.level, name=one.name, message=one.message, hardware_id=one.hardware_id,
+                            values=[KeyValue(key=k, value=v) for k, v in one.values])
+
+
+def _from_msg(msg: DiagnosticStatus) -> diagnostics.Status:
+    return diagnostics.Status(msg.name, bytes(msg.level), msg.message, msg.hardware_id,
+                              tuple((kv.key, kv.value) for kv in msg.values))
+
+
 def status(name: str, level: bytes, message: str, hardware_id: str, values: Mapping[str, Any]) -> DiagnosticStatus:
-    """A DiagnosticStatus with ``values`` as KeyValue strings (floats with 6 significant digits)."""
-    kv = []
-    for key, value in values.items():
-        text = f'{value:.6g}' if isinstance(value, float) else str(value)
-        kv.append(KeyValue(key=key, value=text))
-    return DiagnosticStatus(level=level, name=name, message=message, hardware_id=hardware_id, values=kv)
+    """A DiagnosticStatus with ``values`` as KeyValue strings (the text:
+    :func:`gimbal_friction.streams.diagnostics.status`, floats with 6 significant digits)."""
+    return to_msg(diagnostics.status(name, level, message, hardware_id, values))
 
 
 def diagnostic_array(node: Node, statuses: Sequence[DiagnosticStatus]) -> DiagnosticArray:
-    state = getattr(node, 'lifecycle_state', None)   # a managed node: its first status says its state
-    if state is not None:
-        if statuses:
-            statuses[0].values.append(KeyValue(key='lifecycle_state', value=str(state)))
-        for one in statuses:
-            if state != 'active' and not one.message.startswith(f'{state}:'):   # (not publishing its output)
-                one.message = f'{state}: {one.message}'
+    """The DiagnosticArray of ``statuses``, stamped now; a managed node's say its state
+    (:func:`gimbal_friction.streams.diagnostics.with_lifecycle_state`)."""
+    state = getattr(node, 'lifecycle_state', None)
     msg = DiagnosticArray()
     msg.header.stamp = node.get_clock().now().to_msg()
-    msg.status = list(statuses)
+    msg.status = [to_msg(one) for one in diagnostics.with_lifecycle_state([_from_msg(s) for s in statuses], state)]
     return msg
 
 
@@ -753,7 +764,16 @@ def print_help_if_asked(exe: str, argv: Sequence[str], doc: str | None) -> bool:
 @contextlib.contextmanager
 def _stderr_held() -> Iterator[list[bytes]]:
     """Hold back what is written to file descriptor 2 (where rcl's own logging writes) inside the block: the list
-    yielded receives it. The caller writes it out or drops it."""
+    yielded receives it. The caller writes it out or drops it.
+
+    Why a file-descriptor swap: rcl prints its refusal of the arguments (``[ERROR] [rcl]: Failed to parse global
+    arguments``) from C through rcutils' console output handler while ``rclpy.init`` runs. The one public lever,
+    ``rclpy.logging.set_logger_level('rcl', FATAL)`` before the init (it does silence that line), would also hide
+    rcl's warnings of a start that succeeds (which :func:`init_rclpy` shows as they were once the init has
+    succeeded), would not cover the other loggers printing during the init, and would have to be undone without
+    clobbering a ``--log-level rcl:=...`` the user gave; rclpy has no call that holds console output back and hands
+    it over. So the process's stderr is held for the duration of the init, and only there.
+    """
     sys.stderr.flush()
     saved = os.dup(2)
     held: list[bytes] = []

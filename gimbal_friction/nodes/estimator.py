@@ -53,7 +53,7 @@ from collections.abc import Callable, Sequence
 from typing import Any
 
 from builtin_interfaces.msg import Time
-from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.parameter import Parameter
 from sensor_msgs.msg import JointState, Temperature
 from std_msgs.msg import Float64MultiArray, MultiArrayDimension
@@ -86,11 +86,13 @@ from gimbal_friction.nodes._common import (
     split_parameters,
     startup_model_error,
     status,
+    to_msg,
 )
 from gimbal_friction.nodes._lifecycle import ManagedNode
 from gimbal_friction.nodes._qos import Inputs, create_publisher
 from gimbal_friction.recording import topics
 from gimbal_friction.streams.arrays import chamber_arrays
+from gimbal_friction.streams.diagnostics import statistics_statuses
 from gimbal_friction.streams.input_health import SILENCE_TIMEOUT_S
 from gimbal_friction.streams.measurement import MEASUREMENT_FIELDS, METHOD_NAMES, MeasurementArrays, detail_matrix
 
@@ -105,10 +107,6 @@ NodeSettings = EstimatorNodeSettings  # the node-level parameters (gimbal_fricti
 
 _EST_FIELDS = field_names(EstimatorSettings)
 _NODE_FIELDS = field_names(NodeSettings)
-
-
-def _num(value: float) -> str:
-    return repr(float(value))
 
 
 class FrictionEstimator(ManagedNode):
@@ -327,20 +325,8 @@ class FrictionEstimator(ManagedNode):
         self.pub_diag.publish(diagnostic_array(self, statuses))
 
     def publish_statistics(self) -> None:
-        statuses = []
-        for rec in self.logic.statistics():
-            plateau = 'unknown' if rec['plateau_c'] is None else _num(rec['plateau_c'])
-            direction = '+1' if rec['direction'] > 0 else '-1'
-            values = [
-                ('joint', rec['joint']), ('direction', direction), ('plateau_c', plateau),
-                ('count', str(rec['count'])), ('mean_nm', _num(rec['mean_nm'])), ('std_nm', _num(rec['std_nm'])),
-                ('ripple_nm', _num(rec['ripple_nm'])), ('min_position_rad', _num(rec['min_position'])),
-                ('max_position_rad', _num(rec['max_position'])),
-            ]
-            statuses.append(DiagnosticStatus(
-                level=OK, name=f'gimbal_friction/estimator/statistics/{rec["joint"]}/{direction}/{plateau}',
-                message=f'mean {rec["mean_nm"] * 1e3:.4g} N*mm, {rec["count"]} samples', hardware_id=rec['joint'],
-                values=[KeyValue(key=k, value=v) for k, v in values]))
+        """``/gimbal/friction/statistics`` (:func:`~gimbal_friction.streams.diagnostics.statistics_statuses`)."""
+        statuses = [to_msg(one) for one in statistics_statuses(self.logic.statistics())]
         self.pub_stats.publish(diagnostic_array(self, statuses))
 
 

@@ -8,7 +8,8 @@ Subscribes ``/gimbal/temperature``, ``/joint_states``, ``/gimbal/motor_current``
 arrived (raw CDR, log time = receive time; ``log_inputs``). What the estimator measured arrives complete on
 ``measured_detail`` (current, temperature, K_T and I_0 applied, method): nothing is reconstructed here. Each
 measurement is paired with the feedforward published for the same joint and joint-state stamp
-(:func:`gimbal_friction.estimation.residuals.match_predictions`) and logged as a residual row
+(:class:`gimbal_friction.estimation.residuals.ResidualPairing`, the rule ``replay`` and the loop study pair with)
+and logged as a residual row
 (:func:`gimbal_friction.streams.residual_row.residual_rows`):
 
 - ``/gimbal/friction/residual`` (sensor_msgs/JointState): name = [joint], position [rad], velocity [rad/s],
@@ -24,9 +25,10 @@ Files: ``output_dir/residuals_<n>.mcap`` (ROS 2 profile, CDR, standard types onl
 ``flush_period_s`` in small chunks, rotated by ``max_file_mb`` / ``max_file_duration_s``, closed with footer and
 ``metadata.yaml`` on SIGINT/SIGTERM. If ``output_dir`` already holds a log (an earlier run, or another logger
 started with the same folder), this run writes beside it in ``<output_dir>_<UTC yyyymmdd_HHMMSS>``
-(:func:`open_own_folder`). A write error (full disk, unwritable folder) is reported on ``/diagnostics`` (ERROR) and
-retried every ``retry_period_s``; the node stays up. ``/diagnostics`` also carries messages logged, bytes, current
-file and the residual RMS per axis and temperature bin.
+(the log-folder policy: :mod:`gimbal_friction.recording.log_folder`). A write error (full disk, unwritable
+folder) is reported on ``/diagnostics`` (ERROR) and retried every ``retry_period_s``; the node stays up.
+``/diagnostics`` also carries messages logged, bytes, current file and the residual RMS per axis and temperature
+bin.
 
 Inputs: depth 1000 (the temperature keep-all: a full queue holds a reliable publisher back instead of losing
 messages; ``temperature_qos`` on ``/diagnostics``), each following its publishers (:mod:`gimbal_friction.nodes._qos`):
@@ -61,7 +63,7 @@ from gimbal_friction.common.errors import ConfigError, GimbalFrictionError
 from gimbal_friction.common.settings import settings_from
 from gimbal_friction.common.units import join_stamp
 from gimbal_friction.config.node_settings import LoggerSettings
-from gimbal_friction.estimation.residuals import ResidualStats, credible_rows, credible_torque, match_predictions
+from gimbal_friction.estimation.residuals import ResidualPairing, ResidualStats, credible_rows, credible_torque
 from gimbal_friction.nodes._common import (
     ERROR,
     OK,
@@ -83,17 +85,15 @@ from gimbal_friction.nodes._lifecycle import ManagedNode
 from gimbal_friction.nodes._qos import Inputs, create_publisher
 from gimbal_friction.recording import topics
 from gimbal_friction.recording.cdr import float64_multi_array_cdr_rows, joint_state_cdr_rows, split_rows
+from gimbal_friction.recording.log_folder import open_own_folder, rotation_limits, wanted_folder
 from gimbal_friction.recording.residual_log import ResidualLogWriter
-from gimbal_friction.recording.residual_read import residual_log_files
 from gimbal_friction.streams.delivery import PUBLISHER_STATUS, STATE_FINISHED, Sent, read_publisher_values
 from gimbal_friction.streams.inputs import effective_time
-from gimbal_friction.streams.measurement import MEASUREMENT_FIELDS, MeasurementArrays, from_detail
-from gimbal_friction.streams.residual_row import ResidualRows, residual_rows
+from gimbal_friction.streams.measurement import MEASUREMENT_FIELDS, from_detail
+from gimbal_friction.streams.residual_row import ResidualRows
 
 #: subscription depth: a burst of this many messages is buffered, not dropped
 DEPTH = 1000
-#: feedforward entries kept for pairing [-] (several seconds at 1 kHz with two joints)
-FEEDFORWARD_HORIZON = 16384
 #: the topics the logger subscribes (a publisher's count of what it sent is taken for these only)
 SUBSCRIBED = frozenset((topics.TEMPERATURE, topics.JOINT_STATES, topics.MOTOR_CURRENT, topics.MEASURED,
                         topics.FEEDFORWARD, topics.MEASURED_DETAIL))
@@ -103,40 +103,6 @@ MAX_PENDING_COUNTS = 1024
 
 _SETTINGS = field_names(LoggerSettings)
 _LIVE = {'pairing_timeout_s', 'residual_bin_c', 'diagnostics_period_s', 'flush_period_s', 'retry_period_s'}
-
-
-def holds_log(folder: Path) -> bool:
-    """``folder`` holds (part of) a residual log: residual MCAP files or a rosbag2 ``metadata.yaml``."""
-    try:
-        return folder.is_dir() and (bool(residual_log_files(folder)) or (folder / 'metadata.yaml').exists())
-    except GimbalFrictionError:
-        return True  # something is there that is not ours to write into
-
-
-def open_own_folder(wanted: Path, open_writer: Callable[[Path], ResidualLogWriter], *,
-                    now: Callable[[], float] = time.time) -> tuple[Path, ResidualLogWriter]:
-    """A log folder of this run's own and its writer: ``wanted`` if it holds no log, else the first free sibling
-    ``<wanted>_<UTC yyyymmdd_HHMMSS>[_<n>]`` (never a folder inside another run's log). Two loggers started at once
-    with the same folder each get their own: the writer creates its first file exclusively, and the one that loses
-    that race moves on to the next sibling.
-
-    Raises:
-        GimbalFrictionError: the folder cannot be written (not because another run took it).
-    """
-    stamp = time.strftime('%Y%m%d_%H%M%S', time.gmtime(now()))
-    candidates = [wanted, wanted.with_name(f'{wanted.name}_{stamp}')]
-    candidates += [wanted.with_name(f'{wanted.name}_{stamp}_{n}') for n in range(2, 100)]
-    for folder in candidates:
-        if holds_log(folder):
-            continue
-        try:
-            return folder, open_writer(folder)
-        except GimbalFrictionError:
-            if holds_log(folder):  # another logger took it between the look and the first file
-                continue
-            raise
-    msg = f'residual log folder {wanted}: it and 99 timestamped siblings already hold logs; choose another output_dir'
-    raise GimbalFrictionError(msg)
 
 
 class ResidualLogger(ManagedNode):
@@ -169,12 +135,7 @@ class ResidualLogger(ManagedNode):
         self.no_feedforward = 0
         self.refused: dict[str, int] = {}
         self._last_retry = -math.inf
-        # feedforward ring: joint, effective stamp [ns], torque [N*m]
-        self._ff_joint = np.full(FEEDFORWARD_HORIZON, '', dtype=object)
-        self._ff_stamp = np.zeros(FEEDFORWARD_HORIZON, dtype=np.int64)
-        self._ff_torque = np.full(FEEDFORWARD_HORIZON, np.nan)
-        self._ff_next = 0
-        self._waiting: list[tuple[float, MeasurementArrays]] = []
+        self.pairing = ResidualPairing()   #: the feedforwards kept, the measurements waiting for theirs
         self.pub_diag = create_publisher(self, DiagnosticArray, topics.DIAGNOSTICS, 10, managed=False)
         # every input follows its publishers' reliability (nodes/_qos.py)
         self.input_topics = ins = Inputs(self, self.inputs)
@@ -199,12 +160,12 @@ class ResidualLogger(ManagedNode):
     # ------------------------------------------------------------------ log file lifecycle
     def _open_writer(self) -> None:
         s = self.settings
-        wanted = Path(s.output_dir).expanduser().absolute()
+        wanted = wanted_folder(s.output_dir)
+        max_bytes, max_duration_s = rotation_limits(s.max_file_mb, s.max_file_duration_s)
         try:
             folder, self.writer = open_own_folder(wanted, lambda f: ResidualLogWriter(
-                f, chunk_size=s.chunk_kib * 1024, flush_interval_s=s.flush_period_s,
-                max_bytes=int(s.max_file_mb * 1e6) if s.max_file_mb > 0 else None,
-                max_duration_s=s.max_file_duration_s if s.max_file_duration_s > 0 else None))
+                f, chunk_size=s.chunk_kib * 1024, flush_interval_s=s.flush_period_s, max_bytes=max_bytes,
+                max_duration_s=max_duration_s))
             self.folder = folder
             self.error = None
             why = '' if folder == wanted else f' ({wanted} already holds a log: this run writes beside it)'
@@ -256,7 +217,7 @@ class ResidualLogger(ManagedNode):
             try:  # the measurements still waiting are logged without a prediction; nothing may stop the close
                 self.pair(final=True)
             except Exception as err:
-                print(f'residual_logger: error: {len(self._waiting)} waiting measurements not logged: '
+                print(f'residual_logger: error: {self.pairing.waiting} waiting measurements not logged: '
                       f'{type(err).__name__}: {err}', file=sys.stderr)
             try:
                 self.writer.close()
@@ -304,9 +265,7 @@ class ResidualLogger(ManagedNode):
             elif not ok:
                 self._refuse('feedforward not finite or not credible')  # the measurement is logged without it
             else:
-                k = self._ff_next % FEEDFORWARD_HORIZON
-                self._ff_joint[k], self._ff_stamp[k], self._ff_torque[k] = name, stamp, float(effort)
-                self._ff_next += 1
+                self.pairing.add_feedforward(name, stamp, float(effort))
             seen.add(name)
 
     def on_measured_detail(self, data: bytes) -> None:
@@ -328,7 +287,7 @@ class ResidualLogger(ManagedNode):
         except ValueError:
             self._refuse('measured_detail with an invalid stamp or method')
             return
-        self._waiting.append((time.monotonic(), m))
+        self.pairing.add_measurement(m, time.monotonic())
 
     def on_diagnostics(self, msg: DiagnosticArray) -> None:
         """Keep what a publisher says it sent in all (``chamber_replay``'s ``finished`` status) on the topics
@@ -366,21 +325,11 @@ class ResidualLogger(ManagedNode):
     def pair(self, final: bool = False) -> None:
         """Pair the waiting measurements with the feedforwards received; log the rows that are complete or have
         waited long enough."""
-        if not self._waiting:
+        if not self.pairing.waiting:
             return
-        batch = MeasurementArrays.concatenate([m for _, m in self._waiting])
-        since = np.array([t for t, _ in self._waiting])
-        predicted = match_predictions(batch.joint, batch.stamp_ns, self._ff_joint.astype(str), self._ff_stamp,
-                                      self._ff_torque)
-        waited = time.monotonic() - since >= self.settings.pairing_timeout_s
-        done = ~np.isnan(predicted) | waited | final
-        keep = [w for w, d in zip(self._waiting, done.tolist(), strict=True) if not d]
-        self._waiting = keep
-        idx = np.flatnonzero(done)
-        if idx.size:
-            with np.errstate(invalid='ignore', over='ignore'):  # non-finite rows are refused by log_rows
-                rows = residual_rows(batch.select(idx), predicted[idx])
-            self.log_rows(rows)
+        rows = self.pairing.take(time.monotonic(), self.settings.pairing_timeout_s, final)
+        if len(rows):
+            self.log_rows(rows)   # (non-finite rows are refused there)
 
     def log_rows(self, rows: ResidualRows) -> None:
         ok = credible_rows(rows)
@@ -464,7 +413,7 @@ class ResidualLogger(ManagedNode):
             'residuals_logged': self.residuals_logged,
             'paired_with_feedforward': self.paired,
             'no_feedforward': self.no_feedforward,
-            'waiting_for_feedforward': len(self._waiting),
+            'waiting_for_feedforward': self.pairing.waiting,
             'dropped': self.dropped,
             'temperature_qos': 'reliable' if self._temperature.reliable else 'best_effort',
         }

@@ -17,7 +17,7 @@ functions the nodes and ``gimbal-friction refit`` run:
    :class:`~gimbal_friction.estimation.estimator.EstimatorLogic` (method ``observer`` by default: friction while the
    gimbal works, no constant-speed sweep needed; ``steady_state`` and ``both`` are offered);
 2. each measurement is paired with the feedforward computed for its joint-state stamp
-   (:func:`~gimbal_friction.estimation.residuals.match_predictions`) into residual rows
+   (:func:`~gimbal_friction.estimation.residuals.pair_residuals`) into residual rows
    (:func:`~gimbal_friction.streams.residual_row.residual_rows`,
    :func:`~gimbal_friction.estimation.residuals.credible_rows`):
    what ``residual_logger`` logs;
@@ -71,7 +71,7 @@ from numpy.typing import NDArray
 from gimbal_friction.common.errors import ConfigError, GimbalFrictionError
 from gimbal_friction.common.units import NS_PER_S, RAD_S_PER_RPM
 from gimbal_friction.estimation.estimator import EstimatorLogic, EstimatorSettings
-from gimbal_friction.estimation.residuals import credible_rows, match_predictions
+from gimbal_friction.estimation.residuals import credible_rows, pair_residuals
 from gimbal_friction.feedforward.correction import (
     Correction,
     CorrectionSettings,
@@ -101,7 +101,7 @@ from gimbal_friction.sim.metrics import batch_metrics
 from gimbal_friction.sim.profiles import Profile, history_profile, make_profile
 from gimbal_friction.streams.arrays import ChamberArrays
 from gimbal_friction.streams.measurement import METHOD_OBSERVER, METHOD_STEADY_STATE, MeasurementArrays
-from gimbal_friction.streams.residual_row import ResidualRows, residual_rows
+from gimbal_friction.streams.residual_row import ResidualRows
 
 Array = NDArray[np.float64]
 
@@ -309,9 +309,8 @@ def estimator_rows(results: Sequence[tuple[BatchResult, Sequence[int]]], axis: A
             logic = EstimatorLogic({JOINT: axis}, settings)
             m = logic.feed(trace.chamber_arrays(JOINT), final=True)   # the run is the whole input
             _merge_counters(counters, logic.counters.as_dict())
-            predicted = match_predictions(m.joint, m.stamp_ns, np.full(trace.stamp_ns.shape, JOINT),
-                                          trace.stamp_ns, batch.traces.feedforward_computed_nm[:, i])
-            rows = residual_rows(m, predicted)
+            rows = pair_residuals(m, np.full(trace.stamp_ns.shape, JOINT), trace.stamp_ns,
+                                  batch.traces.feedforward_computed_nm[:, i])
             keep = credible_rows(rows)
             parts_m.append(m.select(keep))
             parts_r.append(rows.select(keep))

@@ -248,8 +248,9 @@ def test_an_unexpected_error_goes_through_error_processing_back_to_unconfigured(
 
 
 def test_estimator_publishes_the_samples_waiting_for_a_temperature_on_deactivate_and_shutdown(spawn, probe):
-    """Samples paired while active but waiting for a later temperature (``temperature_wait_s``, 60 s of stamps) are published when
-    the node is deactivated, and again when it is shut down from active, with the temperature in force at their
+    """Samples paired while active but waiting for a later temperature (``temperature_wait_s``, 60 s of stamps)
+    are published when the node is deactivated, and again when it is shut down from active, with the temperature in
+    force at their
     stamp: nothing measured while active is lost. (Inputs keep arriving throughout, so the idle release of a
     silent input does not publish them first; without the flush they went to a publisher already stopped.)"""
     node = 'friction_estimator'
