@@ -46,7 +46,6 @@ change of a joint's K_T or I_0 restarts that joint's statistics.
 
 from __future__ import annotations
 
-import math
 import sys
 import time
 from collections.abc import Callable, Sequence
@@ -60,18 +59,14 @@ from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 
 from gimbal_friction.common.errors import ModelDomainError
 from gimbal_friction.common.settings import settings_from
-from gimbal_friction.common.units import NS_PER_S, join_stamp, split_stamp
+from gimbal_friction.common.units import join_stamp, split_stamp
 from gimbal_friction.config.node_settings import EstimatorNodeSettings
 from gimbal_friction.estimation.estimator import (
-    INPUT_REASONS,
-    UNKNOWN_JOINT,
     EstimatorLogic,
     EstimatorSettings,
 )
+from gimbal_friction.estimation.report import EstimatorReport
 from gimbal_friction.nodes._common import (
-    ERROR,
-    OK,
-    WARN,
     InputCounter,
     ModelParameters,
     callback_error_values,
@@ -85,7 +80,6 @@ from gimbal_friction.nodes._common import (
     settings_defaults,
     split_parameters,
     startup_model_error,
-    status,
     to_msg,
 )
 from gimbal_friction.nodes._lifecycle import ManagedNode
@@ -94,7 +88,7 @@ from gimbal_friction.recording import topics
 from gimbal_friction.streams.arrays import chamber_arrays
 from gimbal_friction.streams.diagnostics import statistics_statuses
 from gimbal_friction.streams.input_health import SILENCE_TIMEOUT_S
-from gimbal_friction.streams.measurement import MEASUREMENT_FIELDS, METHOD_NAMES, MeasurementArrays, detail_matrix
+from gimbal_friction.streams.measurement import MEASUREMENT_FIELDS, MeasurementArrays, detail_matrix
 
 #: subscription depth: a burst of this many messages is buffered, not dropped
 DEPTH = 1000
@@ -140,8 +134,7 @@ class FrictionEstimator(ManagedNode):
         self._joint_states: list[_Msg] = []
         self._currents: list[_Msg] = []
         self._arrival = 0
-        self._bad_since_report: dict[str, int] = {}
-        self._last_counts: dict[str, dict[str, int]] = {}
+        self.report = EstimatorReport()   #: the /diagnostics statuses, report after report
         self._last_warn: dict[str, float] = {}
         self.pub_measured = create_publisher(self, JointState, topics.MEASURED, DEPTH)
         self.pub_detail = create_publisher(self, Float64MultiArray, topics.MEASURED_DETAIL, DEPTH)
@@ -260,69 +253,11 @@ class FrictionEstimator(ManagedNode):
 
     # ------------------------------------------------------------------ diagnostics and statistics
     def publish_diagnostics(self) -> None:
-        logic = self.logic
-        counters = logic.counters
-        statuses = []
-        failed = False
-        for axis in [*logic.order, UNKNOWN_JOINT]:
-            rejected = counters.rejected.get(axis, {})
-            previous = self._last_counts.get(axis, {})
-            new_bad = {r: c - previous.get(r, 0) for r, c in rejected.items()
-                       if r in INPUT_REASONS and c > previous.get(r, 0)}
-            self._last_counts[axis] = dict(rejected)
-            problems = []
-            if new_bad:  # only what happened since the last report keeps the status at WARN
-                problems.append('bad inputs rejected: ' + ', '.join(f'{r} {c}x' for r, c in sorted(new_bad.items())))
-            if axis == UNKNOWN_JOINT:
-                values: dict[str, Any] = {
-                    'temperature_c': logic.last_temperature_c if math.isfinite(logic.last_temperature_c) else 'none'}
-                for reason, count in sorted(counters.temperature_rejected.items()):
-                    values[f'rejected_temperature: {reason}'] = count
-                previous_t = self._last_counts.get('temperature', {})
-                new_t = {r: c - previous_t.get(r, 0) for r, c in counters.temperature_rejected.items()
-                         if c > previous_t.get(r, 0)}
-                self._last_counts['temperature'] = dict(counters.temperature_rejected)
-                if new_t:
-                    problems.append('temperatures rejected: '
-                                    + ', '.join(f'{r} {c}x' for r, c in sorted(new_t.items())))
-                new_lost = self.inputs.new_losses()
-                if new_lost:
-                    problems.append('messages lost on the way: '
-                                    + ', '.join(f'{t} {n}' for t, n in sorted(new_lost.items())))
-                problems += self.input_topics.problems()   # an input that delivers nothing: topic and cause
-                values.update(self.inputs.values())
-                values.update(self.input_topics.values())
-                errors = callback_error_values(self)
-                values.update(errors)
-                previous_e = self._last_counts.get('errors', {})
-                self._last_counts['errors'] = dict(errors)
-                if any(n > previous_e.get(k, 0) for k, n in errors.items()):
-                    problems.append('a callback failed (see values)')
-                    failed = True
-                name, hw = 'gimbal_friction/estimator', ''
-            else:
-                accepted = counters.accepted.get(axis, 0)
-                last = logic.last.get(axis)
-                params = logic.axes[axis]
-                values = {
-                    'accepted': accepted,
-                    'pending': logic.pending(axis),
-                    'waiting_for_temperature': logic.held(axis),
-                    'last_friction_nm': float(last.friction_nm[0]) if last is not None else 'none',
-                    'last_stamp_s': f'{int(last.stamp_ns[0]) / NS_PER_S:.9f}' if last is not None else 'none',
-                    'last_method': METHOD_NAMES[int(last.method[0])] if last is not None else 'none',
-                    'torque_constant_nm_per_a': float(params.torque_constant_nm_per_a),
-                    'no_load_current_a': float(params.no_load_current_a),
-                    'inertia_kg_m2': float(params.inertia_kg_m2),
-                }
-                if not accepted:
-                    problems.insert(0, 'no sample accepted yet')
-                name, hw = f'gimbal_friction/estimator/{axis}', axis
-            for reason, count in sorted(rejected.items()):
-                values[f'rejected: {reason}'] = count
-            level = (ERROR if failed else WARN) if problems else OK
-            statuses.append(status(name, level, '; '.join(problems) or 'ok', hw, values))
-        self.pub_diag.publish(diagnostic_array(self, statuses))
+        """``/diagnostics`` (its statuses and rules: :class:`~gimbal_friction.estimation.report.EstimatorReport`)."""
+        statuses = self.report.statuses(
+            self.logic, lost=self.inputs.new_losses(), input_problems=self.input_topics.problems(),
+            input_values={**self.inputs.values(), **self.input_topics.values()}, errors=callback_error_values(self))
+        self.pub_diag.publish(diagnostic_array(self, [to_msg(one) for one in statuses]))
 
     def publish_statistics(self) -> None:
         """``/gimbal/friction/statistics`` (:func:`~gimbal_friction.streams.diagnostics.statistics_statuses`)."""

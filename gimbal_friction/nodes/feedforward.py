@@ -43,7 +43,6 @@ process and the offline replay runs over a whole bag; the node only converts mes
 from __future__ import annotations
 
 import math
-import struct
 import sys
 import time
 from collections.abc import Callable, Sequence
@@ -60,7 +59,6 @@ from std_msgs.msg import Float64MultiArray
 
 from gimbal_friction.common.errors import ConfigError, ModelDomainError
 from gimbal_friction.common.settings import settings_from
-from gimbal_friction.common.units import NS_PER_S
 from gimbal_friction.common.xp import SCALAR
 from gimbal_friction.config.node_settings import (
     CORRECTION_LAYOUT,
@@ -106,7 +104,7 @@ from gimbal_friction.nodes._lifecycle import ManagedNode
 from gimbal_friction.nodes._qos import Inputs, create_publisher
 from gimbal_friction.physics.direction import direction_factors
 from gimbal_friction.recording import topics
-from gimbal_friction.recording.cdr import float64_multi_array_cdr, joint_state_cdr
+from gimbal_friction.recording.output_messages import OutputBytes as OutputBytes  # noqa: PLC0414 - re-exported
 from gimbal_friction.streams.delivery import lost_key, received_key
 from gimbal_friction.streams.input_health import SILENCE_TIMEOUT_S
 from gimbal_friction.streams.inputs import effective_time
@@ -119,7 +117,6 @@ CORRECTION = topics.CORRECTION
 FIT_POLL_PERIOD_S = 0.02
 #: subscription depth of the joint states: a burst of this many messages is buffered, not dropped
 JOINT_STATE_DEPTH = 1000
-_STAMP = struct.Struct('<iI')  #: builtin_interfaces/Time in CDR (int32 sec, uint32 nanosec), after the 4-byte header
 NodeSettings = FeedforwardNodeSettings  # the node-level parameters (gimbal_friction.common.settings)
 
 _FF_FIELDS = field_names(FeedforwardSettings)
@@ -175,62 +172,6 @@ def model_along_nm(ff: Feedforward, joint: str, velocity_rad_s: float, temperatu
     along: float = model_friction_nm(terms, *direction_factors(ff.axes[joint], temperature_c, SCALAR),
                                      velocity_rad_s, SCALAR)
     return along if velocity_rad_s >= 0.0 else -along
-
-
-class OutputBytes:
-    """The serialized (CDR) outputs of one joint-state message, published as bytes.
-
-    rclpy converts a message object field by field and serializes it on every publish (in the running node at
-    1 kHz the commands' publish took 26 µs as a message object, 6 µs as bytes); the bytes of the suite's one CDR
-    encoder (:func:`~gimbal_friction.recording.cdr.joint_state_cdr`,
-    :func:`~gimbal_friction.recording.cdr.float64_multi_array_cdr`) are made once per layout (frame_id and joint
-    names) and per message only the stamp and the torques are packed into them. Subscribers read the same messages
-    as from the message objects (``test/ros/test_feedforward_node.py`` deserializes them; the bytes differ from
-    rclpy's only in padding rclpy leaves unset and in its trailing padding).
-
-    Parameters
-    ----------
-    n_joints : int
-        Configured joints (the length of the commands).
-    """
-
-    MAX_LAYOUTS = 64  #: layouts kept (a stream with ever new frame_ids or names is packed without a template)
-
-    def __init__(self, n_joints: int) -> None:
-        commands = float64_multi_array_cdr([0.0] * n_joints, 'joints')
-        self._commands_head = commands[:len(commands) - 8 * n_joints]
-        self._commands = struct.Struct(f'<{n_joints}d')
-        #: (frame_id, names) -> (bytes before the stamp, bytes between the stamp and the efforts, efforts' packer)
-        self._layouts: dict[tuple[str, tuple[str, ...]], tuple[bytes, bytes, struct.Struct]] = {}
-
-    def feedforward(self, header: Any, names: list[str], torques_nm: list[float]) -> bytes:
-        """``sensor_msgs/JointState`` with ``header`` (std_msgs/Header: its stamp and frame_id), ``names`` and
-        effort = ``torques_nm`` [N·m] (position and velocity empty)."""
-        key = (header.frame_id, tuple(names))
-        layout = self._layouts.get(key)
-        if layout is None:
-            layout = self._layout(*key)
-        head, middle, efforts = layout
-        stamp = header.stamp
-        return head + _STAMP.pack(stamp.sec, stamp.nanosec) + middle + efforts.pack(*torques_nm)
-
-    def commands(self, commands_nm: list[float]) -> bytes:
-        """``std_msgs/Float64MultiArray`` of ``commands_nm`` [N·m], one dimension ``joints``."""
-        return self._commands_head + self._commands.pack(*commands_nm)
-
-    def _layout(self, frame_id: str, names: tuple[str, ...]) -> tuple[bytes, bytes, struct.Struct]:
-        """The encoder's bytes of this layout split around the stamp and the efforts; checked: the bytes of another
-        stamp and other efforts differ from them exactly there."""
-        n = len(names)
-        zero = joint_state_cdr(0, names, effort=[0.0] * n, frame_id=frame_id)
-        head, middle, efforts = zero[:4], zero[4 + _STAMP.size:len(zero) - 8 * n], struct.Struct(f'<{n}d')
-        probe = joint_state_cdr(NS_PER_S + 2, names, effort=[1.0] * n, frame_id=frame_id)
-        if probe != head + _STAMP.pack(1, 2) + middle + efforts.pack(*[1.0] * n):
-            raise RuntimeError('JointState CDR layout: stamp or efforts not where OutputBytes packs them')
-        layout = (head, middle, efforts)
-        if len(self._layouts) < self.MAX_LAYOUTS:
-            self._layouts[(frame_id, names)] = layout
-        return layout
 
 
 class FrictionFeedforward(ManagedNode):
