@@ -65,9 +65,6 @@ from gimbal_friction.common.units import join_stamp
 from gimbal_friction.config.node_settings import LoggerSettings
 from gimbal_friction.estimation.residuals import ResidualPairing, ResidualStats, credible_rows, credible_torque
 from gimbal_friction.nodes._common import (
-    ERROR,
-    OK,
-    WARN,
     InputCounter,
     callback_error_values,
     check_changes,
@@ -79,13 +76,14 @@ from gimbal_friction.nodes._common import (
     retime,
     run_node,
     split_parameters,
-    status,
+    to_msg,
 )
 from gimbal_friction.nodes._lifecycle import ManagedNode
 from gimbal_friction.nodes._qos import Inputs, create_publisher
 from gimbal_friction.recording import topics
 from gimbal_friction.recording.cdr import float64_multi_array_cdr_rows, joint_state_cdr_rows, split_rows
 from gimbal_friction.recording.log_folder import open_own_folder, rotation_limits, wanted_folder
+from gimbal_friction.recording.log_report import LoggerReport
 from gimbal_friction.recording.residual_log import ResidualLogWriter
 from gimbal_friction.streams.delivery import PUBLISHER_STATUS, STATE_FINISHED, Sent, read_publisher_values
 from gimbal_friction.streams.inputs import effective_time
@@ -124,7 +122,7 @@ class ResidualLogger(ManagedNode):
         self._axes_set = frozenset(self.axes)
         self.settings = declare_settings(self, LoggerSettings)
         self.inputs = InputCounter()
-        self._reported: dict[str, int] = {}
+        self.report = LoggerReport()   #: the /diagnostics statuses, report after report
         self.stats = ResidualStats(self.settings.residual_bin_c)
         self.writer: ResidualLogWriter | None = None
         self.folder: Path | None = None
@@ -386,58 +384,19 @@ class ResidualLogger(ManagedNode):
 
     # ------------------------------------------------------------------ diagnostics
     def publish_diagnostics(self) -> None:
-        w = self.writer
-        stats = w.stats if w is not None else None
-        level = OK
-        message = 'logging' if self.active else 'not logging'
+        """``/diagnostics`` (its statuses and rules: :class:`~gimbal_friction.recording.log_report.LoggerReport`)."""
         self.take_sent_counts()
-        new_refused = {r: n - self._reported.get(r, 0) for r, n in self.refused.items() if n > self._reported.get(r, 0)}
-        self._reported = dict(self.refused)
-        new_lost = self.inputs.new_losses()
-        input_problems = self.input_topics.problems()   # an input that delivers nothing: the topic and the cause
-        if self.error is not None:
-            level, message = ERROR, f'not logging: {self.error}'
-        elif new_refused or new_lost or input_problems:  # what happened since the previous report (totals: values)
-            level, parts = WARN, list(input_problems)
-            if new_refused:
-                parts.append('inputs refused: ' + ', '.join(f'{r} {c}x' for r, c in sorted(new_refused.items())))
-            if new_lost:
-                parts.append('messages lost on the way: ' + ', '.join(f'{t} {n}' for t, n in sorted(new_lost.items())))
-            message = '; '.join(parts)
-        values: dict[str, Any] = {
-            'folder': str(self.folder) if self.folder else 'none',
-            'current_file': str(stats.current_file) if stats and stats.current_file else 'none',
-            'files': len(stats.files) if stats else 0,
-            'messages_logged': stats.messages if stats else 0,
-            'bytes': stats.bytes if stats else 0,
-            'residuals_logged': self.residuals_logged,
-            'paired_with_feedforward': self.paired,
-            'no_feedforward': self.no_feedforward,
-            'waiting_for_feedforward': self.pairing.waiting,
-            'dropped': self.dropped,
-            'temperature_qos': 'reliable' if self._temperature.reliable else 'best_effort',
-        }
-        for reason, count in sorted(self.refused.items()):
-            values[f'refused: {reason}'] = count
-        values.update(self.inputs.values())
-        values.update(self.input_topics.values())
-        errors = callback_error_values(self)
-        values.update(errors)
-        new_errors = {k: n for k, n in errors.items() if n > self._reported.get(k, 0)}
-        self._reported.update(errors)
-        if new_errors:
-            level, message = ERROR, f'a callback failed (see values); {message}'
-        statuses = [status('gimbal_friction/residual_logger', level, message, 'residual_logger', values)]
-        by_axis: dict[str, dict[str, Any]] = {}
-        for (joint, b), (n, rms) in sorted(self.stats.rms().items(),
-                                           key=lambda kv: (kv[0][0], math.inf if kv[0][1] is None else kv[0][1])):
-            tag = 'unknown' if b is None else f'{b:+g}C'
-            by_axis.setdefault(joint, {})[f'rms_nm_at_{tag}'] = rms
-            by_axis[joint][f'samples_at_{tag}'] = n
-        for joint, vals in by_axis.items():
-            statuses.append(status(f'gimbal_friction/residual_logger/{joint}', OK, 'residual RMS per temperature '
-                                   'bin', joint, vals))
-        self.pub_diag.publish(diagnostic_array(self, statuses))
+        statuses = self.report.statuses(
+            active=self.active, error=self.error, folder=self.folder,
+            stats=self.writer.stats if self.writer is not None else None,
+            counts={'residuals_logged': self.residuals_logged, 'paired_with_feedforward': self.paired,
+                    'no_feedforward': self.no_feedforward, 'waiting_for_feedforward': self.pairing.waiting,
+                    'dropped': self.dropped},
+            temperature_reliable=self._temperature.reliable, refused=self.refused, lost=self.inputs.new_losses(),
+            input_problems=self.input_topics.problems(),
+            input_values={**self.inputs.values(), **self.input_topics.values()}, errors=callback_error_values(self),
+            rms=self.stats.rms())
+        self.pub_diag.publish(diagnostic_array(self, [to_msg(one) for one in statuses]))
 
 
 def main(args: Sequence[str] | None = None) -> None:
