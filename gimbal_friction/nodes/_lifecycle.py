@@ -126,7 +126,8 @@ class ManagedNode(LifecycleNode):
         return []
 
     def configure_node(self) -> None:
-        """Declare and read the parameters, validate them, build everything (raises to refuse)."""
+        """Read the parameters (declaring any a construction step left undeclared), validate them, build everything
+        (raises to refuse)."""
 
     def start_output(self) -> None:
         """On activate, after the publishers are enabled."""
