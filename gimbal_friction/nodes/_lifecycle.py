@@ -32,11 +32,13 @@ While unconfigured, a parameter may be set to any value of its type: configure v
 
 from __future__ import annotations
 
+import time
 from collections.abc import Callable
 from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticArray
 from rcl_interfaces.msg import ParameterDescriptor
+from rclpy.duration import Duration
 from rclpy.lifecycle import LifecycleNode, LifecyclePublisher, LifecycleState, TransitionCallbackReturn
 from rclpy.parameter import Parameter
 
@@ -51,6 +53,9 @@ UNCONFIGURED, INACTIVE, ACTIVE, FINALIZED = 'unconfigured', 'inactive', 'active'
 #: a failed transition's status is published again this often [s] until a transition succeeds (a diagnostics
 #: aggregator or a late `ros2 topic echo /diagnostics` sees it)
 REPEAT_PERIOD_S = 1.0
+
+#: at most this long [s, wall clock] a release waits for the subscribers to acknowledge what was published last
+RELEASE_ACK_S = 1.0
 
 SUCCESS, FAILURE, ERROR_RETURN = (TransitionCallbackReturn.SUCCESS, TransitionCallbackReturn.FAILURE,
                                   TransitionCallbackReturn.ERROR)
@@ -152,11 +157,21 @@ class ManagedNode(LifecycleNode):
         return {*self.publishers, *self.subscriptions, *self.timers, *self.clients, *self.services}
 
     def _release(self) -> None:
-        """The node's own release, then every ROS entity made since construction destroyed."""
+        """The node's own release, then every ROS entity made since construction destroyed: a publisher once what it
+        published last has been acknowledged (at most :data:`RELEASE_ACK_S` for them all), so the deactivation's
+        last messages (the feedforward's zero, the estimator's waiting samples) reach their subscribers even when
+        shutdown destroys the publisher right after (a reliable writer deleted with data in flight drops it)."""
         try:
             self.release_node()
         finally:
-            for entity in self._entities() - self._own:
+            made = self._entities() - self._own
+            deadline = time.monotonic() + RELEASE_ACK_S
+            for pub in [e for e in made if e in set(self.publishers)]:
+                try:
+                    pub.wait_for_all_acked(Duration(seconds=max(0.0, deadline - time.monotonic())))
+                except Exception as err:  # (a context already shut down: nothing to wait for)
+                    self.get_logger().debug(f'not waiting for acknowledgements: {err}')
+            for entity in made:
                 if isinstance(entity, LifecyclePublisher):
                     self.destroy_lifecycle_publisher(entity)
                 elif entity in set(self.publishers):
