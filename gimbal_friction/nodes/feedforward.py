@@ -73,16 +73,14 @@ from gimbal_friction.feedforward.correction import (
     LearningSettings,
     model_identity,
 )
+from gimbal_friction.feedforward.report import FeedforwardReport
 from gimbal_friction.feedforward.rule import (
     SOURCE_MEASURED,
-    SOURCE_NAMES,
-    SOURCE_ZERO,
     Feedforward,
     FeedforwardSettings,
     model_friction_nm,
 )
 from gimbal_friction.nodes._common import (
-    ERROR,
     OK,
     WARN,
     InputCounter,
@@ -99,6 +97,7 @@ from gimbal_friction.nodes._common import (
     stamp_to_s,
     startup_model_error,
     status,
+    to_msg,
 )
 from gimbal_friction.nodes._lifecycle import ManagedNode
 from gimbal_friction.nodes._qos import Inputs, create_publisher
@@ -226,7 +225,7 @@ class FrictionFeedforward(ManagedNode):
         self._rate_limited = 0
         self._last_warn: dict[str, float] = {}
         self.inputs = InputCounter()
-        self._reported: dict[str, dict[str, int]] = {}
+        self.report = FeedforwardReport()   #: the /diagnostics statuses, report after report
         self._outputs = OutputBytes(len(self.ff.order))
         qos = QoSProfile(depth=100)
         # the outputs keep as many as a joint-state burst (a loaded subscriber catching up loses none)
@@ -548,79 +547,16 @@ class FrictionFeedforward(ManagedNode):
     # ------------------------------------------------------------------ diagnostics
     def _new_since_report(self, key: str, counts: dict[str, int]) -> dict[str, int]:
         """Counts that grew since the previous diagnostics report (what keeps a status at WARN)."""
-        previous = self._reported.get(key, {})
-        self._reported[key] = dict(counts)
-        return {r: n - previous.get(r, 0) for r, n in counts.items() if n > previous.get(r, 0)}
+        return self.report.new_since_report(key, counts)
 
     def publish_diagnostics(self) -> None:
-        """One status per joint. WARN (ERROR for the zero policy or a failed callback) names what happened since
-        the previous report; the status returns to OK once the cause has gone for a period. The totals stay in the
-        values."""
-        ff = self.ff
-        s = ff.settings
-        c = ff.counters
-        last_time = self._last_time_s if math.isfinite(self._last_time_s) else self._now_s()
-        age = ff.temperature_age_s(last_time)
-        temperature, source = ff.temperature(last_time)
-        new_t = self._new_since_report('temperature', c.temperature_rejected)
-        new_j = self._new_since_report('joint_state', c.joint_state_rejected)
-        new_r = self._new_since_report('reference', c.reference_rejected)
-        new_sat = self._new_since_report('saturated', c.saturated)
-        new_lost = self.inputs.new_losses()
-        errors = callback_error_values(self)
-        new_errors = self._new_since_report('errors', errors)
-        input_problems = self.input_topics.problems()
-        statuses = []
-        for axis in ff.order:
-            level, problems = OK, []
-            if input_problems:   # an input that delivers nothing (the topic and the cause)
-                level = WARN
-                problems += input_problems
-            if source != SOURCE_MEASURED:
-                level = ERROR if source == SOURCE_ZERO else WARN
-                problems.append(f'no fresh temperature: {SOURCE_NAMES[source]}')
-            if new_sat.get(axis):
-                level = max(level, WARN)
-                problems.append(f'output saturated {new_sat[axis]}x')
-            if new_t:
-                level = max(level, WARN)
-                problems.append('temperatures rejected: ' + ', '.join(f'{r} {n}x' for r, n in sorted(new_t.items())))
-            if new_j:
-                level = max(level, WARN)
-                problems.append('joint states rejected: ' + ', '.join(f'{r} {n}x' for r, n in sorted(new_j.items())))
-            if new_r:
-                level = max(level, WARN)
-                problems.append('reference velocities rejected: ' + ', '.join(f'{r} {n}x'
-                                                                              for r, n in sorted(new_r.items())))
-            if new_lost:
-                level = max(level, WARN)
-                problems.append('messages lost on the way: ' + ', '.join(f'{t} {n}'
-                                                                          for t, n in sorted(new_lost.items())))
-            if new_errors:
-                level = ERROR
-                problems.append('a callback failed (see values)')
-            values: dict[str, Any] = {
-                'temperature_c': temperature if math.isfinite(temperature) else 'none',
-                'temperature_source': SOURCE_NAMES[source],
-                'temperature_age_s': age if math.isfinite(age) else 'never',
-                'model_range_c': f'{s.temperature_min_c:g}..{s.temperature_max_c:g}',
-                'saturated_count': c.saturated.get(axis, 0),
-                'max_torque_nm': s.max_torque_nm,
-                'published': c.published,
-                'rate_limited': self._rate_limited,
-            }
-            for reason, count in c.temperature_rejected.items():
-                values[f'rejected_temperature: {reason}'] = count
-            for reason, count in c.joint_state_rejected.items():
-                values[f'rejected_joint_state: {reason}'] = count
-            for reason, count in c.reference_rejected.items():
-                values[f'rejected_reference: {reason}'] = count
-            values['velocity_source'] = s.velocity_source
-            values.update(self.inputs.values())
-            values.update(self.input_topics.values())
-            values.update(errors)
-            statuses.append(status(f'gimbal_friction/feedforward/{axis}', level, '; '.join(problems) or 'ok',
-                                   axis, values))
+        """One status per joint (its rules: :class:`~gimbal_friction.feedforward.report.FeedforwardReport`), then
+        the learning's."""
+        now_s = self._last_time_s if math.isfinite(self._last_time_s) else self._now_s()
+        statuses = [to_msg(one) for one in self.report.joint_statuses(
+            self.ff, now_s, lost=self.inputs.new_losses(), input_problems=self.input_topics.problems(),
+            input_values={**self.inputs.values(), **self.input_topics.values()}, errors=callback_error_values(self),
+            rate_limited=self._rate_limited)]
         statuses.append(self._learning_status())
         self.pub_diag.publish(diagnostic_array(self, statuses))
 
