@@ -464,23 +464,22 @@ class EstimatorLogic:
         jr = np.concatenate([np.full(len(p.m), joint_rank[str(p.m.joint[0])]) for p in parts])
         out = MeasurementArrays.concatenate([p.m for p in parts])
         order_out = np.lexsort((entry, jr, emit))
-        out = out.select(order_out)
-        emit_sorted = emit[order_out]
-        emit_log = np.where(emit_sorted >= base, logs_sorted[np.clip(emit_sorted - base, 0, max(n - 1, 0))]
+        if not _is_identity(order_out):   # (one joint: usually already in order; a take copies every column)
+            out, emit, jr = out.select(order_out), emit[order_out], jr[order_out]
+        emit_log = np.where(emit >= base, logs_sorted[np.clip(emit - base, 0, max(n - 1, 0))]
                             if n else self._last_log_ns, self._last_log_ns).astype(np.int64)
-        for name in self.order:
-            sel = out.joint == name
+        for rank_j, name in enumerate(self.order):
+            sel = jr == rank_j
             count = int(np.count_nonzero(sel))
             if count:
                 self.counters.accepted[name] = self.counters.accepted.get(name, 0) + count
                 self.last[name] = out.select(np.flatnonzero(sel)[-1:])
-        steady = out.method == METHOD_STEADY_STATE
-        if np.any(steady):
-            st = out.select(steady)
-            plateau = np.where(st.temperature_fresh, plateau_of(st.temperature_c, s.temperature_bin_c), np.nan)
-            keys = [(j, d, None if math.isnan(p) else p)
-                    for j, d, p in zip(st.joint.tolist(), st.direction.tolist(), plateau.tolist())]
-            self._stats.add(keys, st.friction_nm, st.position_rad)
+        steady = np.flatnonzero(out.method == METHOD_STEADY_STATE)
+        if steady.size:
+            fresh = out.temperature_fresh[steady]
+            plateau = np.where(fresh, plateau_of(out.temperature_c[steady], s.temperature_bin_c), np.nan)
+            keys, gid = _statistics_groups(out.joint[steady], jr[steady], out.velocity_rad_s[steady], plateau)
+            self._stats.add_groups(keys, gid, out.friction_nm[steady], out.position_rad[steady])
         return out, emit_log
 
     # ------------------------------------------------------------------ one joint
@@ -723,6 +722,31 @@ class EstimatorLogic:
 
 
 # ====================================================================================================== helpers
+def _is_identity(index: NDArray[np.intp]) -> bool:
+    """``index`` is ``0, 1, ..., n-1`` (taking it would copy the arrays unchanged)."""
+    return bool(index.shape[0] == 0 or (index[0] == 0 and np.all(np.diff(index) == 1)))
+
+
+def _statistics_groups(joint: NDArray[np.str_], rank: NDArray[np.int64], velocity: NDArray[np.float64],
+                       plateau: NDArray[np.float64]) -> tuple[list[tuple[str, int, float | None]],
+                                                              NDArray[np.int64]]:
+    """The statistics' key of each sample, ``(joint, direction, plateau)`` (plateau NaN: None), as the distinct
+    keys in the order each first occurs and the index of each sample's key among them: the keys a per-sample loop
+    would build (the first occurrence's values), as arrays. ``rank``: the joint's configured rank."""
+    direction = np.where(velocity > 0.0, 1, -1)
+    unknown = np.isnan(plateau)
+    values, p_code = np.unique(np.where(unknown, 0.0, plateau), return_inverse=True)
+    p_code = np.where(unknown, values.shape[0], p_code.reshape(-1))
+    code = (np.asarray(rank, dtype=np.int64) * 2 + (direction > 0)) * (values.shape[0] + 1) + p_code
+    _, first, inverse = np.unique(code, return_index=True, return_inverse=True)
+    seen = np.argsort(first, kind='stable')            # the groups in the order they first occur
+    renumber = np.empty(seen.shape[0], dtype=np.int64)
+    renumber[seen] = np.arange(seen.shape[0], dtype=np.int64)
+    keys = [(str(joint[i]), int(direction[i]), None if unknown[i] else float(plateau[i]))
+            for i in first[seen].tolist()]
+    return keys, renumber[inverse.reshape(-1)]
+
+
 def _accept_stamps(last: int | None, stamps: NDArray[np.int64], reset_ns: int) -> tuple[NDArray[np.bool_],
                                                                                           list[int]]:
     """Which joint-state times are accepted (later than every accepted one before), and where the stream
