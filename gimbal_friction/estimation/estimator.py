@@ -409,9 +409,9 @@ class EstimatorLogic:
             return MeasurementArrays.empty(), none
         logs = np.concatenate([np.asarray(x, dtype=np.int64) for x in (t_arr.log_time_ns, js.log_time_ns,
                                                                          cur.log_time_ns)])
-        kind = np.concatenate([np.zeros(nT, np.int8), np.ones(nJ, np.int8), np.full(nC, 2, np.int8)])
-        index = np.concatenate([np.arange(nT), np.arange(nJ), np.arange(nC)])
-        order = np.lexsort((index, kind, logs))
+        # by log time, ties in the order of the concatenation (temperature, joint states, currents; each in its
+        # own order): a stable sort of the times alone
+        order = np.argsort(logs, kind='stable')
         rank = np.empty(n, dtype=np.int64)
         base = self._seq
         rank[order] = np.arange(n, dtype=np.int64) + base
@@ -570,7 +570,7 @@ class EstimatorLogic:
         wi = np.flatnonzero(waits)
         if wi.size > WAIT_LENGTH:
             # the buffer overflows only if more than WAIT_LENGTH wait at once: occupancy at each arrival
-            entry, leave = c_pos[wi], np.sort(decide_pos[wi])
+            entry, leave = c_pos[wi], _sorted(decide_pos[wi])
             occupancy = np.arange(wi.size) - np.searchsorted(leave, entry, side='left')
             if int(occupancy.max()) >= WAIT_LENGTH:
                 alive[wi] = _simulate_wait_buffer(entry, decide_pos[wi])
@@ -727,6 +727,11 @@ def _is_identity(index: NDArray[np.intp]) -> bool:
     return bool(index.shape[0] == 0 or (index[0] == 0 and np.all(np.diff(index) == 1)))
 
 
+def _sorted(a: NDArray[np.int64]) -> NDArray[np.int64]:
+    """``np.sort(a)``, without sorting when ``a`` is already in order (currents arriving in stamp order)."""
+    return a if a.shape[0] < 2 or bool(np.all(a[1:] >= a[:-1])) else np.sort(a)
+
+
 def _statistics_groups(joint: NDArray[np.str_], rank: NDArray[np.int64], velocity: NDArray[np.float64],
                        plateau: NDArray[np.float64]) -> tuple[list[tuple[str, int, float | None]],
                                                               NDArray[np.int64]]:
@@ -734,17 +739,25 @@ def _statistics_groups(joint: NDArray[np.str_], rank: NDArray[np.int64], velocit
     keys in the order each first occurs and the index of each sample's key among them: the keys a per-sample loop
     would build (the first occurrence's values), as arrays. ``rank``: the joint's configured rank."""
     direction = np.where(velocity > 0.0, 1, -1)
+    rank = np.asarray(rank, dtype=np.int64)
     unknown = np.isnan(plateau)
-    values, p_code = np.unique(np.where(unknown, 0.0, plateau), return_inverse=True)
-    p_code = np.where(unknown, values.shape[0], p_code.reshape(-1))
-    code = (np.asarray(rank, dtype=np.int64) * 2 + (direction > 0)) * (values.shape[0] + 1) + p_code
-    _, first, inverse = np.unique(code, return_index=True, return_inverse=True)
-    seen = np.argsort(first, kind='stable')            # the groups in the order they first occur
+    filled = np.where(unknown, 0.0, plateau)
+    n = direction.shape[0]
+    # runs of equal keys (a plateau and a direction last many samples), then the distinct keys among the runs
+    change = np.ones(n, dtype=bool)
+    change[1:] = ((rank[1:] != rank[:-1]) | (direction[1:] != direction[:-1]) | (unknown[1:] != unknown[:-1])
+                  | (filled[1:] != filled[:-1]))
+    starts = np.flatnonzero(change)
+    values, p_code = np.unique(filled[starts], return_inverse=True)
+    p_code = np.where(unknown[starts], values.shape[0], p_code.reshape(-1))
+    code = (rank[starts] * 2 + (direction[starts] > 0)) * (values.shape[0] + 1) + p_code
+    _, first_run, inverse_run = np.unique(code, return_index=True, return_inverse=True)
+    seen = np.argsort(first_run, kind='stable')        # the groups in the order they first occur
     renumber = np.empty(seen.shape[0], dtype=np.int64)
     renumber[seen] = np.arange(seen.shape[0], dtype=np.int64)
     keys = [(str(joint[i]), int(direction[i]), None if unknown[i] else float(plateau[i]))
-            for i in first[seen].tolist()]
-    return keys, renumber[inverse.reshape(-1)]
+            for i in starts[first_run[seen]].tolist()]
+    return keys, np.repeat(renumber[inverse_run.reshape(-1)], np.diff(np.append(starts, n)))
 
 
 def _accept_stamps(last: int | None, stamps: NDArray[np.int64], reset_ns: int) -> tuple[NDArray[np.bool_],
