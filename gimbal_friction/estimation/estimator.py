@@ -638,7 +638,7 @@ class EstimatorLogic:
         TEMPERATURE_WAIT_STATES of its joint states, or the input ended at ``last_pos``). Each is given the latest
         temperature stamped at or before it among those arrived by then; the others stay held."""
         s = self.settings
-        held = state.held.concat(new)
+        held = state.held.concat(new) if len(state.held.m) else new
         ts = held.m.stamp_ns
         if s.temperature_wait_s > 0.0:
             ready = self._temperatures.ready_position(ts)
@@ -652,7 +652,7 @@ class EstimatorLogic:
             release = held.emit
         go = release < _I64_MAX
         state.held = held.select(~go)
-        out = held.select(go)
+        out = held if bool(go.all()) else held.select(go)   # (all released: no copy)
         at = release[go]
         value, time_s = self._temperatures.at(out.m.stamp_ns, at)
         fresh = is_fresh(out.m.stamp_ns / NS_PER_S, time_s, s.temperature_timeout_s, ARRAY) & np.isfinite(value)
@@ -804,29 +804,39 @@ def _window_slope(stamp: NDArray[np.int64], velocity: NDArray[np.float64], first
     m = np.arange(first, n)
     if m.size == 0:
         return np.empty(0), np.empty(0)
-    lo = np.searchsorted(stamp, stamp[m] - window_ns, side='right')
+    sm = stamp[first:]
+    lo = np.searchsorted(stamp, sm - window_ns, side='right')
     count = np.minimum(np.maximum(m - lo + 1, np.minimum(m + 1, 3)), OBSERVER_MAX_SAMPLES)
     kmax = int(count.max())
+    every = int(count.min())   # the terms k < every exist for every sample: no mask (adding 0.0 changes nothing)
     sum_t = np.zeros(m.size)
     sum_v = np.zeros(m.size)
     for k in range(kmax):
+        if k < every:
+            sum_t += (stamp[first - k:n - k] - sm) / NS_PER_S
+            sum_v += velocity[first - k:n - k]
+            continue
         use = k < count
         i = np.where(use, m - k, m)
-        sum_t += np.where(use, (stamp[i] - stamp[m]) / NS_PER_S, 0.0)
+        sum_t += np.where(use, (stamp[i] - sm) / NS_PER_S, 0.0)
         sum_v += np.where(use, velocity[i], 0.0)
     mean_t, mean_v = sum_t / count, sum_v / count
     stt = np.zeros(m.size)
     stv = np.zeros(m.size)
     svv = np.zeros(m.size)
     for k in range(kmax):
-        use = k < count
-        i = np.where(use, m - k, m)
-        dt = np.where(use, (stamp[i] - stamp[m]) / NS_PER_S - mean_t, 0.0)
-        dv = np.where(use, velocity[i] - mean_v, 0.0)
+        if k < every:
+            dt = (stamp[first - k:n - k] - sm) / NS_PER_S - mean_t
+            dv = velocity[first - k:n - k] - mean_v
+        else:
+            use = k < count
+            i = np.where(use, m - k, m)
+            dt = np.where(use, (stamp[i] - sm) / NS_PER_S - mean_t, 0.0)
+            dv = np.where(use, velocity[i] - mean_v, 0.0)
         stt += dt * dt
         stv += dt * dv
         svv += dv * dv
-    span = stamp[m] - stamp[m - count + 1]
+    span = sm - stamp[m - count + 1]
     usable = (count >= 3) & (stt > 0.0) & (span <= max(10 * window_ns, MAX_GAP_NS))
     slope = np.where(usable, stv / stt, np.nan)   # (feed_timed sets np.errstate for the division)
     resid = np.maximum(svv - slope * stv, 0.0)
