@@ -21,6 +21,7 @@ and its detail, and the three input topics as recorded); the generated messages 
 
 from __future__ import annotations
 
+import threading
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from pathlib import Path
@@ -174,11 +175,22 @@ def _without_hugepage_advice() -> Iterator[None]:
     if setter is None:
         yield
         return
-    before = bool(setter(False))
+    with _ADVICE_LOCK:   # replays in several threads: the first one in turns it off, the last one out restores it
+        if not _ADVICE_SAVED:
+            _ADVICE_SAVED.append(bool(setter(False)))
+        _ADVICE_USERS[0] += 1
     try:
         yield
     finally:
-        setter(before)
+        with _ADVICE_LOCK:
+            _ADVICE_USERS[0] -= 1
+            if not _ADVICE_USERS[0]:
+                setter(_ADVICE_SAVED.pop())
+
+
+_ADVICE_LOCK = threading.Lock()
+_ADVICE_SAVED: list[bool] = []   #: the setting before the first replay still running
+_ADVICE_USERS = [0]              #: replays running
 
 
 def _replay_bag(bag_path: str | Path, out_dir: str | Path | None, *, config_paths: Sequence[Path],

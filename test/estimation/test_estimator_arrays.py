@@ -94,3 +94,52 @@ def test_replay_turns_numpys_huge_page_advice_off_meanwhile_and_restores_it(befo
         assert len(result.measurements) > 0
     finally:
         switch._set_madvise_hugepage(previous)
+
+
+
+def test_replays_in_two_threads_restore_the_huge_page_advice_once_both_are_done():
+    """The first replay in turns the advice off, the last one out restores it: here the first in ends first, while
+    the other still runs (a plain save and restore per replay would turn it back on under the second one, and
+    leave it off at the end)."""
+    import threading
+
+    switch = np._core.multiarray
+    previous = switch._set_madvise_hugepage(True)
+    first_in, second_in, first_out = threading.Event(), threading.Event(), threading.Event()
+    seen: list[bool] = []
+    errors: list[BaseException] = []
+
+    def first(stage: str, frac: float) -> None:
+        first_in.set()
+        if stage == 'nodes' and frac == 0.0:
+            assert second_in.wait(timeout=60)
+
+    def second(stage: str, frac: float) -> None:
+        second_in.set()
+        if stage == 'nodes' and frac == 0.0:
+            assert first_out.wait(timeout=60)
+            seen.append(bool(switch._get_madvise_hugepage()))
+
+    def run(progress, wait_for: threading.Event | None, done: threading.Event | None) -> None:
+        try:
+            if wait_for is not None:
+                assert wait_for.wait(timeout=60)
+            replay_bag(SAMPLE, None, progress=progress)
+        except BaseException as err:  # reported by the assertion below
+            errors.append(err)
+        finally:
+            if done is not None:
+                done.set()
+
+    try:
+        threads = [threading.Thread(target=run, args=(first, None, first_out)),
+                   threading.Thread(target=run, args=(second, first_in, None))]
+        for t in threads:
+            t.start()
+        for t in threads:
+            t.join(120)
+        assert not errors
+        assert seen == [False]                        # still off for the replay that was still running
+        assert bool(switch._get_madvise_hugepage()) is True
+    finally:
+        switch._set_madvise_hugepage(previous)
