@@ -17,12 +17,15 @@ cold machine):
 - ``replay before`` (with ``--before DIR``): the replay of another checkout of the package (e.g. the code before a
   change: ``git worktree add /tmp/old COMMIT``), run in a child process with ``PYTHONPATH=DIR`` in the same rounds
   (timed inside the child, so interpreter start-up is not counted). With ``--isolate`` the replay of this checkout
-  runs in a child process the same way, so that neither side inherits the heap of the decode runs.
+  and the decode run in child processes the same way, so that no workload inherits the heap or the warm caches
+  (the rosbags type store) of another.
 
 Throughput = bag messages / wall time [msg/s] (the same numerator for every workload); the median over the rounds
 is reported, and replay / decode of those medians and the median over the rounds of each round's replay / decode
 (robust to a load that drifts from round to round), against the target ratio (``--target``, default 1.5): PASS
-when both reach it, else MISS. Also a per-stage breakdown of each replay (medians over the rounds), taken from
+when both reach it, else MISS. The same two ratios in CPU seconds of the whole process (all threads), which other
+jobs on a shared machine move far less than the wall time, get their own PASS / MISS. Also a per-stage breakdown
+of each replay (medians over the rounds), taken from
 ``replay_bag``'s progress reports: setup (parameters, opening the bag), reading the bag (and decoding its inputs),
 the nodes' logic, the plateau summary, serializing the log's messages and ordering them, writing the residual log
 (MCAP chunks, compression). A stage is timed from its first report to the first report of the next stage.
@@ -80,11 +83,12 @@ def ensure_big_bag(path: Path, options: Sequence[str] = BIG_BAG_OPTIONS) -> Path
     return path
 
 
-def run_decode(bag: Path) -> tuple[float, int]:
-    """Open the bag with rosbags and deserialize every message: (wall time [s], messages)."""
+def run_decode(bag: Path) -> tuple[float, int, dict[str, float]]:
+    """Open the bag with rosbags and deserialize every message: (wall time [s], messages, CPU seconds)."""
     from rosbags.highlevel import AnyReader
 
     from gimbal_friction.recording.bag import default_typestore
+    c0, p0 = time.thread_time(), time.process_time()
     t0 = time.perf_counter()
     count = 0
     with AnyReader([bag], default_typestore=default_typestore()) as reader:
@@ -92,7 +96,8 @@ def run_decode(bag: Path) -> tuple[float, int]:
         for conn, _, data in reader.messages():
             deserialize(data, conn.msgtype)
             count += 1
-    return time.perf_counter() - t0, count
+    t1 = time.perf_counter()
+    return t1 - t0, count, {CPU_MAIN: time.thread_time() - c0, CPU_ALL: time.process_time() - p0}
 
 
 def run_replay(bag: Path, work: Path, log_inputs: bool) -> tuple[float, int, dict[str, float]]:
@@ -125,9 +130,13 @@ def run_replay(bag: Path, work: Path, log_inputs: bool) -> tuple[float, int, dic
 
 def run_before(bag: Path, work: Path, code: Path) -> tuple[float, int, dict[str, float]]:
     """One replay of the checkout ``code`` in a child process (timed inside it)."""
-    env = {**os.environ, 'PYTHONPATH': str(code)}
-    out = subprocess.run([sys.executable, __file__, '--child-replay', str(bag), '--work', str(work)], env=env,
-                         check=True, capture_output=True, text=True)
+    return run_child(['--child-replay', str(bag), '--work', str(work)], code)
+
+
+def run_child(options: list[str], code: Path | None) -> tuple[float, int, dict[str, float]]:
+    """One workload in a fresh child process (``PYTHONPATH=code``, else this checkout), timed inside it."""
+    env = {**os.environ, 'PYTHONPATH': str(code or ROOT)}
+    out = subprocess.run([sys.executable, __file__, *options], env=env, check=True, capture_output=True, text=True)
     doc = json.loads(out.stdout)
     return doc['seconds'], doc['messages'], doc['stages']
 
@@ -141,7 +150,8 @@ def median_summary(times: list[float], messages: int) -> dict[str, Any]:
 def bench_bag(bag: Path, args: argparse.Namespace) -> dict[str, Any]:
     """Every workload on one bag, ``args.repeat`` interleaved rounds: the medians, ratios and stages."""
     workloads: list[tuple[str, Workload]] = [
-        ('decode', lambda work: (*run_decode(bag), {})),
+        ('decode', (lambda work: run_child(['--child-decode', str(bag)], None)) if args.isolate
+         else (lambda work: run_decode(bag))),
         ('replay', (lambda work: run_before(bag, work, ROOT)) if args.isolate
          else (lambda work: run_replay(bag, work, True))),
     ]
@@ -177,9 +187,20 @@ def bench_bag(bag: Path, args: argparse.Namespace) -> dict[str, Any]:
     # a load that drifts between rounds
     paired = {name: round(statistics.median(d / r for d, r in zip(times['decode'], times[name], strict=True)), 3)
               for name in ratios}
+    # the same in CPU seconds of the whole process (every thread): what the work costs, far less moved than the
+    # wall time by what else runs on a shared machine
+    cpu = {name: [s_[CPU_ALL] for s_ in stages[name]] for name in times}
+    cpu_ratios = {name: round(statistics.median(cpu['decode']) / statistics.median(cpu[name]), 3) for name in ratios}
+    cpu_paired = {name: round(statistics.median(d / r for d, r in zip(cpu['decode'], cpu[name], strict=True)), 3)
+                  for name in ratios}
     doc: dict[str, Any] = {'bag': str(bag), 'messages': n_bag, 'repeat': args.repeat, 'results': results,
                            'ratios': ratios, 'paired_ratios': paired, 'target': args.target,
                            'verdict': 'PASS' if min(ratios['replay'], paired['replay']) >= args.target else 'MISS',
+                           'decode_cpu_s': {'median_s': round(statistics.median(cpu['decode']), 4),
+                                            'runs_s': [round(c, 4) for c in cpu['decode']]},
+                           'cpu_ratios': cpu_ratios, 'cpu_paired_ratios': cpu_paired,
+                           'cpu_verdict': 'PASS' if min(cpu_ratios['replay'], cpu_paired['replay']) >= args.target
+                           else 'MISS',
                            'stages_s': breakdown}
     if args.before is not None:
         doc['speedup_vs_before'] = round(results['replay_before']['median_s'] / results['replay']['median_s'], 3)
@@ -194,6 +215,11 @@ def print_table(doc: dict[str, Any]) -> None:
         print(f'{name:<18} {res["median_s"]:9.3f} {res["msgs_per_s"]:10.0f} {ratio}')
     print(f'replay / decode = {doc["ratios"]["replay"]:.3f} of the medians, {doc["paired_ratios"]["replay"]:.3f} '
           f'median of the rounds (target >= {doc["target"]}, both): {doc["verdict"]}')
+    print(f'in CPU seconds (all threads; decode {doc["decode_cpu_s"]["median_s"]:.3f} s): replay / decode = '
+          f'{doc["cpu_ratios"]["replay"]:.3f} of the medians, {doc["cpu_paired_ratios"]["replay"]:.3f} median of the '
+          f'rounds: {doc["cpu_verdict"]}'
+          + ''.join(f'; {name} {doc["cpu_ratios"][name]:.3f}, {doc["cpu_paired_ratios"][name]:.3f}'
+                    for name in doc['cpu_ratios'] if name != 'replay'))
     if 'speedup_vs_before' in doc:
         print(f'replay before / replay = {doc["speedup_vs_before"]:.3f} (the same rounds)')
     for name, per_stage in doc['stages_s'].items():
@@ -213,6 +239,13 @@ def print_table(doc: dict[str, Any]) -> None:
             other = doc['stages_s'][name]
             print(f'{name} / {names[0]} CPU (medians): main thread {other[CPU_MAIN] / base[CPU_MAIN]:.3f}, '
                   f'all threads {other[CPU_ALL] / base[CPU_ALL]:.3f}')
+
+
+def child_decode(bag: Path) -> int:
+    """``--child-decode``: one decode, its timing as JSON on stdout (for ``--isolate``)."""
+    seconds, messages, stages = run_decode(bag)
+    print(json.dumps({'seconds': seconds, 'messages': messages, 'stages': stages}))
+    return 0
 
 
 def child_replay(bag: Path, work: Path) -> int:
@@ -239,15 +272,19 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument('--before', type=Path, metavar='DIR',
                         help='also time the replay of the package checked out at DIR (PYTHONPATH=DIR)')
     parser.add_argument('--isolate', action='store_true',
-                        help='run each replay of this checkout in a child process too, as --before runs its own '
-                        '(a fresh interpreter and heap for both sides of the comparison)')
+                        help='run each replay of this checkout, and each decode, in a child process too, as '
+                        '--before runs its own (a fresh interpreter and heap for every workload; each pays its '
+                        'first use of the rosbags type store)')
     parser.add_argument('--target', type=float, default=1.5, help='target replay / decode ratio (default 1.5)')
     parser.add_argument('--json', action='store_true', help='print one JSON document instead of the tables')
     parser.add_argument('--child-replay', type=Path, help=argparse.SUPPRESS)
+    parser.add_argument('--child-decode', type=Path, help=argparse.SUPPRESS)
     parser.add_argument('--work', type=Path, help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
     if args.child_replay is not None:
         return child_replay(args.child_replay, args.work)
+    if args.child_decode is not None:
+        return child_decode(args.child_decode)
     if args.repeat < 1:
         parser.error('--repeat must be >= 1')
     if args.before is not None and not (args.before / 'gimbal_friction' / '__init__.py').is_file():

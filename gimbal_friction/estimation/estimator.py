@@ -409,9 +409,9 @@ class EstimatorLogic:
             return MeasurementArrays.empty(), none
         logs = np.concatenate([np.asarray(x, dtype=np.int64) for x in (t_arr.log_time_ns, js.log_time_ns,
                                                                          cur.log_time_ns)])
-        kind = np.concatenate([np.zeros(nT, np.int8), np.ones(nJ, np.int8), np.full(nC, 2, np.int8)])
-        index = np.concatenate([np.arange(nT), np.arange(nJ), np.arange(nC)])
-        order = np.lexsort((index, kind, logs))
+        # by log time, ties in the order of the concatenation (temperature, joint states, currents; each in its
+        # own order): a stable sort of the times alone
+        order = np.argsort(logs, kind='stable')
         rank = np.empty(n, dtype=np.int64)
         base = self._seq
         rank[order] = np.arange(n, dtype=np.int64) + base
@@ -464,23 +464,22 @@ class EstimatorLogic:
         jr = np.concatenate([np.full(len(p.m), joint_rank[str(p.m.joint[0])]) for p in parts])
         out = MeasurementArrays.concatenate([p.m for p in parts])
         order_out = np.lexsort((entry, jr, emit))
-        out = out.select(order_out)
-        emit_sorted = emit[order_out]
-        emit_log = np.where(emit_sorted >= base, logs_sorted[np.clip(emit_sorted - base, 0, max(n - 1, 0))]
+        if not _is_identity(order_out):   # (one joint: usually already in order; a take copies every column)
+            out, emit, jr = out.select(order_out), emit[order_out], jr[order_out]
+        emit_log = np.where(emit >= base, logs_sorted[np.clip(emit - base, 0, max(n - 1, 0))]
                             if n else self._last_log_ns, self._last_log_ns).astype(np.int64)
-        for name in self.order:
-            sel = out.joint == name
+        for rank_j, name in enumerate(self.order):
+            sel = jr == rank_j
             count = int(np.count_nonzero(sel))
             if count:
                 self.counters.accepted[name] = self.counters.accepted.get(name, 0) + count
                 self.last[name] = out.select(np.flatnonzero(sel)[-1:])
-        steady = out.method == METHOD_STEADY_STATE
-        if np.any(steady):
-            st = out.select(steady)
-            plateau = np.where(st.temperature_fresh, plateau_of(st.temperature_c, s.temperature_bin_c), np.nan)
-            keys = [(j, d, None if math.isnan(p) else p)
-                    for j, d, p in zip(st.joint.tolist(), st.direction.tolist(), plateau.tolist())]
-            self._stats.add(keys, st.friction_nm, st.position_rad)
+        steady = np.flatnonzero(out.method == METHOD_STEADY_STATE)
+        if steady.size:
+            fresh = out.temperature_fresh[steady]
+            plateau = np.where(fresh, plateau_of(out.temperature_c[steady], s.temperature_bin_c), np.nan)
+            keys, gid = _statistics_groups(out.joint[steady], jr[steady], out.velocity_rad_s[steady], plateau)
+            self._stats.add_groups(keys, gid, out.friction_nm[steady], out.position_rad[steady])
         return out, emit_log
 
     # ------------------------------------------------------------------ one joint
@@ -571,7 +570,7 @@ class EstimatorLogic:
         wi = np.flatnonzero(waits)
         if wi.size > WAIT_LENGTH:
             # the buffer overflows only if more than WAIT_LENGTH wait at once: occupancy at each arrival
-            entry, leave = c_pos[wi], np.sort(decide_pos[wi])
+            entry, leave = c_pos[wi], _sorted(decide_pos[wi])
             occupancy = np.arange(wi.size) - np.searchsorted(leave, entry, side='left')
             if int(occupancy.max()) >= WAIT_LENGTH:
                 alive[wi] = _simulate_wait_buffer(entry, decide_pos[wi])
@@ -639,7 +638,7 @@ class EstimatorLogic:
         TEMPERATURE_WAIT_STATES of its joint states, or the input ended at ``last_pos``). Each is given the latest
         temperature stamped at or before it among those arrived by then; the others stay held."""
         s = self.settings
-        held = state.held.concat(new)
+        held = state.held.concat(new) if len(state.held.m) else new
         ts = held.m.stamp_ns
         if s.temperature_wait_s > 0.0:
             ready = self._temperatures.ready_position(ts)
@@ -653,7 +652,7 @@ class EstimatorLogic:
             release = held.emit
         go = release < _I64_MAX
         state.held = held.select(~go)
-        out = held.select(go)
+        out = held if bool(go.all()) else held.select(go)   # (all released: no copy)
         at = release[go]
         value, time_s = self._temperatures.at(out.m.stamp_ns, at)
         fresh = is_fresh(out.m.stamp_ns / NS_PER_S, time_s, s.temperature_timeout_s, ARRAY) & np.isfinite(value)
@@ -723,6 +722,44 @@ class EstimatorLogic:
 
 
 # ====================================================================================================== helpers
+def _is_identity(index: NDArray[np.intp]) -> bool:
+    """``index`` is ``0, 1, ..., n-1`` (taking it would copy the arrays unchanged)."""
+    return bool(index.shape[0] == 0 or (index[0] == 0 and np.all(np.diff(index) == 1)))
+
+
+def _sorted(a: NDArray[np.int64]) -> NDArray[np.int64]:
+    """``np.sort(a)``, without sorting when ``a`` is already in order (currents arriving in stamp order)."""
+    return a if a.shape[0] < 2 or bool(np.all(a[1:] >= a[:-1])) else np.sort(a)
+
+
+def _statistics_groups(joint: NDArray[np.str_], rank: NDArray[np.int64], velocity: NDArray[np.float64],
+                       plateau: NDArray[np.float64]) -> tuple[list[tuple[str, int, float | None]],
+                                                              NDArray[np.int64]]:
+    """The statistics' key of each sample, ``(joint, direction, plateau)`` (plateau NaN: None), as the distinct
+    keys in the order each first occurs and the index of each sample's key among them: the keys a per-sample loop
+    would build (the first occurrence's values), as arrays. ``rank``: the joint's configured rank."""
+    direction = np.where(velocity > 0.0, 1, -1)
+    rank = np.asarray(rank, dtype=np.int64)
+    unknown = np.isnan(plateau)
+    filled = np.where(unknown, 0.0, plateau)
+    n = direction.shape[0]
+    # runs of equal keys (a plateau and a direction last many samples), then the distinct keys among the runs
+    change = np.ones(n, dtype=bool)
+    change[1:] = ((rank[1:] != rank[:-1]) | (direction[1:] != direction[:-1]) | (unknown[1:] != unknown[:-1])
+                  | (filled[1:] != filled[:-1]))
+    starts = np.flatnonzero(change)
+    values, p_code = np.unique(filled[starts], return_inverse=True)
+    p_code = np.where(unknown[starts], values.shape[0], p_code.reshape(-1))
+    code = (rank[starts] * 2 + (direction[starts] > 0)) * (values.shape[0] + 1) + p_code
+    _, first_run, inverse_run = np.unique(code, return_index=True, return_inverse=True)
+    seen = np.argsort(first_run, kind='stable')        # the groups in the order they first occur
+    renumber = np.empty(seen.shape[0], dtype=np.int64)
+    renumber[seen] = np.arange(seen.shape[0], dtype=np.int64)
+    keys = [(str(joint[i]), int(direction[i]), None if unknown[i] else float(plateau[i]))
+            for i in starts[first_run[seen]].tolist()]
+    return keys, np.repeat(renumber[inverse_run.reshape(-1)], np.diff(np.append(starts, n)))
+
+
 def _accept_stamps(last: int | None, stamps: NDArray[np.int64], reset_ns: int) -> tuple[NDArray[np.bool_],
                                                                                           list[int]]:
     """Which joint-state times are accepted (later than every accepted one before), and where the stream
@@ -767,29 +804,39 @@ def _window_slope(stamp: NDArray[np.int64], velocity: NDArray[np.float64], first
     m = np.arange(first, n)
     if m.size == 0:
         return np.empty(0), np.empty(0)
-    lo = np.searchsorted(stamp, stamp[m] - window_ns, side='right')
+    sm = stamp[first:]
+    lo = np.searchsorted(stamp, sm - window_ns, side='right')
     count = np.minimum(np.maximum(m - lo + 1, np.minimum(m + 1, 3)), OBSERVER_MAX_SAMPLES)
     kmax = int(count.max())
+    every = int(count.min())   # the terms k < every exist for every sample: no mask (adding 0.0 changes nothing)
     sum_t = np.zeros(m.size)
     sum_v = np.zeros(m.size)
     for k in range(kmax):
+        if k < every:
+            sum_t += (stamp[first - k:n - k] - sm) / NS_PER_S
+            sum_v += velocity[first - k:n - k]
+            continue
         use = k < count
         i = np.where(use, m - k, m)
-        sum_t += np.where(use, (stamp[i] - stamp[m]) / NS_PER_S, 0.0)
+        sum_t += np.where(use, (stamp[i] - sm) / NS_PER_S, 0.0)
         sum_v += np.where(use, velocity[i], 0.0)
     mean_t, mean_v = sum_t / count, sum_v / count
     stt = np.zeros(m.size)
     stv = np.zeros(m.size)
     svv = np.zeros(m.size)
     for k in range(kmax):
-        use = k < count
-        i = np.where(use, m - k, m)
-        dt = np.where(use, (stamp[i] - stamp[m]) / NS_PER_S - mean_t, 0.0)
-        dv = np.where(use, velocity[i] - mean_v, 0.0)
+        if k < every:
+            dt = (stamp[first - k:n - k] - sm) / NS_PER_S - mean_t
+            dv = velocity[first - k:n - k] - mean_v
+        else:
+            use = k < count
+            i = np.where(use, m - k, m)
+            dt = np.where(use, (stamp[i] - sm) / NS_PER_S - mean_t, 0.0)
+            dv = np.where(use, velocity[i] - mean_v, 0.0)
         stt += dt * dt
         stv += dt * dv
         svv += dv * dv
-    span = stamp[m] - stamp[m - count + 1]
+    span = sm - stamp[m - count + 1]
     usable = (count >= 3) & (stt > 0.0) & (span <= max(10 * window_ns, MAX_GAP_NS))
     slope = np.where(usable, stv / stt, np.nan)   # (feed_timed sets np.errstate for the division)
     resid = np.maximum(svv - slope * stv, 0.0)

@@ -67,16 +67,26 @@ class GroupStatistics:
     def add(self, keys: Sequence[Hashable], values: NDArray[np.float64], positions: NDArray[np.float64]) -> None:
         """Merge a batch: one key, value and position [rad] per sample (non-finite values are ignored)."""
         x = np.asarray(values, dtype=np.float64)
+        if x.size == 0:
+            return
+        uniq: dict[Hashable, int] = {}
+        gid = np.fromiter((uniq.setdefault(k, len(uniq)) for k in keys), dtype=np.int64, count=x.size)
+        self.add_groups(list(uniq), gid, x, positions)
+
+    def add_groups(self, keys: Sequence[Hashable], gid: NDArray[np.int64], values: NDArray[np.float64],
+                   positions: NDArray[np.float64]) -> None:
+        """:meth:`add` with the samples' keys given as ``keys[gid]`` (``keys`` distinct, in the order each first
+        occurs in ``gid``): the same result, without a key object per sample."""
+        x = np.asarray(values, dtype=np.float64)
         pos = np.asarray(positions, dtype=np.float64)
         if x.size == 0:
             return
         ok = np.isfinite(x) & np.isfinite(pos)
-        uniq: dict[Hashable, int] = {}
-        gid = np.fromiter((uniq.setdefault(k, len(uniq)) for k in keys), dtype=np.int64, count=x.size)
-        gid, x, pos = gid[ok], x[ok], pos[ok]
+        if not ok.all():
+            gid, x, pos = gid[ok], x[ok], pos[ok]
         if x.size == 0:
             return
-        n_groups = len(uniq)
+        n_groups = len(keys)
         count = np.bincount(gid, minlength=n_groups)
         mean = np.bincount(gid, weights=x, minlength=n_groups) / np.maximum(count, 1)
         m2 = np.bincount(gid, weights=(x - mean[gid]) ** 2, minlength=n_groups)
@@ -88,7 +98,7 @@ class GroupStatistics:
         hi = np.full(n_groups, -np.inf)
         np.minimum.at(lo, gid, pos)
         np.maximum.at(hi, gid, pos)
-        for key, g in uniq.items():
+        for g, key in enumerate(keys):
             nb = int(count[g])
             if nb == 0:
                 continue

@@ -58,6 +58,7 @@ class TemperatureHistory:
         i = np.empty(0, dtype=np.int64)
         self.pos, self.time_ns, self.value = i, i, np.empty(0, dtype=np.float64)
         self._runmax, self._runarg = i, i   #: running maximum of the times and the index where it is attained
+        self._in_order = True               #: the times never decrease in arrival order (none arrived late)
 
     def __len__(self) -> int:
         return int(self.pos.shape[0])
@@ -89,6 +90,7 @@ class TemperatureHistory:
         self._runmax = np.maximum.accumulate(t) if n else t
         is_max = np.concatenate([[True], t[1:] >= self._runmax[:-1]]) if n else np.empty(0, dtype=bool)
         self._runarg = np.maximum.accumulate(np.where(is_max, np.arange(n), 0)).astype(np.int64)
+        self._in_order = bool(n < 2 or np.all(t[1:] >= t[:-1]))
 
     def keep(self, mask: NDArray[np.bool_]) -> None:
         """Keep only the temperatures where ``mask`` holds (a change of the valid range)."""
@@ -123,7 +125,9 @@ class TemperatureHistory:
         head = np.minimum(f, k)
         best = np.where(head > 0, self._runarg[np.maximum(head - 1, 0)], -1)
         best_time = np.where(best >= 0, self.time_ns[np.maximum(best, 0)], np.iinfo(np.int64).min)
-        for step in range(LATE_LOOKBACK):   # late arrivals after f may still be stamped <= t
+        # late arrivals after f may still be stamped <= t (none when the times never decrease: every time from f
+        # on is at least the running maximum at f, which is later than t)
+        for step in range(0 if self._in_order else LATE_LOOKBACK):
             i = f + step
             inside = i < k
             ic = np.minimum(i, n - 1)

@@ -41,7 +41,7 @@ from rosbags.typesys import TypesysError
 from gimbal_friction.common.files import write_bytes_atomic
 from gimbal_friction.common.units import NS_PER_S
 from gimbal_friction.recording import mcap_bulk
-from gimbal_friction.recording.cdr import default_typestore
+from gimbal_friction.recording.cdr import default_typestore, distinct
 from gimbal_friction.recording.errors import RecordingError
 from gimbal_friction.recording.topics import MCAP_PROFILE, MESSAGE_ENCODING, SCHEMA_ENCODING
 
@@ -361,7 +361,7 @@ class ResidualLogWriter:
         remap = np.array([canonical.setdefault(pair, k) for k, pair in enumerate(pairs)], dtype=np.int64)
         if len(canonical) != len(pairs):  # one id per (topic, msgtype)
             ids = remap[ids]
-        used = np.unique(ids).tolist()
+        used = distinct(ids)
         with self._lock:
             self._check_usable()
             types: dict[str, str] = {}
