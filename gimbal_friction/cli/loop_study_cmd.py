@@ -20,7 +20,7 @@ from gimbal_friction.cli._common import add_common, parse_temperature_spec, prin
 from gimbal_friction.common.errors import ConfigError, GimbalFrictionError
 
 CASE_CHOICES = ('none', 'constant', 'feedforward', 'refit', 'learned', 'chamber', 'bound', 'ideal',
-                'feedforward_measured', 'feedforward_reference', 'dynamic')
+                'feedforward_measured', 'feedforward_reference', 'dynamic', 'dynamic_unguarded')
 DEFAULT_CASES = 'none,constant,feedforward,refit,learned,chamber,bound,ideal'
 
 

@@ -58,6 +58,7 @@ Units: torque [N·m], angle [rad], velocity [rad/s], time [s], temperature [°C]
 
 from __future__ import annotations
 
+import copy
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -85,7 +86,7 @@ class PreslidingSettings:
 
     temperature_min_c: float = setting(-62.5, 'degC', 'lower edge of the first temperature bin')
     temperature_max_c: float = setting(122.5, 'degC', 'upper edge of the last temperature bin')
-    temperature_bin_c: float = setting(5.0, 'degC', 'width of a temperature bin (the correction\'s)')
+    temperature_bin_c: float = setting(5.0, 'degC', "width of a temperature bin (the correction's)")
     distance_min_rad: float = setting(1e-6, 'rad', 'shortest pre-sliding distance delta tried')
     distance_max_rad: float = setting(2e-4, 'rad', 'longest pre-sliding distance delta tried')
     distance_steps: int = setting(24, '-', 'distances tried, log-spaced between the two')
@@ -317,6 +318,14 @@ class PreslidingTerm:
             if v['applied']:
                 d[v['bin']] = fitted[v['bin']]
         self.distances[joint] = d
+
+    def unguarded(self) -> PreslidingTerm:
+        """A copy with the fitted distance applied in every bin with samples, whatever the guard says (to measure
+        what the guard holds back; not for service)."""
+        out = copy.deepcopy(self)
+        for j in out.joints:
+            out.distances[j] = out.fitted_rad(j)
+        return out
 
     def summary(self) -> dict[str, Any]:
         """Per joint: bins with samples, applied, held back, and the verdicts."""

@@ -361,7 +361,8 @@ def _int(x: Any) -> str:
 # ---------------------------------------------------------------------------------------------- figures
 _CASE_STYLE = {'none': ('k', 'o'), 'constant': ('tab:orange', 's'), 'feedforward': ('tab:blue', '^'),
                'refit': ('tab:green', 'v'), 'ideal': ('0.6', 'x'), 'learned': ('tab:red', 'D'),
-               'learning': ('salmon', 'd'), 'dynamic': ('tab:olive', 'h'), 'bound': ('tab:brown', '*'), 'feedforward_measured': ('tab:purple', 'd'),
+               'learning': ('salmon', 'd'), 'dynamic': ('tab:olive', 'h'), 'bound': ('tab:brown', '*'),
+               'feedforward_measured': ('tab:purple', 'd'),
                'feedforward_reference': ('tab:cyan', 'P')}
 
 

@@ -39,7 +39,9 @@ Cases of the loop study (the default five):
 
 Optional cases (not in the default study) run the feedforward on one velocity source whatever the configuration:
 ``feedforward_measured`` (the joint state's velocity) and ``feedforward_reference`` (the reference joint velocity,
-``/gimbal/reference_velocity``), for before/after comparisons of the wiring.
+``/gimbal/reference_velocity``), for before/after comparisons of the wiring. ``dynamic_unguarded`` is case
+``dynamic`` with its pre-sliding term applied at the fitted distance in every temperature bin with data, whatever
+its guard says (what the guard holds back).
 """
 
 from __future__ import annotations
@@ -79,7 +81,7 @@ __all__ = ['CASES', 'CASE_CHAMBER', 'CASE_IDEAL', 'CASE_NONE', 'EXTRA_CASES', 'J
 #: The cases of the loop study, in report order.
 CASES = ('none', 'constant', 'feedforward', 'refit', 'learned', 'dynamic', 'chamber', 'bound', 'ideal')
 #: Optional cases the study also knows (not run by default).
-EXTRA_CASES = ('feedforward_measured', 'feedforward_reference')
+EXTRA_CASES = ('feedforward_measured', 'feedforward_reference', 'dynamic_unguarded')
 CASE_NONE = 'none'
 CASE_IDEAL = 'ideal'
 CASE_CHAMBER = 'chamber'

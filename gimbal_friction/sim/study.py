@@ -114,8 +114,8 @@ __all__ = [
     'DEFAULT_TEMPERATURES',
     'ESTIMATOR_METHODS',
     'LEARNING_GOALS',
-    'PRESLIDING_ESTIMATOR',
     'LEARN_SEED',
+    'PRESLIDING_ESTIMATOR',
     'REPORT_ORDER',
     'SHORT_DURATIONS',
     'STUDY_CORRECTION',
@@ -180,8 +180,8 @@ STUDY_LEARNING = LearningSettings(max_rate_nm_per_min=1e-2)
 #: The estimator's gates for the pre-sliding identification of case ``dynamic``: the node's observer with its gates
 #: near zero speed opened (minimum speed, acceleration, its noise, a torque opposing the motion): the samples
 #: through a reversal are exactly those the static path refuses.
-PRESLIDING_ESTIMATOR = {'observer_min_speed_rad_s': 1e-9, 'observer_max_accel_rad_s2': 1e6,
-                        'observer_max_accel_noise_rad_s2': 1e6, 'max_opposing_torque_nm': 100.0}
+PRESLIDING_ESTIMATOR: dict[str, Any] = {'observer_min_speed_rad_s': 1e-9, 'observer_max_accel_rad_s2': 1e6,
+                                        'observer_max_accel_noise_rad_s2': 1e6, 'max_opposing_torque_nm': 100.0}
 #: Cases in report order (``learning``: the learning run of ``learned``, scored on its own seed and motions).
 REPORT_ORDER = (*CASES[:4], 'learning', *CASES[4:], *EXTRA_CASES)
 #: Gap between the stamps of successive runs in the estimator's streams [s] (a run's stamps never overlap another's).
@@ -626,7 +626,7 @@ def run_study(config: SimConfig, axis: AxisParams | None = None, *,
     est = dataclasses.replace(est, commanded_speed_rad_s=cfg.tracking_speed_rpm * RAD_S_PER_RPM)
     notes: list[str] = []
     wall: dict[str, float] = {}
-    want_dynamic = 'dynamic' in cases
+    want_dynamic = 'dynamic' in cases or 'dynamic_unguarded' in cases
     want_refit, want_learned = 'refit' in cases, 'learned' in cases or want_dynamic
     want_chamber = CASE_CHAMBER in cases
     if want_chamber and chamber is None:
@@ -744,6 +744,9 @@ def run_study(config: SimConfig, axis: AxisParams | None = None, *,
             elif c == 'dynamic':
                 comps[c] = dynamic_feedforward(axis, ff.settings, velocity_source=ff.velocity_source,
                                                correction=learned['history'], presliding=presliding)
+            elif c == 'dynamic_unguarded' and presliding is not None:
+                comps[c] = dynamic_feedforward(axis, ff.settings, velocity_source=ff.velocity_source,
+                                               correction=learned['history'], presliding=presliding.unguarded())
             elif c == CASE_CHAMBER:
                 comps[c] = ff.compensator(axis, correction=learned['chamber'])
             elif c == 'bound':
@@ -836,6 +839,9 @@ LEARNING_GOALS = {
     'chamber_vs_constant': 'chamber <= 1.02 x constant (2 % noise)',
     'ff_vs_constant': 'feedforward <= 1.05 x constant',
     'refit_vs_ff': 'refit (out of sample) <= feedforward',
+    'dynamic_vs_learned': 'dynamic <= 1.05 x learned (never worse than what it extends)',
+    'dynamic_vs_bound_cold': 'dynamic <= 0.7 x bound at -40 and -20 degC where ideal <= 0.5 x bound',
+    'dynamic_reversal_cold': "dynamic reversal peak <= 0.7 x bound's at -40 and -20 degC where ideal <= 0.5 x bound",
 }
 
 
@@ -874,7 +880,10 @@ def goal_checks(records: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
     - the learning goals (:data:`LEARNING_GOALS`, value = the ratio, target its limit): ``learned_vs_constant``
       (≤ 1), ``learned_vs_bound`` (learned/bound ≤ 1.5), ``learned_vs_none_cold`` (≤ 0.4 at −40 and −20 °C where
       bound/none ≤ 0.25), ``learning_cost`` (the learning run's worst 10 s window / the plain feedforward's ≤ 1.05),
-      ``ff_vs_constant`` (≤ 1.05), ``refit_vs_ff`` (≤ 1).
+      ``ff_vs_constant`` (≤ 1.05), ``refit_vs_ff`` (≤ 1);
+    - the pre-sliding goals: ``dynamic_vs_learned`` (dynamic/learned ≤ 1.05), ``dynamic_vs_bound_cold`` (dynamic/bound
+      ≤ 0.7 at −40 and −20 °C where ideal/bound ≤ 0.5) and ``dynamic_reversal_cold`` (the same cells, reversal peak
+      over bound's ≤ 0.7).
 
     Each check: ``goal``, ``profile``, ``temperature_c``, ``value`` (the reduction [-] or the ratio), ``target``,
     ``met``.
@@ -929,6 +938,13 @@ def goal_checks(records: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
             ratio_goal('chamber_vs_constant', p, t, ch, b, 1.02)
             ratio_goal('ff_vs_constant', p, t, c, b, 1.05)
             ratio_goal('refit_vs_ff', p, t, d, c, 1.0)
+            dy = rms(p, 'dynamic', t)
+            ratio_goal('dynamic_vs_learned', p, t, dy, le, 1.05)
+            if t in (-40.0, -20.0) and bd is not None and e is not None and e <= 0.5 * bd:
+                ratio_goal('dynamic_vs_bound_cold', p, t, dy, bd, 0.7)
+                if dy is not None:
+                    ratio_goal('dynamic_reversal_cold', p, t, float(look[(p, 'dynamic', t)]['reversal_error_peak_rad']),
+                               float(look[(p, 'bound', t)]['reversal_error_peak_rad']), 0.7)
     return out
 
 
