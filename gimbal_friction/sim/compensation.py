@@ -74,12 +74,14 @@ if TYPE_CHECKING:
 
 Array = NDArray[np.float64]
 
-__all__ = ['CASES', 'CASE_CHAMBER', 'CASE_IDEAL', 'CASE_NONE', 'EXTRA_CASES', 'JOINT', 'VELOCITY_SOURCES',
-           'Compensator', 'ControllerInputs', 'TorqueHook', 'constant_coulomb', 'dynamic_feedforward', 'model_friction',
-           'suite_feedforward', 'truth_bound']
+__all__ = ['CASES', 'CASE_CHAMBER', 'CASE_IDEAL', 'CASE_NONE', 'DEFAULT_CASES', 'EXTRA_CASES', 'JOINT',
+           'VELOCITY_SOURCES', 'Compensator', 'ControllerInputs', 'TorqueHook', 'constant_coulomb',
+           'dynamic_feedforward', 'model_friction', 'suite_feedforward', 'truth_bound']
 
 #: The cases of the loop study, in report order.
 CASES = ('none', 'constant', 'feedforward', 'refit', 'learned', 'dynamic', 'chamber', 'bound', 'ideal')
+#: The cases run when none are named (all of :data:`CASES` but ``dynamic``, asked for by name).
+DEFAULT_CASES = tuple(c for c in CASES if c != 'dynamic')
 #: Optional cases the study also knows (not run by default).
 EXTRA_CASES = ('feedforward_measured', 'feedforward_reference', 'dynamic_unguarded')
 CASE_NONE = 'none'

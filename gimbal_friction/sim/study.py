@@ -89,6 +89,7 @@ from gimbal_friction.sim.compensation import (
     CASE_CHAMBER,
     CASE_NONE,
     CASES,
+    DEFAULT_CASES,
     EXTRA_CASES,
     JOINT,
     Compensator,
@@ -554,7 +555,7 @@ def _chamber_batch(cfg: SimConfig, axis: AxisParams, temps: Sequence[float], sho
 
 def run_study(config: SimConfig, axis: AxisParams | None = None, *,
               temperatures: Sequence[float] = DEFAULT_TEMPERATURES, profiles: Sequence[str] = PROFILES,
-              cases: Sequence[str] = CASES, short: bool = False,
+              cases: Sequence[str] = DEFAULT_CASES, short: bool = False,
               feedforward: FeedforwardSetup | None = None, estimator: EstimatorSettings | None = None,
               estimator_method: str = 'observer', refit_fit: Sequence[str] = DEFAULT_REFIT_FIT,
               refit_profiles: Sequence[str] | None = None, refit: RefitHook | None = None,
@@ -581,7 +582,8 @@ def run_study(config: SimConfig, axis: AxisParams | None = None, *,
     profiles : sequence of str
         Any of :data:`~gimbal_friction.sim.config.PROFILES`.
     cases : sequence of str
-        Any of :data:`CASES` and the optional ``feedforward_measured`` / ``feedforward_reference``.
+        Any of :data:`CASES` and the optional ``feedforward_measured`` / ``feedforward_reference`` /
+        ``dynamic_unguarded`` (default :data:`~gimbal_friction.sim.compensation.DEFAULT_CASES`: all but ``dynamic``).
     short : bool
         Use the short durations of :data:`SHORT_DURATIONS` and a shorter history and chamber test (CI).
     feedforward : FeedforwardSetup, optional
