@@ -20,7 +20,7 @@ from gimbal_friction.cli._common import add_common, parse_temperature_spec, prin
 from gimbal_friction.common.errors import ConfigError, GimbalFrictionError
 
 CASE_CHOICES = ('none', 'constant', 'feedforward', 'refit', 'learned', 'chamber', 'bound', 'ideal',
-                'feedforward_measured', 'feedforward_reference')
+                'feedforward_measured', 'feedforward_reference', 'dynamic', 'dynamic_unguarded')
 DEFAULT_CASES = 'none,constant,feedforward,refit,learned,chamber,bound,ideal'
 
 
@@ -35,7 +35,9 @@ def add_parser(sub: Any) -> None:
         "tuned at +20 degC), feedforward (the suite's, as configured), refit (the feedforward after a refit from "
         "the residual rows the suite's estimator collected over a service history on another seed), learned (the "
         "feedforward with one correction learned online over that service history with the node's settings, then "
-        'frozen and scored on every profile; the learning run is reported as learning), chamber (the correction '
+        'frozen and scored on every profile; the learning run is reported as learning), dynamic (learned plus a '
+        'pre-sliding term, a Dahl state in place of the smooth sign, learned and guarded from the same history; '
+        'dynamic_unguarded: the term wherever it was fitted), chamber (the correction '
         "learned from a simulated chamber test of the same truth through the suite's chamber path), bound (the "
         "truth's own static map through the feedforward's delivery), ideal (the truth cancelled). "
         'Reports the LOS rate and position error RMS and peak, the peak error at reversals and the current margin.')

@@ -259,6 +259,8 @@ def render_c_header(table: ExportTable, prov: Provenance) -> str:
             '  along the motion away from zero speed, odd + even (v >= 0) or odd - even (v < 0) [N*m];',
             f'double gf_{a}_correction_error_nm(double temperature_c, double velocity_rad_s): its error bound in the',
             '  direction of velocity_rad_s [N*m] (negative: unknown).']),
+        'No pre-sliding (dynamic) term: the sign of motion here is the static tanh(v/v_th); a pre-sliding term the',
+        '  suite learned (a Dahl state per joint, docs/model.md) is not carried by this header.',
         'C99, only <math.h>; link with -lm.',
     ])
     upper_rows = ',\n'.join(f'    {{{_fmt(g.upper_nm[i, 0])}, {_fmt(g.upper_nm[i, 1])}}}' for i in range(k))

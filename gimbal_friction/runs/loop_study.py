@@ -38,7 +38,7 @@ from gimbal_friction.config.loader import axis_names, axis_params, load_paramete
 from gimbal_friction.estimation.estimator import EstimatorSettings
 from gimbal_friction.feedforward.rule import FeedforwardSettings
 from gimbal_friction.physics.params import AxisParams
-from gimbal_friction.sim.compensation import CASES
+from gimbal_friction.sim.compensation import DEFAULT_CASES
 from gimbal_friction.sim.config import SECTION, SimConfig, truth_differences, with_truth
 from gimbal_friction.sim.study import (
     DEFAULT_REFIT_FIT,
@@ -127,7 +127,7 @@ def load_study_inputs(config_paths: Sequence[str | Path] = (), axis: str | None 
 
 
 def study(inputs: StudyInputs, *, temperatures: Sequence[float] = DEFAULT_TEMPERATURES,
-          profiles: Sequence[str] | None = None, cases: Sequence[str] = CASES, short: bool = False,
+          profiles: Sequence[str] | None = None, cases: Sequence[str] = DEFAULT_CASES, short: bool = False,
           estimator_method: str = 'observer', refit_fit: Sequence[str] = DEFAULT_REFIT_FIT,
           learn: LearnSetup | None = None, progress: Callable[[str, float], None] | None = None) -> StudyResult:
     """:func:`~gimbal_friction.sim.study.run_study` with the inputs of the parameter files."""
@@ -361,7 +361,8 @@ def _int(x: Any) -> str:
 # ---------------------------------------------------------------------------------------------- figures
 _CASE_STYLE = {'none': ('k', 'o'), 'constant': ('tab:orange', 's'), 'feedforward': ('tab:blue', '^'),
                'refit': ('tab:green', 'v'), 'ideal': ('0.6', 'x'), 'learned': ('tab:red', 'D'),
-               'learning': ('salmon', 'd'), 'bound': ('tab:brown', '*'), 'feedforward_measured': ('tab:purple', 'd'),
+               'learning': ('salmon', 'd'), 'dynamic': ('tab:olive', 'h'), 'bound': ('tab:brown', '*'),
+               'feedforward_measured': ('tab:purple', 'd'),
                'feedforward_reference': ('tab:cyan', 'P')}
 
 

@@ -24,6 +24,10 @@ Cases of the loop study (the default five):
     the same feedforward carrying a learned correction (:class:`~gimbal_friction.feedforward.correction.Correction`,
     looked up at the resolver's joint angle): one correction learned online over a service history, then frozen and
     scored on another seed and on every profile (see :mod:`gimbal_friction.sim.study`).
+``dynamic``
+    :func:`dynamic_feedforward`: case ``learned`` plus a pre-sliding term
+    (:class:`~gimbal_friction.feedforward.presliding.PreslidingTerm`, a Dahl state in place of the smooth sign where
+    its guard applies it) identified from the same service history (see :mod:`gimbal_friction.sim.study`).
 ``chamber``
     the same feedforward carrying the correction learned from the chamber test alone (the suite's chamber path).
 ``bound``
@@ -35,7 +39,9 @@ Cases of the loop study (the default five):
 
 Optional cases (not in the default study) run the feedforward on one velocity source whatever the configuration:
 ``feedforward_measured`` (the joint state's velocity) and ``feedforward_reference`` (the reference joint velocity,
-``/gimbal/reference_velocity``), for before/after comparisons of the wiring.
+``/gimbal/reference_velocity``), for before/after comparisons of the wiring. ``dynamic_unguarded`` is case
+``dynamic`` with its pre-sliding term applied at the fitted distance in every temperature bin with data, whatever
+its guard says (what the guard holds back).
 """
 
 from __future__ import annotations
@@ -49,6 +55,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from gimbal_friction.common.xp import ARRAY
 from gimbal_friction.feedforward.correction import Correction
+from gimbal_friction.feedforward.presliding import PreslidingTerm, dahl_step, presliding_torque_nm
 from gimbal_friction.feedforward.rule import (
     VELOCITY_SOURCES,
     Feedforward,
@@ -67,14 +74,16 @@ if TYPE_CHECKING:
 
 Array = NDArray[np.float64]
 
-__all__ = ['CASES', 'CASE_CHAMBER', 'CASE_IDEAL', 'CASE_NONE', 'EXTRA_CASES', 'JOINT', 'VELOCITY_SOURCES',
-           'Compensator', 'ControllerInputs', 'TorqueHook', 'constant_coulomb', 'model_friction',
-           'suite_feedforward', 'truth_bound']
+__all__ = ['CASES', 'CASE_CHAMBER', 'CASE_IDEAL', 'CASE_NONE', 'DEFAULT_CASES', 'EXTRA_CASES', 'JOINT',
+           'VELOCITY_SOURCES', 'Compensator', 'ControllerInputs', 'TorqueHook', 'constant_coulomb',
+           'dynamic_feedforward', 'model_friction', 'suite_feedforward', 'truth_bound']
 
 #: The cases of the loop study, in report order.
-CASES = ('none', 'constant', 'feedforward', 'refit', 'learned', 'chamber', 'bound', 'ideal')
+CASES = ('none', 'constant', 'feedforward', 'refit', 'learned', 'dynamic', 'chamber', 'bound', 'ideal')
+#: The cases run when none are named (all of :data:`CASES` but ``dynamic``, asked for by name).
+DEFAULT_CASES = tuple(c for c in CASES if c != 'dynamic')
 #: Optional cases the study also knows (not run by default).
-EXTRA_CASES = ('feedforward_measured', 'feedforward_reference')
+EXTRA_CASES = ('feedforward_measured', 'feedforward_reference', 'dynamic_unguarded')
 CASE_NONE = 'none'
 CASE_IDEAL = 'ideal'
 CASE_CHAMBER = 'chamber'
@@ -193,9 +202,28 @@ def suite_feedforward(axis: AxisParams, settings: FeedforwardSettings | None = N
     s = settings if settings is not None else FeedforwardSettings()
     ff = Feedforward({JOINT: axis}, s, correction=correction)
     cache = _TermsCache(ff, JOINT)
-    state: dict[str, Array] = {}
+    temperatures = _TemperatureRules(s)
 
     def torque(inputs: ControllerInputs) -> Array:
+        t_eval, zero = temperatures.used(inputs)
+        tau = ff.rule(JOINT, _velocity(inputs, velocity_source), t_eval, ARRAY, terms=cache.get(t_eval),
+                      position_rad=inputs.joint_position_rad)
+        return np.where(zero, 0.0, tau)
+
+    return Compensator(torque, delayed=True)
+
+
+class _TemperatureRules:
+    """The node's temperature rules over arrays of runs: a published sample kept if valid, used while fresh for the
+    joint state's stamp, else the stale policy (``zero``: no torque)."""
+
+    def __init__(self, settings: FeedforwardSettings) -> None:
+        self.s = settings
+        self.state: dict[str, Array] = {}
+
+    def used(self, inputs: ControllerInputs) -> tuple[Array, NDArray[np.bool_]]:
+        """(temperature to evaluate the rule at [°C], runs whose policy gives 0 N·m)."""
+        s, state = self.s, self.state
         t_in = np.asarray(inputs.temperature_c, dtype=float)
         stamp = np.asarray(inputs.temperature_time_s, dtype=float)
         if not state or state['last_c'].shape != t_in.shape:
@@ -212,10 +240,51 @@ def suite_feedforward(axis: AxisParams, settings: FeedforwardSettings | None = N
         t_used, _ = temperature_used(state['last_c'], fresh, s, ARRAY)
         t_used = np.broadcast_to(np.asarray(t_used, dtype=float), t_in.shape)
         zero = np.isnan(t_used)
-        t_eval = np.where(zero, s.fallback_temperature_c, t_used)
-        tau = ff.rule(JOINT, _velocity(inputs, velocity_source), t_eval, ARRAY, terms=cache.get(t_eval),
-                      position_rad=inputs.joint_position_rad)
-        return np.where(zero, 0.0, tau)
+        return np.where(zero, s.fallback_temperature_c, t_used), zero
+
+
+def dynamic_feedforward(axis: AxisParams, settings: FeedforwardSettings | None = None, *,
+                        velocity_source: str = 'measured', correction: Correction | None = None,
+                        presliding: PreslidingTerm | None = None) -> Compensator:
+    """Case ``dynamic``: :func:`suite_feedforward` (with ``correction``) whose smooth sign is replaced, in the
+    temperature bins where ``presliding`` is applied, by its Dahl state
+    (:mod:`gimbal_friction.feedforward.presliding`): ``τ = clamp(s (k_d M + c_odd) + c_even, ±τ_max)``, the state
+    of each run driven by the feedforward's velocity (``velocity_source``) between ticks. Where the term is off (or
+    without one) the torque is exactly :func:`suite_feedforward`'s. Delayed by the transport latency.
+    """
+    check_velocity_source(velocity_source)
+    s = settings if settings is not None else FeedforwardSettings()
+    ff = Feedforward({JOINT: axis}, s, correction=correction)
+    cache = _TermsCache(ff, JOINT)
+    temperatures = _TemperatureRules(s)
+    state: dict[str, Array] = {}
+
+    def torque(inputs: ControllerInputs) -> Array:
+        t_eval, zero = temperatures.used(inputs)
+        v = _velocity(inputs, velocity_source)
+        tau = ff.rule(JOINT, v, t_eval, ARRAY, terms=cache.get(t_eval), position_rad=inputs.joint_position_rad)
+        static_sign = np.tanh(v / s.velocity_threshold_rad_s)
+        if presliding is None or not presliding.active:
+            return np.where(zero, 0.0, tau)
+        delta = presliding.distance_rad(JOINT, t_eval)
+        on = np.isfinite(delta)
+        if 'sign' not in state or state['sign'].shape != v.shape:
+            state['sign'] = static_sign.copy()
+            state['time'] = np.full(v.shape, inputs.time_s)
+        step = inputs.time_s - state['time']
+        moved = dahl_step(state['sign'], v, step, np.where(on, delta, 1.0))
+        restart = ~on | (step > presliding.settings.max_step_s)
+        sign = np.where(restart, static_sign, moved)
+        state['sign'], state['time'] = sign, np.full(v.shape, inputs.time_s)
+        if not on.any():
+            return np.where(zero, 0.0, tau)
+        model = np.asarray(ff.model_nm(JOINT, v, t_eval, ARRAY), dtype=float)
+        if correction is not None:
+            odd, even = correction.split_nm_array(JOINT, t_eval, v, inputs.joint_position_rad, model)
+        else:
+            odd, even = np.zeros(v.shape), np.zeros(v.shape)
+        dyn = presliding_torque_nm(sign, model + odd, even, s.max_torque_nm)
+        return np.where(zero, 0.0, np.where(on, dyn, tau))
 
     return Compensator(torque, delayed=True)
 

@@ -70,6 +70,7 @@ from numpy.typing import NDArray
 
 from gimbal_friction.common.errors import ConfigError, GimbalFrictionError
 from gimbal_friction.common.units import NS_PER_S, RAD_S_PER_RPM
+from gimbal_friction.common.xp import ARRAY
 from gimbal_friction.estimation.estimator import EstimatorLogic, EstimatorSettings
 from gimbal_friction.estimation.residuals import credible_rows, pair_residuals
 from gimbal_friction.feedforward.correction import (
@@ -79,7 +80,8 @@ from gimbal_friction.feedforward.correction import (
     LearningSettings,
     model_identity,
 )
-from gimbal_friction.feedforward.rule import FeedforwardSettings, check_velocity_source
+from gimbal_friction.feedforward.presliding import PreslidingSettings, PreslidingTerm, ReversalRun
+from gimbal_friction.feedforward.rule import Feedforward, FeedforwardSettings, check_velocity_source, velocity_used
 from gimbal_friction.physics.params import AxisParams
 from gimbal_friction.refit.fit import FIT_PARAMETERS, RefitResult, refit_stats
 from gimbal_friction.refit.sufficient import SufficientStats, accumulate_rows
@@ -87,10 +89,12 @@ from gimbal_friction.sim.compensation import (
     CASE_CHAMBER,
     CASE_NONE,
     CASES,
+    DEFAULT_CASES,
     EXTRA_CASES,
     JOINT,
     Compensator,
     constant_coulomb,
+    dynamic_feedforward,
     model_friction,
     suite_feedforward,
     truth_bound,
@@ -112,6 +116,7 @@ __all__ = [
     'ESTIMATOR_METHODS',
     'LEARNING_GOALS',
     'LEARN_SEED',
+    'PRESLIDING_ESTIMATOR',
     'REPORT_ORDER',
     'SHORT_DURATIONS',
     'STUDY_CORRECTION',
@@ -128,6 +133,7 @@ __all__ = [
     'explain_misses',
     'goal_checks',
     'goal_legend',
+    'presliding_runs',
     'refit_rows',
     'run_study',
     'study_settings',
@@ -172,6 +178,11 @@ STUDY_CORRECTION = CorrectionSettings()
 #: per minute (the node's default is 3e-4: the study compresses a service life into a history of two minutes or less,
 #: :func:`study_settings` states the factor).
 STUDY_LEARNING = LearningSettings(max_rate_nm_per_min=1e-2)
+#: The estimator's gates for the pre-sliding identification of case ``dynamic``: the node's observer with its gates
+#: near zero speed opened (minimum speed, acceleration, its noise, a torque opposing the motion): the samples
+#: through a reversal are exactly those the static path refuses.
+PRESLIDING_ESTIMATOR: dict[str, Any] = {'observer_min_speed_rad_s': 1e-9, 'observer_max_accel_rad_s2': 1e6,
+                                        'observer_max_accel_noise_rad_s2': 1e6, 'max_opposing_torque_nm': 100.0}
 #: Cases in report order (``learning``: the learning run of ``learned``, scored on its own seed and motions).
 REPORT_ORDER = (*CASES[:4], 'learning', *CASES[4:], *EXTRA_CASES)
 #: Gap between the stamps of successive runs in the estimator's streams [s] (a run's stamps never overlap another's).
@@ -265,6 +276,7 @@ class StudyResult(NamedTuple):
     learned: dict[str, Correction] | None = None   #: ``history`` (case ``learned``) and ``chamber``: the corrections
     learners: dict[str, Learner] | None = None     #: ``history``: the learner of case ``learned`` (counters, state)
     chamber: dict[str, Any] | None = None          #: case ``chamber``: what its chamber path read
+    presliding: PreslidingTerm | None = None       #: case ``dynamic``: the pre-sliding term learned
 
     @property
     def refit_params(self) -> AxisParams | None:
@@ -439,6 +451,43 @@ def window_ratio(result: BatchResult, run: int, reference: int, window_s: float 
     return float(ratio.max())
 
 
+def presliding_runs(result: BatchResult, indices: Sequence[int], axis: AxisParams, ff: FeedforwardSetup,
+                    correction: Correction | None, estimator: EstimatorSettings) -> list[ReversalRun]:
+    """The data of the pre-sliding identification from runs ``indices`` of a simulated batch: per run, at every
+    controller tick, the velocity the feedforward uses (its ``velocity_source``), the measured temperature, the
+    feedforward's static level along the motion and its part independent of the direction (the model and
+    ``correction``), and the friction sample the estimator took at the tick (its observer with
+    :data:`PRESLIDING_ESTIMATOR`'s gates; NaN at ticks without one). Nothing of the truth: the streams the estimator
+    and the feedforward receive."""
+    settings = dataclasses.replace(estimator, method='observer', **PRESLIDING_ESTIMATOR)
+    tr, prof, cfg = result.traces, result.profile, result.config
+    model_ff = Feedforward({JOINT: axis}, ff.settings)
+    tick_ns = cfg.controller_period_s * NS_PER_S
+    out = []
+    for i in indices:
+        trace = result.estimator_trace(i, start_ns=0)
+        logic = EstimatorLogic({JOINT: axis}, settings)
+        m = logic.feed(trace.chamber_arrays(JOINT), final=True)
+        n = prof.time_s.shape[0]
+        friction = np.full(n, np.nan)
+        k = np.round(m.stamp_ns / tick_ns).astype(np.int64)
+        keep = (k >= 0) & (k < n)
+        friction[k[keep]] = m.friction_nm[keep]
+        source = 'reference' if ff.velocity_source == 'auto' else ff.velocity_source
+        v = np.asarray(velocity_used(source, tr.joint_velocity_rad_s[:, i], tr.reference_velocity_rad_s[:, i], True,
+                                     ARRAY), dtype=float)
+        t = np.asarray(tr.temperature_c[:, i], dtype=float)
+        have = np.isfinite(t)
+        t_eval = np.where(have, t, ff.settings.fallback_temperature_c)
+        model = np.asarray(model_ff.model_nm(JOINT, v, t_eval, ARRAY), dtype=float)
+        if correction is not None:
+            odd, even = correction.split_nm_array(JOINT, t_eval, v, tr.joint_position_rad[:, i], model)
+        else:
+            odd, even = np.zeros(n), np.zeros(n)
+        out.append(ReversalRun(prof.time_s.copy(), v, np.where(have, t, np.nan), model + odd, even, friction))
+    return out
+
+
 def _learning_batch(cfg: SimConfig, axis: AxisParams, ff: FeedforwardSetup, prof: Profile, temps: Sequence[float],
                     learn: LearnSetup, estimator: EstimatorSettings, want_learned: bool,
                     report: Callable[[float], None]) -> tuple[BatchResult, Learner | None]:
@@ -505,7 +554,7 @@ def _chamber_batch(cfg: SimConfig, axis: AxisParams, temps: Sequence[float], sho
 
 def run_study(config: SimConfig, axis: AxisParams | None = None, *,
               temperatures: Sequence[float] = DEFAULT_TEMPERATURES, profiles: Sequence[str] = PROFILES,
-              cases: Sequence[str] = CASES, short: bool = False,
+              cases: Sequence[str] = DEFAULT_CASES, short: bool = False,
               feedforward: FeedforwardSetup | None = None, estimator: EstimatorSettings | None = None,
               estimator_method: str = 'observer', refit_fit: Sequence[str] = DEFAULT_REFIT_FIT,
               refit_profiles: Sequence[str] | None = None, refit: RefitHook | None = None,
@@ -532,7 +581,8 @@ def run_study(config: SimConfig, axis: AxisParams | None = None, *,
     profiles : sequence of str
         Any of :data:`~gimbal_friction.sim.config.PROFILES`.
     cases : sequence of str
-        Any of :data:`CASES` and the optional ``feedforward_measured`` / ``feedforward_reference``.
+        Any of :data:`CASES` and the optional ``feedforward_measured`` / ``feedforward_reference`` /
+        ``dynamic_unguarded`` (default :data:`~gimbal_friction.sim.compensation.DEFAULT_CASES`: all but ``dynamic``).
     short : bool
         Use the short durations of :data:`SHORT_DURATIONS` and a shorter history and chamber test (CI).
     feedforward : FeedforwardSetup, optional
@@ -577,7 +627,8 @@ def run_study(config: SimConfig, axis: AxisParams | None = None, *,
     est = dataclasses.replace(est, commanded_speed_rad_s=cfg.tracking_speed_rpm * RAD_S_PER_RPM)
     notes: list[str] = []
     wall: dict[str, float] = {}
-    want_refit, want_learned = 'refit' in cases, 'learned' in cases
+    want_dynamic = 'dynamic' in cases or 'dynamic_unguarded' in cases
+    want_refit, want_learned = 'refit' in cases, 'learned' in cases or want_dynamic
     want_chamber = CASE_CHAMBER in cases
     if want_chamber and chamber is None:
         notes.append('case chamber left out: no chamber path was given (run it through gimbal-friction loop-study)')
@@ -604,6 +655,7 @@ def run_study(config: SimConfig, axis: AxisParams | None = None, *,
     learned: dict[str, Correction] = {}
     learners: dict[str, Learner] = {}
     chamber_info: dict[str, Any] | None = None
+    presliding: PreslidingTerm | None = None
 
     def reporter(label: str, base: float, w: float) -> Callable[[float], None]:
         def report(f: float) -> None:
@@ -642,6 +694,12 @@ def run_study(config: SimConfig, axis: AxisParams | None = None, *,
                          f'{summ["max_abs_correction_nm"] * 1e3:.3f} N*mm, largest direction-independent torque '
                          f'{summ["max_abs_unbalance_nm"] * 1e3:.3f} N*mm, {summ["saturated_cells"]} saturated cells')
         wall[label] = time.perf_counter() - t0
+        if want_dynamic and learner is not None:
+            t1 = time.perf_counter()
+            if progress is not None:
+                progress('dynamic: pre-sliding identification', done / total)
+            presliding = _learn_presliding(result, axis, ff, learned['history'], est, notes)
+            wall['dynamic: pre-sliding identification'] = time.perf_counter() - t1
         if want_refit:
             t1 = time.perf_counter()
             if progress is not None:
@@ -684,6 +742,12 @@ def run_study(config: SimConfig, axis: AxisParams | None = None, *,
                 comps[c] = ff.compensator(refit_params)
             elif c == 'learned':
                 comps[c] = ff.compensator(axis, correction=learned['history'])
+            elif c == 'dynamic':
+                comps[c] = dynamic_feedforward(axis, ff.settings, velocity_source=ff.velocity_source,
+                                               correction=learned['history'], presliding=presliding)
+            elif c == 'dynamic_unguarded' and presliding is not None:
+                comps[c] = dynamic_feedforward(axis, ff.settings, velocity_source=ff.velocity_source,
+                                               correction=learned['history'], presliding=presliding.unguarded())
             elif c == CASE_CHAMBER:
                 comps[c] = ff.compensator(axis, correction=learned['chamber'])
             elif c == 'bound':
@@ -702,7 +766,27 @@ def run_study(config: SimConfig, axis: AxisParams | None = None, *,
     prof_order = {p: i for i, p in enumerate([*profiles, 'history'])}
     records.sort(key=lambda r: (prof_order.get(r['profile'], 99), order[r['case']], r['temperature_c']))
     reversal.sort(key=lambda t: order[t.case])
-    return StudyResult(records, reversal, outcome, notes, wall, cfg, learned or None, learners or None, chamber_info)
+    return StudyResult(records, reversal, outcome, notes, wall, cfg, learned or None, learners or None, chamber_info,
+                       presliding)
+
+
+def _learn_presliding(result: BatchResult, axis: AxisParams, ff: FeedforwardSetup, correction: Correction,
+                      estimator: EstimatorSettings, notes: list[str]) -> PreslidingTerm:
+    """Case ``dynamic``'s pre-sliding term, identified and guarded from the learning runs of case ``learned`` (the
+    service history, seed :data:`LEARN_SEED`) with the learned correction's level (:func:`presliding_runs`)."""
+    cfg = result.config
+    settings = PreslidingSettings(velocity_threshold_rad_s=ff.settings.velocity_threshold_rad_s,
+                                  delivery_delay_s=cfg.latency_ticks * cfg.controller_period_s)
+    term = PreslidingTerm(settings, (JOINT,))
+    runs = [i for i, r in enumerate(result.runs) if r.case == 'learned']
+    counts = term.learn(JOINT, presliding_runs(result, runs, axis, ff, correction, estimator))
+    verdicts = term.verdicts(JOINT)
+    shown = '; '.join(f"{v['centre_c']:+g} degC {v['distance_rad'] * 1e6:.1f} urad "
+                      f"({'applied' if v['applied'] else 'off: ' + v['held_back']}, z {v['z']:.1f}, "
+                      f"{v['reversals_scored']} reversals)" for v in verdicts) or 'no data'
+    notes.append(f"dynamic (pre-sliding term from the service history): {counts['samples']} samples near "
+                 f"{counts['reversals']} reversals; {shown}")
+    return term
 
 
 def _refit(calibration: Sequence[tuple[BatchResult, Sequence[int]]], axis: AxisParams, cfg: SimConfig,
@@ -756,6 +840,9 @@ LEARNING_GOALS = {
     'chamber_vs_constant': 'chamber <= 1.02 x constant (2 % noise)',
     'ff_vs_constant': 'feedforward <= 1.05 x constant',
     'refit_vs_ff': 'refit (out of sample) <= feedforward',
+    'dynamic_vs_learned': 'dynamic <= 1.05 x learned (never worse than what it extends)',
+    'dynamic_vs_bound_cold': 'dynamic <= 0.7 x bound at -40 and -20 degC where ideal <= 0.5 x bound',
+    'dynamic_reversal_cold': "dynamic reversal peak <= 0.7 x bound's at -40 and -20 degC where ideal <= 0.5 x bound",
 }
 
 
@@ -794,7 +881,10 @@ def goal_checks(records: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
     - the learning goals (:data:`LEARNING_GOALS`, value = the ratio, target its limit): ``learned_vs_constant``
       (≤ 1), ``learned_vs_bound`` (learned/bound ≤ 1.5), ``learned_vs_none_cold`` (≤ 0.4 at −40 and −20 °C where
       bound/none ≤ 0.25), ``learning_cost`` (the learning run's worst 10 s window / the plain feedforward's ≤ 1.05),
-      ``ff_vs_constant`` (≤ 1.05), ``refit_vs_ff`` (≤ 1).
+      ``ff_vs_constant`` (≤ 1.05), ``refit_vs_ff`` (≤ 1);
+    - the pre-sliding goals: ``dynamic_vs_learned`` (dynamic/learned ≤ 1.05), ``dynamic_vs_bound_cold`` (dynamic/bound
+      ≤ 0.7 at −40 and −20 °C where ideal/bound ≤ 0.5) and ``dynamic_reversal_cold`` (the same cells, reversal peak
+      over bound's ≤ 0.7).
 
     Each check: ``goal``, ``profile``, ``temperature_c``, ``value`` (the reduction [-] or the ratio), ``target``,
     ``met``.
@@ -849,6 +939,13 @@ def goal_checks(records: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
             ratio_goal('chamber_vs_constant', p, t, ch, b, 1.02)
             ratio_goal('ff_vs_constant', p, t, c, b, 1.05)
             ratio_goal('refit_vs_ff', p, t, d, c, 1.0)
+            dy = rms(p, 'dynamic', t)
+            ratio_goal('dynamic_vs_learned', p, t, dy, le, 1.05)
+            if t in (-40.0, -20.0) and bd is not None and e is not None and e <= 0.5 * bd:
+                ratio_goal('dynamic_vs_bound_cold', p, t, dy, bd, 0.7)
+                if dy is not None:
+                    ratio_goal('dynamic_reversal_cold', p, t, float(look[(p, 'dynamic', t)]['reversal_error_peak_rad']),
+                               float(look[(p, 'bound', t)]['reversal_error_peak_rad']), 0.7)
     return out
 
 

@@ -695,3 +695,8 @@ def test_the_table_keeps_to_the_models_validity_range():
     for text in (render_csv(default, PROV), render_c_header(default, PROV), render_ros_yaml(default, PROV)):
         assert "The model's validity range is -40 .. 60 degC" in text
     assert 'validity range is -40 .. 20 degC (the bearing pair has no axial preload' in render_csv(narrow, PROV)
+
+
+def test_c_header_says_it_carries_no_presliding_term(table):
+    text = render_c_header(table, PROV)
+    assert 'No pre-sliding (dynamic) term' in text and 'tanh(v/v_th)' in text
