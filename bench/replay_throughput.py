@@ -53,6 +53,8 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
+os.environ.setdefault('NUMPY_MADVISE_HUGEPAGE', '0')   # as the gimbal-friction command sets it (numpy not yet imported)
+
 ROOT = Path(__file__).resolve().parents[1]
 SAMPLE_BAG = ROOT / 'bags' / 'chamber_sample'
 BIG_BAG = Path(tempfile.gettempdir()) / 'gimbal_friction_bench' / 'chamber_1khz'

@@ -22,9 +22,7 @@ and its detail, and the three input topics as recorded); the generated messages 
 
 from __future__ import annotations
 
-import threading
-from collections.abc import Callable, Iterator, Mapping, Sequence
-from contextlib import contextmanager
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any, NamedTuple
 
@@ -157,40 +155,8 @@ def replay_bag(bag_path: str | Path, out_dir: str | Path | None, *, config_paths
         ConfigError: a bad parameter file.
         CorrectionError: a corrupt correction file, or one learned against other parameters (one line).
     """
-    with _without_hugepage_advice():
-        return _replay_bag(bag_path, out_dir, config_paths=config_paths, topic_map=topic_map, joint_map=joint_map,
-                           log_inputs=log_inputs, progress=progress, correction_path=correction_path)
-
-
-@contextmanager
-def _without_hugepage_advice() -> Iterator[None]:
-    """numpy's ``madvise(MADV_HUGEPAGE)`` on its large arrays turned off meanwhile (restored after).
-
-    The replay allocates and frees arrays of millions of elements; where the kernel compacts memory synchronously
-    for a huge-page fault (``/sys/kernel/mm/transparent_hugepage/defrag`` = ``madvise``, a common default) every
-    such allocation can stall in the kernel: on the 2.19 M-message bag of bench/REPLAY.md this halved the system
-    CPU time (4.4 s to 2.2–2.5 s). Same numbers either way; a no-op where numpy has no such switch."""
-    switch = getattr(getattr(np, '_core', None), 'multiarray', None)
-    setter = getattr(switch, '_set_madvise_hugepage', None)
-    if setter is None:
-        yield
-        return
-    with _ADVICE_LOCK:   # replays in several threads: the first one in turns it off, the last one out restores it
-        if not _ADVICE_SAVED:
-            _ADVICE_SAVED.append(bool(setter(False)))
-        _ADVICE_USERS[0] += 1
-    try:
-        yield
-    finally:
-        with _ADVICE_LOCK:
-            _ADVICE_USERS[0] -= 1
-            if not _ADVICE_USERS[0]:
-                setter(_ADVICE_SAVED.pop())
-
-
-_ADVICE_LOCK = threading.Lock()
-_ADVICE_SAVED: list[bool] = []   #: the setting before the first replay still running
-_ADVICE_USERS = [0]              #: replays running
+    return _replay_bag(bag_path, out_dir, config_paths=config_paths, topic_map=topic_map, joint_map=joint_map,
+                       log_inputs=log_inputs, progress=progress, correction_path=correction_path)
 
 
 def _replay_bag(bag_path: str | Path, out_dir: str | Path | None, *, config_paths: Sequence[Path],

@@ -1,20 +1,16 @@
 """The estimator's array shortcuts give exactly what the per-sample code gave: the statistics' groups of a batch
-found with numpy (no key tuple per sample), and the replay's memory advice, which changes no number."""
+found with numpy (no key tuple per sample)."""
 
 from __future__ import annotations
 
 import math
-from pathlib import Path
 
 import numpy as np
 import pytest
 
-from gimbal_friction.chamber.replay import replay_bag
 from gimbal_friction.estimation import estimator as est
 from gimbal_friction.estimation.statistics import GroupStatistics
 
-ROOT = Path(__file__).resolve().parents[2]
-SAMPLE = ROOT / 'bags' / 'chamber_sample'
 JOINTS = ['elevation', 'azimuth', 'roll']
 
 
@@ -78,68 +74,3 @@ def test_sorted_and_identity_helpers():
     assert est._sorted(b) is b
     assert est._is_identity(np.arange(4)) and est._is_identity(np.arange(0))
     assert not est._is_identity(np.asarray([0, 2, 1])) and not est._is_identity(np.asarray([1, 2]))
-
-
-@pytest.mark.parametrize('before', [True, False])
-def test_replay_turns_numpys_huge_page_advice_off_meanwhile_and_restores_it(before):
-    """numpy's madvise(MADV_HUGEPAGE) is off while the replay runs (a kernel that compacts memory for every
-    huge-page fault stalled the replay's large arrays) and as it was afterwards."""
-    switch = np._core.multiarray
-    previous = switch._set_madvise_hugepage(before)
-    seen: list[bool] = []
-    try:
-        result = replay_bag(SAMPLE, None, progress=lambda stage, frac: seen.append(switch._get_madvise_hugepage()))
-        assert seen and not any(seen)
-        assert bool(switch._get_madvise_hugepage()) is before
-        assert len(result.measurements) > 0
-    finally:
-        switch._set_madvise_hugepage(previous)
-
-
-
-def test_replays_in_two_threads_restore_the_huge_page_advice_once_both_are_done():
-    """The first replay in turns the advice off, the last one out restores it: here the first in ends first, while
-    the other still runs (a plain save and restore per replay would turn it back on under the second one, and
-    leave it off at the end)."""
-    import threading
-
-    switch = np._core.multiarray
-    previous = switch._set_madvise_hugepage(True)
-    first_in, second_in, first_out = threading.Event(), threading.Event(), threading.Event()
-    seen: list[bool] = []
-    errors: list[BaseException] = []
-
-    def first(stage: str, frac: float) -> None:
-        first_in.set()
-        if stage == 'nodes' and frac == 0.0:
-            assert second_in.wait(timeout=60)
-
-    def second(stage: str, frac: float) -> None:
-        second_in.set()
-        if stage == 'nodes' and frac == 0.0:
-            assert first_out.wait(timeout=60)
-            seen.append(bool(switch._get_madvise_hugepage()))
-
-    def run(progress, wait_for: threading.Event | None, done: threading.Event | None) -> None:
-        try:
-            if wait_for is not None:
-                assert wait_for.wait(timeout=60)
-            replay_bag(SAMPLE, None, progress=progress)
-        except BaseException as err:  # reported by the assertion below
-            errors.append(err)
-        finally:
-            if done is not None:
-                done.set()
-
-    try:
-        threads = [threading.Thread(target=run, args=(first, None, first_out)),
-                   threading.Thread(target=run, args=(second, first_in, None))]
-        for t in threads:
-            t.start()
-        for t in threads:
-            t.join(120)
-        assert not errors
-        assert seen == [False]                        # still off for the replay that was still running
-        assert bool(switch._get_madvise_hugepage()) is True
-    finally:
-        switch._set_madvise_hugepage(previous)
