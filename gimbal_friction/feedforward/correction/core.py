@@ -20,7 +20,10 @@ estimator's accepted samples (residual = measured − model friction, along the 
   the sample's cell has learned from twice ``prior_samples`` and ``guard_block_samples`` samples of its own): the
   squared residual of the model alone, with the candidate, and with the candidate less each of its terms (the speed
   profile, its shape, the ripple, the trend). A cell is applied only once ``guard_min_samples`` samples scored it and
-  it cuts the squared residual by ``guard_z`` standard errors; a term only where dropping it would cost ⅔ of that.
+  it cuts the squared residual by ``guard_z`` standard errors; a term only where dropping it would cost ⅔ of that;
+  and a temperature bin's two cells (cw, ccw) only together, where both directions were measured at a common speed
+  (:func:`identifiable_bins`: the torque independent of the direction is told from friction by the two directions
+  alone; one cell applied alone would turn half of an unbalance into a change of the friction).
   Elsewhere the cell or term holds back to the model, and :meth:`verdicts` says which, why and with what figures.
   The result is the **target**;
 - **applied** (what :meth:`split_nm` reads, :mod:`~gimbal_friction.feedforward.correction.lookup`): the target at
@@ -67,7 +70,7 @@ from gimbal_friction.feedforward.correction.settings import (
 )
 from gimbal_friction.feedforward.correction.stats import REASONS, JointStats, gate_code, row_key
 
-__all__ = ['GUARD_TERMS', 'Correction', 'Verdict', 'applied_bound_nm']
+__all__ = ['GUARD_TERMS', 'Correction', 'Verdict', 'applied_bound_nm', 'identifiable_bins']
 
 Array = NDArray[np.float64]
 #: what the guard compares the candidate with: the model alone (``correction``), the candidate without its speed
@@ -435,7 +438,8 @@ class Correction:
 
     # ------------------------------------------------------------------ the guard
     def verdicts(self, joint: str) -> list[list[Verdict]]:
-        """The guard's verdict on every cell of ``joint``: ``[direction][temperature bin]``."""
+        """The guard's verdict on every cell of ``joint``: ``[direction][temperature bin]``; a bin's two cells are
+        applied together or not at all (the pairing rule, :func:`identifiable_bins`)."""
         s = self.settings
         g = self.joint(joint).guard
         out = []
@@ -460,7 +464,7 @@ class Correction:
                 kept = tuple(t for t in GUARD_TERMS[1:] if z[t] >= 2.0 * s.guard_z / 3.0) if not reason else ()
                 row.append(Verdict(not reason, reason, n, rms_m, rms_w, z, kept))
             out.append(row)
-        return out
+        return _paired(out, self.joint(joint).candidate, s)
 
     def _targets(self, joint: str, fit: Fit) -> Params:
         """The candidate with the guard's verdicts applied: a cell held back is 0, a term not kept is dropped (the
@@ -657,6 +661,50 @@ class Correction:
             refused[j] = mine
         c.settle()
         return c, refused
+
+
+def identifiable_bins(samples: Array, node_weight: Array, s: CorrectionSettings) -> NDArray[np.bool_]:
+    """Temperature bins (bins,) where a torque independent of the direction can be told from friction: both
+    directions measured (``samples`` (2, bins) [-]) at a common speed, i.e. at least one speed node that each
+    direction's data weighs (``node_weight`` (2, bins, octaves) [-]) with a fifth of ``prior_samples`` or more.
+
+    A cell's value S_d is the friction's change along the motion O plus, signed by the direction, the torque that does
+    not depend on it E (S_cw = O + E, S_ccw = O − E): with one direction alone, or the two at speeds that do not
+    meet, O and E are one unknown, and a bin that applied one of them would split it half and half into a friction
+    change and an unbalance that did not exist (at a plateau where the friction is small beside an unbalance this made
+    a chamber's correction 9 times worse than the model in the loop).
+
+    >>> w = np.zeros((2, 3, 4)); w[0, :, 1] = 100.0; w[1, 0, 1] = 100.0; w[1, 1, 3] = 100.0
+    >>> identifiable_bins(np.array([[9.0, 9.0, 9.0], [9.0, 9.0, 0.0]]), w, CorrectionSettings()).tolist()
+    [True, False, False]
+    """
+    seen = node_weight >= 0.2 * s.prior_samples
+    return np.asarray((samples[0] > 0.0) & (samples[1] > 0.0) & np.any(seen[0] & seen[1], axis=-1), dtype=bool)
+
+
+def _paired(ver: list[list[Verdict]], fit: Fit | None, s: CorrectionSettings) -> list[list[Verdict]]:
+    """The guard's per-cell verdicts ``ver`` with the pairing rule: a cell is applied only where its bin's
+    direction-independent part is identifiable (:func:`identifiable_bins`) and the cell of the other direction passed
+    the guard too (the torque independent of the direction is learned from both: applying one cell alone applies
+    half of it as a change of the friction)."""
+    if fit is None:
+        return ver
+    ok = identifiable_bins(fit.samples, fit.node_weight, s)
+    out = [list(row) for row in ver]
+    for d in range(2):
+        for b, v in enumerate(ver[d]):
+            if not v.applied:
+                continue
+            other = ver[1 - d][b]
+            if not ok[b]:
+                why = ('the other direction was not measured at a common speed: a torque independent of the '
+                       'direction cannot be told from friction')
+            elif not other.applied:
+                why = f'the {DIRECTIONS[1 - d]} cell is held back ({other.reason})'
+            else:
+                continue
+            out[d][b] = v._replace(applied=False, reason=why, kept=())
+    return out
 
 
 def _profile_level(profile: Array, u: Array, n: Array) -> float:
