@@ -896,7 +896,7 @@ def _bin_travel(rec: Any, f: str, angle: tuple[float, float] | None) -> Any:
     lo, hi = _numbers(rng, f'{f}.angle_range_rad', 2, -math.pi - 1.0, math.pi + 1.0)
     tol = 1e-9
     if not lo <= hi or angle is None or lo < angle[0] - tol or hi > angle[1] + tol:
-        raise CorrectionError(f'{f}.angle_range_rad must be [low, high] with low <= high within the joint\'s '
+        raise CorrectionError(f"{f}.angle_range_rad must be [low, high] with low <= high within the joint's "
                               'angle_range_rad; restore it or relearn it')
     return lo, hi
 

@@ -55,7 +55,8 @@ from gimbal_friction.feedforward.correction.periods import Period, strongest_per
 from gimbal_friction.feedforward.correction.settings import CorrectionSettings
 from gimbal_friction.feedforward.correction.stats import JointStats
 
-__all__ = ['Fit', 'Params', 'Rows', 'bin_ranges', 'empty_params', 'fit_joint', 'fit_rows', 'joint_rows', 'rising_envelope']
+__all__ = ['Fit', 'Params', 'Rows', 'bin_ranges', 'empty_params', 'fit_joint', 'fit_rows', 'joint_rows',
+           'rising_envelope']
 
 Array = NDArray[np.float64]
 #: trend coefficients: along the motion (sin θ, cos θ − 1), then direction-independent (sin θ, cos θ − 1)

@@ -211,7 +211,7 @@ class Lookup:
                 terms = (np.any(params.speed_nm != 0.0, axis=(0, 2)) | np.any(params.trend_nm != 0.0, axis=1)
                          | np.any(params.ripple.reshape(nt, -1) != 0.0, axis=1))
                 ranges[~terms] = np.nan
-                fade = trend_taper(grid, held_ranges(ranges, has[0] | has[1]))          # (bins, grid)
+                fade = trend_taper(np.asarray(grid, dtype=np.float64), held_ranges(ranges, has[0] | has[1]))
                 self._trend_odd = fade * (p.trend_nm[:, :2] @ trig.T)
                 self._trend_even = fade * (p.trend_nm[:, 2:] @ trig.T)
         self.saturations = 0
