@@ -532,9 +532,10 @@ def test_a_correction_is_exported_as_its_lookup_without_a_position(learned):
     hot = int(round((100.0 - tc.centres_c[0]) * tc.inv_bin_per_c))
     assert tc.samples[0, hot] == 1 and math.isnan(tc.error_nm[0, hot])
     assert tc.samples[1, hot] == 0 and tc.error_nm[1, hot] == 0.0
-    # a bin without samples next to one with samples holds its neighbour's profile (the lookup's tables), and its
-    # error
-    assert np.any(tc.odd_nm[hot + 1]) and math.isnan(tc.error_nm[0, hot + 1]) and math.isnan(tc.error_nm[0, hot - 1])
+    # a bin measured in one direction only cannot tell an unbalance from friction: nothing is applied there, nor in the
+    # neighbours that would hold its profile (the lookup's tables); the neighbours hold its error
+    assert not tc.applied[0, hot] and not np.any(tc.odd_nm[hot]) and not np.any(tc.odd_nm[hot + 1])
+    assert math.isnan(tc.error_nm[0, hot + 1]) and math.isnan(tc.error_nm[0, hot - 1])
     assert tc.error_nm[0, hot + 2] == 0.0 and not np.any(tc.odd_nm[hot + 2])
 
 

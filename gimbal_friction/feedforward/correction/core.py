@@ -20,7 +20,11 @@ estimator's accepted samples (residual = measured − model friction, along the 
   the sample's cell has learned from twice ``prior_samples`` and ``guard_block_samples`` samples of its own): the
   squared residual of the model alone, with the candidate, and with the candidate less each of its terms (the speed
   profile, its shape, the ripple, the trend). A cell is applied only once ``guard_min_samples`` samples scored it and
-  it cuts the squared residual by ``guard_z`` standard errors; a term only where dropping it would cost ⅔ of that.
+  it cuts the squared residual by ``guard_z`` standard errors; a term only where dropping it would cost ⅔ of that;
+  and a cell only where both directions of its temperature bin were measured at a common speed and the other
+  direction's cell was judged too (:func:`identifiable_bins`: the torque independent of the direction is told from
+  friction by the two directions alone; a cell applied while the other waits for its scores would turn half of an
+  unbalance into a change of the friction).
   Elsewhere the cell or term holds back to the model, and :meth:`verdicts` says which, why and with what figures.
   The result is the **target**;
 - **applied** (what :meth:`split_nm` reads, :mod:`~gimbal_friction.feedforward.correction.lookup`): the target at
@@ -67,7 +71,7 @@ from gimbal_friction.feedforward.correction.settings import (
 )
 from gimbal_friction.feedforward.correction.stats import REASONS, JointStats, gate_code, row_key
 
-__all__ = ['GUARD_TERMS', 'Correction', 'Verdict', 'applied_bound_nm']
+__all__ = ['GUARD_TERMS', 'Correction', 'Verdict', 'applied_bound_nm', 'identifiable_bins']
 
 Array = NDArray[np.float64]
 #: what the guard compares the candidate with: the model alone (``correction``), the candidate without its speed
@@ -121,7 +125,7 @@ class Verdict(NamedTuple):
 class _Joint:
     """The state of one joint."""
 
-    __slots__ = ('angle_range', 'applied', 'candidate', 'guard', 'searched_at', 'stats', 'target')
+    __slots__ = ('angle_range', 'applied', 'bin_ranges', 'candidate', 'guard', 'searched_at', 'stats', 'target')
 
     def __init__(self, s: CorrectionSettings) -> None:
         self.stats = JointStats(s)
@@ -132,6 +136,9 @@ class _Joint:
         self.searched_at = 0.0
         #: positions the applied terms were fitted over [rad] (None: none; the lookup's position grid)
         self.angle_range: tuple[float, float] | None = None
+        #: per temperature bin, the positions its data covered [rad] (bins, 2; NaN: none); None: ``angle_range`` for
+        #: every bin (a file written before the travel was kept per bin)
+        self.bin_ranges: Array | None = None
 
 
 class Correction:
@@ -167,15 +174,19 @@ class Correction:
         """The applied terms of ``joint`` (what the lookups read, before the hold rule)."""
         return self.joint(joint).applied
 
-    def set_applied(self, joint: str, params: Params, angle_range_rad: tuple[float, float] | None = None) -> None:
+    def set_applied(self, joint: str, params: Params, angle_range_rad: tuple[float, float] | None = None,
+                    bin_ranges_rad: Array | None = None) -> None:
         """Apply ``params`` to ``joint``, fitted over the positions ``angle_range_rad`` [rad] (None: those of the
-        last fit); the lookups follow at once."""
+        last fit), each temperature bin over ``bin_ranges_rad`` (bins, 2) [rad] (None: ``angle_range_rad`` for
+        every bin, or the last fit's); the lookups follow at once."""
         st = self.joint(joint)
         st.applied = params
         if angle_range_rad is not None:
             st.angle_range = angle_range_rad
+            st.bin_ranges = None if bin_ranges_rad is None else np.asarray(bin_ranges_rad, dtype=float).copy()
         elif st.candidate is not None:
             st.angle_range = st.candidate.angle_range_rad
+            st.bin_ranges = st.candidate.bin_ranges_rad.copy()
         self.rebuild(joint)
 
     def guard_scores(self, joint: str) -> Array:
@@ -210,7 +221,7 @@ class Correction:
             if not (np.any(p.speed_nm) or np.any(p.ripple) or np.any(p.trend_nm)):
                 self.lookups[j] = None
                 continue
-            self.lookups[j] = Lookup(self.settings, p, self.lookup_has(j), st.angle_range)
+            self.lookups[j] = Lookup(self.settings, p, self.lookup_has(j), st.angle_range, st.bin_ranges)
 
     # ------------------------------------------------------------------ lookup (the feedforward's hot path)
     def split_nm(self, joint: str, temperature_c: float, velocity_rad_s: float, position_rad: float,
@@ -411,8 +422,8 @@ class Correction:
         p = fit.params
         flat = Params(np.repeat(fit.flat_nm[..., None], p.speed_nm.shape[2], axis=2), p.periods_rad, p.ripple,
                       p.trend_nm)
-        return (Lookup(self.settings, p, has, fit.angle_range_rad),
-                Lookup(self.settings, flat, has, fit.angle_range_rad))
+        return (Lookup(self.settings, p, has, fit.angle_range_rad, fit.bin_ranges_rad),
+                Lookup(self.settings, flat, has, fit.angle_range_rad, fit.bin_ranges_rad))
 
     def refit(self, joint: str, search: bool | None = None) -> Fit:
         """Fit the candidate of ``joint`` from its rows; ripple periods searched again with ``search`` (None: when
@@ -431,11 +442,14 @@ class Correction:
         st.target = self._targets(joint, fit)
         if fit.angle_range_rad is not None:
             st.angle_range = fit.angle_range_rad
+            st.bin_ranges = fit.bin_ranges_rad.copy()
         return fit
 
     # ------------------------------------------------------------------ the guard
     def verdicts(self, joint: str) -> list[list[Verdict]]:
-        """The guard's verdict on every cell of ``joint``: ``[direction][temperature bin]``."""
+        """The guard's verdict on every cell of ``joint``: ``[direction][temperature bin]``; a bin's two cells are
+        applied only once both were judged, where both directions were measured at a common speed (the pairing rule:
+        :func:`identifiable_bins`)."""
         s = self.settings
         g = self.joint(joint).guard
         out = []
@@ -460,7 +474,8 @@ class Correction:
                 kept = tuple(t for t in GUARD_TERMS[1:] if z[t] >= 2.0 * s.guard_z / 3.0) if not reason else ()
                 row.append(Verdict(not reason, reason, n, rms_m, rms_w, z, kept))
             out.append(row)
-        return out
+        waiting = (g[..., 0] < s.guard_min_samples) | ((s.guard_z > 0.0) & (g[..., _BLOCKS] < 2.0))
+        return _paired(out, waiting, self.joint(joint).candidate)
 
     def _targets(self, joint: str, fit: Fit) -> Params:
         """The candidate with the guard's verdicts applied: a cell held back is 0, a term not kept is dropped (the
@@ -513,7 +528,7 @@ class Correction:
             st.stats.clear()
             st.guard[:] = 0.0
             st.applied, st.target, st.candidate, st.searched_at = empty_params(s), empty_params(s), None, 0.0
-            st.angle_range = None
+            st.angle_range = st.bin_ranges = None
             self.periods[j] = ()
         self.rebuild()
 
@@ -538,6 +553,7 @@ class Correction:
             mine.applied = _resize(st.applied, settings)
             mine.searched_at = st.searched_at
             mine.angle_range = st.angle_range
+            mine.bin_ranges = None if st.bin_ranges is None else st.bin_ranges.copy()
             out.periods[j] = self.periods[j]
         out.rebuild()
         return out
@@ -657,6 +673,53 @@ class Correction:
             refused[j] = mine
         c.settle()
         return c, refused
+
+
+def identifiable_bins(samples: Array, node_weight: Array) -> NDArray[np.bool_]:
+    """Temperature bins (bins,) where a torque independent of the direction can be told from friction: both
+    directions measured (``samples`` (2, bins) [-]) at a common speed, i.e. at least one speed node that each
+    direction's data weighs (``node_weight`` (2, bins, octaves) [-]) with a sample or more (the two directions' speeds
+    within an octave of each other; how many samples it takes is the guard's to say).
+
+    A cell's value S_d is the friction's change along the motion O plus, signed by the direction, the torque that does
+    not depend on it E (S_cw = O + E, S_ccw = O − E): with one direction alone, or the two at speeds that do not
+    meet, O and E are one unknown, and a bin that applied one of them would split it half and half into a friction
+    change and an unbalance that did not exist (at a plateau where the friction is small beside an unbalance this made
+    a chamber's correction 9 times worse than the model in the loop).
+
+    >>> w = np.zeros((2, 3, 4)); w[0, :, 1] = 100.0; w[1, 0, 1] = 2.0; w[1, 1, 3] = 100.0
+    >>> identifiable_bins(np.array([[9.0, 9.0, 9.0], [9.0, 9.0, 0.0]]), w).tolist()
+    [True, False, False]
+    """
+    seen = node_weight >= 1.0
+    return np.asarray((samples[0] > 0.0) & (samples[1] > 0.0) & np.any(seen[0] & seen[1], axis=-1), dtype=bool)
+
+
+def _paired(ver: list[list[Verdict]], waiting: NDArray[np.bool_], fit: Fit | None) -> list[list[Verdict]]:
+    """The guard's per-cell verdicts ``ver`` with the pairing rule: a cell is applied only where its bin's
+    direction-independent part is identifiable (:func:`identifiable_bins`) and the cell of the other direction was
+    judged by the guard too (``waiting`` (2, bins): still short of its out-of-sample scores). A cell applied while its
+    partner waits would apply half of the torque independent of the direction that both learned as a change of the
+    friction; a partner the guard judged and held back says the model is right in that direction (a CW/CCW
+    asymmetry), and the cell is applied alone."""
+    if fit is None:
+        return ver
+    ok = identifiable_bins(fit.samples, fit.node_weight)
+    out = [list(row) for row in ver]
+    for d in range(2):
+        for b, v in enumerate(ver[d]):
+            if not v.applied:
+                continue
+            other = ver[1 - d][b]
+            if not ok[b]:
+                why = ('the other direction was not measured at a common speed: a torque independent of the '
+                       'direction cannot be told from friction')
+            elif waiting[1 - d, b]:
+                why = f'the {DIRECTIONS[1 - d]} cell is not judged yet ({other.reason})'
+            else:
+                continue
+            out[d][b] = v._replace(applied=False, reason=why, kept=())
+    return out
 
 
 def _profile_level(profile: Array, u: Array, n: Array) -> float:

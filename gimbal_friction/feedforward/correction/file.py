@@ -138,9 +138,13 @@ def _joint_mapping(c: Correction, joint: str) -> dict[str, Any]:
     applied = []
     for bb in range(s.n_temperature):
         if np.any(p.speed_nm[:, bb]) or np.any(p.ripple[bb]) or np.any(p.trend_nm[bb]):
-            applied.append({'bin': bb, 'centre_c': s.centre_c(bb), 'speed_cw_nm': p.speed_nm[0, bb].tolist(),
-                            'speed_ccw_nm': p.speed_nm[1, bb].tolist(), 'ripple': p.ripple[bb].tolist(),
-                            'trend_nm': p.trend_nm[bb].tolist()})
+            rec = {'bin': bb, 'centre_c': s.centre_c(bb), 'speed_cw_nm': p.speed_nm[0, bb].tolist(),
+                   'speed_ccw_nm': p.speed_nm[1, bb].tolist(), 'ripple': p.ripple[bb].tolist(),
+                   'trend_nm': p.trend_nm[bb].tolist()}
+            if st.bin_ranges is not None:
+                rng = st.bin_ranges[bb]
+                rec['angle_range_rad'] = rng.tolist() if bool(np.all(np.isfinite(rng))) else None
+            applied.append(rec)
     return {'periods': [{'period_rad': q.period_rad, 'period_deg': math.degrees(q.period_rad),
                          'amplitude': q.amplitude, 'z': q.z, 'power': q.power, 'points': q.samples,
                          'span_rad': q.span_rad} for q in c.periods[joint]],
@@ -295,6 +299,8 @@ class _Limits:
         if n == 3:
             return self._joint_field(field, s, nt)
         name = path[4] if n >= 5 else None
+        if n == 5 and field == 'applied' and name == 'angle_range_rad':
+            return 2, '[low, high]'
         if n == 5 and field == 'applied' and name in ('speed_cw_nm', 'speed_ccw_nm'):
             return ns, "one value per speed octave (the settings' speed_bins)"
         if n == 5 and field == 'applied' and name in ('ripple', 'trend_nm'):
@@ -847,6 +853,7 @@ def _read_joint_v3(c: Correction, j: str, jd: Any) -> None:
     have_rows = np.zeros(nt, dtype=bool)
     for _, b in seen:
         have_rows[b] = True
+    travel: dict[int, Any] = {}
     for i, rec in enumerate(jd['applied'] or []):
         f = f'{where}: applied[{i}]'
         b = _count(rec['bin'], f'{f}.bin')
@@ -868,9 +875,46 @@ def _read_joint_v3(c: Correction, j: str, jd: Any) -> None:
             p.ripple[b, q] = (a, bb)
         tb = 10.0 * bound * (1 + 1e-9)
         p.trend_nm[b] = _numbers(rec['trend_nm'], f'{f}.trend_nm', 4, -tb, tb)
+        travel[b] = _bin_travel(rec, f, angle)
     st.applied = p
     st.angle_range = angle
+    st.bin_ranges = _bin_ranges(travel, nt, where)
     c.rebuild(j)
+
+
+_NO_TRAVEL = object()
+
+
+def _bin_travel(rec: Any, f: str, angle: tuple[float, float] | None) -> Any:
+    """The travel of an applied bin ``rec`` ([low, high] within the joint's ``angle``, None: no positions), or
+    :data:`_NO_TRAVEL` where the record has none (a file written before the travel was kept per bin)."""
+    if not isinstance(rec, dict) or 'angle_range_rad' not in rec:
+        return _NO_TRAVEL
+    rng = rec['angle_range_rad']
+    if rng is None:
+        return None
+    lo, hi = _numbers(rng, f'{f}.angle_range_rad', 2, -math.pi - 1.0, math.pi + 1.0)
+    tol = 1e-9
+    if not lo <= hi or angle is None or lo < angle[0] - tol or hi > angle[1] + tol:
+        raise CorrectionError(f"{f}.angle_range_rad must be [low, high] with low <= high within the joint's "
+                              'angle_range_rad; restore it or relearn it')
+    return lo, hi
+
+
+def _bin_ranges(travel: dict[int, Any], nt: int, where: str) -> NDArray[np.float64] | None:
+    """The per-bin travel of a joint's applied bins (bins, 2; NaN: none), None when no record gives one (an older
+    file: the joint's travel holds for every bin); a file that gives it for some applied bins only is refused."""
+    given = [b for b, r in travel.items() if r is not _NO_TRAVEL]
+    if not given:
+        return None
+    if len(given) != len(travel):
+        raise CorrectionError(f'{where}: angle_range_rad is given for some applied bins and not for others; restore '
+                              'it or relearn it')
+    out = np.full((nt, 2), np.nan)
+    for b, r in travel.items():
+        if r is not None:
+            out[b] = r
+    return out
 
 
 def _centre(value: Any, centre_c: float, field: str) -> None:

@@ -55,7 +55,8 @@ from gimbal_friction.feedforward.correction.periods import Period, strongest_per
 from gimbal_friction.feedforward.correction.settings import CorrectionSettings
 from gimbal_friction.feedforward.correction.stats import JointStats
 
-__all__ = ['Fit', 'Params', 'Rows', 'empty_params', 'fit_joint', 'fit_rows', 'joint_rows', 'rising_envelope']
+__all__ = ['Fit', 'Params', 'Rows', 'bin_ranges', 'empty_params', 'fit_joint', 'fit_rows', 'joint_rows',
+           'rising_envelope']
 
 Array = NDArray[np.float64]
 #: trend coefficients: along the motion (sin θ, cos θ − 1), then direction-independent (sin θ, cos θ − 1)
@@ -94,6 +95,7 @@ class Fit(NamedTuple):
     angle_range_rad: tuple[float, float] | None   #: positions seen (position bin centres) [rad]; None: none
     node_model_nm: Array      #: (2, temperature bins, octaves) mean |model| at each speed node [N·m] (0: no data)
     node_weight: Array        #: (2, temperature bins, octaves) the data's weight on each speed node [-]
+    bin_ranges_rad: Array     #: (temperature bins, 2) positions each bin's data covered [rad] (NaN: none)
 
 
 class Rows(NamedTuple):
@@ -343,7 +345,23 @@ def fit_joint(stats: JointStats, periods: tuple[Period, ...] | None = None) -> F
     # each cell's level: its bounded profile averaged over its data
     wsum = node_w.sum(axis=2)
     flat = np.divide((node_w * bounded.speed_nm).sum(axis=2), wsum, out=np.zeros(wsum.shape), where=wsum > 0.0)
-    return Fit(bounded, flat, cell_m, samples, saturated, tuple(found), angle_range, node_m, node_w)
+    return Fit(bounded, flat, cell_m, samples, saturated, tuple(found), angle_range, node_m, node_w,
+               bin_ranges(rows, s.n_temperature))
+
+
+def bin_ranges(rows: Rows, n_temperature: int) -> Array:
+    """The positions each temperature bin's rows covered (temperature bins, 2): [lowest, highest] position bin
+    centre [rad], NaN where a bin has no row with a position (the travel a bin's trend was seen on)."""
+    out = np.full((n_temperature, 2), np.nan)
+    known = np.isfinite(rows.theta)
+    if known.any():
+        tb, th = rows.tbin[known], rows.theta[known]
+        lo, hi = np.full(n_temperature, np.inf), np.full(n_temperature, -np.inf)
+        np.minimum.at(lo, tb, th)
+        np.maximum.at(hi, tb, th)
+        have = np.isfinite(lo)
+        out[have, 0], out[have, 1] = lo[have], hi[have]
+    return out
 
 
 def rising_envelope(s: CorrectionSettings, speed_nm: Array, node_model_nm: Array, node_weight: Array) -> Array:

@@ -27,7 +27,9 @@ Temperature: linear between bin centres, held at the ends; a bin without samples
 neighbour's terms (the mean of both neighbours when both have samples), so the correction tapers to 0 one bin
 further. Speed: linear in the octave coordinate between octave centres, held beyond. Position: the ripple and the
 trend on a grid over the positions seen (half a position bin apart, linear between grid points); the ripple fades to
-0 over one longest period beyond them, the trend holds its edge values.
+0 over one longest period beyond them; the trend of each temperature bin holds over the travel that bin's data
+covered and falls to 0 over :data:`TREND_TAPER_RAD` beyond it (a change with the angle seen on −10°…+10° is not
+extrapolated to +40°: there the feedforward is the model's).
 
 What depends on the temperature only is prepared once per temperature (a controller's calls between two
 temperature samples cost a few float operations each).
@@ -44,7 +46,7 @@ from numpy.typing import NDArray
 from gimbal_friction.feedforward.correction.fit import Params
 from gimbal_friction.feedforward.correction.settings import CorrectionSettings
 
-__all__ = ['Lookup', 'PositionTerms', 'ScalarTerms', 'held_params']
+__all__ = ['TREND_TAPER_RAD', 'Lookup', 'PositionTerms', 'ScalarTerms', 'held_params', 'held_ranges', 'trend_taper']
 
 Array = NDArray[np.float64]
 #: :data:`ScalarTerms`' position terms: (ripple, trend odd, trend even) lists of one temperature (None when absent),
@@ -54,6 +56,10 @@ PositionTerms = tuple[list[float] | None, list[float] | None, list[float] | None
 #: ``min_speed_rad_s`` [rad/s], ``max_relative`` [-], ``floor_nm`` [N·m], ``max_independent_nm`` [N·m] and the
 #: :data:`PositionTerms` (None: no position terms)
 ScalarTerms = tuple[list[float], list[float], int, float, float, float, float, PositionTerms | None]
+
+#: beyond the travel a temperature bin's data covered its trend with the angle falls linearly to 0 over this [rad]
+#: (2°): outside it, the model
+TREND_TAPER_RAD = 0.035
 
 
 def held_params(p: Params, has: NDArray[np.bool_]) -> Params:
@@ -68,6 +74,38 @@ def held_params(p: Params, has: NDArray[np.bool_]) -> Params:
     _hold(ripple, any_bin)
     _hold(trend, any_bin)
     return Params(speed, p.periods_rad, ripple, trend)
+
+
+def held_ranges(ranges: Array, has: NDArray[np.bool_]) -> Array:
+    """The travel of every bin (bins, 2) [rad] under the hold rule of :func:`held_params`: a bin without samples next
+    to one with samples holds its neighbour's travel (both neighbours': the span of the two); NaN where none."""
+    out = np.asarray(ranges, dtype=float).copy()
+    nt = has.size
+    left = np.zeros(nt, dtype=bool)
+    right = np.zeros(nt, dtype=bool)
+    left[1:], right[:-1] = has[:-1], has[1:]
+    src = out.copy()
+    for b in np.flatnonzero(~has & (left | right)).tolist():
+        near = [src[k] for k in (b - 1, b + 1) if 0 <= k < nt and has[k] and np.all(np.isfinite(src[k]))]
+        out[b] = (min(r[0] for r in near), max(r[1] for r in near)) if near else (math.nan, math.nan)
+    return out
+
+
+def trend_taper(grid: Array, ranges: Array) -> Array:
+    """Per temperature bin (bins, grid) the share of its trend applied at the positions ``grid`` [rad]: 1 over the
+    travel ``ranges`` (bins, 2) [rad] its data covered, falling linearly to 0 over :data:`TREND_TAPER_RAD` beyond it,
+    0 everywhere for a bin without a travel (NaN): a change with the angle is not extrapolated where it was not seen.
+
+    >>> trend_taper(np.array([0.0, 0.1, 0.2, 0.7]), np.array([[-0.2, 0.2], [np.nan, np.nan]])).round(3).tolist()
+    [[1.0, 1.0, 1.0, 0.0], [0.0, 0.0, 0.0, 0.0]]
+    """
+    r = np.asarray(ranges, dtype=float)
+    lo, hi = r[:, :1], r[:, 1:]
+    g = np.asarray(grid, dtype=float)[None, :]
+    with np.errstate(invalid='ignore'):
+        outside = np.maximum(np.maximum(lo - g, g - hi), 0.0)
+        share = np.clip(1.0 - outside / TREND_TAPER_RAD, 0.0, 1.0)
+    return np.asarray(np.where(np.isfinite(lo) & np.isfinite(hi), share, 0.0), dtype=float)
 
 
 def _hold(a: Array, has: NDArray[np.bool_]) -> None:
@@ -128,7 +166,7 @@ class Lookup:
     """
 
     def __init__(self, settings: CorrectionSettings, params: Params, has: NDArray[np.bool_],
-                 angle_range_rad: tuple[float, float] | None) -> None:
+                 angle_range_rad: tuple[float, float] | None, bin_ranges_rad: Array | None = None) -> None:
         s = settings
         self.settings = s
         p = held_params(params, has)
@@ -147,19 +185,35 @@ class Lookup:
         self.grid0 = 0.0
         self.inv_step = 1.0
         self.n_grid = 0
+        #: per temperature bin on the position grid: the trend along the motion and independent of it, tapered to 0
+        #: outside the travel the bin's data covered [N·m] (bins, grid)
+        self._trend_odd = self._trend_even = np.zeros((nt, 0))
         if self.positions and angle_range_rad is not None:
             margin = float(p.periods_rad.max()) if p.periods_rad.size else 0.0
             lo, hi = angle_range_rad[0] - margin, angle_range_rad[1] + margin
             step = 0.5 * s.position_resolution_rad
-            n = max(int(math.ceil((hi - lo) / step)) + 1, 2)
-            grid = lo + step * np.arange(n)
-            self.grid0, self.inv_step, self.n_grid = lo, 1.0 / step, n
+            # the grid reaches a trend taper beyond the positions seen (whole steps: the grid points inside stay)
+            extra = int(math.ceil(max(TREND_TAPER_RAD - margin, 0.0) / step)) if has_trend else 0
+            n = max(int(math.ceil((hi - lo) / step)) + 1, 2) + 2 * extra
+            g0 = lo - extra * step
+            grid = g0 + step * np.arange(n)
+            self.grid0, self.inv_step, self.n_grid = g0, 1.0 / step, n
             taper = np.ones(n)
             if margin > 0.0:
                 taper = np.clip(np.minimum(grid - lo, hi - grid) / margin, 0.0, 1.0)
             phase = 2.0 * math.pi * grid[:, None] / p.periods_rad[None, :] if p.periods_rad.size else np.zeros((n, 0))
             self._cos, self._sin = np.cos(phase) * taper[:, None], np.sin(phase) * taper[:, None]
-            self._trig = np.stack([np.sin(grid), np.cos(grid) - 1.0], axis=1)   # (grid, 2)
+            trig = np.stack([np.sin(grid), np.cos(grid) - 1.0], axis=1)   # (grid, 2)
+            if has_trend:
+                ranges = np.tile(np.asarray(angle_range_rad, dtype=float), (nt, 1)) if bin_ranges_rad is None \
+                    else np.asarray(bin_ranges_rad, dtype=float).reshape(nt, 2).copy()
+                # only a bin with an applied term has a travel (what a correction file keeps: a round trip is exact)
+                terms = (np.any(params.speed_nm != 0.0, axis=(0, 2)) | np.any(params.trend_nm != 0.0, axis=1)
+                         | np.any(params.ripple.reshape(nt, -1) != 0.0, axis=1))
+                ranges[~terms] = np.nan
+                fade = trend_taper(np.asarray(grid, dtype=np.float64), held_ranges(ranges, has[0] | has[1]))
+                self._trend_odd = fade * (p.trend_nm[:, :2] @ trig.T)
+                self._trend_even = fade * (p.trend_nm[:, 2:] @ trig.T)
         self.saturations = 0
         self._at_t: float = math.nan
         self._at: _AtTemperature | None = None
@@ -193,9 +247,8 @@ class Lookup:
                 c = (1.0 - w) * p.ripple[i] + w * p.ripple[i + 1]          # (K, 2)
                 rip = (self._cos @ c[:, 0] + self._sin @ c[:, 1]).tolist()
             if self.trend_on:
-                tr = (1.0 - w) * p.trend_nm[i] + w * p.trend_nm[i + 1]
-                todd = (self._trig @ tr[:2]).tolist()
-                teven = (self._trig @ tr[2:]).tolist()
+                todd = ((1.0 - w) * self._trend_odd[i] + w * self._trend_odd[i + 1]).tolist()
+                teven = ((1.0 - w) * self._trend_even[i] + w * self._trend_even[i + 1]).tolist()
         at = _AtTemperature(odd, even, rip, todd, teven)
         self._at_t, self._at = t, at
         if t == t:   # (not NaN)
@@ -329,13 +382,12 @@ class Lookup:
             tab0 = (self._cos[j] * c[..., 0]).sum(axis=1) + (self._sin[j] * c[..., 1]).sum(axis=1)
             tab1 = (self._cos[j + 1] * c[..., 0]).sum(axis=1) + (self._sin[j + 1] * c[..., 1]).sum(axis=1)
             out['ripple'] = np.where(known, (tab0 + h * (tab1 - tab0)) * np.abs(m), 0.0)
-        if self.trend_on:
-            tr = w0[:, None] * p.trend_nm[i] + w[:, None] * p.trend_nm[i + 1]            # (n, 4)
-            g0, g1 = self._trig[j], self._trig[j + 1]
-            a0 = g0[:, 0] * tr[:, 0] + g0[:, 1] * tr[:, 1]
-            a1 = g1[:, 0] * tr[:, 0] + g1[:, 1] * tr[:, 1]
-            b0 = g0[:, 0] * tr[:, 2] + g0[:, 1] * tr[:, 3]
-            b1 = g1[:, 0] * tr[:, 2] + g1[:, 1] * tr[:, 3]
+        if self.trend_on:   # (as at_temperature's lists, element by element)
+            to, te = self._trend_odd, self._trend_even
+            a0 = w0 * to[i, j] + w * to[i + 1, j]
+            a1 = w0 * to[i, j + 1] + w * to[i + 1, j + 1]
+            b0 = w0 * te[i, j] + w * te[i + 1, j]
+            b1 = w0 * te[i, j + 1] + w * te[i + 1, j + 1]
             out['trend_odd'] = np.where(known, a0 + h * (a1 - a0), 0.0)
             out['trend_even'] = np.where(known, b0 + h * (b1 - b0), 0.0)
         return out

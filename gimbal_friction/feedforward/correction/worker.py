@@ -111,7 +111,7 @@ def run_job(master: Correction | None, job: Job) -> tuple[Correction, Result]:
     for j in master.identity.joints:
         st = master.joint(j)
         res.joints[j] = {'applied': st.applied, 'candidate': st.candidate, 'target': st.target,
-                         'searched_at': st.searched_at, 'angle_range': st.angle_range,
+                         'searched_at': st.searched_at, 'angle_range': st.angle_range, 'bin_ranges': st.bin_ranges,
                          'periods': master.periods[j], 'lookup': master.lookups[j]}
         res.cells[j] = master.cells(j)
     res.summary = master.summary()
@@ -349,7 +349,7 @@ class BackgroundLearner(Learner):
         for j, jf in res.joints.items():
             st = c.joint(j)
             st.applied, st.candidate, st.target = jf['applied'], jf['candidate'], jf['target']
-            st.searched_at, st.angle_range = jf['searched_at'], jf['angle_range']
+            st.searched_at, st.angle_range, st.bin_ranges = jf['searched_at'], jf['angle_range'], jf['bin_ranges']
             c.periods[j] = jf['periods']
             old, new = c.lookups[j], jf['lookup']
             if old is not None:
