@@ -114,7 +114,7 @@ def correction_signature(correction: Correction, joint: str) -> Array:
         t, v, p = np.meshgrid(centres, sign * speeds, positions, indexing='ij')
         m = np.broadcast_to(model[:, None, None], t.shape)
         along = correction.along_nm_array(joint, t, v, p, m)
-        out[d] = (sign * along).reshape(nt, -1)
+        out[d] = along.reshape(nt, -1)
     return out
 
 
