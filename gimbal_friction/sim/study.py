@@ -79,6 +79,8 @@ from gimbal_friction.feedforward.correction import (
     LearningSettings,
     model_identity,
 )
+from gimbal_friction.feedforward.correction.judge import LoopJudge
+from gimbal_friction.feedforward.correction.settings import JudgeSettings
 from gimbal_friction.feedforward.rule import FeedforwardSettings, check_velocity_source
 from gimbal_friction.physics.params import AxisParams
 from gimbal_friction.refit.fit import FIT_PARAMETERS, RefitResult, refit_stats
@@ -90,6 +92,7 @@ from gimbal_friction.sim.compensation import (
     EXTRA_CASES,
     JOINT,
     Compensator,
+    ControllerInputs,
     constant_coulomb,
     model_friction,
     suite_feedforward,
@@ -116,6 +119,7 @@ __all__ = [
     'SHORT_DURATIONS',
     'STUDY_CORRECTION',
     'STUDY_GOALS',
+    'STUDY_JUDGE',
     'STUDY_LEARNING',
     'TRUTH_TERMS',
     'ChamberHook',
@@ -128,6 +132,7 @@ __all__ = [
     'explain_misses',
     'goal_checks',
     'goal_legend',
+    'judged_compensator',
     'refit_rows',
     'run_study',
     'study_settings',
@@ -172,6 +177,8 @@ STUDY_CORRECTION = CorrectionSettings()
 #: per minute (the node's default is 3e-4: the study compresses a service life into a history of two minutes or less,
 #: :func:`study_settings` states the factor).
 STUDY_LEARNING = LearningSettings(max_rate_nm_per_min=1e-2)
+#: The loop's judge of case ``learned``: the node's defaults (``learning_judge`` on, the ``judge_*`` parameters).
+STUDY_JUDGE = JudgeSettings()
 #: Cases in report order (``learning``: the learning run of ``learned``, scored on its own seed and motions).
 REPORT_ORDER = (*CASES[:4], 'learning', *CASES[4:], *EXTRA_CASES)
 #: Gap between the stamps of successive runs in the estimator's streams [s] (a run's stamps never overlap another's).
@@ -203,11 +210,13 @@ class FeedforwardSetup(NamedTuple):
 
 
 class LearnSetup(NamedTuple):
-    """How case ``learned`` learns (the correction's settings, the learner's, the length of the service history)."""
+    """How case ``learned`` learns (the correction's settings, the learner's, the length of the service history, the
+    loop's judge: None for the residual guard alone)."""
 
     correction: CorrectionSettings = STUDY_CORRECTION
     learning: LearningSettings = STUDY_LEARNING
     duration_factor: float = LEARN_FACTOR   #: passes of the service history [-]
+    judge: JudgeSettings | None = STUDY_JUDGE
 
 
 def study_settings(learn: LearnSetup) -> dict[str, Any]:
@@ -215,8 +224,13 @@ def study_settings(learn: LearnSetup) -> dict[str, Any]:
     ``{'study': …, 'node': …}``, names as the node's parameters), ``time_compression`` (study rate / node rate [-]:
     an hour of service is learned in 1/that of an hour) and the service history's length."""
     diffs: dict[str, Any] = {}
-    for prefix, mine, node in (('correction_', learn.correction, CorrectionSettings()),
-                               ('learning_', learn.learning, LearningSettings())):
+    pairs: list[tuple[str, Any, Any]] = [('correction_', learn.correction, CorrectionSettings()),
+                                         ('learning_', learn.learning, LearningSettings())]
+    if learn.judge is None:
+        diffs['learning_judge'] = {'study': 'off', 'node': 'auto'}
+    else:
+        pairs.append(('judge_', learn.judge, JudgeSettings()))
+    for prefix, mine, node in pairs:
         for f in dataclasses.fields(mine):
             a, b = getattr(mine, f.name), getattr(node, f.name)
             if a != b:
@@ -265,6 +279,7 @@ class StudyResult(NamedTuple):
     learned: dict[str, Correction] | None = None   #: ``history`` (case ``learned``) and ``chamber``: the corrections
     learners: dict[str, Learner] | None = None     #: ``history``: the learner of case ``learned`` (counters, state)
     chamber: dict[str, Any] | None = None          #: case ``chamber``: what its chamber path read
+    judges: dict[str, LoopJudge] | None = None     #: ``history``: the loop's judge of case ``learned`` (frozen)
 
     @property
     def refit_params(self) -> AxisParams | None:
@@ -440,27 +455,59 @@ def window_ratio(result: BatchResult, run: int, reference: int, window_s: float 
     return float(ratio.max())
 
 
+def judged_compensator(plain: Compensator, corrected: Compensator, judge: LoopJudge) -> Compensator:
+    """The feedforward the loop's judge chooses per run and tick: ``corrected`` (the learned correction) where
+    :meth:`~gimbal_friction.feedforward.correction.judge.LoopJudge.use_candidate` says so for the run's cell (the
+    latest temperature published [°C], the resolver's joint rate [rad/s]), ``plain`` (the model) elsewhere; both are
+    evaluated every tick, so each keeps its temperature state. Delayed like ``corrected``."""
+    def torque(inputs: ControllerInputs) -> Array:
+        use = judge.use_candidate_array(JOINT, inputs.temperature_c, inputs.joint_velocity_rad_s, inputs.time_s)
+        a = np.asarray(plain.torque(inputs), dtype=float)
+        b = np.asarray(corrected.torque(inputs), dtype=float)
+        return np.asarray(np.where(use, b, a), dtype=float)
+
+    return Compensator(torque, corrected.delayed)
+
+
+def _judge_chunk(result: BatchResult, k0: int, k1: int, runs: Sequence[int], judge: LoopJudge) -> None:
+    """The loop error of ticks [k0, k1) of the learning runs to the judge: the LOS rate error the controller
+    measures (gyro − the target's rate [rad/s]; no truth), with the temperature the sensor published [°C] and the
+    resolver's joint rate [rad/s]."""
+    tr, prof = result.traces, result.profile
+    t = prof.time_s[k0:k1]
+    for i in runs:
+        judge.observe(JOINT, t, tr.temperature_c[k0:k1, i], tr.joint_velocity_rad_s[k0:k1, i],
+                      tr.gyro_rate_rad_s[k0:k1, i] - prof.target_rate_rad_s[k0:k1])
+
+
 def _learning_batch(cfg: SimConfig, axis: AxisParams, ff: FeedforwardSetup, prof: Profile, temps: Sequence[float],
                     learn: LearnSetup, estimator: EstimatorSettings, want_learned: bool,
-                    report: Callable[[float], None]) -> tuple[BatchResult, Learner | None]:
+                    report: Callable[[float], None]) -> tuple[BatchResult, Learner | None, LoopJudge | None]:
     """The service history at every plateau (seed :data:`LEARN_SEED`): the plain feedforward (the refit's data and
     the reference of the cost while learning) and, with ``want_learned``, the feedforward learning online (one
     :class:`~gimbal_friction.feedforward.correction.Learner` over the plateaus, from an empty correction, stepped at
-    its ``step_period_s`` like the node's timer)."""
+    its ``step_period_s`` like the node's timer). With ``learn.judge``, the loop's judge
+    (:class:`~gimbal_friction.feedforward.correction.judge.LoopJudge`) chooses per cell and block between the
+    learned correction and the model, from the learning runs' loop error; it is frozen at the end."""
     runs = [Run('feedforward', t, LEARN_SEED) for t in temps]
     comps = {'feedforward': ff.compensator(axis)}
     learner: Learner | None = None
+    judge: LoopJudge | None = None
     if want_learned:
         learner = Learner(Correction(learn.correction, model_identity({JOINT: axis})), learn.learning)
         runs += [Run('learned', t, LEARN_SEED) for t in temps]
         comps['learned'] = ff.compensator(axis, correction=learner.correction)
+        if learn.judge is not None:
+            judge = LoopJudge(learn.correction, (JOINT,), learn.judge)
+            comps['learned'] = judged_compensator(ff.compensator(axis), comps['learned'], judge)
     loop = ClosedLoop(cfg, axis, prof, runs, comps)
     if learner is None:
         while not loop.done:
             loop.step()
             if loop.k % 1000 == 0:
                 report(loop.k / loop.ticks)
-        return loop.result(), None
+        return loop.result(), None, None
+    judged = [i for i, r in enumerate(runs) if r.case == 'learned']
     settings = dataclasses.replace(estimator, method='observer')
     logics = {i: EstimatorLogic({JOINT: axis}, settings) for i, r in enumerate(runs) if r.case == 'learned'}
     model = model_friction(axis)
@@ -472,15 +519,22 @@ def _learning_batch(cfg: SimConfig, axis: AxisParams, ff: FeedforwardSetup, prof
     while not loop.done:
         for _ in range(min(chunk, loop.ticks - loop.k)):
             loop.step()
-        _learn_chunk(loop.result(), k0, loop.k, logics, learner, model, 0)
+        res = loop.result()
+        _learn_chunk(res, k0, loop.k, logics, learner, model, 0)
+        if judge is not None:
+            _judge_chunk(res, k0, loop.k, judged, judge)
         k0 = loop.k
         now = loop.k * cfg.controller_period_s
         if now >= next_step - 1e-9:     # the node's step timer
             learner.step(now)
+            if judge is not None:
+                judge.update_candidates(learner.correction)
             next_step += period
         report(loop.k / loop.ticks)
     learner.freeze()
-    return loop.result(), learner
+    if judge is not None:
+        judge.freeze()
+    return loop.result(), learner, judge
 
 
 def _chamber_batch(cfg: SimConfig, axis: AxisParams, temps: Sequence[float], short: bool,
@@ -604,6 +658,7 @@ def run_study(config: SimConfig, axis: AxisParams | None = None, *,
     reversal: list[ReversalTrace] = []
     learned: dict[str, Correction] = {}
     learners: dict[str, Learner] = {}
+    judges: dict[str, LoopJudge] = {}
     chamber_info: dict[str, Any] | None = None
 
     def reporter(label: str, base: float, w: float) -> Callable[[float], None]:
@@ -618,8 +673,8 @@ def run_study(config: SimConfig, axis: AxisParams | None = None, *,
     if want_refit or want_learned:
         t0 = time.perf_counter()
         label = 'service history (learning)'
-        result, learner = _learning_batch(cfg, axis, ff, history, temps, lrn, est, want_learned,
-                                          reporter(label, done, weights['learning']))
+        result, learner, judge = _learning_batch(cfg, axis, ff, history, temps, lrn, est, want_learned,
+                                                 reporter(label, done, weights['learning']))
         done += weights['learning']
         ff_runs = [i for i, r in enumerate(result.runs) if r.case == 'feedforward']
         if learner is not None:
@@ -642,6 +697,18 @@ def run_study(config: SimConfig, axis: AxisParams | None = None, *,
                          f'ripple periods found: {periods}; largest |correction| '
                          f'{summ["max_abs_correction_nm"] * 1e3:.3f} N*mm, largest direction-independent torque '
                          f'{summ["max_abs_unbalance_nm"] * 1e3:.3f} N*mm, {summ["saturated_cells"]} saturated cells')
+            if judge is not None:
+                judges['history'] = judge
+                js = judge.summary()
+                verdicts = '; '.join(f'{c["direction"]} {c["centre_c"]:+.1f} degC {c["state"]} (x{c["ratio"]:.3f}, '
+                                     f'z {c["z"]:.1f}, {c["blocks_on"]}/{c["blocks_off"]} blocks on/off)'
+                                     for c in js['joints'][JOINT])
+                notes.append(f'learned: judged by the loop (blocks of {judge.settings.block_s:g} s, '
+                             f'{js["on_share"]:.2f} of them on while testing): {js["cells_applied"]} cells applied, '
+                             f'{js["cells_withdrawn"]} withdrawn, {js["cells_testing"]} still in test; '
+                             f'{verdicts or "no cell tested"}')
+            else:
+                notes.append('learned: not judged by the loop (the residual guard alone)')
         wall[label] = time.perf_counter() - t0
         if want_refit:
             t1 = time.perf_counter()
@@ -685,6 +752,8 @@ def run_study(config: SimConfig, axis: AxisParams | None = None, *,
                 comps[c] = ff.compensator(refit_params)
             elif c == 'learned':
                 comps[c] = ff.compensator(axis, correction=learned['history'])
+                if 'history' in judges:    # the cells the loop applied only (frozen)
+                    comps[c] = judged_compensator(ff.compensator(axis), comps[c], judges['history'])
             elif c == CASE_CHAMBER:
                 comps[c] = ff.compensator(axis, correction=learned['chamber'])
             elif c == 'bound':
@@ -703,7 +772,8 @@ def run_study(config: SimConfig, axis: AxisParams | None = None, *,
     prof_order = {p: i for i, p in enumerate([*profiles, 'history'])}
     records.sort(key=lambda r: (prof_order.get(r['profile'], 99), order[r['case']], r['temperature_c']))
     reversal.sort(key=lambda t: order[t.case])
-    return StudyResult(records, reversal, outcome, notes, wall, cfg, learned or None, learners or None, chamber_info)
+    return StudyResult(records, reversal, outcome, notes, wall, cfg, learned or None, learners or None, chamber_info,
+                       judges or None)
 
 
 def _refit(calibration: Sequence[tuple[BatchResult, Sequence[int]]], axis: AxisParams, cfg: SimConfig,

@@ -113,7 +113,13 @@ def test_a_new_candidate_restarts_the_test_and_a_small_change_does_not() -> None
     assert judge.state_of(J, COLD, 0.1) == 'withdrawn'
     judge.offer(J, _signature(1.1e-4))            # a refit that moved it by 10 %: the verdict stands
     assert judge.state_of(J, COLD, 0.1) == 'withdrawn'
-    judge.offer(J, _signature(2e-4))              # a new fit: tested again
+    before = judge.groups.copy()
+    judge.offer(J, _signature(2e-4))              # the same shape, twice the size: tested again, evidence halved
+    assert judge.state_of(J, COLD, 0.1) == 'testing'
+    assert before.sum() > 0 and np.array_equal(judge.groups, before // 2)
+    other = _signature(1e-4)
+    other[:, other[0, :, 0] > 0, 2] = -1e-4       # a new shape: the test starts from nothing
+    judge.offer(J, other)
     assert judge.state_of(J, COLD, 0.1) == 'testing'
     assert judge.groups.sum() == 0 and judge.cells(J) == []   # nothing counted of the new test yet
     _run(judge, 60.0, 0.8, start_s=40.0)
@@ -121,7 +127,7 @@ def test_a_new_candidate_restarts_the_test_and_a_small_change_does_not() -> None
     judge.offer(J, np.zeros((2, NT, 3)))          # back to the model: untested, off
     assert judge.state_of(J, COLD, 0.1) == 'untested'
     assert not judge.use_candidate(J, COLD, 0.1, 200.5)
-    assert judge.restarts == 4                    # two directions, twice
+    assert judge.restarts == 6                    # two directions, three times
 
 
 def test_frozen_uses_the_applied_cells_only_and_ignores_samples() -> None:
@@ -144,7 +150,7 @@ def test_late_samples_are_counted_not_judged() -> None:
     judge = LoopJudge(LAYOUT, (J,), JudgeSettings())
     judge.offer(J, _signature())
     judge.use_candidate(J, COLD, 0.1, 10.5)
-    assert judge.observe(J, [5.5, 10.6], [COLD, COLD], [0.1, 0.1], [1e-3, 1e-3]) == 1
+    assert judge.observe(J, [5.7, 10.6], [COLD, COLD], [0.1, 0.1], [1e-3, 1e-3]) == 1
     assert judge.late_samples == 1
 
 

@@ -29,9 +29,11 @@ plain model is the safe fallback.
   worse: the test stops early), or when it has shown no gain after ``max_blocks`` blocks on. An applied cell is
   withdrawn when z > ``stop_z``.
 - **A new candidate**: :meth:`LoopJudge.offer` or :meth:`LoopJudge.update_candidates` compare a cell's candidate
-  (the applied correction along the motion, sampled over speed and angle) with the one its test began on. A
-  change of more than ``restart_relative`` of its size restarts the test. A cell whose candidate is the model goes
-  back to ``untested``.
+  (the applied correction along the motion, sampled over speed and angle) with the one its test began on. If it
+  moved by more than ``restart_relative`` of its size, the cell is tested again (an applied or withdrawn cell
+  too). A new shape (more than ``restart_relative`` of it is no multiple of the old one) restarts the test from
+  nothing. The same shape at another size (a learner moving at its limited rate, a refit) resumes the test, with
+  the evidence gathered so far counting half. A cell whose candidate is the model goes back to ``untested``.
 
 Everything is bounded: arrays per cell and speed octave, plus the records of at most two groups of blocks.
 Everything is reversible: a withdrawn cell is tested again when its candidate changes, and :meth:`LoopJudge.reset`
@@ -210,10 +212,17 @@ class LoopJudge:
         ref = self._ref[j]
         if ref is None or ref.shape != sig.shape:
             ref = np.zeros(sig.shape)
+        rel = self.settings.restart_relative
         moved = np.sqrt(((sig - ref) ** 2).mean(axis=2))
-        scale = np.maximum(np.sqrt((sig ** 2).mean(axis=2)), np.sqrt((ref ** 2).mean(axis=2)))
+        size_new, size_ref = np.sqrt((sig ** 2).mean(axis=2)), np.sqrt((ref ** 2).mean(axis=2))
+        # the part of the new candidate that is no multiple of the old one (its shape changed)
+        with np.errstate(invalid='ignore', divide='ignore'):
+            k = np.where(size_ref > 0.0, (sig * ref).sum(axis=2) / np.maximum((ref * ref).sum(axis=2), 1e-300), 0.0)
+        shape = np.sqrt(((sig - k[..., None] * ref) ** 2).mean(axis=2))
         st = self.state[j]
-        restart = ~zero & ((st == UNTESTED) | (moved > self.settings.restart_relative * scale))
+        changed = ~zero & (st != UNTESTED) & (moved > rel * np.maximum(size_new, size_ref))
+        restart = ~zero & ((st == UNTESTED) | (changed & ((k <= 0.0) | (shape > rel * size_new))))
+        scaled = changed & ~restart          # the same shape, another size (a rate-limited move, a refit)
         drop = zero & (st != UNTESTED)
         for mask, new in ((restart, TESTING), (drop, UNTESTED)):
             if not mask.any():
@@ -226,11 +235,18 @@ class LoopJudge:
             for a in (self.contrast, self.std_error, self.z):
                 a[j][mask] = math.nan
             self.reason[j][mask] = 'test started on a new candidate' if new == TESTING else ''
-        self.restarts += int(np.count_nonzero(restart))
+        if scaled.any():    # tested again, the evidence on the old size counting half
+            st[scaled] = TESTING
+            self._sums[j][scaled] *= 0.5
+            for a in (self.groups, self.blocks_on, self.blocks_off):
+                a[j][scaled] //= 2
+            self.reason[j][scaled] = 'test resumed: the candidate changed size (the evidence before counts half)'
+        self.restarts += int(np.count_nonzero(restart | scaled))
         ref = ref.copy()
-        ref[restart | drop] = sig[restart | drop]
+        new_ref = restart | drop | scaled
+        ref[new_ref] = sig[new_ref]
         self._ref[j] = ref
-        if (restart | drop).any() and self._block is not None:
+        if new_ref.any() and self._block is not None:
             self._flags = self._schedule(self._block)    # (a cell untested now is off at once)
 
     def update_candidates(self, correction: Correction) -> None:

@@ -181,7 +181,7 @@ class JudgeSettings:
     """Settings of the loop's judge of the correction
     (:class:`~gimbal_friction.feedforward.correction.judge.LoopJudge`; the node's ``judge_*`` parameters)."""
 
-    block_s: float = setting(1.0, 's', 'time is cut into blocks this long; the candidate of a cell in test is on or '
+    block_s: float = setting(0.5, 's', 'time is cut into blocks this long; the candidate of a cell in test is on or '
                              'off for a whole block')
     on_share: float = setting(0.5, '-', 'share of the blocks a cell in test has its candidate on (one block on in '
                               'every group of round(1/this) blocks, chosen at random): bounds the cost of a test')
@@ -193,7 +193,7 @@ class JudgeSettings:
     max_blocks: int = setting(200, '-', 'a test that has not shown a gain after this many blocks on is withdrawn')
     applied_off_share: float = setting(0.1, '-', 'an applied cell keeps its candidate off for this share of the '
                                        'blocks, so later data can withdraw it')
-    settle_s: float = setting(0.1, 's', 'loop error of the first this long of every block is not counted (the loop '
+    settle_s: float = setting(0.05, 's', 'loop error of the first this long of every block is not counted (the loop '
                               'settling after a switch)')
     min_block_samples: int = setting(20, '-', 'loop-error samples a block needs in a cell and speed octave to count')
     memory_groups: int = setting(200, '-', 'the contrast forgets with this many groups of blocks')
