@@ -10,7 +10,7 @@ import pytest
 
 from gimbal_friction.common.errors import ConfigError
 from gimbal_friction.feedforward.correction import Correction, CorrectionSettings, model_identity
-from gimbal_friction.feedforward.correction.judge import LoopJudge, correction_signature
+from gimbal_friction.feedforward.correction.judge import RESIZE_WEIGHT, LoopJudge, correction_signature
 from gimbal_friction.feedforward.correction.settings import JudgeSettings
 
 LAYOUT = CorrectionSettings()
@@ -114,9 +114,9 @@ def test_a_new_candidate_restarts_the_test_and_a_small_change_does_not() -> None
     judge.offer(J, _signature(1.1e-4))            # a refit that moved it by 10 %: the verdict stands
     assert judge.state_of(J, COLD, 0.1) == 'withdrawn'
     before = judge.groups.copy()
-    judge.offer(J, _signature(2e-4))              # the same shape, twice the size: tested again, evidence halved
+    judge.offer(J, _signature(2e-4))              # the same shape, twice the size: tested again, evidence weighed less
     assert judge.state_of(J, COLD, 0.1) == 'testing'
-    assert before.sum() > 0 and np.array_equal(judge.groups, before // 2)
+    assert before.sum() > 0 and np.array_equal(judge.groups, np.floor(before * RESIZE_WEIGHT))
     other = _signature(1e-4)
     other[:, other[0, :, 0] > 0, 2] = -1e-4       # a new shape: the test starts from nothing
     judge.offer(J, other)

@@ -23,17 +23,17 @@ plain model is the safe fallback.
   because the loop is still settling after a switch. For each block and speed octave with at least
   ``min_block_samples`` samples, the judge takes x = ln(mean e²).
 - **Contrast**: for each complete group, d = mean x(on) − mean x(off), taken per speed octave seen both on and
-  off, then weighted over the octaves by their samples. Across groups the judge tracks the mean of d and its
+  off, then weighted over the octaves by their samples, and clipped to ±:data:`D_CLIP` (a slew in one block). Across groups the judge tracks the mean of d and its
   standard error, forgetting over ``memory_groups``. A cell in test is applied when z = mean/SE < −``z`` and it
   has at least ``min_blocks`` blocks each way. It is withdrawn when z > ``stop_z`` (the candidate makes the loop
   worse: the test stops early), or when it has shown no gain after ``max_blocks`` blocks on. An applied cell is
   withdrawn when z > ``stop_z``.
 - **A new candidate**: :meth:`LoopJudge.offer` or :meth:`LoopJudge.update_candidates` compare a cell's candidate
   (the applied correction along the motion, sampled over speed and angle) with the one its test began on. If it
-  moved by more than ``restart_relative`` of its size, the cell is tested again (an applied or withdrawn cell
-  too). A new shape (more than ``restart_relative`` of it is no multiple of the old one) restarts the test from
-  nothing. The same shape at another size (a learner moving at its limited rate, a refit) resumes the test, with
-  the evidence gathered so far counting half. A cell whose candidate is the model goes back to ``untested``.
+  moved by more than ``restart_relative`` of its size, the test goes on in one of two ways. A new shape (more than ``restart_relative`` of it is no multiple of the old one) restarts the test from
+  nothing. The same shape at another size (a learner moving at its limited rate, a refit) keeps its state and its
+  evidence, which counts :data:`RESIZE_WEIGHT` from then on (a withdrawn cell is tested again). A cell whose
+  candidate is the model goes back to ``untested``.
 
 Everything is bounded: arrays per cell and speed octave, plus the records of at most two groups of blocks.
 Everything is reversible: a withdrawn cell is tested again when its candidate changes, and :meth:`LoopJudge.reset`
@@ -83,6 +83,10 @@ UNTESTED, TESTING, APPLIED, WITHDRAWN = range(4)
 ZERO_NM = 1e-9
 #: positions a cell's candidate is sampled at over the range its angle terms were fitted on [-]
 SIGNATURE_POSITIONS = 8
+#: the evidence gathered on a candidate counts this much once it changed size but not shape [-]
+RESIZE_WEIGHT = 0.75
+#: a group's contrast is clipped to ± this (a slew or a disturbance in one block of a group; e³ = 20 in mean square)
+D_CLIP = 3.0
 #: ln of this is added to a block's mean squared error (an error of exactly zero) [rad²/s²]
 TINY_E2 = 1e-30
 
@@ -235,12 +239,13 @@ class LoopJudge:
             for a in (self.contrast, self.std_error, self.z):
                 a[j][mask] = math.nan
             self.reason[j][mask] = 'test started on a new candidate' if new == TESTING else ''
-        if scaled.any():    # tested again, the evidence on the old size counting half
-            st[scaled] = TESTING
-            self._sums[j][scaled] *= 0.5
+        if scaled.any():    # the evidence on the old size counts less; a withdrawn cell is tested again
+            again = scaled & (st == WITHDRAWN)
+            st[again] = TESTING
+            self._sums[j][scaled] *= RESIZE_WEIGHT
             for a in (self.groups, self.blocks_on, self.blocks_off):
-                a[j][scaled] //= 2
-            self.reason[j][scaled] = 'test resumed: the candidate changed size (the evidence before counts half)'
+                a[j][scaled] = np.floor(a[j][scaled] * RESIZE_WEIGHT)
+            self.reason[j][again] = 'tested again: the candidate changed size'
         self.restarts += int(np.count_nonzero(restart | scaled))
         ref = ref.copy()
         new_ref = restart | drop | scaled
@@ -417,7 +422,7 @@ class LoopJudge:
             w = np.where(both, np.minimum(n_on, n_off), 0.0)
             wsum = w.sum(axis=-1)
             dg = np.where(both, x_on - x_off, 0.0)
-            d = (w * dg).sum(axis=-1) / wsum
+            d = np.clip((w * dg).sum(axis=-1) / wsum, -D_CLIP, D_CLIP)
         cells &= wsum > 0.0
         if not cells.any():
             return

@@ -189,7 +189,7 @@ class JudgeSettings:
                        'this many standard errors (ln mean squared LOS rate error, on - off)')
     stop_z: float = setting(2.0, '-', 'a test is stopped (the cell withdrawn to the model) when the loop error with '
                             'the candidate on is higher by this many standard errors; an applied cell likewise')
-    min_blocks: int = setting(6, '-', 'blocks on and off each a cell needs before a verdict')
+    min_blocks: int = setting(4, '-', 'blocks on and off each a cell needs before a verdict')
     max_blocks: int = setting(200, '-', 'a test that has not shown a gain after this many blocks on is withdrawn')
     applied_off_share: float = setting(0.1, '-', 'an applied cell keeps its candidate off for this share of the '
                                        'blocks, so later data can withdraw it')
