@@ -20,7 +20,8 @@ plain model is the safe fallback.
   array that is recomputed once per block.
 - **Samples**: the loop error (the LOS rate error the controller sees [rad/s]) is summed per block into the cell
   the gimbal was in and its speed octave (matched conditions). The first ``settle_s`` of each block is skipped,
-  because the loop is still settling after a switch. For each block and speed octave with at least
+  because the loop is still settling after a switch; a sample counts at most ``error_cap_rad_s`` (a slew's error
+  is the reference's, not the friction's, and would drown a block). For each block and speed octave with at least
   ``min_block_samples`` samples, the judge takes x = ln(mean e²).
 - **Contrast**: for each complete group, d = mean x(on) − mean x(off), taken per speed octave seen both on and
   off, then weighted over the octaves by their samples, and clipped to ±:data:`D_CLIP` (a slew in one block). Across groups the judge tracks the mean of d and its
@@ -185,6 +186,8 @@ class LoopJudge:
         self.late_samples = 0      #: loop-error samples whose block was already closed (or never entered) [-]
         self.samples = 0           #: loop-error samples counted [-]
         self.restarts = 0          #: tests (re)started on a new candidate [-]
+        #: per joint, the temperature [°C] and velocity [rad/s] of the latest :meth:`use_candidate`
+        self.last_motion: dict[str, tuple[float, float]] = {}
 
     def _cell(self, joint: str, temperature_c: float, velocity_rad_s: float) -> tuple[int, int, int] | None:
         j = self._index.get(joint)
@@ -300,6 +303,7 @@ class LoopJudge:
         block. An unknown joint, or a NaN temperature, gets False."""
         if self._block is None or now_s >= (self._block + 1) * self.settings.block_s:
             self._enter(self._block_of(now_s))
+        self.last_motion[joint] = (temperature_c, velocity_rad_s)
         cell = self._cell(joint, temperature_c, velocity_rad_s)
         return cell is not None and bool(self._flags[cell])
 
@@ -357,7 +361,7 @@ class LoopJudge:
         if self._block is None or newest > self._block:
             self._enter(newest)
         keep = ts - blk * bs >= self.settings.settle_s
-        blk, t, v, e = blk[keep], t[keep], v[keep], e[keep]
+        blk, t, v, e = blk[keep], t[keep], v[keep], np.minimum(np.abs(e[keep]), self.settings.error_cap_rad_s)
         b = self._bins(t)
         d = np.where(v > 0.0, 0, 1)
         s = self.layout
@@ -380,6 +384,15 @@ class LoopJudge:
             counted += int(np.count_nonzero(sel))
         self.samples += counted
         return counted
+
+    def observe_latest(self, joint: str, stamp_s: float, rate_error_rad_s: float) -> int:
+        """:meth:`observe` of one loop-error sample of ``joint`` at ``stamp_s`` [s], in the cell and speed octave of
+        the feedforward's latest :meth:`use_candidate` of that joint (the node: the loop error arrives on its own
+        topic); 0 before any."""
+        last = self.last_motion.get(joint)
+        if last is None:
+            return 0
+        return self.observe(joint, stamp_s, last[0], last[1], rate_error_rad_s)
 
     # ------------------------------------------------------------------ verdicts
     def _close(self, rec: _Block) -> None:

@@ -181,7 +181,7 @@ class JudgeSettings:
     """Settings of the loop's judge of the correction
     (:class:`~gimbal_friction.feedforward.correction.judge.LoopJudge`; the node's ``judge_*`` parameters)."""
 
-    block_s: float = setting(0.5, 's', 'time is cut into blocks this long; the candidate of a cell in test is on or '
+    block_s: float = setting(0.2, 's', 'time is cut into blocks this long; the candidate of a cell in test is on or '
                              'off for a whole block')
     on_share: float = setting(0.5, '-', 'share of the blocks a cell in test has its candidate on (one block on in '
                               'every group of round(1/this) blocks, chosen at random): bounds the cost of a test')
@@ -195,6 +195,9 @@ class JudgeSettings:
                                        'blocks, so later data can withdraw it')
     settle_s: float = setting(0.05, 's', 'loop error of the first this long of every block is not counted (the loop '
                               'settling after a switch)')
+    error_cap_rad_s: float = setting(0.05, 'rad/s', 'a loop-error sample counts at most this large (a slew or a '
+                                     "target's jump makes errors no friction feedforward causes; a worse candidate "
+                                     'still shows: its errors count up to this)')
     min_block_samples: int = setting(20, '-', 'loop-error samples a block needs in a cell and speed octave to count')
     memory_groups: int = setting(200, '-', 'the contrast forgets with this many groups of blocks')
     restart_relative: float = setting(0.25, '-', "a cell's test restarts when its candidate moved by this fraction "
@@ -213,6 +216,7 @@ class JudgeSettings:
              'must be an integer in [min_blocks, 1e9] [-]'),
             ('applied_off_share', 0.01 <= self.applied_off_share <= 0.5, 'must lie in [0.01, 0.5] [-]'),
             ('settle_s', 0.0 <= self.settle_s < self.block_s, 'must lie in [0, block_s) [s]'),
+            ('error_cap_rad_s', 1e-6 <= self.error_cap_rad_s <= 1000.0, 'must lie in [1e-6, 1000] [rad/s]'),
             ('min_block_samples', 1 <= self.min_block_samples <= 10**9, 'must be an integer in [1, 1e9] [-]'),
             ('memory_groups', 2 <= self.memory_groups <= 10**9, 'must be an integer in [2, 1e9] [-]'),
             ('restart_relative', 0.0 < self.restart_relative <= 10.0, 'must lie in (0, 10] [-]'),
