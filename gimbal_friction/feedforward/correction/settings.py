@@ -28,6 +28,9 @@ LAYOUT = ('temperature_min_c', 'temperature_max_c', 'temperature_bin_c', 'min_sp
           'speed_bins', 'position_resolution_rad')
 #: where in-service refits run (``fit_worker``): a child process, a thread, or inline in the learner's step
 FIT_WORKERS = ('process', 'thread', 'inline')
+#: when the loop's error judges the correction (``learning_judge``): ``auto`` while a loop-error input has a
+#: publisher, ``on`` always (cells wait for loop error), ``off`` never (the residual guard alone)
+JUDGE_MODES = ('auto', 'on', 'off')
 #: settings of earlier versions that no longer exist, and why (a parameter file naming one still loads; the node
 #: says once that it has no effect)
 RETIRED = {
@@ -161,6 +164,9 @@ class LearningSettings:
                               'priority), thread, or inline (in the step, delaying the feedforward)')
     fit_timeout_s: float = setting(30.0, 's', 'a refit still running after this long is counted as timed out '
                                    '(a process worker is stopped and restarted)')
+    judge: str = setting('auto', '-', "the loop's error judges each cell of the correction in randomised on/off "
+                         'blocks (/gimbal/loop_error): auto (while that topic has a publisher), on, or off (the '
+                         'residual guard alone)')
 
     def validate(self) -> None:
         """Raises ConfigError naming the setting and the rule it breaks."""
@@ -168,12 +174,8 @@ class LearningSettings:
                             'must lie in (0, 1] [N*m/min]'),
                            ('step_period_s', 0.0 < self.step_period_s <= 3600.0, 'must lie in (0, 3600] [s]'),
                            ('fit_worker', self.fit_worker in FIT_WORKERS, f'must be one of {", ".join(FIT_WORKERS)}'),
-                           ('fit_timeout_s', 0.0 < self.fit_timeout_s <= 3600.0, 'must lie in (0, 3600] [s]')])
-
-
-#: when the loop's error judges the correction (``learning_judge``): ``auto`` while a loop-error input has a
-#: publisher, ``on`` always (cells wait for loop error), ``off`` never (the residual guard alone)
-JUDGE_MODES = ('auto', 'on', 'off')
+                           ('fit_timeout_s', 0.0 < self.fit_timeout_s <= 3600.0, 'must lie in (0, 3600] [s]'),
+                           ('judge', self.judge in JUDGE_MODES, f'must be one of {", ".join(JUDGE_MODES)}')])
 
 
 @dataclass(frozen=True)
