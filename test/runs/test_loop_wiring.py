@@ -12,7 +12,14 @@ import pytest
 from gimbal_friction.common.errors import GimbalFrictionError
 from gimbal_friction.runs import loop_live
 from gimbal_friction.runs.loop_study import load_study_inputs
-from gimbal_friction.runs.loop_wiring import LOOP_ERROR_REMAP, LOOP_NODES, SimRun, closed_loop, loop_nodes, write_parameter_files
+from gimbal_friction.runs.loop_wiring import (
+    LOOP_ERROR_REMAP,
+    LOOP_NODES,
+    SimRun,
+    closed_loop,
+    loop_nodes,
+    write_parameter_files,
+)
 
 
 def test_the_loop_is_three_nodes_then_gimbal_sim_with_the_live_studys_defaults(tmp_path):

@@ -34,5 +34,5 @@ from gimbal_friction.feedforward.correction.settings import (
 from gimbal_friction.feedforward.correction.stats import REASONS, gate_code
 
 __all__ = ['DIRECTIONS', 'GUARD_TERMS', 'LAYOUT', 'REASONS', 'RETIRED', 'R_FROZEN', 'R_UNKNOWN', 'Correction',
-           'CorrectionError', 'CorrectionKeeper', 'CorrectionSettings', 'JudgeSettings', 'Learner', 'LearningSettings', 'Loaded',
-           'ModelIdentity', 'Verdict', 'gate_code', 'load', 'load_file', 'model_identity', 'save']
+           'CorrectionError', 'CorrectionKeeper', 'CorrectionSettings', 'JudgeSettings', 'Learner', 'LearningSettings',
+           'Loaded', 'ModelIdentity', 'Verdict', 'gate_code', 'load', 'load_file', 'model_identity', 'save']

@@ -12,31 +12,33 @@ plain model is the safe fallback.
 - **Cells** are joint × direction × temperature bin of the correction (the layout of its
   :class:`~gimbal_friction.feedforward.correction.settings.CorrectionSettings`). Each cell is ``untested`` (the
   applied correction does not differ from the model there), ``testing``, ``applied`` or ``withdrawn``.
-- **Blocks**: time is cut into blocks of ``block_s``. In every group of ``G = round(1/on_share)`` consecutive
-  blocks, a cell in test has its candidate on in exactly one block, chosen by a seeded random draw. An applied
-  cell has its candidate off in one block of every ``round(1/applied_off_share)``, so later data can still
-  withdraw it. The share of blocks on is fixed (not just its expected value), and each group compares blocks close
-  together in time. The feedforward asks :meth:`LoopJudge.use_candidate` on every call; this is a lookup in an
-  array that is recomputed once per block.
-- **Samples**: the loop error (the LOS rate error the controller sees [rad/s]) is summed per block into the cell
-  the gimbal was in and its speed octave (matched conditions). The first ``settle_s`` of each block is skipped,
-  because the loop is still settling after a switch; a sample counts at most ``error_cap_rad_s`` (a slew's error
-  is the reference's, not the friction's, and would drown a block). For each block and speed octave with at least
+- **Blocks**: time is cut into blocks of ``block_s``. In every group of ``G = round(1/on_share)`` consecutive blocks,
+  a cell in test has its candidate on in exactly one block, chosen by a seeded random draw. An applied cell has its
+  candidate off in one block of every ``round(1/applied_off_share)``, so later data can still withdraw it. The share
+  of blocks on is fixed (not just its expected value), and each group compares blocks close together in time. The
+  feedforward asks :meth:`LoopJudge.use_candidate` on every call; this is a lookup in an array that is recomputed once
+  per block.
+- **Samples**: the loop error (the LOS rate error the controller sees [rad/s]) is summed per block into the cell the
+  gimbal was in and its speed octave (matched conditions). The first ``settle_s`` of each block is skipped, because
+  the loop is still settling after a switch; a sample counts at most ``error_cap_rad_s`` (a slew's error is the
+  reference's, not the friction's, and would drown a block). For each block and speed octave with at least
   ``min_block_samples`` samples, the judge takes x = ln(mean e²).
-- **Contrast**: for each complete group, d = mean x(on) − mean x(off), taken per speed octave seen both on and
-  off, then weighted over the octaves by their samples, and clipped to ±:data:`D_CLIP` (a slew in one block). Across groups the judge tracks the mean of d and its
-  standard error, forgetting over ``memory_groups``. A cell in test is applied when z = mean/SE < −``z`` and it
-  has at least ``min_blocks`` blocks each way. It is withdrawn when z > ``stop_z`` (the candidate makes the loop
-  worse: the test stops early), or when it has shown no gain after ``max_blocks`` blocks on. An applied cell is
-  withdrawn when z > ``stop_z``.
-- **A new candidate**: :meth:`LoopJudge.offer` or :meth:`LoopJudge.update_candidates` compare a cell's candidate
-  (the applied correction along the motion, sampled over speed and angle) with the one its test began on. If it
-  moved by more than ``restart_relative`` of its size, the test goes on in one of two ways. A new shape (more than ``restart_relative`` of it is no multiple of the old one) restarts the test from
-  nothing. The same shape at another size (a learner moving at its limited rate, a refit) keeps its state and its
-  evidence, which counts :data:`RESIZE_WEIGHT` from then on (a withdrawn cell is tested again). A cell whose
-  candidate is the model goes back to ``untested``.
+- **Contrast**: for each complete group, d = mean x(on) − mean x(off), taken per speed octave seen both on and off,
+  then weighted over the octaves by their samples, and clipped to ±:data:`D_CLIP` (a slew in one block). Across groups
+  the judge tracks the mean of d and its standard error, forgetting over ``memory_groups``. A cell in test is applied
+  when z = mean/SE < −``z`` and it has at least ``min_blocks`` blocks each way. It is withdrawn when z > ``stop_z``
+  (the candidate makes the loop worse: the test stops early), or when it has shown no gain after ``max_blocks`` blocks
+  on. An applied cell is withdrawn when z > ``stop_z``.
+- **A new candidate**: :meth:`LoopJudge.offer` or :meth:`LoopJudge.update_candidates` compare a cell's candidate (the
+  applied correction along the motion, sampled over speed and angle) with the one its test began on. If it moved by
+  more than ``restart_relative`` of its size, the test goes on in one of two ways. A new shape (more than
+  ``restart_relative`` of it is no multiple of the old one) restarts the test from nothing. The same shape at another
+  size (a learner moving at its limited rate, a refit) keeps its state and its evidence, which counts
+  :data:`RESIZE_WEIGHT` from then on (a withdrawn cell is tested again). A cell whose candidate is the model goes back
+  to ``untested``.
 
-Everything is bounded: arrays per cell and speed octave, plus the records of at most two groups of blocks.
+Everything is bounded: arrays per cell and speed octave, plus the records of the last blocks (one group of the
+longest kind).
 Everything is reversible: a withdrawn cell is tested again when its candidate changes, and :meth:`LoopJudge.reset`
 starts over. :meth:`LoopJudge.summary` and :meth:`LoopJudge.cells` report what the judge has done.
 
@@ -191,7 +193,7 @@ class LoopJudge:
 
     def _cell(self, joint: str, temperature_c: float, velocity_rad_s: float) -> tuple[int, int, int] | None:
         j = self._index.get(joint)
-        if j is None or not temperature_c == temperature_c:
+        if j is None or temperature_c != temperature_c:
             return None
         s = self.layout
         b = int((temperature_c - s.temperature_min_c) // s.temperature_bin_c)
