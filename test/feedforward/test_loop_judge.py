@@ -103,7 +103,23 @@ def test_an_applied_cell_keeps_blocks_off_and_is_withdrawn_when_later_data_falsi
     assert judge.state_of(J, COLD, 0.1) == 'applied'
     _run(judge, 400.0, 2.0, start_s=60.0)   # the gimbal changed: the candidate now hurts
     assert judge.state_of(J, COLD, 0.1) == 'withdrawn'
-    assert 'falsified' in next(c for c in judge.cells(J) if c['direction'] == 'cw')['reason']
+    assert judge.state_of(J, COLD, -0.1) == 'withdrawn'
+    reasons = [c['reason'] for c in judge.cells(J)]
+    assert any('falsified' in r for r in reasons), reasons
+    assert not any(_run(judge, 5.0, 2.0, start_s=460.0))     # back to the model
+
+
+def test_both_directions_of_a_bin_are_switched_together() -> None:
+    judge = LoopJudge(LAYOUT, (J,), JudgeSettings())
+    judge.offer(J, _signature())
+    for k in range(40):
+        t = 0.2 * k + 0.1
+        assert judge.use_candidate(J, COLD, 0.1, t) == judge.use_candidate(J, COLD, -0.1, t)
+    sig = _signature()
+    b = int((COLD - LAYOUT.temperature_min_c) // LAYOUT.temperature_bin_c)
+    judge.state[0, 1, b] = 3                     # the ccw direction withdrawn: the whole bin is the model
+    judge.offer(J, sig)
+    assert not any(judge.use_candidate(J, COLD, v, 10.0 + 0.2 * k) for k in range(20) for v in (0.1, -0.1))
 
 
 def test_a_new_candidate_restarts_the_test_and_a_small_change_does_not() -> None:

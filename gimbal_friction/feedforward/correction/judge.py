@@ -11,7 +11,10 @@ plain model is the safe fallback.
 
 - **Cells** are joint × direction × temperature bin of the correction (the layout of its
   :class:`~gimbal_friction.feedforward.correction.settings.CorrectionSettings`). Each cell is ``untested`` (the
-  applied correction does not differ from the model there), ``testing``, ``applied`` or ``withdrawn``.
+  applied correction does not differ from the model there), ``testing``, ``applied`` or ``withdrawn``. Each
+  direction is judged on its own, but both directions of a bin are switched together: a bin uses its correction only
+  where each direction with a candidate says on (the part independent of the direction, an unbalance, must not
+  step at a reversal).
 - **Blocks**: time is cut into blocks of ``block_s``. In every group of ``G = round(1/on_share)`` consecutive blocks,
   a cell in test has its candidate on in exactly one block, chosen by a seeded random draw. An applied cell has its
   candidate off in one block of every ``round(1/applied_off_share)``, so later data can still withdraw it. The share
@@ -272,18 +275,26 @@ class LoopJudge:
             if len(self._positions) > 8:
                 self._positions.clear()
             rng = np.random.default_rng([self.settings.seed, group_len, group & 0x7FFFFFFF])
-            pos = rng.integers(0, group_len, size=self._shape)
+            j, _, nt = self._shape      # (one draw for both directions of a bin: they are switched together)
+            pos = np.broadcast_to(rng.integers(0, group_len, size=(j, 1, nt)), self._shape).copy()
             self._positions[key] = pos
         return pos
 
     def _schedule(self, block: int) -> NDArray[np.bool_]:
-        """Whether each cell's candidate is on in ``block``."""
+        """Whether each cell's candidate is on in ``block``. Both directions of a bin are on together or off
+        together: the correction's part independent of the direction (an unbalance) switched on in one direction
+        only would step at every reversal and kick the rate loop's integrator. So a bin is on only where each of
+        its directions with a candidate is on (a withdrawn direction keeps the whole bin on the model)."""
         if self.frozen:
-            return np.asarray(self.state == APPLIED)
-        gt, ga = self._g_test, self._g_applied
-        on_test = self._positions_of(gt, block // gt) == block % gt
-        on_applied = self._positions_of(ga, block // ga) != block % ga
-        return np.asarray(np.where(self.state == TESTING, on_test, (self.state == APPLIED) & on_applied))
+            flags = np.asarray(self.state == APPLIED)
+        else:
+            gt, ga = self._g_test, self._g_applied
+            on_test = self._positions_of(gt, block // gt) == block % gt
+            on_applied = self._positions_of(ga, block // ga) != block % ga
+            flags = np.asarray(np.where(self.state == TESTING, on_test, (self.state == APPLIED) & on_applied))
+        has = self.state != UNTESTED
+        tied = (flags | ~has).all(axis=1, keepdims=True) & has.any(axis=1, keepdims=True)
+        return np.asarray(np.broadcast_to(tied, self._shape).copy())
 
     def _enter(self, block: int) -> None:
         """Time reached ``block``: its schedule is drawn, and the blocks two or more before it are closed."""
@@ -485,6 +496,11 @@ class LoopJudge:
                 self.state[c] = WITHDRAWN
                 self.reason[c] = (f'falsified: loop error higher with it: mean square x{ratio:.3f}, {z:.1f} '
                                   f'standard errors')
+            if self.state[c] == WITHDRAWN:   # the bin's directions are switched together: both to the model
+                other = (c[0], 1 - c[1], c[2])
+                if self.state[other] in (TESTING, APPLIED):
+                    self.state[other] = WITHDRAWN
+                    self.reason[other] = f'withdrawn with the {DIRECTIONS[c[1]]} direction of its bin (switched together)'
 
     # ------------------------------------------------------------------ reports
     def applied_mask(self, joint: str) -> NDArray[np.bool_]:
