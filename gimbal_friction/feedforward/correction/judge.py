@@ -500,7 +500,8 @@ class LoopJudge:
                 other = (c[0], 1 - c[1], c[2])
                 if self.state[other] in (TESTING, APPLIED):
                     self.state[other] = WITHDRAWN
-                    self.reason[other] = f'withdrawn with the {DIRECTIONS[c[1]]} direction of its bin (switched together)'
+                    self.reason[other] = (f'withdrawn with the {DIRECTIONS[c[1]]} direction of its bin (switched '
+                                          'together)')
 
     # ------------------------------------------------------------------ reports
     def applied_mask(self, joint: str) -> NDArray[np.bool_]:
