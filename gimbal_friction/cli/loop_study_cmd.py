@@ -73,6 +73,10 @@ def add_parser(sub: Any) -> None:
                         help="cases learned/chamber: prior samples n0 (default the node's, 50; another value is "
                         'reported in settings.differs_from_node_default)')
     parser.add_argument('--learn-position-bins', type=int, default=None, metavar='N', help=argparse.SUPPRESS)
+    parser.add_argument('--learn-judge', choices=('on', 'off'), default='on',
+                        help="case learned: the loop's error judges each cell of the correction in randomised on/off "
+                        "blocks (on, default: the node's learning_judge with a loop-error input) or the residual "
+                        'guard alone (off)')
     parser.add_argument('--learn-factor', type=float, default=None, metavar='X',
                         help='cases learned/refit: passes of the service history (64 s each, 19 s with --short), on '
                         'another noise seed (default 2)')
@@ -159,7 +163,7 @@ def _learn_setup(args: argparse.Namespace) -> Any:
         lrn = dataclasses.replace(lrn, max_rate_nm_per_min=args.learn_rate)
     if args.learn_factor is not None:
         factor = args.learn_factor
-    return LearnSetup(corr, lrn, factor)
+    return LearnSetup(corr, lrn, factor, base.judge if getattr(args, 'learn_judge', 'on') == 'on' else None)
 
 
 def _run_truths(args: argparse.Namespace, inputs: Any, temperatures: list[float], profiles: list[str],

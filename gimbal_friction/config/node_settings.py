@@ -11,12 +11,12 @@ from dataclasses import dataclass
 
 from gimbal_friction.common.errors import ConfigError, check_rules
 from gimbal_friction.common.settings import setting
-from gimbal_friction.feedforward.correction import LAYOUT, RETIRED, CorrectionSettings, LearningSettings
+from gimbal_friction.feedforward.correction import LAYOUT, RETIRED, CorrectionSettings, JudgeSettings, LearningSettings
 
 #: prefixes of the learned correction's settings and of the in-service learner's among friction_feedforward's
 #: parameters (``correction_max_relative``, ``learning_max_rate_nm_per_min``, ...): (prefix, settings class)
 FEEDFORWARD_PREFIXED: tuple[tuple[str, type], ...] = (('correction_', CorrectionSettings),
-                                                      ('learning_', LearningSettings))
+                                                      ('learning_', LearningSettings), ('judge_', JudgeSettings))
 #: fields of CorrectionSettings that lay out the cells: a learned correction keeps them (a file with other values is
 #: refused; they cannot change while the node runs)
 CORRECTION_LAYOUT = LAYOUT

@@ -25,7 +25,7 @@ import re
 from typing import NamedTuple
 
 from gimbal_friction.estimation.gating import METHODS
-from gimbal_friction.feedforward.correction.settings import FIT_WORKERS
+from gimbal_friction.feedforward.correction.settings import FIT_WORKERS, JUDGE_MODES
 from gimbal_friction.feedforward.rule import STALE_POLICIES, VELOCITY_SOURCES
 from gimbal_friction.physics.params import MODEL_T_MAX_C, MODEL_T_MIN_C, Bound, parameter_specs
 from gimbal_friction.sim.config import PRESLIDING_MODELS, PROFILES
@@ -163,6 +163,22 @@ SETTINGS_RULES: dict[str, dict[str, Rule]] = {
         'step_period_s': rule('(0, 3600]'),
         'fit_worker': rule(FIT_WORKERS, 'read at start only'),
         'fit_timeout_s': rule('(0, 3600]'),
+        'judge': rule(JUDGE_MODES),
+    },
+    'JudgeSettings': {   # (read at start)
+        'block_s': rule('[0.01, 3600]', 'read at start only'),
+        'on_share': rule('[0.01, 0.5]', 'read at start only'),
+        'z': rule('(0, 100]', 'read at start only'),
+        'stop_z': rule('(0, 100]', 'read at start only'),
+        'min_blocks': rule('[2, 1e6]', 'read at start only'),
+        'max_blocks': rule('[2, 1e9]', 'at least min_blocks; read at start only'),
+        'applied_off_share': rule('[0.01, 0.5]', 'read at start only'),
+        'settle_s': rule('[0, 3600)', 'below block_s; read at start only'),
+        'error_cap_rad_s': rule('[1e-6, 1000]', 'read at start only'),
+        'min_block_samples': rule('[1, 1e9]', 'read at start only'),
+        'memory_groups': rule('[2, 1e9]', 'read at start only'),
+        'restart_relative': rule('(0, 10]', 'read at start only'),
+        'seed': rule('>= 0', 'a whole number below 2^31; read at start only'),
     },
     'EstimatorSettings': {
         'method': rule(METHODS),
@@ -287,7 +303,8 @@ SETTINGS_RULES: dict[str, dict[str, Rule]] = {
 #: executable -> the settings classes whose fields it declares (with their prefix), in declaration order
 NODE_SETTINGS: dict[str, tuple[tuple[str, str], ...]] = {
     'friction_feedforward': (('', 'FeedforwardSettings'), ('', 'FeedforwardNodeSettings'),
-                             ('correction_', 'CorrectionSettings'), ('learning_', 'LearningSettings')),
+                             ('correction_', 'CorrectionSettings'), ('learning_', 'LearningSettings'),
+                             ('judge_', 'JudgeSettings')),
     'friction_estimator': (('', 'EstimatorSettings'), ('', 'EstimatorNodeSettings')),
     'residual_logger': (('', 'LoggerSettings'),),
     'gimbal_sim': (('', 'SimConfig'), ('', 'RealtimeSettings')),
@@ -320,11 +337,12 @@ def parameter_rule(node: str, name: str) -> Rule | None:
 def _settings_classes() -> dict[str, type]:
     from gimbal_friction.config.node_settings import EstimatorNodeSettings, FeedforwardNodeSettings, LoggerSettings
     from gimbal_friction.estimation.gating import EstimatorSettings
-    from gimbal_friction.feedforward.correction.settings import CorrectionSettings, LearningSettings
+    from gimbal_friction.feedforward.correction.settings import CorrectionSettings, JudgeSettings, LearningSettings
     from gimbal_friction.feedforward.rule import FeedforwardSettings
     from gimbal_friction.sim.config import RealtimeSettings, SimConfig
 
     classes: tuple[type, ...] = (FeedforwardSettings, FeedforwardNodeSettings, CorrectionSettings, LearningSettings,
+                                 JudgeSettings,
                                  EstimatorSettings, EstimatorNodeSettings, LoggerSettings, SimConfig,
                                  RealtimeSettings)
     return {cls.__name__: cls for cls in classes}

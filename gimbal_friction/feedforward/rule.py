@@ -63,6 +63,7 @@ from gimbal_friction.common.settings import setting
 from gimbal_friction.common.units import NS_PER_S
 from gimbal_friction.common.xp import ARRAY, SCALAR, BoolOrArray, Namespace, X
 from gimbal_friction.feedforward.correction import Correction, CorrectionError, ModelIdentity, model_identity
+from gimbal_friction.feedforward.correction.judge import LoopJudge
 from gimbal_friction.feedforward.correction.lookup import Lookup, ScalarTerms
 from gimbal_friction.physics.direction import direction_factors, select_direction
 from gimbal_friction.physics.friction import PALMGREN_THRESHOLD_CST_RPM
@@ -356,6 +357,10 @@ class Feedforward:
         self._correction: Correction | None = None
         if correction is not None:
             self.set_correction(correction)
+        #: the loop's judge of the correction (None: the correction wherever it is applied): :meth:`message` asks it
+        #: per joint whether to use the correction or the plain model
+        #: (:meth:`~gimbal_friction.feedforward.correction.judge.LoopJudge.use_candidate`)
+        self.judge: LoopJudge | None = None
         #: :func:`temperature_used` of the latest valid temperature when stale and when fresh (index: fresh)
         self._used: tuple[tuple[float, int], tuple[float, int]] = ((math.nan, SOURCE_ZERO),) * 2
         self._used_c: tuple[float, float] = (math.nan, math.nan)
@@ -648,6 +653,20 @@ class Feedforward:
             self.counters.add(self.counters.saturated, joint)
         return torque
 
+    def model_torque_nm(self, joint: str, velocity_rad_s: float, temperature_c: float) -> float:
+        """The plain model's torque [N·m] of ``joint`` at ``velocity_rad_s`` [rad/s] (finite) and
+        ``temperature_c`` [°C] (NaN: the zero policy's 0 N·m), whatever correction is set (:meth:`rule` without
+        it); saturation is counted."""
+        if temperature_c != temperature_c:
+            return 0.0
+        terms = self.tables[joint].temperature_terms(temperature_c, SCALAR)
+        k_positive, k_negative = direction_factors(self.axes[joint], temperature_c, SCALAR)
+        x: float = feedforward_torque_nm(terms, k_positive, k_negative, velocity_rad_s, self._v_th,
+                                         self._max_torque_nm, SCALAR)
+        if x >= self._max_torque_nm or x <= -self._max_torque_nm:
+            self.counters.add(self.counters.saturated, joint)
+        return x
+
     # ------------------------------------------------------------------ one message (the node)
     def message(self, names: Sequence[str], velocities: Sequence[float], time_s: float,
                 positions: Sequence[float] | None = None) -> MessageTorques | None:
@@ -680,6 +699,7 @@ class Feedforward:
         torque_nm = self.torque_nm   # (torque_at without its call)
         # the correction's lookup lists per joint (None: no learned value, the model's torque and no position)
         luts = None if self._correction is None else self._correction.lookups
+        judge = self.judge
         if luts is not None and (positions is None or len(positions) != len(names)):
             positions = None
         out_names: list[str] = []
@@ -692,7 +712,10 @@ class Feedforward:
             if v - v != 0.0:  # not finite (inf - inf and NaN - NaN are NaN)
                 c.add(bucket, NON_FINITE_VELOCITY)
                 continue
-            if luts is not None and luts[joint] is not None:
+            if luts is not None and luts[joint] is not None and judge is not None and not judge.use_candidate(
+                    joint, temperature, v, time_s):
+                torque = self.model_torque_nm(joint, v, temperature)   # the loop's judge: the model here, now
+            elif luts is not None and luts[joint] is not None:
                 p = math.nan if positions is None else float(positions[i])
                 torque = torque_nm(joint, v, time_s, p if measured else self.position(joint, p, time_s), temperature)
             else:

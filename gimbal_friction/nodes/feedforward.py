@@ -70,9 +70,11 @@ from gimbal_friction.config.node_settings import (
 from gimbal_friction.feedforward.correction import (
     CorrectionKeeper,
     CorrectionSettings,
+    JudgeSettings,
     LearningSettings,
     model_identity,
 )
+from gimbal_friction.feedforward.correction.judge import LoopJudge
 from gimbal_friction.feedforward.report import FeedforwardReport
 from gimbal_friction.feedforward.rule import (
     SOURCE_MEASURED,
@@ -110,6 +112,11 @@ from gimbal_friction.streams.inputs import effective_time
 from gimbal_friction.streams.measurement import MEASUREMENT_FIELDS, METHOD_NAMES
 
 REFERENCE_VELOCITY = topics.REFERENCE_VELOCITY
+#: the seeker's loop error (sensor_msgs/JointState per joint: position = LOS angle error [rad], velocity = LOS rate
+#: error [rad/s]): the optional input of the loop's judge of the learned correction
+LOOP_ERROR = '/gimbal/loop_error'
+#: what /diagnostics and /gimbal/friction/correction say while the loop does not judge the correction
+NOT_JUDGED = 'not judged by the loop'
 #: the learned correction (diagnostic_msgs/DiagnosticArray): one status per joint and per cell with data
 CORRECTION = topics.CORRECTION
 #: period of the timer that takes a refit finished by the learning's worker in (it never waits for one) [s]
@@ -120,7 +127,7 @@ NodeSettings = FeedforwardNodeSettings  # the node-level parameters (gimbal_fric
 
 _FF_FIELDS = field_names(FeedforwardSettings)
 _NODE_FIELDS = field_names(NodeSettings)
-_CORRECTION_PREFIX, _LEARNING_PREFIX = (prefix for prefix, _ in FEEDFORWARD_PREFIXED)
+_CORRECTION_PREFIX, _LEARNING_PREFIX, _JUDGE_PREFIX = (prefix for prefix, _ in FEEDFORWARD_PREFIXED)
 #: what /gimbal/friction/correction says of each cell with data (besides std_error_nm)
 _CELL_KEYS = ('value_nm', 'samples', 'mean_nm', 'centre_c', 'state', 'held_back', 'scored', 'rms_model_nm',
               'rms_with_nm')
@@ -154,6 +161,23 @@ def cell_values(rec: dict[str, Any]) -> dict[str, Any]:
     return values
 
 
+def judge_values(rec: dict[str, Any] | None, judging: bool) -> dict[str, Any]:
+    """The loop judge's figures of one cell on ``/gimbal/friction/correction`` (its record of
+    :meth:`~gimbal_friction.feedforward.correction.judge.LoopJudge.cells`, None: not tested yet): ``loop_state``
+    and, once tested, the blocks on and off, the ratio of the loop's mean square error on/off and its z (finite
+    numbers only)."""
+    if not judging:
+        return {'loop_state': NOT_JUDGED}
+    if rec is None:
+        return {'loop_state': 'untested'}
+    out: dict[str, Any] = {'loop_state': rec['state'], 'loop_reason': rec['reason'] or 'none',
+                           'loop_blocks_on': rec['blocks_on'], 'loop_blocks_off': rec['blocks_off']}
+    for key in ('ratio', 'z'):
+        x = rec[key]
+        out[f'loop_{key}'] = x if math.isfinite(x) else NOT_SCORED
+    return out
+
+
 def prefixed_settings(cls: type[Any], prefix: str, values: dict[str, Any], base: Any = None) -> Any:
     """Settings of ``cls`` from parameters named ``prefix + field``; a ConfigError names the parameter."""
     try:
@@ -185,7 +209,8 @@ class FrictionFeedforward(ManagedNode):
         return [lambda: ModelParameters(self), lambda: declare_settings(self, FeedforwardSettings),
                 lambda: declare_settings(self, NodeSettings),
                 lambda: declare_settings(self, CorrectionSettings, _CORRECTION_PREFIX),
-                lambda: declare_settings(self, LearningSettings, _LEARNING_PREFIX), self._declare_retired]
+                lambda: declare_settings(self, LearningSettings, _LEARNING_PREFIX),
+                lambda: declare_settings(self, JudgeSettings, _JUDGE_PREFIX), self._declare_retired]
 
     def _declare_retired(self) -> None:
         """The retired parameters: an old parameter file still loads; its value does nothing (a warning)."""
@@ -205,6 +230,7 @@ class FrictionFeedforward(ManagedNode):
         self.settings = declare_settings(self, NodeSettings)
         correction_settings = declare_settings(self, CorrectionSettings, _CORRECTION_PREFIX)
         learning_settings = declare_settings(self, LearningSettings, _LEARNING_PREFIX)
+        judge_settings = declare_settings(self, JudgeSettings, _JUDGE_PREFIX)
         self._declare_retired()
         axes = self.model.current()
         self.ff = self._build(axes, ff_settings, startup=True)
@@ -217,6 +243,11 @@ class FrictionFeedforward(ManagedNode):
         self._refused: dict[str, int] = {}  #: measured_detail messages not usable, per reason
         self._logged_save_error: str | None = None
         self._logged_fit_error: str | None = None
+        #: the loop's judge of the correction (in use while _judging: learning_judge on, or auto with a publisher of
+        #: /gimbal/loop_error)
+        self.judge = LoopJudge(correction_settings, tuple(axes), judge_settings)
+        self._judging = False
+        self._loop_error_samples = 0
         self._use_correction()
         self._candidate: tuple[Feedforward | None, NodeSettings, dict[str, Any]] | None = None
         self._last_publish = -math.inf
@@ -238,6 +269,7 @@ class FrictionFeedforward(ManagedNode):
                 timeout_s=max(SILENCE_TIMEOUT_S, ff_settings.temperature_timeout_s))
         ins.add(JointState, topics.JOINT_STATES, self.on_joint_state, JOINT_STATE_DEPTH, required=True)
         ins.add(JointState, REFERENCE_VELOCITY, self.on_reference, qos)
+        ins.add(JointState, LOOP_ERROR, self.on_loop_error, JOINT_STATE_DEPTH)
         self.pub_correction = create_publisher(self, DiagnosticArray, CORRECTION, 10)
         ins.add(Float64MultiArray, topics.MEASURED_DETAIL, self.on_measured_detail, JOINT_STATE_DEPTH)
         self._diag_timer = self.create_timer(self.settings.diagnostics_period_s, self.publish_diagnostics)
@@ -355,10 +387,35 @@ class FrictionFeedforward(ManagedNode):
 
     # ------------------------------------------------------------------ learning
     def _use_correction(self) -> None:
-        """Give the feedforward the learned correction (use_correction) or none (the pure model)."""
+        """Give the feedforward the learned correction (use_correction) or none (the pure model), and the loop's
+        judge while it judges."""
         use = self.settings.use_correction
         self.ff.set_correction(self.keeper.correction if use else None)
         self._positions = use
+        self.update_judge()
+
+    def update_judge(self) -> None:
+        """Whether the loop judges the correction (``learning_judge``: on; auto: while /gimbal/loop_error has a
+        publisher; off), and the judge told the correction's candidates (a cell whose candidate changed is tested
+        again). Judging: the feedforward asks the judge per joint and call; otherwise the residual guard alone."""
+        mode = self.keeper.learner.settings.judge
+        judging = mode == 'on' or (mode == 'auto' and self.count_publishers(LOOP_ERROR) > 0)
+        correction = self.ff.correction
+        if judging and correction is not None:
+            self.judge.update_candidates(correction)
+        self._judging = judging
+        self.ff.judge = self.judge if judging else None
+
+    def on_loop_error(self, msg: JointState) -> None:
+        """The seeker's loop error: each joint's LOS rate error (velocity [rad/s]) to the judge, in the cell the
+        feedforward last computed that joint in (ignored while the loop does not judge)."""
+        if not self._judging:
+            return
+        time_s = effective_time(stamp_to_s(msg.header.stamp), self._now_s())
+        joints = self.judge.joints
+        for name, rate_error in zip(msg.name, msg.velocity, strict=False):
+            if name in joints:
+                self._loop_error_samples += self.judge.observe_latest(name, time_s, float(rate_error))
 
     def _save_path(self) -> str:
         return self.settings.correction_file or self.settings.learning_output_file
@@ -368,6 +425,7 @@ class FrictionFeedforward(ManagedNode):
         back to false."""
         self.keeper.learner.reset()
         self.keeper.dirty = True
+        self.judge.reset()
         self.get_logger().info('learned correction reset: the feedforward is the pure model')
 
         def set_back() -> None:
@@ -423,6 +481,7 @@ class FrictionFeedforward(ManagedNode):
     def step_learning(self) -> None:
         if self.settings.learning_enabled and self.keeper.learner.step(self._now_s()):
             self.keeper.dirty = True
+        self.update_judge()
 
     def poll_learning(self) -> None:
         """Take a refit the worker finished in whole (never waits for one); a timed-out or failed one is logged
@@ -471,6 +530,14 @@ class FrictionFeedforward(ManagedNode):
     def _refuse(self, reason: str) -> None:
         self._refused[reason] = self._refused.get(reason, 0) + 1
 
+    def _judge_text(self) -> str:
+        """The loop judge's state in words (``/diagnostics``, the correction topic)."""
+        if not self._judging:
+            return NOT_JUDGED
+        js = self.judge.summary()
+        return (f'judged by the loop: {js["cells_applied"]} cells applied, {js["cells_withdrawn"]} withdrawn, '
+                f'{js["cells_testing"]} in test')
+
     def learning_state(self) -> str:
         """``off``, or the learner's state (``active``, ``frozen``, ``saturated``)."""
         return self.keeper.learner.state if self.settings.learning_enabled else 'off'
@@ -486,15 +553,18 @@ class FrictionFeedforward(ManagedNode):
             periods = js.pop('periods')
             level = WARN if js['saturated_cells'] else OK
             values = {'state': state, 'in_use': self.settings.use_correction, **js,
-                      'ripple_periods': len(periods), 'file': k.loaded_from or self._save_path() or 'none'}
+                      'ripple_periods': len(periods), 'file': k.loaded_from or self._save_path() or 'none',
+                      'loop_judge': self._judge_text()}
             for i, q in enumerate(periods, 1):   # the ripple periods found and their evidence
                 values |= {f'period_{i}_deg': q['period_deg'], f'period_{i}_amplitude': q['amplitude'],
                            f'period_{i}_z': q['z']}
             statuses.append(status(f'gimbal_friction/correction/{joint}', level, state, joint, values))
+            judged = {(c['direction'], c['bin']): c for c in self.judge.cells(joint)} if self._judging else {}
             for rec in learner.cells(joint):
                 name = f'gimbal_friction/correction/{joint}/{rec["direction"]}/{rec["centre_c"]:g}'
                 statuses.append(status(name, WARN if rec['saturated'] else OK, rec['state'], joint,
-                                       cell_values(rec)))
+                                       cell_values(rec) | judge_values(judged.get((rec['direction'], rec['bin'])),
+                                                                       self._judging)))
         self.pub_correction.publish(diagnostic_array(self, statuses))
 
     # ------------------------------------------------------------------ callbacks
@@ -602,6 +672,13 @@ class FrictionFeedforward(ManagedNode):
             'last_save_duration_s': k.last_save_duration_s if k.last_save_duration_s is not None else 'never',
             'unsaved_learning_s': k.unsaved_s(),   # what a crash now would lose
         }
+        js = self.judge.summary()
+        problems.append(self._judge_text())
+        values |= {'loop_judge': self._judge_text(), 'learning_judge': learner.settings.judge,
+                   received_key(LOOP_ERROR): self.inputs.received.get(LOOP_ERROR, 0),
+                   'judge_samples': js['samples'], 'judge_late_samples': js['late_samples'],
+                   'judge_cells_testing': js['cells_testing'], 'judge_cells_applied': js['cells_applied'],
+                   'judge_cells_withdrawn': js['cells_withdrawn'], 'judge_tests_started': js['restarts']}
         fits = self._fit_values(learner)
         new_fit = self._new_since_report('fit', {key: fits[key] for key in ('fit_timeouts', 'fit_failures')})
         if new_fit:

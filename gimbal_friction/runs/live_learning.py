@@ -117,11 +117,16 @@ def file_cells(c: Correction, joint: str) -> dict[tuple[str, str], tuple[int, fl
 def learning_parameters(learn: Any, correction_file: Path) -> dict[str, Any]:
     """``friction_feedforward``'s parameters of the live learning run: learning on, ``correction_file``, the short
     save and publish periods, and ``learn``'s (:class:`~gimbal_friction.sim.study.LearnSetup`) correction layout
-    and learning rate under their parameter names (``correction_*``, ``learning_*``)."""
+    and learning rate under their parameter names (``correction_*``, ``learning_*``) and its loop judge's
+    (``judge_*``; ``learning_judge`` off without one)."""
     out: dict[str, Any] = {'learning_enabled': True, 'correction_file': str(correction_file),
                            'learning_save_period_s': SAVE_PERIOD_S, 'correction_publish_period_s': PUBLISH_PERIOD_S}
-    for (prefix, _), settings in zip(FEEDFORWARD_PREFIXED, (learn.correction, learn.learning), strict=True):
+    judge = getattr(learn, 'judge', None)
+    for (prefix, cls), settings in zip(FEEDFORWARD_PREFIXED, (learn.correction, learn.learning, judge), strict=True):
+        settings = settings if settings is not None else cls()
         out.update({prefix + name: getattr(settings, name) for name in settings.__dataclass_fields__})
+    if judge is None:   # (the study's --learn-judge off: the residual guard alone)
+        out['learning_judge'] = 'off'
     return out
 
 

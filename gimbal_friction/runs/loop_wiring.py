@@ -10,7 +10,9 @@ and adds the feedforward it receives to its motor command; ``friction_feedforwar
 ``residual_logger`` logs both. Every node reads the parameter files of :func:`write_parameter_files`, in order:
 the packaged defaults, the study's axis (its ``model.*`` and ``axis.<joint>.*`` values, that axis only) and the
 study's own (the estimator's method and settings, the feedforward's settings, the simulator configuration);
-the topics are the suite's defaults (no remapping).
+the topics are the suite's defaults, but one: ``friction_feedforward``'s loop-error input ``/gimbal/loop_error`` is
+remapped onto ``gimbal_sim``'s ``/gimbal_sim/los_error`` (:data:`LOOP_ERROR_REMAP`: the loop's error judges the
+learned correction), which keeps its name for every other reader.
 
 >>> spec = NodeSpec('residual_logger', 'residual_logger', ('a.yaml',), {'output_dir': '/tmp/r', 'rate': 2.0})
 >>> spec.ros_args()
@@ -42,6 +44,8 @@ ESTIMATOR_METHOD = 'observer'
 WAIT_FOR_SUBSCRIBERS = len(LOOP_NODES)
 
 ParameterValue = bool | int | float | str
+#: the feedforward's loop-error input wired to the simulated seeker's LOS error (``(from, to)``)
+LOOP_ERROR_REMAP = ('/gimbal/loop_error', '/gimbal_sim/los_error')
 
 
 class NodeSpec(NamedTuple):
@@ -115,7 +119,8 @@ def loop_nodes(parameter_files: Sequence[str | Path], residual_dir: str | Path,
     if unknown:
         msg = f'not a node of the loop: {", ".join(unknown)} (the loop has {", ".join(LOOP_NODES)})'
         raise ValueError(msg)
-    return [NodeSpec(name, name, files, {'output_dir': str(residual_dir)} if name == 'residual_logger' else {})
+    return [NodeSpec(name, name, files, {'output_dir': str(residual_dir)} if name == 'residual_logger' else {},
+                     (LOOP_ERROR_REMAP,) if name == 'friction_feedforward' else ())
             for name in names]
 
 

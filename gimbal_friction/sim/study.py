@@ -80,6 +80,8 @@ from gimbal_friction.feedforward.correction import (
     LearningSettings,
     model_identity,
 )
+from gimbal_friction.feedforward.correction.judge import LoopJudge
+from gimbal_friction.feedforward.correction.settings import JudgeSettings
 from gimbal_friction.feedforward.presliding import PreslidingSettings, PreslidingTerm, ReversalRun
 from gimbal_friction.feedforward.rule import Feedforward, FeedforwardSettings, check_velocity_source, velocity_used
 from gimbal_friction.physics.params import AxisParams
@@ -93,6 +95,7 @@ from gimbal_friction.sim.compensation import (
     EXTRA_CASES,
     JOINT,
     Compensator,
+    ControllerInputs,
     constant_coulomb,
     dynamic_feedforward,
     model_friction,
@@ -121,6 +124,7 @@ __all__ = [
     'SHORT_DURATIONS',
     'STUDY_CORRECTION',
     'STUDY_GOALS',
+    'STUDY_JUDGE',
     'STUDY_LEARNING',
     'TRUTH_TERMS',
     'ChamberHook',
@@ -133,6 +137,7 @@ __all__ = [
     'explain_misses',
     'goal_checks',
     'goal_legend',
+    'judged_compensator',
     'presliding_runs',
     'refit_rows',
     'run_study',
@@ -183,6 +188,8 @@ STUDY_LEARNING = LearningSettings(max_rate_nm_per_min=1e-2)
 #: through a reversal are exactly those the static path refuses.
 PRESLIDING_ESTIMATOR: dict[str, Any] = {'observer_min_speed_rad_s': 1e-9, 'observer_max_accel_rad_s2': 1e6,
                                         'observer_max_accel_noise_rad_s2': 1e6, 'max_opposing_torque_nm': 100.0}
+#: The loop's judge of case ``learned``: the node's defaults (``learning_judge`` on, the ``judge_*`` parameters).
+STUDY_JUDGE = JudgeSettings()
 #: Cases in report order (``learning``: the learning run of ``learned``, scored on its own seed and motions).
 REPORT_ORDER = (*CASES[:4], 'learning', *CASES[4:], *EXTRA_CASES)
 #: Gap between the stamps of successive runs in the estimator's streams [s] (a run's stamps never overlap another's).
@@ -214,11 +221,13 @@ class FeedforwardSetup(NamedTuple):
 
 
 class LearnSetup(NamedTuple):
-    """How case ``learned`` learns (the correction's settings, the learner's, the length of the service history)."""
+    """How case ``learned`` learns (the correction's settings, the learner's, the length of the service history, the
+    loop's judge: None for the residual guard alone)."""
 
     correction: CorrectionSettings = STUDY_CORRECTION
     learning: LearningSettings = STUDY_LEARNING
     duration_factor: float = LEARN_FACTOR   #: passes of the service history [-]
+    judge: JudgeSettings | None = STUDY_JUDGE
 
 
 def study_settings(learn: LearnSetup) -> dict[str, Any]:
@@ -226,8 +235,13 @@ def study_settings(learn: LearnSetup) -> dict[str, Any]:
     ``{'study': …, 'node': …}``, names as the node's parameters), ``time_compression`` (study rate / node rate [-]:
     an hour of service is learned in 1/that of an hour) and the service history's length."""
     diffs: dict[str, Any] = {}
-    for prefix, mine, node in (('correction_', learn.correction, CorrectionSettings()),
-                               ('learning_', learn.learning, LearningSettings())):
+    pairs: list[tuple[str, Any, Any]] = [('correction_', learn.correction, CorrectionSettings()),
+                                         ('learning_', learn.learning, LearningSettings())]
+    if learn.judge is None:
+        diffs['learning_judge'] = {'study': 'off', 'node': 'auto'}
+    else:
+        pairs.append(('judge_', learn.judge, JudgeSettings()))
+    for prefix, mine, node in pairs:
         for f in dataclasses.fields(mine):
             a, b = getattr(mine, f.name), getattr(node, f.name)
             if a != b:
@@ -277,6 +291,7 @@ class StudyResult(NamedTuple):
     learners: dict[str, Learner] | None = None     #: ``history``: the learner of case ``learned`` (counters, state)
     chamber: dict[str, Any] | None = None          #: case ``chamber``: what its chamber path read
     presliding: PreslidingTerm | None = None       #: case ``dynamic``: the pre-sliding term learned
+    judges: dict[str, LoopJudge] | None = None     #: ``history``: the loop's judge of case ``learned`` (frozen)
 
     @property
     def refit_params(self) -> AxisParams | None:
@@ -488,27 +503,59 @@ def presliding_runs(result: BatchResult, indices: Sequence[int], axis: AxisParam
     return out
 
 
+def judged_compensator(plain: Compensator, corrected: Compensator, judge: LoopJudge) -> Compensator:
+    """The feedforward the loop's judge chooses per run and tick: ``corrected`` (the learned correction) where
+    :meth:`~gimbal_friction.feedforward.correction.judge.LoopJudge.use_candidate` says so for the run's cell (the
+    latest temperature published [°C], the resolver's joint rate [rad/s]), ``plain`` (the model) elsewhere; both are
+    evaluated every tick, so each keeps its temperature state. Delayed like ``corrected``."""
+    def torque(inputs: ControllerInputs) -> Array:
+        use = judge.use_candidate_array(JOINT, inputs.temperature_c, inputs.joint_velocity_rad_s, inputs.time_s)
+        a = np.asarray(plain.torque(inputs), dtype=float)
+        b = np.asarray(corrected.torque(inputs), dtype=float)
+        return np.asarray(np.where(use, b, a), dtype=float)
+
+    return Compensator(torque, corrected.delayed)
+
+
+def _judge_chunk(result: BatchResult, k0: int, k1: int, runs: Sequence[int], judge: LoopJudge) -> None:
+    """The loop error of ticks [k0, k1) of the learning runs to the judge: the LOS rate error the controller
+    measures (gyro − the target's rate [rad/s]; no truth), with the temperature the sensor published [°C] and the
+    resolver's joint rate [rad/s]."""
+    tr, prof = result.traces, result.profile
+    t = prof.time_s[k0:k1]
+    for i in runs:
+        judge.observe(JOINT, t, tr.temperature_c[k0:k1, i], tr.joint_velocity_rad_s[k0:k1, i],
+                      tr.gyro_rate_rad_s[k0:k1, i] - prof.target_rate_rad_s[k0:k1])
+
+
 def _learning_batch(cfg: SimConfig, axis: AxisParams, ff: FeedforwardSetup, prof: Profile, temps: Sequence[float],
                     learn: LearnSetup, estimator: EstimatorSettings, want_learned: bool,
-                    report: Callable[[float], None]) -> tuple[BatchResult, Learner | None]:
+                    report: Callable[[float], None]) -> tuple[BatchResult, Learner | None, LoopJudge | None]:
     """The service history at every plateau (seed :data:`LEARN_SEED`): the plain feedforward (the refit's data and
     the reference of the cost while learning) and, with ``want_learned``, the feedforward learning online (one
     :class:`~gimbal_friction.feedforward.correction.Learner` over the plateaus, from an empty correction, stepped at
-    its ``step_period_s`` like the node's timer)."""
+    its ``step_period_s`` like the node's timer). With ``learn.judge``, the loop's judge
+    (:class:`~gimbal_friction.feedforward.correction.judge.LoopJudge`) chooses per cell and block between the
+    learned correction and the model, from the learning runs' loop error; it is frozen at the end."""
     runs = [Run('feedforward', t, LEARN_SEED) for t in temps]
     comps = {'feedforward': ff.compensator(axis)}
     learner: Learner | None = None
+    judge: LoopJudge | None = None
     if want_learned:
         learner = Learner(Correction(learn.correction, model_identity({JOINT: axis})), learn.learning)
         runs += [Run('learned', t, LEARN_SEED) for t in temps]
         comps['learned'] = ff.compensator(axis, correction=learner.correction)
+        if learn.judge is not None:
+            judge = LoopJudge(learn.correction, (JOINT,), learn.judge)
+            comps['learned'] = judged_compensator(ff.compensator(axis), comps['learned'], judge)
     loop = ClosedLoop(cfg, axis, prof, runs, comps)
     if learner is None:
         while not loop.done:
             loop.step()
             if loop.k % 1000 == 0:
                 report(loop.k / loop.ticks)
-        return loop.result(), None
+        return loop.result(), None, None
+    judged = [i for i, r in enumerate(runs) if r.case == 'learned']
     settings = dataclasses.replace(estimator, method='observer')
     logics = {i: EstimatorLogic({JOINT: axis}, settings) for i, r in enumerate(runs) if r.case == 'learned'}
     model = model_friction(axis)
@@ -520,15 +567,22 @@ def _learning_batch(cfg: SimConfig, axis: AxisParams, ff: FeedforwardSetup, prof
     while not loop.done:
         for _ in range(min(chunk, loop.ticks - loop.k)):
             loop.step()
-        _learn_chunk(loop.result(), k0, loop.k, logics, learner, model, 0)
+        res = loop.result()
+        _learn_chunk(res, k0, loop.k, logics, learner, model, 0)
+        if judge is not None:
+            _judge_chunk(res, k0, loop.k, judged, judge)
         k0 = loop.k
         now = loop.k * cfg.controller_period_s
         if now >= next_step - 1e-9:     # the node's step timer
             learner.step(now)
+            if judge is not None:
+                judge.update_candidates(learner.correction)
             next_step += period
         report(loop.k / loop.ticks)
     learner.freeze()
-    return loop.result(), learner
+    if judge is not None:
+        judge.freeze()
+    return loop.result(), learner, judge
 
 
 def _chamber_batch(cfg: SimConfig, axis: AxisParams, temps: Sequence[float], short: bool,
@@ -654,6 +708,7 @@ def run_study(config: SimConfig, axis: AxisParams | None = None, *,
     reversal: list[ReversalTrace] = []
     learned: dict[str, Correction] = {}
     learners: dict[str, Learner] = {}
+    judges: dict[str, LoopJudge] = {}
     chamber_info: dict[str, Any] | None = None
     presliding: PreslidingTerm | None = None
 
@@ -669,8 +724,8 @@ def run_study(config: SimConfig, axis: AxisParams | None = None, *,
     if want_refit or want_learned:
         t0 = time.perf_counter()
         label = 'service history (learning)'
-        result, learner = _learning_batch(cfg, axis, ff, history, temps, lrn, est, want_learned,
-                                          reporter(label, done, weights['learning']))
+        result, learner, judge = _learning_batch(cfg, axis, ff, history, temps, lrn, est, want_learned,
+                                                 reporter(label, done, weights['learning']))
         done += weights['learning']
         ff_runs = [i for i, r in enumerate(result.runs) if r.case == 'feedforward']
         if learner is not None:
@@ -693,6 +748,18 @@ def run_study(config: SimConfig, axis: AxisParams | None = None, *,
                          f'ripple periods found: {periods}; largest |correction| '
                          f'{summ["max_abs_correction_nm"] * 1e3:.3f} N*mm, largest direction-independent torque '
                          f'{summ["max_abs_unbalance_nm"] * 1e3:.3f} N*mm, {summ["saturated_cells"]} saturated cells')
+            if judge is not None:
+                judges['history'] = judge
+                js = judge.summary()
+                verdicts = '; '.join(f'{c["direction"]} {c["centre_c"]:+.1f} degC {c["state"]} (x{c["ratio"]:.3f}, '
+                                     f'z {c["z"]:.1f}, {c["blocks_on"]}/{c["blocks_off"]} blocks on/off)'
+                                     for c in js['joints'][JOINT])
+                notes.append(f'learned: judged by the loop (blocks of {judge.settings.block_s:g} s, '
+                             f'{js["on_share"]:.2f} of them on while testing): {js["cells_applied"]} cells applied, '
+                             f'{js["cells_withdrawn"]} withdrawn, {js["cells_testing"]} still in test; '
+                             f'{verdicts or "no cell tested"}')
+            else:
+                notes.append('learned: not judged by the loop (the residual guard alone)')
         wall[label] = time.perf_counter() - t0
         if want_dynamic and learner is not None:
             t1 = time.perf_counter()
@@ -742,12 +809,15 @@ def run_study(config: SimConfig, axis: AxisParams | None = None, *,
                 comps[c] = ff.compensator(refit_params)
             elif c == 'learned':
                 comps[c] = ff.compensator(axis, correction=learned['history'])
-            elif c == 'dynamic':
+                if 'history' in judges:    # the cells the loop applied only (frozen)
+                    comps[c] = judged_compensator(ff.compensator(axis), comps[c], judges['history'])
+            elif c in ('dynamic', 'dynamic_unguarded') and (c == 'dynamic' or presliding is not None):
+                term = presliding if c == 'dynamic' or presliding is None else presliding.unguarded()
                 comps[c] = dynamic_feedforward(axis, ff.settings, velocity_source=ff.velocity_source,
-                                               correction=learned['history'], presliding=presliding)
-            elif c == 'dynamic_unguarded' and presliding is not None:
-                comps[c] = dynamic_feedforward(axis, ff.settings, velocity_source=ff.velocity_source,
-                                               correction=learned['history'], presliding=presliding.unguarded())
+                                               correction=learned['history'], presliding=term)
+                if 'history' in judges:    # the learned cells the loop applied only, as case learned
+                    plain = dynamic_feedforward(axis, ff.settings, velocity_source=ff.velocity_source, presliding=term)
+                    comps[c] = judged_compensator(plain, comps[c], judges['history'])
             elif c == CASE_CHAMBER:
                 comps[c] = ff.compensator(axis, correction=learned['chamber'])
             elif c == 'bound':
@@ -767,7 +837,7 @@ def run_study(config: SimConfig, axis: AxisParams | None = None, *,
     records.sort(key=lambda r: (prof_order.get(r['profile'], 99), order[r['case']], r['temperature_c']))
     reversal.sort(key=lambda t: order[t.case])
     return StudyResult(records, reversal, outcome, notes, wall, cfg, learned or None, learners or None, chamber_info,
-                       presliding)
+                       presliding, judges or None)
 
 
 def _learn_presliding(result: BatchResult, axis: AxisParams, ff: FeedforwardSetup, correction: Correction,

@@ -12,7 +12,14 @@ import pytest
 from gimbal_friction.common.errors import GimbalFrictionError
 from gimbal_friction.runs import loop_live
 from gimbal_friction.runs.loop_study import load_study_inputs
-from gimbal_friction.runs.loop_wiring import LOOP_NODES, SimRun, closed_loop, loop_nodes, write_parameter_files
+from gimbal_friction.runs.loop_wiring import (
+    LOOP_ERROR_REMAP,
+    LOOP_NODES,
+    SimRun,
+    closed_loop,
+    loop_nodes,
+    write_parameter_files,
+)
 
 
 def test_the_loop_is_three_nodes_then_gimbal_sim_with_the_live_studys_defaults(tmp_path):
@@ -22,7 +29,12 @@ def test_the_loop_is_three_nodes_then_gimbal_sim_with_the_live_studys_defaults(t
     assert 'method: observer' in study and 'gimbal_sim:' in study
     specs = closed_loop(files, tmp_path / 'res', SimRun(duration_s=2.5))
     assert [(s.name, s.executable) for s in specs] == [(n, n) for n in (*LOOP_NODES, 'gimbal_sim')]
-    assert all(s.parameter_files == tuple(map(str, files)) and s.remappings == () for s in specs)
+    assert all(s.parameter_files == tuple(map(str, files)) for s in specs)
+    # the feedforward's loop-error input is the simulated seeker's LOS error (the loop judges the correction)
+    assert [s.remappings for s in specs] == [
+        ((LOOP_ERROR_REMAP,) if s.name == 'friction_feedforward' else ()) for s in specs]
+    assert LOOP_ERROR_REMAP == ('/gimbal/loop_error', '/gimbal_sim/los_error')
+    assert '-r' in specs[0].ros_args() and '/gimbal/loop_error:=/gimbal_sim/los_error' in specs[0].ros_args()
     assert [dict(s.parameters) for s in specs[:3]] == [{}, {}, {'output_dir': str(tmp_path / 'res')}]
     assert specs[3].parameters == {
         'environment_temperature_c': -40.0, 'profile': 'tracking', 'duration_s': 2.5, 'exit_when_done': True,

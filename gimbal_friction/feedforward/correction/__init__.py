@@ -8,6 +8,7 @@ One folder, imported bottom-up (no module imports one above it in this list):
 - :mod:`.fit` — the terms fitted from the rows (speed profile, ripple, trend, direction-independent torque);
 - :mod:`.lookup` — the applied terms as the feedforward reads them (odd and even parts, floats and arrays);
 - :mod:`.core` — :class:`Correction`: rows, candidate, the guard (test, then train), applied terms, reports;
+- :mod:`.judge` — :class:`~.judge.LoopJudge`: the loop's error judges each cell in randomised on/off blocks;
 - :mod:`.learner` — :class:`Learner`: in-service learning at a limited rate;
 - :mod:`.file` — the YAML file, read as untrusted input;
 - :mod:`.keeper` — :class:`CorrectionKeeper`: loaded, learned, saved in the background (what the node runs).
@@ -25,6 +26,7 @@ from gimbal_friction.feedforward.correction.settings import (
     RETIRED,
     CorrectionError,
     CorrectionSettings,
+    JudgeSettings,
     LearningSettings,
     ModelIdentity,
     model_identity,
@@ -32,5 +34,5 @@ from gimbal_friction.feedforward.correction.settings import (
 from gimbal_friction.feedforward.correction.stats import REASONS, gate_code
 
 __all__ = ['DIRECTIONS', 'GUARD_TERMS', 'LAYOUT', 'REASONS', 'RETIRED', 'R_FROZEN', 'R_UNKNOWN', 'Correction',
-           'CorrectionError', 'CorrectionKeeper', 'CorrectionSettings', 'Learner', 'LearningSettings', 'Loaded',
-           'ModelIdentity', 'Verdict', 'gate_code', 'load', 'load_file', 'model_identity', 'save']
+           'CorrectionError', 'CorrectionKeeper', 'CorrectionSettings', 'JudgeSettings', 'Learner', 'LearningSettings',
+           'Loaded', 'ModelIdentity', 'Verdict', 'gate_code', 'load', 'load_file', 'model_identity', 'save']

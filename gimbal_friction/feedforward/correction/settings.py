@@ -17,8 +17,8 @@ from typing import Any, NamedTuple
 from gimbal_friction.common.errors import GimbalFrictionError, check_rules
 from gimbal_friction.common.settings import setting
 
-__all__ = ['DIRECTIONS', 'FIT_WORKERS', 'LAYOUT', 'RETIRED', 'CorrectionError', 'CorrectionSettings',
-           'LearningSettings', 'ModelIdentity', 'model_identity']
+__all__ = ['DIRECTIONS', 'FIT_WORKERS', 'JUDGE_MODES', 'LAYOUT', 'RETIRED', 'CorrectionError', 'CorrectionSettings',
+           'JudgeSettings', 'LearningSettings', 'ModelIdentity', 'model_identity']
 
 #: the two directions of motion: ``cw`` (v > 0, the paper's clockwise) and ``ccw`` (v < 0)
 DIRECTIONS = ('cw', 'ccw')
@@ -28,6 +28,9 @@ LAYOUT = ('temperature_min_c', 'temperature_max_c', 'temperature_bin_c', 'min_sp
           'speed_bins', 'position_resolution_rad')
 #: where in-service refits run (``fit_worker``): a child process, a thread, or inline in the learner's step
 FIT_WORKERS = ('process', 'thread', 'inline')
+#: when the loop's error judges the correction (``learning_judge``): ``auto`` while a loop-error input has a
+#: publisher, ``on`` always (cells wait for loop error), ``off`` never (the residual guard alone)
+JUDGE_MODES = ('auto', 'on', 'off')
 #: settings of earlier versions that no longer exist, and why (a parameter file naming one still loads; the node
 #: says once that it has no effect)
 RETIRED = {
@@ -161,6 +164,9 @@ class LearningSettings:
                               'priority), thread, or inline (in the step, delaying the feedforward)')
     fit_timeout_s: float = setting(30.0, 's', 'a refit still running after this long is counted as timed out '
                                    '(a process worker is stopped and restarted)')
+    judge: str = setting('auto', '-', "the loop's error judges each cell of the correction in randomised on/off "
+                         'blocks (/gimbal/loop_error): auto (while that topic has a publisher), on, or off (the '
+                         'residual guard alone)')
 
     def validate(self) -> None:
         """Raises ConfigError naming the setting and the rule it breaks."""
@@ -168,7 +174,56 @@ class LearningSettings:
                             'must lie in (0, 1] [N*m/min]'),
                            ('step_period_s', 0.0 < self.step_period_s <= 3600.0, 'must lie in (0, 3600] [s]'),
                            ('fit_worker', self.fit_worker in FIT_WORKERS, f'must be one of {", ".join(FIT_WORKERS)}'),
-                           ('fit_timeout_s', 0.0 < self.fit_timeout_s <= 3600.0, 'must lie in (0, 3600] [s]')])
+                           ('fit_timeout_s', 0.0 < self.fit_timeout_s <= 3600.0, 'must lie in (0, 3600] [s]'),
+                           ('judge', self.judge in JUDGE_MODES, f'must be one of {", ".join(JUDGE_MODES)}')])
+
+
+@dataclass(frozen=True)
+class JudgeSettings:
+    """Settings of the loop's judge of the correction
+    (:class:`~gimbal_friction.feedforward.correction.judge.LoopJudge`; the node's ``judge_*`` parameters)."""
+
+    block_s: float = setting(0.2, 's', 'time is cut into blocks this long; the candidate of a cell in test is on or '
+                             'off for a whole block')
+    on_share: float = setting(0.5, '-', 'share of the blocks a cell in test has its candidate on (one block on in '
+                              'every group of round(1/this) blocks, chosen at random): bounds the cost of a test')
+    z: float = setting(2.5, '-', 'a cell is applied when the loop error with its candidate on is lower than off by '
+                       'this many standard errors (ln mean squared LOS rate error, on - off)')
+    stop_z: float = setting(2.0, '-', 'a test is stopped (the cell withdrawn to the model) when the loop error with '
+                            'the candidate on is higher by this many standard errors; an applied cell likewise')
+    min_blocks: int = setting(4, '-', 'blocks on and off each a cell needs before a verdict')
+    max_blocks: int = setting(200, '-', 'a test that has not shown a gain after this many blocks on is withdrawn')
+    applied_off_share: float = setting(0.1, '-', 'an applied cell keeps its candidate off for this share of the '
+                                       'blocks, so later data can withdraw it')
+    settle_s: float = setting(0.05, 's', 'loop error of the first this long of every block is not counted (the loop '
+                              'settling after a switch)')
+    error_cap_rad_s: float = setting(0.05, 'rad/s', 'a loop-error sample counts at most this large (a slew or a '
+                                     "target's jump makes errors no friction feedforward causes; a worse candidate "
+                                     'still shows: its errors count up to this)')
+    min_block_samples: int = setting(20, '-', 'loop-error samples a block needs in a cell and speed octave to count')
+    memory_groups: int = setting(200, '-', 'the contrast forgets with this many groups of blocks')
+    restart_relative: float = setting(0.25, '-', "a cell's test restarts when its candidate moved by this fraction "
+                                      'of its size since the test began (a new fit)')
+    seed: int = setting(0, '-', 'seed of the random choice of the blocks on')
+
+    def validate(self) -> None:
+        """Raises ConfigError naming the setting and the rule it breaks."""
+        check_rules(self, [
+            ('block_s', 0.01 <= self.block_s <= 3600.0, 'must lie in [0.01, 3600] [s]'),
+            ('on_share', 0.01 <= self.on_share <= 0.5, 'must lie in [0.01, 0.5] [-]'),
+            ('z', 0.0 < self.z <= 100.0, 'must lie in (0, 100] [-]'),
+            ('stop_z', 0.0 < self.stop_z <= 100.0, 'must lie in (0, 100] [-]'),
+            ('min_blocks', 2 <= self.min_blocks <= 10**6, 'must be an integer in [2, 1e6] [-]'),
+            ('max_blocks', self.min_blocks <= self.max_blocks <= 10**9,
+             'must be an integer in [min_blocks, 1e9] [-]'),
+            ('applied_off_share', 0.01 <= self.applied_off_share <= 0.5, 'must lie in [0.01, 0.5] [-]'),
+            ('settle_s', 0.0 <= self.settle_s < self.block_s, 'must lie in [0, block_s) [s]'),
+            ('error_cap_rad_s', 1e-6 <= self.error_cap_rad_s <= 1000.0, 'must lie in [1e-6, 1000] [rad/s]'),
+            ('min_block_samples', 1 <= self.min_block_samples <= 10**9, 'must be an integer in [1, 1e9] [-]'),
+            ('memory_groups', 2 <= self.memory_groups <= 10**9, 'must be an integer in [2, 1e9] [-]'),
+            ('restart_relative', 0.0 < self.restart_relative <= 10.0, 'must lie in (0, 10] [-]'),
+            ('seed', 0 <= self.seed <= 2**31 - 1, 'must be an integer in [0, 2^31 - 1] [-]'),
+        ])
 
 
 class ModelIdentity(NamedTuple):
