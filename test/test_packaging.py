@@ -223,7 +223,10 @@ def test_closed_loop_launch_file_starts_the_loop_as_loop_study_live(monkeypatch,
     for node, spec in zip(nodes, specs, strict=True):
         managed = [{'autostart': True}] if spec.name != 'gimbal_sim' else []   # the managed nodes get autostart
         assert node['parameters'] == [*map(str, launched), dict(spec.parameters), *managed], spec.name
-        assert node['remappings'] == list(spec.remappings) == [], spec.name
+        assert node['remappings'] == list(spec.remappings), spec.name
+        # the loop's error reaches the feedforward's judge; no other node is remapped
+        assert spec.remappings == ((('/gimbal/loop_error', '/gimbal_sim/los_error'),)
+                                   if spec.name == 'friction_feedforward' else ()), spec.name
     assert nodes[2]['parameters'][-2] == {'output_dir': str(work / 'residuals')}
     sim = nodes[3]['parameters'][-1]
     assert sim == {'environment_temperature_c': -40.0, 'profile': 'tracking',

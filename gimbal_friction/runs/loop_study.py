@@ -204,6 +204,7 @@ def study_document(result: StudyResult, inputs: StudyInputs, *, live: dict[str, 
         'refit': refit,
         'explained': explained,
         'learned': {p: c.summary() for p, c in (result.learned or {}).items()},
+        'judge': {p: j.summary() for p, j in (result.judges or {}).items()},   # case learned: the loop's verdicts
         'chamber': result.chamber,
         'notes': list(result.notes),
         'settings': {'axis': inputs.axis_name, 'velocity_source': inputs.feedforward.velocity_source,
