@@ -26,8 +26,10 @@ def test_the_real_feedforward_learns_saves_and_resumes_after_a_restart(tmp_path,
     pytest.importorskip('rclpy', reason='the live study needs the ros-* wheels (requirements.txt)')
     out = tmp_path / 'study'
     code = main(['loop-study', '--short', '--temperatures', '-40', '--profiles', 'tracking', '--cases', 'none',
-                 '--live', '--live-cases', 'learning', '--live-duration-s', '3', '--format', 'json',
-                 # the scan reverses every second: the learner moves a cell once it has both directions
+                 '--live', '--live-cases', 'learning', '--live-duration-s', '6', '--format', 'json',
+                 # the scan reverses every second: the learner moves a cell once it has both directions; 6 s per
+                 # run so that samples still arrive after the first periodic save on a loaded machine (with 3 s the
+                 # first save came after the last sample once, under the full suite on 2 cores)
                  '--live-profile', 'scan',
                  '--out', str(out)])
     captured = capsys.readouterr()
