@@ -247,6 +247,10 @@ def live_learning(*, sup: Any, watcher: Any, node_args: list[str], work_dir: Pat
     return report, runs, saved
 
 
+#: [s] a parameter request without an answer after this long is sent again
+RESEND_S = 2.0
+
+
 def _set_save_period(node: Any, watcher: Any, period_s: float, timeout_s: float) -> str | None:
     """Set friction_feedforward's ``learning_save_period_s`` [s] through its parameter service; the reason if not."""
     from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
@@ -256,11 +260,18 @@ def _set_save_period(node: Any, watcher: Any, period_s: float, timeout_s: float)
         if not client.wait_for_service(timeout_sec=timeout_s):
             return 'the parameter service did not answer'
         value = ParameterValue(type=ParameterType.PARAMETER_DOUBLE, double_value=float(period_s))
-        future = client.call_async(SetParameters.Request(parameters=[
-            Parameter(name='learning_save_period_s', value=value)]))
+        request = SetParameters.Request(parameters=[Parameter(name='learning_save_period_s', value=value)])
+        # asked again every RESEND_S without an answer (setting the same value twice is harmless): a new client's
+        # first response can be lost when the server answers before it has matched the client's response reader
+        # (seen under a loaded machine: the period stayed short and the SIGINT save had nothing left to prove)
         deadline = time.monotonic() + timeout_s
+        future = client.call_async(request)
+        asked = time.monotonic()
         while not future.done() and time.monotonic() < deadline:
             watcher.spin(0.05)
+            if not future.done() and time.monotonic() - asked > RESEND_S:
+                future = client.call_async(request)
+                asked = time.monotonic()
         if not future.done():
             return 'the parameter service did not answer'
         result = future.result().results[0]

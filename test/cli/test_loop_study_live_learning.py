@@ -44,6 +44,7 @@ def test_the_real_feedforward_learns_saves_and_resumes_after_a_restart(tmp_path,
     assert 0.0 <= lr['max_correction_nm'] < 0.05
     # saved periodically during the run, then (period lengthened) what was learned afterwards only by the SIGINT save
     assert lr['file_saved_periodic'] and 0 < lr['periodic_save_samples'] <= lr['samples_last']
+    assert lr['save_period_hold_error'] is None
     assert lr['stop_exit_code'] == 0 and lr['unsaved_samples_at_stop'] > 0 and lr['file_saved_at_shutdown']
     assert lr['shutdown_save_samples'] >= lr['samples_last']
     # the restarted node's first correction message holds what the file held, and it learns on in the second run
