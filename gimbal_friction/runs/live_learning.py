@@ -6,19 +6,22 @@ its ``gimbal_sim`` runs; the estimator in observer mode and the residual logger 
 1. starts ``friction_feedforward`` with learning on: ``learning_enabled``, ``correction_file`` =
    ``correction.yaml`` in the live work folder (absent: learning starts from an empty correction), the correction's
    layout and the learner's rate of the study's case ``learned`` (:class:`~gimbal_friction.sim.study.LearnSetup`,
-   a rate 100x the node default: service life squeezed into seconds), saved every :data:`SAVE_PERIOD_S` and
+   a rate 33x the node default: service life squeezed into seconds), saved every :data:`SAVE_PERIOD_S` and
    published every :data:`PUBLISH_PERIOD_S`; then runs ``gimbal_sim`` (case ``learning``), recording
    ``/gimbal/friction/correction`` with a subscription of the probe node and reading the file with the library's
    reader (:func:`~gimbal_friction.feedforward.correction.load`, the model's identity checked) whenever
    it changes;
-2. once a periodic save holds samples, sets ``learning_save_period_s`` to :data:`HOLD_SAVE_PERIOD_S` through the
-   node's parameter service, so what is learned afterwards reaches the file only through the shutdown save;
-3. after the run, stops the node with SIGINT (exit code 0) and reads the file again: the shutdown save must hold
-   at least the samples of the last correction message;
-4. restarts the node with the same file and compares its first correction message with the file: the same samples
-   in every cell, the applied values equal to the file's or moved from them towards the learned ones (the learner
-   steps on while it runs);
-5. runs ``gimbal_sim`` again (case ``learning_resumed``, same seed) with the correction it resumed (learning on).
+2. after the run, waits until the node has learned what it received (its ``/diagnostics`` learning status: no
+   sample pending or in a fit, twice in a row with the same counts) and a periodic save holds it, then stops the
+   node with SIGINT (exit code 0) and reads the file again;
+3. restarts the node on the same file with ``learning_save_period_s`` = :data:`HOLD_SAVE_PERIOD_S` and compares its
+   first correction message with the file: the same samples in every cell, the applied values equal to the file's
+   or moved from them towards the learned ones (the learner steps on while it runs);
+4. runs ``gimbal_sim`` again (case ``learning_resumed``, same seed) with the correction it resumed (learning on),
+   waits as in 2 and stops the node: what it learned reached the file only through its save at shutdown.
+
+Every wait is on a condition (the node's own counts), not on the machine's speed: the learner's worker runs at a
+lower priority and may fall seconds behind on a loaded machine.
 
 :func:`learning_report` turns what was seen into the ``learning`` object of the live section; its ``failure``
 names the first thing that did not happen (the command then exits non-zero).
@@ -56,11 +59,13 @@ RESUMED_CASE = 'learning_resumed'
 CORRECTION_FILE = 'correction.yaml'
 #: ``learning_save_period_s`` of the live learning run until its first periodic save [s]
 SAVE_PERIOD_S = 0.5
-#: ``learning_save_period_s`` after the first periodic save [s] (the parameter's maximum): what is learned
-#: afterwards reaches the file only through the save at shutdown
+#: ``learning_save_period_s`` of the restarted node [s] (the parameter's maximum): what it learns reaches the file only
+#: through its save at shutdown
 HOLD_SAVE_PERIOD_S = 86400.0
-#: ``correction_publish_period_s`` of the live learning runs [s]
+#: ``correction_publish_period_s`` and ``diagnostics_period_s`` of the live learning runs [s]
 PUBLISH_PERIOD_S = 0.25
+#: the ``/diagnostics`` status of the feedforward's learning
+LEARNING_STATUS = 'gimbal_friction/feedforward/learning'
 _FIRST, _RESTART = 'friction_feedforward_learning', 'friction_feedforward_restart'
 
 
@@ -114,13 +119,14 @@ def file_cells(c: Correction, joint: str) -> dict[tuple[str, str], tuple[int, fl
     return out
 
 
-def learning_parameters(learn: Any, correction_file: Path) -> dict[str, Any]:
-    """``friction_feedforward``'s parameters of the live learning run: learning on, ``correction_file``, the short
-    save and publish periods, and ``learn``'s (:class:`~gimbal_friction.sim.study.LearnSetup`) correction layout
+def learning_parameters(learn: Any, correction_file: Path, save_period_s: float = SAVE_PERIOD_S) -> dict[str, Any]:
+    """``friction_feedforward``'s parameters of the live learning run: learning on, ``correction_file``, the save
+    period ``save_period_s`` [s], the short publish and diagnostics periods, and ``learn``'s (:class:`~gimbal_friction.sim.study.LearnSetup`) correction layout
     and learning rate under their parameter names (``correction_*``, ``learning_*``) and its loop judge's
     (``judge_*``; ``learning_judge`` off without one)."""
     out: dict[str, Any] = {'learning_enabled': True, 'correction_file': str(correction_file),
-                           'learning_save_period_s': SAVE_PERIOD_S, 'correction_publish_period_s': PUBLISH_PERIOD_S}
+                           'learning_save_period_s': save_period_s, 'correction_publish_period_s': PUBLISH_PERIOD_S,
+                           'diagnostics_period_s': PUBLISH_PERIOD_S}
     judge = getattr(learn, 'judge', None)
     for (prefix, cls), settings in zip(FEEDFORWARD_PREFIXED, (learn.correction, learn.learning, judge), strict=True):
         settings = settings if settings is not None else cls()
@@ -165,7 +171,7 @@ def live_learning(*, sup: Any, watcher: Any, node_args: list[str], work_dir: Pat
                   run_sim: Callable[[str, Callable[[], None]], Any], wait_connected: Callable[[], None],
                   log: Callable[[str], None], timeout_s: float
                   ) -> tuple[dict[str, Any], dict[str, Any], Correction | None]:
-    """Steps 1-5 of the module docstring; returns (the ``learning`` report, the ``gimbal_sim`` runs by case, the
+    """Steps 1-4 of the module docstring; returns (the ``learning`` report, the ``gimbal_sim`` runs by case, the
     correction the file held when the node was restarted: None if unreadable).
 
     ``run_sim(case, tick)`` runs ``gimbal_sim`` with the feedforward (calling ``tick`` while it waits, about every
@@ -180,21 +186,31 @@ def live_learning(*, sup: Any, watcher: Any, node_args: list[str], work_dir: Pat
         msg = (f'{path} already exists: live learning starts from an empty correction (delete it or choose another '
                '--out)')
         raise GimbalFrictionError(msg)
-    params = work_dir / 'learning.yaml'
-    params.write_text(yaml.safe_dump({'friction_feedforward': {'ros__parameters': learning_parameters(learn, path)}},
-                                     sort_keys=False), encoding='utf-8')
-    args = [*node_args, '--params-file', str(params)]
+
+    def node_args_with(name: str, save_period_s: float) -> list[str]:
+        params = work_dir / name
+        doc = {'friction_feedforward': {'ros__parameters': learning_parameters(learn, path, save_period_s)}}
+        params.write_text(yaml.safe_dump(doc, sort_keys=False), encoding='utf-8')
+        return [*node_args, '--params-file', str(params)]
+
     states: list[CorrectionState] = []
+    learning: list[tuple[float, dict[str, str]]] = []
 
     def on_correction(msg: Any) -> None:
         s = correction_state(msg, joint)
         if s is not None:
             states.append(s)
 
+    def on_diagnostics(msg: Any) -> None:
+        stamp = msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec
+        learning.extend((stamp, {kv.key: kv.value for kv in st.values}) for st in msg.status
+                        if st.name == LEARNING_STATUS)
+
     node = watcher.node
     node.create_subscription(DiagnosticArray, topics.CORRECTION, on_correction, 100)
+    node.create_subscription(DiagnosticArray, topics.DIAGNOSTICS, on_diagnostics, 100)
     files = _FileWatch(path, model_identity({joint: inputs.axis}))
-    seen: dict[str, Any] = {'periodic_samples': 0, 'hold_error': None}
+    seen = {'periodic_samples': 0}
 
     def spin_until(cond: Callable[[], bool], what: str) -> None:
         deadline = time.monotonic() + timeout_s
@@ -209,88 +225,80 @@ def live_learning(*, sup: Any, watcher: Any, node_args: list[str], work_dir: Pat
         wait_connected()
         spin_until(lambda: any(s.stamp_s >= t0 for s in states), 'no correction message from the new node')
 
+    def settled(t_end: float) -> bool:
+        """The node has learned what it received: its last two learning statuses (both after ``t_end``) with nothing
+        pending or in a fit and the same counts, and a correction message with those samples."""
+        last = [v for stamp, v in learning if stamp >= t_end][-2:]
+        if len(last) < 2 or not states or states[-1].stamp_s < t_end:
+            return False
+        counts = [(v.get('samples_pending'), v.get('samples_in_fit'), v.get('samples_used'),
+                   v.get('samples_in_correction')) for v in last]
+        return (counts[0] == counts[1] and counts[0][:2] == ('0', '0')
+                and str(states[-1].samples) == counts[0][3])
+
     def tick() -> None:
         watcher.spin(0.1)
         if files.poll() and not seen['periodic_samples'] and files.samples() > 0:
             seen['periodic_samples'] = files.samples()
-            seen['hold_error'] = _set_save_period(node, watcher, HOLD_SAVE_PERIOD_S, timeout_s)
 
     log(f'loop-study --live: friction_feedforward learning into {path}')
     t_first = time.time()
-    sup.start_as(_FIRST, 'friction_feedforward', args)
+    sup.start_as(_FIRST, 'friction_feedforward', node_args_with('learning.yaml', SAVE_PERIOD_S))
     started(t_first)
     runs = {LEARNING_CASE: run_sim(LEARNING_CASE, tick)}
-    # the estimator's last samples reach the node: two correction messages in a row with the same samples
-    n_end = len(states)
-    spin_until(lambda: len(states) >= n_end + 2 and states[-1].samples == states[-2].samples,
-               'the correction did not settle after the run')
-    files.poll()
-    before_stop = (files.key, files.samples())
+    t_end = time.time()
+    spin_until(lambda: settled(t_end), 'the learning did not settle after the run')
     last = states[-1]
+    # the periodic save catches up with what was learned (before the stop: the stop's own save proves nothing here)
+    spin_until(lambda: (tick(), files.samples() >= last.samples)[1], 'no periodic save of what was learned')
     code = sup.stop(_FIRST)
     files.poll()
-    after_key, after_samples, after_error = files.key, files.samples(), files.error
+    shutdown_samples, shutdown_error = files.samples(), files.error
     saved = files.correction
     log(f'loop-study --live: friction_feedforward stopped (code {code}); restarting it on {path}')
     t_restart = time.time()
-    sup.start_as(_RESTART, 'friction_feedforward', args)
+    sup.start_as(_RESTART, 'friction_feedforward', node_args_with('learning_resumed.yaml', HOLD_SAVE_PERIOD_S))
     started(t_restart)
     resumed = next(s for s in states if s.stamp_s >= t_restart)
     runs[RESUMED_CASE] = run_sim(RESUMED_CASE, lambda: watcher.spin(0.1))
+    t_end = time.time()
+    spin_until(lambda: settled(t_end), 'the learning did not settle after the resumed run')
+    files.poll()
+    before_stop = (files.key, files.samples())
+    last_resumed = states[-1]
+    code_resumed = sup.stop(_RESTART)
+    files.poll()
     first = [s for s in states if s.stamp_s < t_restart]
     second = [s for s in states if s.stamp_s >= t_restart]
     report = learning_report(
         first=first, second=second, resumed=resumed, saved=saved, joint=joint, path=path,
-        periodic_samples=seen['periodic_samples'], hold_error=seen['hold_error'], stop_code=code,
-        unsaved_at_stop=last.samples - before_stop[1], file_changed_at_stop=after_key != before_stop[0],
-        shutdown_samples=after_samples, file_error=after_error)
+        periodic_samples=seen['periodic_samples'], stop_code=code, shutdown_samples=shutdown_samples,
+        file_error=shutdown_error, resumed_stop_code=code_resumed,
+        unsaved_at_stop=last_resumed.samples - before_stop[1], file_changed_at_stop=files.key != before_stop[0],
+        resumed_shutdown_samples=files.samples(), resumed_file_error=files.error)
     return report, runs, saved
 
 
-#: [s] a parameter request without an answer after this long is sent again
-RESEND_S = 2.0
-
-
-def _set_save_period(node: Any, watcher: Any, period_s: float, timeout_s: float) -> str | None:
-    """Set friction_feedforward's ``learning_save_period_s`` [s] through its parameter service; the reason if not."""
-    from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
-    from rcl_interfaces.srv import SetParameters
-    client = node.create_client(SetParameters, '/friction_feedforward/set_parameters')
-    try:
-        if not client.wait_for_service(timeout_sec=timeout_s):
-            return 'the parameter service did not answer'
-        value = ParameterValue(type=ParameterType.PARAMETER_DOUBLE, double_value=float(period_s))
-        request = SetParameters.Request(parameters=[Parameter(name='learning_save_period_s', value=value)])
-        # asked again every RESEND_S without an answer (setting the same value twice is harmless): a new client's
-        # first response can be lost when the server answers before it has matched the client's response reader
-        # (seen under a loaded machine: the period stayed short and the SIGINT save had nothing left to prove)
-        deadline = time.monotonic() + timeout_s
-        future = client.call_async(request)
-        asked = time.monotonic()
-        while not future.done() and time.monotonic() < deadline:
-            watcher.spin(0.05)
-            if not future.done() and time.monotonic() - asked > RESEND_S:
-                future = client.call_async(request)
-                asked = time.monotonic()
-        if not future.done():
-            return 'the parameter service did not answer'
-        result = future.result().results[0]
-        return None if result.successful else f'refused: {result.reason}'
-    finally:
-        node.destroy_client(client)
-
-
 def learning_report(*, first: list[CorrectionState], second: list[CorrectionState], resumed: CorrectionState,
-                    saved: Correction | None, joint: str, path: Path, periodic_samples: int, hold_error: str | None,
-                    stop_code: int | None, unsaved_at_stop: int, file_changed_at_stop: bool, shutdown_samples: int,
-                    file_error: str | None) -> dict[str, Any]:
-    """The ``learning`` object of the live section (see docs/closed-loop.md); ``failure`` is None or one line."""
+                    saved: Correction | None, joint: str, path: Path, periodic_samples: int, stop_code: int | None,
+                    shutdown_samples: int, file_error: str | None, resumed_stop_code: int | None,
+                    unsaved_at_stop: int, file_changed_at_stop: bool, resumed_shutdown_samples: int,
+                    resumed_file_error: str | None) -> dict[str, Any]:
+    """The ``learning`` object of the live section (see docs/closed-loop.md); ``failure`` is None or one line.
+
+    ``stop_code``, ``shutdown_samples`` and ``file_error``: the first node's SIGINT and the file after it;
+    ``resumed_*``, ``unsaved_at_stop`` (samples the restarted node learned, never saved periodically) and
+    ``file_changed_at_stop``: the restarted node's SIGINT and the file after it.
+    """
     samples_first = first[0].samples if first else 0
     samples_last = first[-1].samples if first else 0
+    resumed_last = second[-1].samples if second else 0
     distinct = len({s.key() for s in first})
     changed = distinct >= 2 and samples_last > samples_first
     complete = file_error is None and shutdown_samples > 0 and shutdown_samples >= samples_last
-    saved_at_shutdown = complete and stop_code == 0 and file_changed_at_stop
+    resumed_complete = (resumed_file_error is None and resumed_shutdown_samples >= resumed_last
+                        and resumed_stop_code == 0)
+    saved_at_shutdown = resumed_complete and unsaved_at_stop > 0 and file_changed_at_stop
     # the restart resumes: its first message holds the file's cells with their samples, and applied values equal to
     # the file's or moved from them towards the learned ones (the learner steps while it runs; 6 digits on the topic)
     want = file_cells(saved, joint) if saved is not None else {}
@@ -312,12 +320,19 @@ def learning_report(*, first: list[CorrectionState], second: list[CorrectionStat
     elif not complete:
         failure = (f'after the stop the correction file {path} does not hold what was learned '
                    f'({file_error or f"{shutdown_samples} samples, the last message had {samples_last}"})')
-    elif unsaved_at_stop > 0 and not file_changed_at_stop:
-        failure = f'{unsaved_at_stop} samples learned after the periodic save but no save at shutdown'
     elif not restart_resumed:
         failure = (f'the restart did not resume the file: first message {resumed.samples} samples in '
                    f'{resumed.cells_with_data} cells, the file {shutdown_samples} samples in {len(want)} cells '
                    f'(largest applied-value difference {diff:.3g} N*m)')
+    elif resumed_last <= resumed.samples:
+        failure = f'the restarted friction_feedforward learned nothing in its run ({resumed.samples} samples)'
+    elif resumed_stop_code != 0:
+        failure = f'the restarted friction_feedforward exited with code {resumed_stop_code} at SIGINT'
+    elif not resumed_complete:
+        failure = (f'after the restarted node\'s stop the correction file {path} does not hold what it learned '
+                   f'({resumed_file_error or f"{resumed_shutdown_samples} samples, its last message had {resumed_last}"})')
+    elif not saved_at_shutdown:
+        failure = f'{unsaved_at_stop} samples learned after the restart but no save at shutdown'
     return {
         'correction_file': str(path),
         'correction_messages': len(first), 'distinct_states': distinct, 'correction_changed': changed,
@@ -325,12 +340,12 @@ def learning_report(*, first: list[CorrectionState], second: list[CorrectionStat
         'cells_with_data_last': first[-1].cells_with_data if first else 0,
         'max_correction_nm': max((s.max_abs_correction_nm for s in first), default=0.0),
         'file_saved_periodic': periodic_samples > 0, 'periodic_save_samples': periodic_samples,
-        'save_period_hold_error': hold_error,
-        'stop_exit_code': stop_code, 'unsaved_samples_at_stop': unsaved_at_stop,
-        'file_saved_at_shutdown': saved_at_shutdown, 'shutdown_save_samples': shutdown_samples,
+        'stop_exit_code': stop_code, 'shutdown_save_samples': shutdown_samples,
         'restart_resumed': restart_resumed, 'restart_samples': resumed.samples,
         'restart_cells_with_data': resumed.cells_with_data, 'restart_max_value_difference_nm': diff,
         'resumed_run_correction_messages': len(second),
-        'resumed_run_samples_last': second[-1].samples if second else 0,
+        'resumed_run_samples_last': resumed_last,
+        'resumed_stop_exit_code': resumed_stop_code, 'unsaved_samples_at_stop': unsaved_at_stop,
+        'file_saved_at_shutdown': saved_at_shutdown, 'resumed_shutdown_save_samples': resumed_shutdown_samples,
         'ok': failure is None, 'failure': failure,
     }
