@@ -121,9 +121,9 @@ def file_cells(c: Correction, joint: str) -> dict[tuple[str, str], tuple[int, fl
 
 def learning_parameters(learn: Any, correction_file: Path, save_period_s: float = SAVE_PERIOD_S) -> dict[str, Any]:
     """``friction_feedforward``'s parameters of the live learning run: learning on, ``correction_file``, the save
-    period ``save_period_s`` [s], the short publish and diagnostics periods, and ``learn``'s (:class:`~gimbal_friction.sim.study.LearnSetup`) correction layout
-    and learning rate under their parameter names (``correction_*``, ``learning_*``) and its loop judge's
-    (``judge_*``; ``learning_judge`` off without one)."""
+    period ``save_period_s`` [s], the short publish and diagnostics periods, and ``learn``'s
+    (:class:`~gimbal_friction.sim.study.LearnSetup`) correction layout and learning rate under their parameter names
+    (``correction_*``, ``learning_*``) and its loop judge's (``judge_*``; ``learning_judge`` off without one)."""
     out: dict[str, Any] = {'learning_enabled': True, 'correction_file': str(correction_file),
                            'learning_save_period_s': save_period_s, 'correction_publish_period_s': PUBLISH_PERIOD_S,
                            'diagnostics_period_s': PUBLISH_PERIOD_S}
@@ -250,7 +250,11 @@ def live_learning(*, sup: Any, watcher: Any, node_args: list[str], work_dir: Pat
     spin_until(lambda: settled(t_end), 'the learning did not settle after the run')
     last = states[-1]
     # the periodic save catches up with what was learned (before the stop: the stop's own save proves nothing here)
-    spin_until(lambda: (tick(), files.samples() >= last.samples)[1], 'no periodic save of what was learned')
+    def saved_all() -> bool:
+        tick()
+        return files.samples() >= last.samples
+
+    spin_until(saved_all, 'no periodic save of what was learned')
     code = sup.stop(_FIRST)
     files.poll()
     shutdown_samples, shutdown_error = files.samples(), files.error
@@ -329,8 +333,8 @@ def learning_report(*, first: list[CorrectionState], second: list[CorrectionStat
     elif resumed_stop_code != 0:
         failure = f'the restarted friction_feedforward exited with code {resumed_stop_code} at SIGINT'
     elif not resumed_complete:
-        failure = (f'after the restarted node\'s stop the correction file {path} does not hold what it learned '
-                   f'({resumed_file_error or f"{resumed_shutdown_samples} samples, its last message had {resumed_last}"})')
+        held = resumed_file_error or f'{resumed_shutdown_samples} samples, its last message had {resumed_last}'
+        failure = f"after the restarted node's stop the correction file {path} does not hold what it learned ({held})"
     elif not saved_at_shutdown:
         failure = f'{unsaved_at_stop} samples learned after the restart but no save at shutdown'
     return {

@@ -335,9 +335,10 @@ def _live_learning_lines(lr: dict[str, Any]) -> list[str]:
              f'applied correction {_fmt(lr["max_correction_nm"], 1e3, 4)} N*mm')
     file = (f'  file: periodic save {"yes" if lr["file_saved_periodic"] else "NO"} ({lr["periodic_save_samples"]} '
             f'samples), {lr["shutdown_save_samples"]} samples after the SIGINT (exit code {lr["stop_exit_code"]}); '
-            f'the restarted node (no periodic save) saved at its SIGINT {"yes" if lr["file_saved_at_shutdown"] else "NO"} '
-            f'({lr["unsaved_samples_at_stop"]} samples learned since the restart, {lr["resumed_shutdown_save_samples"]} '
-            f'in the file; exit code {lr["resumed_stop_exit_code"]})')
+            f'the restarted node (no periodic save) saved at its SIGINT '
+            f'{"yes" if lr["file_saved_at_shutdown"] else "NO"} ({lr["unsaved_samples_at_stop"]} samples learned since '
+            f'the restart, {lr["resumed_shutdown_save_samples"]} in the file; exit code '
+            f'{lr["resumed_stop_exit_code"]})')
     restart = (f'  restart on the file: {"resumed" if lr["restart_resumed"] else "NOT resumed"} '
                f'({lr["restart_samples"]} samples in {lr["restart_cells_with_data"]} cells; largest applied-value '
                f'difference {_fmt(lr["restart_max_value_difference_nm"], 1e3, 6)} N*mm); LOS rate RMS '
