@@ -43,7 +43,8 @@ class LoggerReport:
     """The statuses of one residual logger, report after report (it remembers the counts of the last report)."""
 
     def __init__(self) -> None:
-        self._reported: dict[str, int] = {}
+        self._reported: dict[str, int] = {}          # refusals per reason, as of the last report
+        self._reported_errors: dict[str, int] = {}   # callback errors per kind, as of the last report
 
     def statuses(self, *, active: bool, error: str | None, folder: object | None, stats: ResidualLogStats | None,
                  counts: Mapping[str, int], temperature_reliable: bool, refused: Mapping[str, int],
@@ -83,10 +84,9 @@ class LoggerReport:
         values.update(input_values or {})
         errors = dict(errors or {})
         values.update(errors)
-        # (the refusals' counts above replace the errors' of the last report: a failed callback keeps the status
-        # at ERROR from then on, as the node always did)
-        new_errors = {k: n for k, n in errors.items() if n > self._reported.get(k, 0)}
-        self._reported.update(errors)
+        # ERROR only in the report after a callback failed (as the other nodes): the counts stay in the values
+        new_errors = {k: n for k, n in errors.items() if n > self._reported_errors.get(k, 0)}
+        self._reported_errors = errors
         if new_errors:
             level, message = ERROR, f'a callback failed (see values); {message}'
         return [status('gimbal_friction/residual_logger', level, message, 'residual_logger', values),

@@ -38,3 +38,6 @@ def test_logging_then_refusals_warn_for_one_report_and_a_write_error_is_an_error
     assert dict(main.values)['folder'] == 'none' and dict(main.values)['current_file'] == 'none'
     (main,) = report.statuses(active=True, error=None, refused={}, errors={'callback error: KeyError: x': 1}, **common)
     assert main.level == ERROR and main.message == 'a callback failed (see values); logging'
+    # the next report without a new failure is back to OK, the count still in its values
+    (main,) = report.statuses(active=True, error=None, refused={}, errors={'callback error: KeyError: x': 1}, **common)
+    assert main.level == OK and dict(main.values)['callback error: KeyError: x'] == '1'
