@@ -45,7 +45,7 @@ from gimbal_friction.feedforward.rule import (
 )
 from gimbal_friction.physics.params import AxisParams
 from gimbal_friction.recording import topics
-from gimbal_friction.recording.bag import ChamberBag, RawBatch, default_typestore, open_chamber_bag
+from gimbal_friction.recording.bag import ChamberBag, RawBatch, open_chamber_bag
 from gimbal_friction.recording.cdr import float64_multi_array_cdr_rows, joint_state_cdr_rows, row_blobs
 from gimbal_friction.recording.errors import EmptyInputError, RecordingError
 from gimbal_friction.recording.residual_log import ResidualLogWriter
@@ -189,8 +189,7 @@ def _replay_bag(bag_path: str | Path, out_dir: str | Path | None, *, config_path
     residual_dir = None
     if out_dir is not None:
         residual_dir = Path(out_dir) / 'residuals'
-        with ResidualLogWriter(residual_dir, flush_interval_s=None, chunk_size=1 << 20,
-                               typestore=default_typestore()) as writer:
+        with ResidualLogWriter(residual_dir, flush_interval_s=None, chunk_size=1 << 20) as writer:
             report('serializing log', 0.0)
             log_topics, ids, logs, datas, lengths = _log_stream(ff, measured, measured_log, rows, raw)
             report('writing residual log', 0.0)

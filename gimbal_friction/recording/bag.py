@@ -461,8 +461,6 @@ def open_chamber_bag(
             sources = ', '.join(repr(k) for k, v in joints.items() if v == name)
             msg = f'joint map: recorded joints {sources} are all mapped to {name!r}; map one joint to each name'
             raise RecordingError(msg)
-    store = typestore or default_typestore()
-
     try:
         with Reader(bag) as reader:
             bag_topics: dict[str, tuple[str, int]] = {}
@@ -521,7 +519,7 @@ def open_chamber_bag(
         topics=topics,
         start_ns=int(start_ns),
         duration_ns=int(duration_ns),
-        typestore=store,
+        typestore=typestore,
         joint_map=joints,
         axes=axes,
     )
@@ -546,7 +544,7 @@ class ChamberBag:
         topics: dict[str, TopicInfo],
         start_ns: int,
         duration_ns: int,
-        typestore: Typestore,
+        typestore: Typestore | None,
         joint_map: dict[str, str] | None = None,
         axes: Sequence[str] | None = None,
     ) -> None:
@@ -560,7 +558,7 @@ class ChamberBag:
         self.start_ns = start_ns
         #: log time of the last message minus that of the first [ns]
         self.duration_ns = duration_ns
-        self.typestore = typestore
+        self._typestore = typestore
         #: recorded joint name -> configured joint name
         self.joint_map = dict(joint_map or {})
         #: configured axes a read of the arrays must find (empty: not checked)
@@ -569,6 +567,13 @@ class ChamberBag:
         for contract, recorded in topic_map.items():
             self._bag_to_contracts.setdefault(recorded, []).append(contract)
         self._private_store: Typestore | None = None
+
+    @property
+    def typestore(self) -> Typestore:
+        """The type store for the messages the fast decoders do not read: the one given to
+        :func:`open_chamber_bag`, else :func:`~.cdr.default_typestore` (built on first use: a bag of plain CDR
+        messages is read without one)."""
+        return self._typestore if self._typestore is not None else default_typestore()
 
     def __repr__(self) -> str:
         """Path and topics."""

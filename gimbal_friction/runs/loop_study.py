@@ -428,14 +428,13 @@ def write_residual_log(measurements: MeasurementArrays, rows: ResidualRows, fold
         RecordingError: the folder already holds a log or cannot be written.
     """
     from gimbal_friction.recording import topics
-    from gimbal_friction.recording.bag import default_typestore
     from gimbal_friction.recording.cdr import float64_multi_array_cdr_rows, joint_state_cdr_rows, split_rows
     from gimbal_friction.recording.residual_log import ResidualLogWriter
 
     log_topics = [(topics.MEASURED, topics.JOINT_STATE_TYPE), (topics.MEASURED_DETAIL, topics.FLOAT64_MULTI_ARRAY_TYPE),
                   (topics.RESIDUAL, topics.JOINT_STATE_TYPE), (topics.RESIDUAL_DETAIL, topics.FLOAT64_MULTI_ARRAY_TYPE)]
     n = len(rows)
-    with ResidualLogWriter(folder, flush_interval_s=None, chunk_size=1 << 20, typestore=default_typestore()) as w:
+    with ResidualLogWriter(folder, flush_interval_s=None, chunk_size=1 << 20) as w:
         if n == 0:
             return 0
         m_detail, r_detail = detail_matrix(measurements), rows.matrix()
